@@ -1,0 +1,82 @@
+"""Small input checks shared by the modules of :mod:`filters`.
+
+They turn bad input into :mod:`filters.errors` exceptions whose message names
+the argument, what it was, and what was expected.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from filters.errors import InvalidArrayError, InvalidParameterError
+
+
+def finite_array(
+    name: str,
+    value: object,
+    *,
+    ndim: int | None = None,
+    shape: Sequence[int | None] | None = None,
+) -> np.ndarray:
+    """Return ``value`` as a finite float64 array, or raise ``InvalidArrayError``.
+
+    Parameters
+    ----------
+    name
+        Name of the argument, used in the error message.
+    value
+        Anything ``np.asarray`` accepts.
+    ndim
+        Required number of dimensions, if any.
+    shape
+        Required shape; ``None`` entries match any length.
+    """
+    try:
+        array = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise InvalidArrayError(f"{name} must be a numeric array, got {value!r}") from exc
+    if ndim is not None and array.ndim != ndim:
+        raise InvalidArrayError(
+            f"{name} must have {ndim} dimension(s), got shape {array.shape}"
+        )
+    if shape is not None:
+        if array.ndim != len(shape) or any(
+            want is not None and got != want for got, want in zip(array.shape, shape)
+        ):
+            expected = tuple("any" if s is None else s for s in shape)
+            raise InvalidArrayError(f"{name} must have shape {expected}, got {array.shape}")
+    if not np.all(np.isfinite(array)):
+        bad = np.argwhere(~np.isfinite(array))[0]
+        raise InvalidArrayError(
+            f"{name} must be finite, got {array[tuple(bad)]} at index {tuple(int(i) for i in bad)}"
+        )
+    return array
+
+
+def scalar_in_range(
+    name: str,
+    value: object,
+    *,
+    low: float = -np.inf,
+    high: float = np.inf,
+    low_inclusive: bool = True,
+    high_inclusive: bool = True,
+) -> float:
+    """Return ``value`` as a float inside the given interval, or raise ``InvalidParameterError``."""
+    try:
+        number = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError) as exc:
+        raise InvalidParameterError(f"{name} must be a real number, got {value!r}") from exc
+    above = number >= low if low_inclusive else number > low
+    below = number <= high if high_inclusive else number < high
+    if not (np.isfinite(number) or (np.isinf(high) and number == high and high_inclusive)):
+        above = False
+    if not (above and below):
+        left = "[" if low_inclusive else "("
+        right = "]" if high_inclusive else ")"
+        raise InvalidParameterError(
+            f"{name} must lie in {left}{low}, {high}{right}, got {value!r}"
+        )
+    return number
