@@ -1,0 +1,1 @@
+"""Benchmarks of the filters package (paper Table I)."""
