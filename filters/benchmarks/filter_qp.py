@@ -1,0 +1,242 @@
+"""Time the safety-filter QP: the Clarabel filter built once vs the CVXPY reference.
+
+:func:`benchmark_filter_qp` drives the paper's ego double integrator (Ts = 0.2 s)
+through a sequence of random crossing episodes: the ego starts on the left at
+1.5 m/s with an obstacle-agnostic straight-line reference toward the right; the
+obstacles start ahead of it with random constant velocities; their safe
+halfspaces at every predicted step use the normal from the ego reference to the
+predicted obstacle position and the offset of two 0.3 m discs plus a random
+risk margin (a stand-in for the DR-CVaR tightening, so that the QP is the
+realistic one without timing the halfspace computation). The fast filter's
+first input drives the ego, so the sequence has active constraints, the
+occasional infeasible step and the fallbacks that follow.
+
+Both :class:`filters.mpc.MPCSafetyFilter` and
+:class:`filters.mpc_cvxpy.CVXPYSafetyFilter` (built once with parameters, its first
+compile excluded) then solve the same recorded instances, interleaved so machine
+noise hits both alike. The times are wall times of the whole ``solve`` call
+(validation, data update, solver, roll-out); the Clarabel solver call alone is
+reported too.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import Counter
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from filters.mpc import FilterStatus, MPCSafetyFilter
+
+__all__ = ["FilterQPBenchmark", "benchmark_filter_qp", "format_filter_qp", "make_instances"]
+
+TS = 0.2  # s, sampling time of the paper
+SPEED = 1.5  # m/s, ego reference speed
+RADIUS = 0.3  # m, ego and obstacle disc radii
+ARENA = 5.0  # m, arena [-5, 5]^2
+INPUT_LIMIT = 5.0  # m/s^2 per axis
+
+
+def double_integrator(ts: float = TS) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(A, B, C)`` of the planar double integrator with sampling time ``ts`` (s)."""
+    eye, zero = np.eye(2), np.zeros((2, 2))
+    A = np.block([[eye, ts * eye], [zero, eye]])
+    B = np.vstack([0.5 * ts**2 * eye, ts * eye])
+    C = np.hstack([eye, zero])
+    return A, B, C
+
+
+def filter_kwargs(horizon: int, n_obstacles: int) -> dict:
+    """Constructor keywords shared by both filters (the authors' effective weights)."""
+    return {
+        "horizon": horizon,
+        "Q": 4.0 * np.eye(4),
+        "Q_terminal": 25.0 * np.eye(4),
+        "R": np.eye(2),
+        "input_bounds": (-INPUT_LIMIT, INPUT_LIMIT),
+        "position_bounds": (-ARENA, ARENA),
+        "n_obstacles": n_obstacles,
+    }
+
+
+@dataclass(frozen=True)
+class Instance:
+    """One filter problem: state, reference and halfspaces (normals ``(k, T, 2)``)."""
+
+    x0: np.ndarray
+    reference_states: np.ndarray
+    normals: np.ndarray
+    offsets: np.ndarray
+    new_episode: bool
+
+
+def _halfspaces(
+    reference_positions: np.ndarray, predicted: np.ndarray, margins: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Normals from the ego reference to each prediction; offsets keep two discs apart."""
+    direction = predicted - reference_positions[None]
+    norm = np.linalg.norm(direction, axis=-1, keepdims=True)
+    normals = direction / np.maximum(norm, 1e-9)
+    normals[norm[..., 0] < 1e-9] = (1.0, 0.0)
+    offsets = np.einsum("ktd,ktd->kt", normals, predicted) - 2 * RADIUS - margins[:, None]
+    return normals, offsets
+
+
+def make_instances(
+    n_steps: int, n_obstacles: int, horizon: int, rng: np.random.Generator
+) -> list[Instance]:
+    """Simulate crossing episodes with the fast filter in the loop; record each step's QP."""
+    A, B, C = double_integrator()
+    mpc = MPCSafetyFilter(A, B, C, **filter_kwargs(horizon, n_obstacles))
+    steps = np.arange(1, horizon + 1)[:, None] * TS  # (T, 1)
+    instances: list[Instance] = []
+    new_episode = True
+    while len(instances) < n_steps:
+        if new_episode:
+            mpc.reset()
+            x = np.array([-4.5, rng.uniform(-1.0, 1.0), SPEED, 0.0])
+            lane = x[1]
+            obstacles = np.column_stack(
+                [rng.uniform(-2.0, 3.0, n_obstacles), rng.uniform(-1.5, 1.5, n_obstacles)]
+            )
+            speed = rng.uniform(0.0, 1.0, n_obstacles)
+            heading = rng.uniform(0.0, 2.0 * np.pi, n_obstacles)
+            velocities = speed[:, None] * np.column_stack([np.cos(heading), np.sin(heading)])
+            margins = rng.uniform(0.0, 0.15, n_obstacles)
+            step_in_episode = 0
+        reference = np.empty((horizon + 1, 4))
+        reference[:, 0] = x[0] + SPEED * TS * np.arange(horizon + 1)
+        reference[:, 1] = lane
+        reference[:, 2:] = (SPEED, 0.0)
+        reference[0] = x
+        predicted = obstacles[:, None, :] + velocities[:, None, :] * steps[None]
+        normals, offsets = _halfspaces(reference[1:, :2], predicted, margins)
+        instances.append(Instance(x.copy(), reference, normals, offsets, new_episode))
+        result = mpc.solve(x, reference, (normals, offsets))
+        x = A @ x + B @ result.first_input
+        obstacles = obstacles + TS * velocities
+        step_in_episode += 1
+        new_episode = step_in_episode >= 40 or x[0] > 4.5
+    return instances
+
+
+@dataclass(frozen=True)
+class FilterQPBenchmark:
+    """Timings (ms) of one filter step on the same instances, and their agreement."""
+
+    n_steps: int
+    n_obstacles: int
+    horizon: int
+    ours_median_ms: float
+    ours_p90_ms: float
+    ours_solver_median_ms: float
+    cvxpy_median_ms: float
+    cvxpy_p90_ms: float
+    cvxpy_compile_ms: float
+    ratio: float  # cvxpy median / ours median
+    max_input_difference: float  # over steps both solved, in m/s^2
+    statuses: dict[str, int] = field(default_factory=dict)  # ours
+    agreement: float = 1.0  # share of steps where both gave the same status
+
+    def as_dict(self) -> dict:
+        """Plain ``dict`` (for CSV/JSON)."""
+        return asdict(self)
+
+
+def benchmark_filter_qp(
+    n_steps: int = 500, n_obstacles: int = 3, horizon: int = 10, seed: int = 0
+) -> FilterQPBenchmark:
+    """Time :class:`MPCSafetyFilter` against :class:`CVXPYSafetyFilter` on the same QPs.
+
+    Parameters
+    ----------
+    n_steps
+        Number of filter steps (QP instances) timed.
+    n_obstacles
+        Obstacles per episode (halfspace rows per step).
+    horizon
+        MPC horizon ``T``.
+    seed
+        Seed of the ``numpy.random.Generator`` that draws the episodes.
+
+    Returns
+    -------
+    FilterQPBenchmark
+        Medians and 90th percentiles of the per-step wall times in ms, the ratio of
+        the medians (CVXPY / ours), and how closely the two agree.
+    """
+    from filters.mpc_cvxpy import CVXPYSafetyFilter  # cvxpy only when benchmarking
+
+    rng = np.random.default_rng(seed)
+    instances = make_instances(n_steps, n_obstacles, horizon, rng)
+    A, B, C = double_integrator()
+    ours = MPCSafetyFilter(A, B, C, **filter_kwargs(horizon, n_obstacles))
+    reference = CVXPYSafetyFilter(A, B, C, **filter_kwargs(horizon, n_obstacles))
+    first = instances[0]
+    begin = time.perf_counter()
+    reference.solve(first.x0, first.reference_states, (first.normals, first.offsets))
+    compile_ms = 1e3 * (time.perf_counter() - begin)
+    ours.solve(first.x0, first.reference_states, (first.normals, first.offsets))
+
+    ours_ms, ours_solver_ms, cvxpy_ms = [], [], []
+    statuses: Counter[str] = Counter()
+    same, difference = 0, 0.0
+    for instance in instances:
+        if instance.new_episode:
+            ours.reset()
+            reference.reset()
+        halfspaces = (instance.normals, instance.offsets)
+        begin = time.perf_counter()
+        fast = ours.solve(instance.x0, instance.reference_states, halfspaces)
+        ours_ms.append(1e3 * (time.perf_counter() - begin))
+        ours_solver_ms.append(1e3 * fast.solve_time)
+        begin = time.perf_counter()
+        slow = reference.solve(instance.x0, instance.reference_states, halfspaces)
+        cvxpy_ms.append(1e3 * (time.perf_counter() - begin))
+        statuses[fast.status.value] += 1
+        same += fast.status == slow.status
+        if fast.status == slow.status == FilterStatus.OPTIMAL:
+            difference = max(difference, float(np.max(np.abs(fast.inputs - slow.inputs))))
+
+    ours_median = float(np.median(ours_ms))
+    cvxpy_median = float(np.median(cvxpy_ms))
+    return FilterQPBenchmark(
+        n_steps=len(instances),
+        n_obstacles=n_obstacles,
+        horizon=horizon,
+        ours_median_ms=ours_median,
+        ours_p90_ms=float(np.percentile(ours_ms, 90)),
+        ours_solver_median_ms=float(np.median(ours_solver_ms)),
+        cvxpy_median_ms=cvxpy_median,
+        cvxpy_p90_ms=float(np.percentile(cvxpy_ms, 90)),
+        cvxpy_compile_ms=compile_ms,
+        ratio=cvxpy_median / ours_median,
+        max_input_difference=difference,
+        statuses=dict(statuses),
+        agreement=same / len(instances),
+    )
+
+
+def format_filter_qp(result: FilterQPBenchmark) -> str:
+    """A short table of a :func:`benchmark_filter_qp` result."""
+    statuses = ", ".join(f"{name} {count}" for name, count in sorted(result.statuses.items()))
+    return "\n".join(
+        [
+            f"Filter QP, T = {result.horizon}, {result.n_obstacles} obstacles, "
+            f"{result.n_steps} steps ({statuses})",
+            f"{'':28}{'median ms':>10}{'p90 ms':>10}",
+            f"{'MPCSafetyFilter (Clarabel)':28}{result.ours_median_ms:>10.3f}"
+            f"{result.ours_p90_ms:>10.3f}",
+            f"{'  of which solver call':28}{result.ours_solver_median_ms:>10.3f}",
+            f"{'CVXPYSafetyFilter':28}{result.cvxpy_median_ms:>10.3f}{result.cvxpy_p90_ms:>10.3f}",
+            f"speed-up (median ratio): {result.ratio:.1f}x; CVXPY first compile "
+            f"{result.cvxpy_compile_ms:.0f} ms",
+            f"same status on {100 * result.agreement:.1f}% of steps; max |u_ours - u_cvxpy| "
+            f"= {result.max_input_difference:.2e} m/s^2 where both optimal",
+        ]
+    )
+
+
+if __name__ == "__main__":  # pragma: no cover
+    print(format_filter_qp(benchmark_filter_qp()))
