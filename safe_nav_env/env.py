@@ -1,0 +1,544 @@
+"""The Gymnasium environment: a double-integrator robot among noisy moving discs."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from typing import Any, SupportsFloat
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from safe_nav_env.dynamics import double_integrator
+from safe_nav_env.errors import ConfigError, InvalidActionError, ScenarioError
+from safe_nav_env.noise import NoiseModel, resolve_noise
+from safe_nav_env.obstacles import ObstacleModel, distance_to_collision
+from safe_nav_env.scenarios import SCENARIOS, Scenario, ScenarioFactory
+
+_EGO_SIZE = 6  # ego position, ego velocity, goal - ego position
+_SLOT_SIZE = 5  # relative position, relative velocity, present flag
+_BIG = float(np.finfo(np.float32).max)
+
+
+def _read_only(array: np.ndarray) -> np.ndarray:
+    array.flags.writeable = False
+    return array
+
+
+def _option(
+    name: str, value: Any, *, low: float = 0.0, strict: bool = False, integer: bool = False
+) -> Any:
+    """Validate a numeric constructor option; raise :class:`ConfigError` naming it."""
+    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
+        raise ConfigError(f"{name} must be a number, got {value!r}")
+    if integer and int(value) != value:
+        raise ConfigError(f"{name} must be an integer, got {value!r}")
+    if not math.isfinite(value) or (value <= low if strict else value < low):
+        relation = ">" if strict else ">="
+        raise ConfigError(f"{name} must be finite and {relation} {low}, got {value!r}")
+    return int(value) if integer else float(value)
+
+
+def _resolve_scenario(value: Any, path: str = "scenario") -> Scenario | ScenarioFactory:
+    if isinstance(value, Scenario) or (callable(value) and not isinstance(value, type)):
+        return value
+    if isinstance(value, str):
+        if value not in SCENARIOS:
+            raise ScenarioError(
+                f"{path}: unknown scenario {value!r}; choose one of {sorted(SCENARIOS)} or pass "
+                "a Scenario"
+            )
+        return SCENARIOS[value]
+    if isinstance(value, Mapping):
+        return Scenario(**value)
+    if value is None:
+        raise ConfigError(
+            f"{path} is required: pass scenario=safe_nav_env.Scenario(...), a name in "
+            f"{sorted(SCENARIOS)}, or a function rng -> Scenario, e.g. "
+            "gym.make('SafeNav/Custom-v0', scenario=my_scenario)"
+        )
+    raise ScenarioError(
+        f"{path} must be a Scenario, a scenario name, a mapping or a function rng -> Scenario, "
+        f"got {value!r}"
+    )
+
+
+class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
+    """Reach a goal with a double-integrator robot among noisy moving disc obstacles.
+
+    The setting of Safaoui & Summers (ICRA 2024), Section IV-B. The ego robot is
+    the double integrator ``x_{t+1} = A x_t + B u_t``, ``y_t = C x_t`` with state
+    ``x = [p_x, p_y, v_x, v_y]`` and sampling time ``T_s = dt`` (0.2 s); see
+    :func:`~safe_nav_env.dynamics.double_integrator`. Obstacles are discs moving
+    as single integrators along their lanes with noise; every step the environment
+    also draws ``n_samples`` predicted trajectories per obstacle over the next
+    ``horizon`` steps (see :mod:`safe_nav_env.obstacles`).
+
+    **Action**: the acceleration ``u`` in m/s², a float32
+    ``Box(-max_acceleration, max_acceleration, (2,))`` (default ±10 m/s² per axis,
+    ample for the paper's manoeuvres). Actions outside the box are clipped.
+
+    **Observation**: a float32 vector of length ``6 + 5 * max_obstacles`` (26 by default)::
+
+        [0:2]   ego position p, in m
+        [2:4]   ego velocity v, in m/s
+        [4:6]   goal - p, in m
+        then for each slot k = 0 .. max_obstacles - 1, at 6 + 5k:
+        [+0:+2] obstacle position - p, in m
+        [+2:+4] obstacle nominal velocity - v, in m/s
+        [+4]    1.0 if the slot holds an obstacle, else 0.0 (and the slot is all zeros)
+
+    Obstacles fill the slots nearest first (by centre distance to the ego); when a
+    scenario has more than ``max_obstacles`` obstacles the farthest are left out of
+    the observation (they still move, collide and appear in ``info``). The space's
+    bounds are ±float32 max (flags in ``[0, 1]``): positions are not clipped.
+
+    **Reward** (every weight is a constructor option, so a ``gym.make`` keyword)::
+
+        r = progress_weight * (||p_t - g|| - ||p_{t+1} - g||)      progress, per m
+            + arrival_bonus            if ||p_{t+1} - g|| <= goal_tolerance
+            - control_cost_weight * ||u||²      u: the (clipped) action, in m/s²
+            - collision_penalty        if any distance to collision <= 0
+            - time_penalty
+
+    The defaults (1.0, 10.0, 1e-3, 1.0, 0.0; tolerance 0.3 m) make the plain policy
+    goal-driven rather than safe: a collision costs little. Safe-RL code should use
+    ``info["cost"]`` instead.
+
+    **Episode end**: ``terminated`` when the ego reaches the goal (``is_success``), or
+    on a collision if ``terminate_on_collision``; ``truncated`` after
+    ``ceil(episode_length / dt)`` steps. The ego may leave the arena; that is
+    recorded in ``info["out_of_bounds"]``, not enforced (the arena bound is a
+    constraint for the safety filter).
+
+    **Info** (after reset and every step), ``n`` obstacles, ``N_s`` samples, ``T`` steps:
+
+    ``predictions`` (n, N_s, T, 2)
+        Prediction samples for steps ``t+1 .. t+T``, drawn from the current state.
+    ``obstacle_positions``, ``obstacle_velocities`` (n, 2)
+        Current positions (m) and nominal velocities (m/s).
+    ``distance_to_collision`` (n,)
+        ``||y - p_i|| - r_A - r_O,i``, in m (``<= 0``: collision).
+    ``min_distance_to_collision``
+        Its minimum (``inf`` without obstacles).
+    ``collision``, ``cost``
+        ``True`` / ``1.0`` when some distance is ``<= 0`` (touching counts), else
+        ``False`` / ``0.0``.
+    ``is_success``, ``distance_to_goal``, ``ego_state``, ``out_of_bounds``, ``time``
+        Goal reached; ``||y - g||`` in m; ``x`` (4,); ego outside the arena; time in s.
+
+    With ``pad_info`` the per-obstacle entries have ``max_obstacles`` rows and
+    ``info["obstacle_present"]`` marks the real ones; absent obstacles are
+    infinitely far (``inf`` positions, predictions and distances, zero velocity).
+    Gymnasium's vector environments stack info arrays, so they need one shape even
+    when the obstacle count changes between episodes. The arrays in ``info`` are
+    read-only.
+
+    **Safety-filter interface** (the :class:`filters.protocol.FilterableEnv`
+    protocol, on ``env.unwrapped``): :attr:`dt`, :attr:`dynamics`, :attr:`ego_state`,
+    :attr:`ego_radius`, :attr:`obstacle_radii`, :attr:`obstacle_positions`,
+    :attr:`obstacle_velocities`, :attr:`predictions`, :attr:`input_bounds`,
+    :attr:`position_bounds`, :attr:`goal`, :attr:`render_hooks` and :meth:`observe`.
+    They describe the current episode once :meth:`reset` has been called.
+
+    Parameters
+    ----------
+    scenario
+        A :class:`~safe_nav_env.scenarios.Scenario`, a name in
+        :data:`~safe_nav_env.scenarios.SCENARIOS`, a mapping of Scenario fields, or a
+        function ``rng -> Scenario`` called at each reset with :attr:`np_random`.
+    render_mode
+        ``None``, ``"rgb_array"`` (uint8 frames) or ``"human"`` (a matplotlib window).
+    noise
+        Overrides the scenario's noise model: a
+        :class:`~safe_nav_env.noise.NoiseModel`, a preset name (``"paper"``,
+        ``"authors_code"``, ``"gaussian_reality"``, ``"student_t"``) or a mapping.
+    n_samples
+        Prediction samples per obstacle; default: the noise model's (100 for ``"paper"``).
+    horizon
+        Prediction horizon ``T`` in steps (default 10).
+    episode_length
+        Time limit in s; default: the scenario's ``time_limit``.
+    dt
+        Sampling time in s (default 0.2).
+    max_acceleration
+        Bound of each action component, in m/s² (default 10).
+    max_obstacles
+        Obstacle slots in the observation (default 4).
+    progress_weight, arrival_bonus, control_cost_weight, collision_penalty, time_penalty
+        Reward terms, all ``>= 0`` (see above).
+    goal_tolerance
+        Arrival radius around the goal, in m (default 0.3).
+    terminate_on_collision
+        End the episode on the first collision (default ``False``).
+    pad_info
+        Pad per-obstacle info entries to ``max_obstacles`` rows; default: only when
+        ``scenario`` is a function (the obstacle count may change).
+
+    Raises
+    ------
+    ConfigError, ScenarioError
+        (Both ``ValueError``.) If an option or the scenario is invalid.
+    """
+
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 5}
+
+    def __init__(
+        self,
+        scenario: Scenario | ScenarioFactory | str | Mapping[str, Any] | None = None,
+        *,
+        render_mode: str | None = None,
+        noise: NoiseModel | str | Mapping[str, Any] | None = None,
+        n_samples: int | None = None,
+        horizon: int = 10,
+        episode_length: float | None = None,
+        dt: float = 0.2,
+        max_acceleration: float = 10.0,
+        max_obstacles: int = 4,
+        progress_weight: float = 1.0,
+        arrival_bonus: float = 10.0,
+        control_cost_weight: float = 1e-3,
+        collision_penalty: float = 1.0,
+        time_penalty: float = 0.0,
+        goal_tolerance: float = 0.3,
+        terminate_on_collision: bool = False,
+        pad_info: bool | None = None,
+    ) -> None:
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ConfigError(
+                f"render_mode must be None or one of {self.metadata['render_modes']}, "
+                f"got {render_mode!r}"
+            )
+        self.render_mode = render_mode
+        self._scenario_source = _resolve_scenario(scenario)
+        self._noise_override = None if noise is None else resolve_noise(noise, "noise")
+        self._n_samples_override = (
+            None if n_samples is None else _option("n_samples", n_samples, low=1, integer=True)
+        )
+        self.horizon: int = _option("horizon", horizon, low=1, integer=True)
+        self._episode_length = (
+            None
+            if episode_length is None
+            else _option("episode_length", episode_length, strict=True)
+        )
+        self.dt: float = _option("dt", dt, strict=True)
+        self.max_acceleration = _option("max_acceleration", max_acceleration, strict=True)
+        self.max_obstacles: int = _option("max_obstacles", max_obstacles, integer=True)
+        self.progress_weight = _option("progress_weight", progress_weight)
+        self.arrival_bonus = _option("arrival_bonus", arrival_bonus)
+        self.control_cost_weight = _option("control_cost_weight", control_cost_weight)
+        self.collision_penalty = _option("collision_penalty", collision_penalty)
+        self.time_penalty = _option("time_penalty", time_penalty)
+        self.goal_tolerance = _option("goal_tolerance", goal_tolerance, strict=True)
+        self.terminate_on_collision = bool(terminate_on_collision)
+        self.pad_info = (
+            not isinstance(self._scenario_source, Scenario) if pad_info is None else bool(pad_info)
+        )
+
+        # What a safety filter reads (filters.protocol.FilterableEnv).
+        self.dynamics: tuple[np.ndarray, np.ndarray, np.ndarray] = double_integrator(self.dt)
+        bound = np.full(2, self.max_acceleration)
+        self.input_bounds: tuple[np.ndarray, np.ndarray] = (
+            _read_only(-bound),
+            _read_only(bound.copy()),
+        )
+        self.render_hooks: list[Callable[[Any], None]] = []
+
+        self.action_space = spaces.Box(-self.max_acceleration, self.max_acceleration, (2,),
+                                       dtype=np.float32)
+        size = self._obs_size = _EGO_SIZE + _SLOT_SIZE * self.max_obstacles
+        low, high = np.full(size, -_BIG, np.float32), np.full(size, _BIG, np.float32)
+        flags = _EGO_SIZE + _SLOT_SIZE * np.arange(self.max_obstacles) + 4
+        low[flags], high[flags] = 0.0, 1.0
+        self.observation_space = spaces.Box(low, high, dtype=np.float32)
+
+        self._renderer: Any = None
+        self._model: ObstacleModel | None = None
+        self._model_scenario: Scenario | None = None
+        first = self._scenario_source if isinstance(self._scenario_source, Scenario) else None
+        self._load(first)
+
+    # ------------------------------------------------------------------ setup
+
+    def _load(self, scenario: Scenario | None) -> None:
+        """Set the episode constants and the initial state from ``scenario``."""
+        if scenario is None:  # a family before the first reset: empty placeholders
+            scenario = Scenario(name="unset", ego_start=(0.0, 0.0), goal=(0.0, 0.0))
+        self.scenario: Scenario = scenario
+        self.noise: NoiseModel = self._noise_override or scenario.noise
+        self.n_samples: int = self._n_samples_override or self.noise.n_samples
+        length = self._episode_length or scenario.time_limit
+        self.max_episode_steps: int = max(1, math.ceil(length / self.dt - 1e-9))
+        if self._model_scenario is not scenario:
+            self._model = ObstacleModel(scenario.obstacles, self.dt)
+            self._model_scenario = scenario
+        self.ego_radius: float = scenario.ego_radius
+        self.obstacle_radii: np.ndarray = self._model.radii
+        self._radii_sum = self.obstacle_radii + self.ego_radius
+        self.goal: np.ndarray = _read_only(np.array(scenario.goal, dtype=np.float64))
+        arena = np.array(scenario.arena, dtype=np.float64)
+        self._arena = scenario.arena
+        self._goal = scenario.goal
+        self.position_bounds: tuple[np.ndarray, np.ndarray] = (
+            _read_only(arena[0]),
+            _read_only(arena[1]),
+        )
+        self.ego_state: np.ndarray = _read_only(np.array(scenario.ego_start, dtype=np.float64))
+        self.obstacle_positions: np.ndarray = _read_only(self._model.starts.copy())
+        self.obstacle_velocities: np.ndarray = _read_only(self._model.initial_velocities.copy())
+        self.predictions: np.ndarray = _read_only(
+            np.zeros((self._model.n, self.n_samples, self.horizon, 2))
+        )
+        self.step_count = 0
+        start, goal = scenario.ego_start, scenario.goal
+        self._distance_to_goal = math.hypot(start[0] - goal[0], start[1] - goal[1])
+
+    @property
+    def time(self) -> float:
+        """Time since the start of the episode, in s."""
+        return self.step_count * self.dt
+
+    @property
+    def n_obstacles(self) -> int:
+        """Number of obstacles in the current episode."""
+        return self._model.n
+
+    # ------------------------------------------------------------ observation
+
+    def observe(
+        self,
+        ego_state: np.ndarray,
+        obstacle_positions: np.ndarray,
+        obstacle_velocities: np.ndarray,
+    ) -> np.ndarray:
+        """Observation the agent would receive in the given (hypothetical) situation.
+
+        Uses the current goal; does not touch the environment's state.
+
+        Parameters
+        ----------
+        ego_state
+            ``[p_x, p_y, v_x, v_y]``, shape ``(4,)``.
+        obstacle_positions, obstacle_velocities
+            Shape ``(n, 2)`` each, in m and m/s; ``n`` may differ from the scenario's.
+
+        Returns
+        -------
+        numpy.ndarray
+            Float32 vector laid out as in the class docstring.
+        """
+        x = np.asarray(ego_state, dtype=np.float64)
+        positions = np.asarray(obstacle_positions, dtype=np.float64)
+        velocities = np.asarray(obstacle_velocities, dtype=np.float64)
+        if x.shape != (4,):
+            raise ValueError(f"ego_state must have shape (4,), got {x.shape}")
+        if positions.ndim != 2 or positions.shape[1] != 2 or velocities.shape != positions.shape:
+            raise ValueError(
+                "obstacle_positions and obstacle_velocities must both have shape (n, 2), got "
+                f"{positions.shape} and {velocities.shape}"
+            )
+        delta = positions - x[:2]
+        return self._observe(x, delta, velocities, np.hypot(delta[:, 0], delta[:, 1]))
+
+    def _observe(
+        self, x: np.ndarray, delta: np.ndarray, velocities: np.ndarray, centre: np.ndarray
+    ) -> np.ndarray:
+        """:meth:`observe` without the checks, given ``delta = positions - p`` and its norms."""
+        obs = np.zeros(self._obs_size, dtype=np.float32)
+        obs[0:4] = x
+        obs[4:6] = self.goal - x[:2]
+        n = delta.shape[0]
+        if n and self.max_obstacles:
+            slots = np.empty((n, _SLOT_SIZE))
+            slots[:, 0:2] = delta
+            np.subtract(velocities, x[2:], out=slots[:, 2:4])
+            slots[:, 4] = 1.0
+            if n > 1:  # nearest first, by centre distance
+                slots = slots[centre.argsort(kind="stable")[: self.max_obstacles]]
+            obs[_EGO_SIZE : _EGO_SIZE + slots.size] = slots.ravel()
+        return obs
+
+    # ------------------------------------------------------------------ info
+
+    def _info(self, distances: np.ndarray, distance_to_goal: float) -> dict[str, Any]:
+        minimum = float(distances.min()) if distances.shape[0] else math.inf
+        collision = minimum <= 0.0
+        px, py = float(self.ego_state[0]), float(self.ego_state[1])
+        low, high = self._arena
+        info: dict[str, Any] = {
+            "predictions": self.predictions,
+            "obstacle_positions": self.obstacle_positions,
+            "obstacle_velocities": self.obstacle_velocities,
+            "distance_to_collision": distances,
+            "min_distance_to_collision": minimum,
+            "collision": collision,
+            "cost": 1.0 if collision else 0.0,
+            "is_success": distance_to_goal <= self.goal_tolerance,
+            "distance_to_goal": distance_to_goal,
+            "ego_state": self.ego_state,
+            "out_of_bounds": not (low[0] <= px <= high[0] and low[1] <= py <= high[1]),
+            "time": self.step_count * self.dt,
+        }
+        if self.pad_info:
+            info.update(self._padded(info))
+        return info
+
+    def _padded(self, info: dict[str, Any]) -> dict[str, Any]:
+        n, rows = self._model.n, self.max_obstacles
+        padded: dict[str, Any] = {}
+        for key, fill in (("predictions", np.inf), ("obstacle_positions", np.inf),
+                          ("obstacle_velocities", 0.0), ("distance_to_collision", np.inf)):
+            value = info[key]
+            array = np.full((rows, *value.shape[1:]), fill)
+            array[:n] = value
+            padded[key] = _read_only(array)
+        present = np.zeros(rows, dtype=bool)
+        present[:n] = True
+        padded["obstacle_present"] = present
+        return padded
+
+    # ------------------------------------------------------------------- API
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        """Start an episode.
+
+        Parameters
+        ----------
+        seed
+            Seeds :attr:`np_random`, the only source of randomness (scenario draws,
+            turning decisions, predictions, realised noise).
+        options
+            ``{"scenario": ...}`` replaces the scenario from now on (same forms as the
+            constructor's ``scenario``).
+
+        Raises
+        ------
+        ScenarioError
+            If a scenario function does not return a :class:`Scenario`, or with
+            ``pad_info`` a scenario has more than ``max_obstacles`` obstacles.
+        """
+        super().reset(seed=seed)
+        if options and "scenario" in options:
+            self._scenario_source = _resolve_scenario(options["scenario"], "options['scenario']")
+        source = self._scenario_source
+        scenario = source if isinstance(source, Scenario) else source(self.np_random)
+        if not isinstance(scenario, Scenario):
+            raise ScenarioError(f"the scenario function returned {scenario!r}, not a Scenario")
+        if self.pad_info and scenario.n_obstacles > self.max_obstacles:
+            raise ScenarioError(
+                f"scenario {scenario.name!r} has {scenario.n_obstacles} obstacles but "
+                f"max_obstacles={self.max_obstacles}; pass a larger max_obstacles"
+            )
+        self._load(scenario)
+        model = self._model
+        model.reset(self.np_random)
+        self.obstacle_positions = _read_only(model.positions)
+        self.obstacle_velocities = _read_only(model.velocities)
+        self.predictions = _read_only(
+            model.predict(self.np_random, self.noise.prediction, self.n_samples, self.horizon)
+        )
+        p = self.ego_state[:2]
+        distances = distance_to_collision(p, self.obstacle_positions, self.ego_radius,
+                                          self.obstacle_radii)
+        if self.render_mode is not None:
+            self._trail = [(p.copy(), self.obstacle_positions)]
+            if self.render_mode == "human":
+                self.render()
+        obs = self.observe(self.ego_state, self.obstacle_positions, self.obstacle_velocities)
+        return obs, self._info(_read_only(distances), self._distance_to_goal)
+
+    def step(
+        self, action: np.ndarray
+    ) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict[str, Any]]:
+        """Apply the acceleration ``action`` for one sampling period.
+
+        Order of events: the ego moves (``x_{t+1} = A x_t + B u_t``), the obstacles
+        move with reality noise, collisions and the reward are evaluated at the new
+        positions, and the predictions for the ``T`` steps after the new state are drawn.
+
+        Raises
+        ------
+        InvalidActionError
+            If ``action`` does not have 2 entries or holds NaN or infinite values.
+        """
+        try:
+            u = np.asarray(action, dtype=np.float64).ravel()
+        except (TypeError, ValueError) as exc:
+            raise InvalidActionError(f"action must be 2 accelerations, got {action!r}") from exc
+        if u.shape != (2,):
+            raise InvalidActionError(f"action must have 2 entries, got shape {np.shape(action)}")
+        ux, uy = u.tolist()
+        if not (math.isfinite(ux) and math.isfinite(uy)):
+            raise InvalidActionError(f"action must be finite, got {action!r}")
+        a_max = self.max_acceleration
+        ux = min(max(ux, -a_max), a_max)
+        uy = min(max(uy, -a_max), a_max)
+        dt = self.dt
+        half_dt2 = 0.5 * dt * dt
+        px, py, vx, vy = self.ego_state.tolist()
+        # x_{t+1} = A x_t + B u_t: p + T_s v + T_s²/2 u, v + T_s u.
+        px, py = px + dt * vx + half_dt2 * ux, py + dt * vy + half_dt2 * uy
+        vx, vy = vx + dt * ux, vy + dt * uy
+        self.ego_state = _read_only(np.array((px, py, vx, vy)))
+
+        model = self._model
+        self.obstacle_positions = _read_only(model.step(self.np_random, self.noise.reality))
+        self.obstacle_velocities = _read_only(model.velocities)
+        self.predictions = _read_only(
+            model.predict(self.np_random, self.noise.prediction, self.n_samples, self.horizon)
+        )
+        self.step_count += 1
+
+        delta = self.obstacle_positions - self.ego_state[:2]
+        centre = np.hypot(delta[:, 0], delta[:, 1])
+        distances = _read_only(centre - self._radii_sum)  # as distance_to_collision()
+        gx, gy = self._goal
+        distance_to_goal = math.hypot(px - gx, py - gy)
+        info = self._info(distances, distance_to_goal)
+
+        reward = self.progress_weight * (self._distance_to_goal - distance_to_goal)
+        reward -= self.control_cost_weight * (ux * ux + uy * uy) + self.time_penalty
+        if info["is_success"]:
+            reward += self.arrival_bonus
+        if info["collision"]:
+            reward -= self.collision_penalty
+        self._distance_to_goal = distance_to_goal
+
+        terminated = info["is_success"] or (self.terminate_on_collision and info["collision"])
+        truncated = self.step_count >= self.max_episode_steps
+        if self.render_mode is not None:
+            self._trail.append((self.ego_state[:2].copy(), self.obstacle_positions))
+            if self.render_mode == "human":
+                self.render()
+        obs = self._observe(self.ego_state, delta, self.obstacle_velocities, centre)
+        return obs, reward, bool(terminated), bool(truncated), info
+
+    def render(self) -> np.ndarray | None:
+        """Draw the scene with matplotlib (imported here, not at package import).
+
+        Returns a uint8 ``(H, W, 3)`` frame for ``render_mode="rgb_array"``, shows
+        a window and returns ``None`` for ``"human"``, and warns and returns ``None``
+        without a render mode. The hooks in :attr:`render_hooks` are called with the
+        axes after the scene is drawn.
+        """
+        if self.render_mode is None:
+            gym.logger.warn(
+                "render() called without a render_mode; pass render_mode='rgb_array' or "
+                "'human' to gym.make"
+            )
+            return None
+        if self._renderer is None:
+            from safe_nav_env.rendering import Renderer
+
+            self._renderer = Renderer(human=self.render_mode == "human", fps=self.metadata[
+                "render_fps"])
+        return self._renderer.draw(self, getattr(self, "_trail", []))
+
+    def close(self) -> None:
+        """Close the rendering figure, if any."""
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None

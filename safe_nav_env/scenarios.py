@@ -1,0 +1,397 @@
+"""Scenarios as data: who starts where, where the ego goes, how the obstacles move.
+
+A :class:`Scenario` is a frozen, validated value. The paper's four encounters
+(Section IV-B, with the numbers of the authors' simulation code) are
+:data:`HEAD_ON`, :data:`OVERTAKING`, :data:`INTERSECTION` and :data:`MULTI_OBSTACLE`;
+:func:`random_crossing` draws a randomised training scenario. :data:`SCENARIOS`
+maps the names accepted by :class:`~safe_nav_env.SafeNavEnv` to either.
+
+Positions are in m, velocities in m/s, times in s, angles in rad.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field, fields
+from typing import Any
+
+import numpy as np
+
+from safe_nav_env.errors import ScenarioError
+from safe_nav_env.noise import NoiseModel, resolve_noise
+
+Vector = tuple[float, ...]
+
+
+def _vector(value: Any, path: str, sizes: Sequence[int]) -> Vector:
+    """Return ``value`` as a tuple of finite floats whose length is one of ``sizes``."""
+    try:
+        array = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ScenarioError(f"{path} must be a numeric vector, got {value!r}") from exc
+    expected = " or ".join(f"({n},)" for n in sizes)
+    if array.ndim != 1 or array.shape[0] not in sizes:
+        raise ScenarioError(f"{path} must have shape {expected}, got shape {array.shape}")
+    if not np.all(np.isfinite(array)):
+        raise ScenarioError(f"{path} must be finite, got {array.tolist()}")
+    return tuple(float(v) for v in array)
+
+
+def _number(
+    value: Any, path: str, *, low: float = -math.inf, strict: bool = False, allow_inf: bool = False
+) -> float:
+    """Return ``value`` as a float ``> low`` (``strict``) or ``>= low``.
+
+    It must be finite unless ``allow_inf``.
+    """
+    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
+        raise ScenarioError(f"{path} must be a number, got {value!r}")
+    number = float(value)
+    if math.isnan(number) or (math.isinf(number) and not allow_inf):
+        raise ScenarioError(f"{path} must be finite, got {value!r}")
+    if (strict and number <= low) or (not strict and number < low):
+        raise ScenarioError(f"{path} must be {'>' if strict else '>='} {low}, got {value!r}")
+    return number
+
+
+def _prefixed(exc: ScenarioError, prefix: str) -> ScenarioError:
+    message = str(exc)
+    if message.startswith("ObstacleSpec."):
+        message = message[len("ObstacleSpec.") :]
+    return ScenarioError(f"{prefix}.{message}")
+
+
+@dataclass(frozen=True)
+class ObstacleSpec:
+    """A disc-shaped obstacle moving as a single integrator along a lane.
+
+    The *lane* is the line through ``start`` along ``velocity``. Each step the
+    obstacle's nominal next position is its current position projected onto the
+    lane plus ``velocity · T_s`` (constant speed along the lane; lateral drift is
+    pulled back), and the realised position adds the scenario's reality noise; see
+    :mod:`safe_nav_env.obstacles`. An obstacle with zero velocity holds station at
+    ``start``.
+
+    Turning: with ``turn_rate = ω != 0`` the obstacle *may* turn. At each reset it
+    decides, with probability ``turn_probability``, to turn in this episode: from
+    time ``turn_start`` its heading (and lane) rotates at ``ω`` until it has turned
+    by ``turn_angle``. The predictor does not know the decision: each prediction
+    sample follows the turning schedule with probability ``turn_probability`` and
+    keeps the current heading otherwise, so with ``0 < turn_probability < 1`` the
+    predictions are bimodal.
+
+    Parameters
+    ----------
+    start
+        Initial position ``(x, y)``, in m.
+    velocity
+        Nominal velocity ``(v_x, v_y)``, in m/s.
+    radius
+        Radius ``r_O`` of the disc, in m, ``> 0`` (default 0.3, the paper's).
+    turn_rate
+        Heading rate ``ω`` when turning, in rad/s (positive: counter-clockwise).
+    turn_probability
+        Probability in ``[0, 1]`` that the obstacle turns in an episode (used only
+        when ``turn_rate != 0``).
+    turn_start
+        Time at which the turn starts, in s, ``>= 0``.
+    turn_angle
+        Total heading change of the turn, in rad, ``> 0`` (default: no limit).
+
+    Raises
+    ------
+    ScenarioError
+        If a field is invalid; the message names it.
+    """
+
+    start: Vector
+    velocity: Vector
+    radius: float = 0.3
+    turn_rate: float = 0.0
+    turn_probability: float = 1.0
+    turn_start: float = 0.0
+    turn_angle: float = math.inf
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__
+        set_(self, "start", _vector(self.start, "ObstacleSpec.start", (2,)))
+        set_(self, "velocity", _vector(self.velocity, "ObstacleSpec.velocity", (2,)))
+        set_(self, "radius", _number(self.radius, "ObstacleSpec.radius", low=0.0, strict=True))
+        set_(self, "turn_rate", _number(self.turn_rate, "ObstacleSpec.turn_rate"))
+        probability = _number(self.turn_probability, "ObstacleSpec.turn_probability", low=0.0)
+        if probability > 1.0:
+            raise ScenarioError(
+                f"ObstacleSpec.turn_probability must be in [0, 1], got {self.turn_probability!r}"
+            )
+        set_(self, "turn_probability", probability)
+        set_(self, "turn_start", _number(self.turn_start, "ObstacleSpec.turn_start", low=0.0))
+        set_(
+            self,
+            "turn_angle",
+            _number(self.turn_angle, "ObstacleSpec.turn_angle", low=0.0, strict=True,
+                    allow_inf=True),
+        )
+
+    @property
+    def speed(self) -> float:
+        """Nominal speed ``||velocity||``, in m/s."""
+        return math.hypot(*self.velocity)
+
+
+def _obstacle(value: Any, path: str) -> ObstacleSpec:
+    if isinstance(value, ObstacleSpec):
+        return value
+    if not isinstance(value, Mapping):
+        raise ScenarioError(f"{path} must be an ObstacleSpec or a mapping, got {value!r}")
+    allowed = {f.name for f in fields(ObstacleSpec)}
+    unknown = sorted(set(value) - allowed)
+    if unknown:
+        raise ScenarioError(f"{path}: unknown field(s) {unknown} of ObstacleSpec")
+    missing = sorted({"start", "velocity"} - set(value))
+    if missing:
+        raise ScenarioError(f"{path}: missing field(s) {missing}")
+    try:
+        return ObstacleSpec(**value)
+    except ScenarioError as exc:
+        raise _prefixed(exc, path) from None
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A reach-avoid encounter: the ego drives from ``ego_start`` to ``goal`` among obstacles.
+
+    Two lengths are kept apart. ``duration`` is the length of the encounter as
+    simulated in the paper and the authors' code (3 s for the single-obstacle
+    scenarios, 5 s for the multi-obstacle one): enough to pass the obstacles, not
+    to reach a goal 9.4 m away at 1.5 m/s. ``episode_length`` is the environment's
+    default time limit; the presets set it so that the goal is reachable (8 s for
+    one obstacle, 10 s for three). To reproduce the paper's runs, pass
+    ``episode_length=scenario.duration`` to the environment.
+
+    Parameters
+    ----------
+    name
+        Short identifier, e.g. ``"head_on"``.
+    ego_start
+        Initial ego state ``(p_x, p_y, v_x, v_y)`` or position ``(p_x, p_y)`` (then
+        at rest); stored as the 4-vector. The position must lie in the arena.
+    goal
+        Goal position ``(x, y)`` in the arena, in m.
+    obstacles
+        :class:`ObstacleSpec` objects or mappings of their fields (possibly empty).
+    duration
+        Length of the encounter, in s, ``> 0``.
+    episode_length
+        Default time limit of an episode, in s, ``> 0``; ``None`` means ``duration``.
+    noise
+        :class:`~safe_nav_env.noise.NoiseModel`, preset name (see
+        :data:`~safe_nav_env.noise.NOISE_PRESETS`) or mapping; default ``"paper"``.
+    ego_radius
+        Radius ``r_A`` of the ego disc, in m, ``> 0``.
+    arena
+        ``((x_min, y_min), (x_max, y_max))``, in m; default ``[-5, 5]²``.
+
+    Raises
+    ------
+    ScenarioError
+        If a field is invalid; the message starts with the field's path, e.g.
+        ``"obstacles[1].radius must be > 0, got -0.3"``.
+    """
+
+    name: str
+    ego_start: Vector
+    goal: Vector
+    obstacles: tuple[ObstacleSpec, ...] = ()
+    duration: float = 3.0
+    episode_length: float | None = None
+    noise: NoiseModel = field(default_factory=NoiseModel)
+    ego_radius: float = 0.3
+    arena: tuple[Vector, Vector] = ((-5.0, -5.0), (5.0, 5.0))
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__
+        if not isinstance(self.name, str) or not self.name:
+            raise ScenarioError(f"name must be a non-empty string, got {self.name!r}")
+        try:
+            arena = np.asarray(self.arena, dtype=np.float64)
+        except (TypeError, ValueError) as exc:
+            raise ScenarioError(f"arena must be ((x_min, y_min), (x_max, y_max)), got "
+                                f"{self.arena!r}") from exc
+        if arena.shape != (2, 2) or not np.all(np.isfinite(arena)):
+            raise ScenarioError(
+                f"arena must be finite ((x_min, y_min), (x_max, y_max)), got {self.arena!r}"
+            )
+        if np.any(arena[0] >= arena[1]):
+            raise ScenarioError(f"arena must have x_min < x_max and y_min < y_max, got "
+                                f"{arena.tolist()}")
+        set_(self, "arena", (tuple(arena[0].tolist()), tuple(arena[1].tolist())))
+
+        start = _vector(self.ego_start, "ego_start", (2, 4))
+        if len(start) == 2:
+            start = (*start, 0.0, 0.0)
+        set_(self, "ego_start", start)
+        set_(self, "goal", _vector(self.goal, "goal", (2,)))
+        for label, point in (("ego_start", start[:2]), ("goal", self.goal)):
+            if np.any(np.asarray(point) < arena[0]) or np.any(np.asarray(point) > arena[1]):
+                raise ScenarioError(
+                    f"{label} position {tuple(point)} is outside the arena "
+                    f"[{arena[0, 0]}, {arena[1, 0]}] x [{arena[0, 1]}, {arena[1, 1]}]"
+                )
+
+        if isinstance(self.obstacles, Mapping | str) or not isinstance(
+            self.obstacles, Sequence
+        ):
+            raise ScenarioError(f"obstacles must be a sequence of ObstacleSpec, got "
+                                f"{self.obstacles!r}")
+        set_(self, "obstacles",
+             tuple(_obstacle(o, f"obstacles[{i}]") for i, o in enumerate(self.obstacles)))
+
+        set_(self, "duration", _number(self.duration, "duration", low=0.0, strict=True))
+        if self.episode_length is not None:
+            set_(self, "episode_length",
+                 _number(self.episode_length, "episode_length", low=0.0, strict=True))
+        set_(self, "noise", resolve_noise(self.noise, "noise"))
+        set_(self, "ego_radius", _number(self.ego_radius, "ego_radius", low=0.0, strict=True))
+
+    @property
+    def time_limit(self) -> float:
+        """Default episode length, in s: ``episode_length``, else ``duration``."""
+        return self.duration if self.episode_length is None else self.episode_length
+
+    @property
+    def n_obstacles(self) -> int:
+        """Number of obstacles."""
+        return len(self.obstacles)
+
+
+_EGO_SPEED = 1.5  # m/s along +x at the start, as in the authors' code.
+
+HEAD_ON = Scenario(
+    name="head_on",
+    ego_start=(-4.7, 0.0, _EGO_SPEED, 0.0),
+    goal=(4.7, 0.0),
+    obstacles=(ObstacleSpec(start=(2.0, -0.01), velocity=(-1.0, 0.0)),),
+    duration=3.0,
+    episode_length=8.0,
+)
+"""Head-on encounter: one obstacle coming towards the ego along its path."""
+
+OVERTAKING = Scenario(
+    name="overtaking",
+    ego_start=(-4.7, 0.0, _EGO_SPEED, 0.0),
+    goal=(4.7, 0.0),
+    obstacles=(ObstacleSpec(start=(-2.0, -0.05), velocity=(1.0, 0.0)),),
+    duration=3.0,
+    episode_length=8.0,
+)
+"""Overtaking: one slower obstacle ahead of the ego, moving the same way."""
+
+INTERSECTION = Scenario(
+    name="intersection",
+    ego_start=(-3.5, 1.0, _EGO_SPEED, 0.0),
+    goal=(1.0, -3.0),
+    obstacles=(ObstacleSpec(start=(-2.5, -1.0), velocity=(1.5, 0.0)),),
+    duration=3.0,
+    episode_length=8.0,
+)
+"""Intersection: the ego heads down-right across the lane of an obstacle moving along +x."""
+
+MULTI_OBSTACLE = Scenario(
+    name="multi_obstacle",
+    ego_start=(-4.7, -1.0, _EGO_SPEED, 0.0),
+    goal=(4.7, 0.0),
+    obstacles=(
+        ObstacleSpec(start=(-1.1, 1.01), velocity=(0.7, 0.0)),
+        ObstacleSpec(start=(-2.0, -1.01), velocity=(1.0, 0.0)),
+        ObstacleSpec(start=(-1.0, -2.01), velocity=(0.7, 0.0)),
+    ),
+    duration=5.0,
+    episode_length=10.0,
+)
+"""Three obstacles moving along +x around the ego's path (the paper's Fig. 4)."""
+
+
+def random_crossing(
+    rng: np.random.Generator,
+    *,
+    noise: NoiseModel | str = "paper",
+    min_obstacles: int = 1,
+    max_obstacles: int = 4,
+    duration: float = 8.0,
+) -> Scenario:
+    """Draw a randomised crossing scenario, for training.
+
+    The ego starts at ``x = -4.5`` with ``y ~ U(-2.5, 2.5)`` and speed
+    ``U(0, 1.5)`` m/s along +x, and must reach ``x = 4.5``, ``y ~ U(-2.5, 2.5)``.
+    Between ``min_obstacles`` and ``max_obstacles`` obstacles (uniform count),
+    radius 0.3 m, cross the straight start-goal segment: obstacle ``i`` crosses it at
+    the fraction ``s ~ U(0.25, 0.75)`` of its length, at an angle ``U(30°, 150°)``
+    to it (either side) and a speed ``U(0.5, 1.5)`` m/s, and is placed on its lane
+    so that it reaches the crossing point when an ego moving along the segment at
+    ``U(1, 3)`` m/s would. Obstacles may start outside the arena; one starting
+    within 1 m of the ego is redrawn.
+
+    Parameters
+    ----------
+    rng
+        Source of all randomness (the environment passes its ``np_random``).
+    noise
+        Noise model of the scenario.
+    min_obstacles, max_obstacles
+        Range of the obstacle count, ``1 <= min_obstacles <= max_obstacles``.
+    duration
+        Encounter length and episode length, in s.
+
+    Returns
+    -------
+    Scenario
+        Named ``"random_crossing"``.
+    """
+    if not 0 <= min_obstacles <= max_obstacles:
+        raise ScenarioError(
+            f"need 0 <= min_obstacles <= max_obstacles, got {min_obstacles}, {max_obstacles}"
+        )
+    start = np.array([-4.5, rng.uniform(-2.5, 2.5)])
+    goal = np.array([4.5, rng.uniform(-2.5, 2.5)])
+    ego_speed = rng.uniform(0.0, 1.5)
+    path = goal - start
+    length = float(np.hypot(*path))
+    direction = path / length
+    count = int(rng.integers(min_obstacles, max_obstacles + 1))
+    obstacles = []
+    for _ in range(count):
+        for _attempt in range(100):
+            fraction = rng.uniform(0.25, 0.75)
+            angle = rng.uniform(math.pi / 6, 5 * math.pi / 6) * rng.choice((-1.0, 1.0))
+            speed = rng.uniform(0.5, 1.5)
+            arrival = fraction * length / rng.uniform(1.0, 3.0)
+            cos, sin = math.cos(angle), math.sin(angle)
+            heading = np.array([cos * direction[0] - sin * direction[1],
+                                sin * direction[0] + cos * direction[1]])
+            crossing = start + fraction * path
+            obstacle_start = crossing - heading * speed * arrival
+            if np.hypot(*(obstacle_start - start)) >= 1.0:
+                break
+        obstacles.append(ObstacleSpec(start=tuple(obstacle_start), velocity=tuple(speed * heading)))
+    return Scenario(
+        name="random_crossing",
+        ego_start=(start[0], start[1], ego_speed, 0.0),
+        goal=tuple(goal),
+        obstacles=tuple(obstacles),
+        duration=duration,
+        noise=noise,
+    )
+
+
+ScenarioFactory = Callable[[np.random.Generator], Scenario]
+"""A scenario family: called with the environment's generator at each reset."""
+
+SCENARIOS: dict[str, Scenario | ScenarioFactory] = {
+    "head_on": HEAD_ON,
+    "overtaking": OVERTAKING,
+    "intersection": INTERSECTION,
+    "multi_obstacle": MULTI_OBSTACLE,
+    "random_crossing": random_crossing,
+}
+"""Scenarios and scenario families by name, as accepted by ``SafeNavEnv(scenario=...)``."""
