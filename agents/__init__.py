@@ -1,0 +1,25 @@
+"""Reference planners and their evaluation with and without the safety filter.
+
+* :func:`train_ppo`, :func:`load_ppo` — the PPO reference planner (Stable-Baselines3);
+  ``load_ppo()`` loads the policy shipped with the package.
+* :class:`MPCReferencePlanner` — the paper's obstacle-agnostic goal-tracking MPC.
+* :func:`evaluate` — Monte Carlo comparison of risk settings, one record per episode.
+
+torch and Stable-Baselines3 are imported only when a PPO policy is trained or loaded.
+"""
+
+from agents.evaluation import EpisodeRecord, EpisodeSpec, evaluate, run_episode
+from agents.planners import MPCReferencePlanner
+from agents.summary import summarise
+from agents.training import load_ppo, train_ppo
+
+__all__ = [
+    "EpisodeRecord",
+    "EpisodeSpec",
+    "MPCReferencePlanner",
+    "evaluate",
+    "load_ppo",
+    "run_episode",
+    "summarise",
+    "train_ppo",
+]

@@ -43,7 +43,7 @@ def finite_array(
         )
     if shape is not None:
         if array.ndim != len(shape) or any(
-            want is not None and got != want for got, want in zip(array.shape, shape)
+            want is not None and got != want for got, want in zip(array.shape, shape, strict=True)
         ):
             expected = tuple("any" if s is None else s for s in shape)
             raise InvalidArrayError(f"{name} must have shape {expected}, got {array.shape}")

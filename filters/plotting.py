@@ -1,0 +1,90 @@
+"""Drawing halfspaces and safe polytopes with matplotlib (imported lazily by callers).
+
+``import filters`` never imports this module; the wrapper's render hook and the
+evaluation plots do, when they draw.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+
+def clip_polygon(polygon: np.ndarray, normal: np.ndarray, offset: float) -> np.ndarray:
+    """Intersect a convex polygon with the halfspace ``normal @ y <= offset``.
+
+    One Sutherland-Hodgman pass: keeps the vertices on the safe side and adds the
+    crossing points of the edges that leave or enter it.
+
+    Parameters
+    ----------
+    polygon
+        Vertices in order, shape (k, 2).
+    normal, offset
+        The halfspace, ``normal`` shape (2,).
+
+    Returns
+    -------
+    numpy.ndarray
+        Vertices of the intersection, shape (k', 2); empty (0, 2) if it is empty.
+    """
+    if len(polygon) == 0:
+        return polygon
+    values = polygon @ normal - offset
+    result = []
+    for k in range(len(polygon)):
+        current, following = polygon[k], polygon[(k + 1) % len(polygon)]
+        v_current, v_following = values[k], values[(k + 1) % len(polygon)]
+        if v_current <= 0:
+            result.append(current)
+        if (v_current < 0 < v_following) or (v_following < 0 < v_current):
+            share = v_current / (v_current - v_following)
+            result.append(current + share * (following - current))
+    return np.asarray(result, dtype=float).reshape(-1, 2)
+
+
+def safe_polygon(
+    normals: np.ndarray, offsets: np.ndarray, bounds: tuple[np.ndarray, np.ndarray]
+) -> np.ndarray:
+    """The polygon ``{y in box : normals[i] @ y <= offsets[i] for all i}``.
+
+    Parameters
+    ----------
+    normals
+        Shape (k, 2).
+    offsets
+        Shape (k,).
+    bounds
+        ``(low, high)`` corners of the bounding box (the arena), each shape (2,).
+    """
+    low, high = (np.asarray(b, dtype=float) for b in bounds)
+    polygon = np.array([[low[0], low[1]], [high[0], low[1]], [high[0], high[1]],
+                        [low[0], high[1]]])
+    for normal, offset in zip(np.asarray(normals), np.asarray(offsets), strict=True):
+        polygon = clip_polygon(polygon, np.asarray(normal, dtype=float), float(offset))
+    return polygon
+
+
+def draw_halfspace(
+    ax: Any, normal: np.ndarray, offset: float, *, color: str = "tab:green",
+    alpha: float = 0.6, label: str | None = None,
+) -> None:
+    """Draw the boundary ``normal @ y = offset`` across the current axes limits.
+
+    The safe side is where ``normal @ y <= offset``, away from the obstacle.
+    """
+    normal = np.asarray(normal, dtype=float)
+    norm = np.linalg.norm(normal)
+    if norm == 0:
+        return
+    normal = normal / norm
+    offset = float(offset) / norm
+    (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+    span = 2.0 * max(x1 - x0, y1 - y0)
+    foot = normal * offset
+    tangent = np.array([-normal[1], normal[0]])
+    ends = np.stack([foot - span * tangent, foot + span * tangent])
+    ax.plot(ends[:, 0], ends[:, 1], color=color, alpha=alpha, lw=1.2, label=label)
+    ax.set_xlim(x0, x1)
+    ax.set_ylim(y0, y1)

@@ -1,0 +1,110 @@
+"""Reference trajectories for the safety filter, made from a planner's proposal.
+
+The safety filter (Problem 2 of the paper) needs a reference trajectory
+``x^r(t), ..., x^r(t+T)`` to stay close to. A learned policy only proposes one
+action per step, so this module turns that proposal into a trajectory:
+
+* :func:`hold_action_reference` holds the proposed action over the horizon.
+  Policy-agnostic and cheap; it is what the wrapper uses during training.
+* :class:`PolicyRolloutReference` rolls the policy itself out over the horizon
+  against the obstacles' predicted mean motion (the learned reference planner of
+  the paper), without touching the environment's state.
+
+Any callable ``reference(env, action) -> (states (T+1, n), inputs (T, m))`` can be
+passed to :class:`filters.SafetyFilterWrapper` instead; ``env`` is the
+:class:`filters.protocol.FilterableEnv` behind the wrapper.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, Protocol
+
+import numpy as np
+
+from filters.errors import InvalidTypeError
+from filters.protocol import FilterableEnv
+
+ReferenceMaker = Callable[[FilterableEnv, np.ndarray, int], tuple[np.ndarray, np.ndarray]]
+"""Signature of a reference maker: ``(env, proposed_action, horizon) -> (states, inputs)``."""
+
+
+class Policy(Protocol):
+    """Anything with Stable-Baselines3's ``predict``.
+
+    A PPO model, or :class:`agents.MPCReferencePlanner`.
+    """
+
+    def predict(
+        self, observation: np.ndarray, state: Any = None, episode_start: Any = None,
+        deterministic: bool = False,
+    ) -> tuple[np.ndarray, Any]: ...
+
+
+def rollout(A: np.ndarray, B: np.ndarray, x0: np.ndarray, inputs: np.ndarray) -> np.ndarray:
+    """States of ``x_{k+1} = A x_k + B u_k`` from ``x0`` under ``inputs`` (T, m).
+
+    Returns
+    -------
+    numpy.ndarray
+        Shape ``(T+1, n)``, row 0 is ``x0``.
+    """
+    states = np.empty((inputs.shape[0] + 1, x0.shape[0]))
+    states[0] = x0
+    for k, u in enumerate(inputs):
+        states[k + 1] = A @ states[k] + B @ u
+    return states
+
+
+def hold_action_reference(
+    env: FilterableEnv, action: np.ndarray, horizon: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Hold ``action`` (clipped to the input box) for ``horizon`` steps from the current state.
+
+    .. math:: u^r_k = \\operatorname{clip}(a, u_{min}, u_{max}),\\quad
+              x^r_{k+1} = A x^r_k + B u^r_k,\\quad x^r_0 = x_t.
+    """
+    A, B, _ = env.dynamics
+    low, high = env.input_bounds
+    inputs = np.tile(np.clip(np.asarray(action, dtype=float), low, high), (horizon, 1))
+    return rollout(A, B, np.asarray(env.ego_state, dtype=float), inputs), inputs
+
+
+class PolicyRolloutReference:
+    """Roll ``policy`` out over the horizon on the obstacles' predicted mean motion.
+
+    Step 0 uses the action the agent proposed; step k >= 1 asks the policy (deterministic)
+    for the action it would take at the predicted state, where each obstacle sits at the
+    mean of its prediction samples for that step. The environment is not stepped.
+
+    Parameters
+    ----------
+    policy
+        Object with a Stable-Baselines3 style ``predict(obs, deterministic=True)``.
+    """
+
+    def __init__(self, policy: Policy) -> None:
+        if not callable(getattr(policy, "predict", None)):
+            raise InvalidTypeError(
+                f"policy must have a predict(observation, deterministic=...) method, got {policy!r}"
+            )
+        self.policy = policy
+
+    def __call__(
+        self, env: FilterableEnv, action: np.ndarray, horizon: int
+    ) -> tuple[np.ndarray, np.ndarray]:
+        A, B, _ = env.dynamics
+        low, high = env.input_bounds
+        predicted_means = np.asarray(env.predictions).mean(axis=1)  # (n_obstacles, T, d)
+        velocities = np.asarray(env.obstacle_velocities)
+        states = np.empty((horizon + 1, A.shape[0]))
+        inputs = np.empty((horizon, B.shape[1]))
+        states[0] = env.ego_state
+        inputs[0] = np.clip(action, low, high)
+        for k in range(horizon):
+            if k > 0:
+                observation = env.observe(states[k], predicted_means[:, k - 1], velocities)
+                proposal, _ = self.policy.predict(observation, deterministic=True)
+                inputs[k] = np.clip(np.asarray(proposal, dtype=float).reshape(-1), low, high)
+            states[k + 1] = A @ states[k] + B @ inputs[k]
+        return states, inputs
