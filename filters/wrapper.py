@@ -349,7 +349,10 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 f"{predictions.shape[2]} of the environment"
             )
         previous = self._previous_normals
-        if previous is not None and previous.shape[0] != len(radii):
+        if previous is not None and previous.shape[0] == len(radii):
+            # Last step's normals, shifted by one step to line up with this horizon.
+            previous = np.concatenate([previous[:, 1:], previous[:, -1:]], axis=1)
+        else:
             previous = None
         return safe_halfspaces(
             ref_states[1:, :] @ base.dynamics[2].T,
