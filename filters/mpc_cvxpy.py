@@ -19,9 +19,10 @@ The problem is built once with ``cvxpy.Parameter`` objects for :math:`x_0`, the
 references, the normals and the offsets (DPP-compliant, so CVXPY caches the
 canonicalisation and each solve only refills the parameters), and solved with
 Clarabel through CVXPY. :class:`CVXPYSafetyFilter` shares the validation, the
-fallback rule (``SHIFTED`` then ``BRAKE``) and the :class:`~filters.mpc.FilterResult`
-of the fast filter, so the two can be compared result by result. Its
-``solve_time`` is the wall time of ``problem.solve`` (CVXPY's parameter
+fallback rule (``SHIFTED`` then ``BRAKE``) and the
+:class:`~filters.mpc_result.FilterResult` of the fast filter (both derive from
+:class:`filters.mpc_base.SafetyFilterBase`), so the two can be compared result
+by result. Its ``solve_time`` is the wall time of ``problem.solve`` (CVXPY's parameter
 substitution included), which is what a user of CVXPY pays per step.
 
 CVXPY is imported by this module only; ``import filters.mpc`` does not import it.
@@ -36,7 +37,8 @@ from typing import Any
 import cvxpy as cp
 import numpy as np
 
-from filters.mpc import SOFT_GAP_TOLERANCE, _QPAttempt, _SafetyFilterBase
+from filters.mpc_base import SOFT_GAP_TOLERANCE, SafetyFilterBase
+from filters.mpc_result import _QPAttempt
 
 __all__ = ["CVXPYSafetyFilter"]
 
@@ -49,7 +51,7 @@ def _square_root(matrix: np.ndarray) -> np.ndarray:
     return np.sqrt(np.clip(eigenvalues, 0.0, None))[:, None] * vectors.T
 
 
-class CVXPYSafetyFilter(_SafetyFilterBase):
+class CVXPYSafetyFilter(SafetyFilterBase):
     """Problem 2 in CVXPY, built once with parameters; same API as :class:`MPCSafetyFilter`.
 
     Parameters
