@@ -114,8 +114,9 @@ def plot_collision_rates(rows: Sequence[SummaryRow], path: str | Path) -> Path:
                 row = match[0]
                 xs.append(i + (j - (len(risks) - 1) / 2) * width)
                 rates.append(row.collision_rate)
-                low.append(row.collision_rate - row.collision_low)
-                high.append(row.collision_high - row.collision_rate)
+                # Clipped at 0: the interval's ends carry rounding error at rates 0 and 1.
+                low.append(max(0.0, row.collision_rate - row.collision_low))
+                high.append(max(0.0, row.collision_high - row.collision_rate))
         ax.bar(xs, rates, width, yerr=[low, high], capsize=3, color=RISK_COLORS.get(risk),
                label=RISK_LABELS.get(risk, risk))
     ax.set_xticks(range(len(scenarios)), [short_name(s) for s in scenarios])

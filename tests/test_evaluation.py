@@ -111,6 +111,18 @@ def test_wilson_interval_brackets_the_rate_and_matches_a_known_value():
     assert (low, high) == pytest.approx((0.2189, 0.3958), abs=1e-4)
 
 
+def test_collision_bars_draw_rates_of_zero_and_one(tmp_path):
+    from agents.plots import plot_collision_rates
+    from agents.summary import SummaryRow
+
+    rows = []
+    for risk, hits in (("none", 300), ("dr_cvar", 0)):
+        low, high = wilson_interval(hits, 300)
+        rows.append(SummaryRow("SafeNav/HeadOn-v0", "ppo", risk, 300, 0, hits / 300, low, high,
+                               0.0, 0.0, 1.0, 2.0, 0.0, 0.0, 0.0))
+    assert plot_collision_rates(rows, tmp_path / "bars.png").stat().st_size > 1000
+
+
 def test_lower_tail_mean_is_the_mean_of_the_worst_share():
     values = np.arange(20.0)
     assert lower_tail_mean(values, 0.1) == pytest.approx(0.5)
