@@ -106,14 +106,15 @@ def benchmark_filter_step(n_steps: int = 500, seed: int = 0) -> FilterStepBenchm
         episode += 1
         done = False
         instances.append(None)  # episode boundary: reset the reference filter too
+        ego_shape = Disc(base.ego_radius)  # built once per episode, as the wrapper does
+        obstacle_shapes = [Disc(r) for r in base.obstacle_radii]
         while not done and len(step_ms) < n_steps:
             x0 = np.asarray(base.ego_state, dtype=float)
             ref_states, ref_inputs = planner.plan(x0, base.goal)
             begin = time.perf_counter()
             hs = safe_halfspaces(
-                ref_states[1:] @ C.T, base.predictions, ego_shape=Disc(base.ego_radius),
-                obstacle_shapes=[Disc(r) for r in base.obstacle_radii], risk="dr_cvar",
-                ego_velocity=x0[2:])
+                ref_states[1:] @ C.T, base.predictions, ego_shape=ego_shape,
+                obstacle_shapes=obstacle_shapes, risk="dr_cvar", ego_velocity=x0[2:])
             middle = time.perf_counter()
             result = ours.solve(x0, ref_states, hs, reference_inputs=ref_inputs)
             end = time.perf_counter()

@@ -364,12 +364,19 @@ def _check_shapes(
 
 
 def _check_velocity(ego_velocity: object, horizon: int, dim: int) -> np.ndarray:
-    velocity = finite_array("ego_velocity", ego_velocity)
+    """The ego velocity as given, ``(d,)`` or ``(T, d)``; broadcast only when a fallback
+    needs it (this check runs every control step, the fallback rarely)."""
+    try:
+        velocity = np.asarray(ego_velocity, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise InvalidArrayError(f"ego_velocity must be numeric, got {ego_velocity!r}") from exc
     if velocity.shape not in ((dim,), (horizon, dim)):
         raise InvalidArrayError(
             f"ego_velocity must have shape ({dim},) or ({horizon}, {dim}), got {velocity.shape}"
         )
-    return np.broadcast_to(velocity, (horizon, dim))
+    if not np.isfinite(velocity).all():
+        finite_array("ego_velocity", velocity)  # names the first non-finite entry
+    return velocity
 
 
 def _check_support(
@@ -432,6 +439,7 @@ def _normals(
     fallback = np.zeros((n_obstacles, horizon, dim))
     fallback[..., 0] = 1.0
     if velocity is not None:
+        velocity = np.broadcast_to(velocity, (horizon, dim))
         speed = np.linalg.norm(velocity, axis=-1)
         moving = speed >= DEGENERATE_DISTANCE
         away = -velocity / np.where(moving, speed, 1.0)[..., None]

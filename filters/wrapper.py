@@ -248,6 +248,7 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._previous_normals: np.ndarray | None = None
         self._last_halfspaces: Halfspaces | None = None
         self._hook: Callable[[Any], None] | None = None
+        self._shape_cache: tuple[tuple, Disc, list[Disc]] | None = None
         if risk != "none":
             self._mpc = self._build_filter(max(1, len(np.asarray(base.obstacle_radii))))
 
@@ -354,14 +355,22 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             previous = np.concatenate([previous[:, 1:], previous[:, -1:]], axis=1)
         else:
             previous = None
+        ego_shape, obstacle_shapes = self._shapes(float(base.ego_radius), radii)
         return safe_halfspaces(
             ref_states[1:, :] @ base.dynamics[2].T,
             predictions[:, :, : self.horizon],
-            ego_shape=Disc(float(base.ego_radius)),
-            obstacle_shapes=[Disc(float(r)) for r in radii],
+            ego_shape=ego_shape,
+            obstacle_shapes=obstacle_shapes,
             risk=self.risk, alpha=self.alpha, delta=self.delta, epsilon=self.epsilon,
             support=self.support, previous_normals=previous, ego_velocity=x0[2:],
         )
+
+    def _shapes(self, ego_radius: float, radii: np.ndarray) -> tuple[Disc, list[Disc]]:
+        """The ego and obstacle discs, built once per set of radii (not every step)."""
+        key = (ego_radius, tuple(radii.tolist()))
+        if self._shape_cache is None or self._shape_cache[0] != key:
+            self._shape_cache = (key, Disc(ego_radius), [Disc(r) for r in key[1]])
+        return self._shape_cache[1], self._shape_cache[2]
 
     def _install_render_hook(self) -> None:
         hooks = self._base.render_hooks

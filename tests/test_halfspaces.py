@@ -390,6 +390,8 @@ def with_value(index, value):
         (dict(previous_normals=np.ones((2, 4))), InvalidArrayError, "previous_normals"),
         (dict(previous_normals=np.full((2, 4, 2), np.nan)), InvalidArrayError, "previous_normals"),
         (dict(ego_velocity=np.ones(3)), InvalidArrayError, "ego_velocity"),
+        (dict(ego_velocity=np.array([np.nan, 1.0])), InvalidArrayError, "ego_velocity"),
+        (dict(ego_velocity="fast"), InvalidArrayError, "ego_velocity"),
         (dict(support=(np.ones((4, 3)), np.ones(4))), InvalidArrayError, "support"),
         (dict(support=(np.ones((4, 2)), np.ones(3))), InvalidArrayError, "support"),
         (dict(support=(np.zeros((1, 2)), np.ones(1))), InvalidArrayError, "support"),

@@ -222,7 +222,8 @@ def test_render_hook_is_installed_once_and_frames_render():
 def test_record_video_writes_a_file(tmp_path):
     pytest.importorskip("moviepy", reason="RecordVideo needs moviepy (dev extra)")
     env = gym.make("SafeNav/HeadOn-v0", render_mode="rgb_array")
-    env = gym.wrappers.RecordVideo(SafetyFilterWrapper(env, risk="dr_cvar"), str(tmp_path),
+    folder = tmp_path / "videos"
+    env = gym.wrappers.RecordVideo(SafetyFilterWrapper(env, risk="dr_cvar"), str(folder),
                                    episode_trigger=lambda e: True, disable_logger=True)
     planner = MPCReferencePlanner.from_env(env)
     obs, _ = env.reset(seed=0)
@@ -232,7 +233,7 @@ def test_record_video_writes_a_file(tmp_path):
         obs, _, terminated, truncated, _ = env.step(action)
         done = terminated or truncated
     env.close()
-    assert list(tmp_path.glob("*.mp4"))
+    assert list(folder.glob("*.mp4"))
 
 
 def test_sb3_learns_on_the_filtered_env():
