@@ -96,6 +96,9 @@ def _add_evaluation_arguments(parser: argparse.ArgumentParser, *, episodes: int)
     parser.add_argument("--alpha", type=float, default=0.2)
     parser.add_argument("--delta", type=float, default=0.1)
     parser.add_argument("--epsilon", type=float, default=0.05)
+    parser.add_argument("--noise", default="",
+                        help="noise preset of the environment, e.g. authors_code "
+                        "(default: the scenario's, as in the paper's text)")
     parser.add_argument("--output", type=Path, default=Path("results/evaluate"))
     parser.add_argument("--no-plots", action="store_true")
     parser.add_argument("--no-progress", action="store_true")
@@ -128,7 +131,8 @@ def _evaluate(args: argparse.Namespace) -> int:
 
     common = dict(episodes=args.episodes, workers=args.workers, seed=args.seed,
                   planner=args.planner, reference=args.reference, policy_path=args.policy,
-                  alpha=args.alpha, executor=args.executor, progress=not args.no_progress)
+                  alpha=args.alpha, noise=args.noise, executor=args.executor,
+                  progress=not args.no_progress)
     if args.sweep:
         outputs = run_sweep(args.output, args.scenarios, epsilons=args.epsilons,
                             deltas=args.deltas, **common)

@@ -64,6 +64,9 @@ class EpisodeSpec:
         Risk parameters (tail mass, risk bound in m, Wasserstein radius in m).
     policy_path
         PPO policy file; empty for the shipped one.
+    noise
+        Noise preset of the environment (``safe_nav_env.NOISE_PRESETS``, e.g.
+        ``"authors_code"``); empty for the scenario's own (the paper's text).
     """
 
     scenario: str
@@ -75,11 +78,12 @@ class EpisodeSpec:
     delta: float = 0.1
     epsilon: float = 0.05
     policy_path: str = ""
+    noise: str = ""
 
     def key(self) -> tuple:
         """Identity of the episode in a results file (used to resume)."""
         return (self.scenario, self.risk, int(self.seed), self.planner, self.reference,
-                float(self.alpha), float(self.delta), float(self.epsilon))
+                float(self.alpha), float(self.delta), float(self.epsilon), self.noise)
 
 
 @dataclass(frozen=True)
@@ -97,6 +101,7 @@ class EpisodeRecord:
     alpha: float
     delta: float
     epsilon: float
+    noise: str = ""
     steps: int = 0
     collision: bool = False
     collision_steps: int = 0
@@ -116,7 +121,7 @@ class EpisodeRecord:
 
     def key(self) -> tuple:
         return (self.scenario, self.risk, int(self.seed), self.planner, self.reference,
-                float(self.alpha), float(self.delta), float(self.epsilon))
+                float(self.alpha), float(self.delta), float(self.epsilon), self.noise)
 
 
 RECORD_FIELDS = tuple(f.name for f in fields(EpisodeRecord))
@@ -163,7 +168,10 @@ def make_env(spec: EpisodeSpec, *, render_mode: str | None = None, policy: Any =
     import safe_nav_env  # noqa: F401
     from filters import SafetyFilterWrapper
 
-    env = gym.make(spec.scenario, render_mode=render_mode, **(env_kwargs or {}))
+    kwargs = dict(env_kwargs or {})
+    if spec.noise:
+        kwargs.setdefault("noise", spec.noise)
+    env = gym.make(spec.scenario, render_mode=render_mode, **kwargs)
     planner = policy if policy is not None else _load_planner(spec.planner, spec.policy_path, env)
     filter_kwargs: dict[str, Any] = dict(risk=spec.risk, alpha=spec.alpha, delta=spec.delta,
                                          epsilon=spec.epsilon)
@@ -195,7 +203,7 @@ def run_episode(
     """
     base_fields = dict(scenario=spec.scenario, risk=spec.risk, seed=int(spec.seed),
                        planner=spec.planner, reference=spec.reference, alpha=spec.alpha,
-                       delta=spec.delta, epsilon=spec.epsilon)
+                       delta=spec.delta, epsilon=spec.epsilon, noise=spec.noise)
     start = time.perf_counter()
     stats = _EpisodeStats()
     trajectory = None
@@ -333,6 +341,13 @@ def episode_specs(
     reference = spec_kwargs.get("reference", "rollout")
     if reference not in REFERENCES:
         raise InvalidParameterError(f"reference must be one of {REFERENCES}, got {reference!r}")
+    noise = spec_kwargs.get("noise", "")
+    if noise:
+        from safe_nav_env import NOISE_PRESETS
+
+        if noise not in NOISE_PRESETS:
+            raise InvalidParameterError(
+                f"noise must be '' or one of {sorted(NOISE_PRESETS)}, got {noise!r}")
     return [EpisodeSpec(scenario=s, risk=r, seed=seed + i, **spec_kwargs)
             for s in scenarios for r in risks for i in range(episodes)]
 
@@ -481,8 +496,8 @@ def evaluate(
     progress
         Show a progress bar.
     **spec_kwargs
-        ``planner``, ``reference``, ``alpha``, ``delta``, ``epsilon``, ``policy_path``
-        (see :class:`EpisodeSpec`).
+        ``planner``, ``reference``, ``alpha``, ``delta``, ``epsilon``, ``policy_path``,
+        ``noise`` (see :class:`EpisodeSpec`).
 
     Returns
     -------

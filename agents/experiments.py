@@ -60,6 +60,7 @@ def run_evaluation(
     alpha: float = 0.2,
     delta: float = 0.1,
     epsilon: float = 0.05,
+    noise: str = "",
     executor: str = "process",
     plots: bool = True,
     progress: bool = True,
@@ -73,7 +74,7 @@ def run_evaluation(
     output.mkdir(parents=True, exist_ok=True)
     spec_kwargs: dict[str, Any] = dict(planner=planner, reference=reference,
                                        policy_path=policy_path, alpha=alpha, delta=delta,
-                                       epsilon=epsilon)
+                                       epsilon=epsilon, noise=noise)
     start = time.perf_counter()
     records = evaluate(scenarios, risks, episodes=episodes, seed=seed, workers=workers,
                        executor=executor, csv_path=output / "episodes.csv", progress=progress,
@@ -83,7 +84,8 @@ def run_evaluation(
     files = {"episodes": output / "episodes.csv", "summary": output / "summary.md"}
     (output / "summary.md").write_text(
         f"# Evaluation summary\n\nplanner `{planner}` (reference `{reference}`), "
-        f"alpha {alpha}, delta {delta}, epsilon {epsilon}, {episodes} episodes per row, "
+        f"alpha {alpha}, delta {delta}, epsilon {epsilon}, noise `{noise or 'scenario'}`, "
+        f"{episodes} episodes per row, "
         f"seeds {seed}..{seed + episodes - 1}\n\n{markdown}"
     )
     if plots:
@@ -148,6 +150,7 @@ def run_sweep(
     reference: str = "rollout",
     policy_path: str = "",
     alpha: float = 0.2,
+    noise: str = "",
     executor: str = "process",
     progress: bool = True,
 ) -> EvaluationOutputs:
@@ -168,7 +171,7 @@ def run_sweep(
                                workers=workers, executor=executor,
                                csv_path=output / "sweep.csv", progress=progress,
                                planner=planner, reference=reference, policy_path=policy_path,
-                               alpha=alpha, delta=delta, epsilon=epsilon)
+                               alpha=alpha, delta=delta, epsilon=epsilon, noise=noise)
             ok = [r for r in records if not r.error]
             n = max(1, len(ok))
             points.append(dict(

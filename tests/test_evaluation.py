@@ -94,6 +94,23 @@ def test_records_round_trip_through_csv(tmp_path):
     assert read_records(path) == records
 
 
+def test_noise_preset_reaches_the_environment_and_the_record(tmp_path):
+    spec = EpisodeSpec("SafeNav/HeadOn-v0", "cvar", 0, planner="mpc", noise="authors_code")
+    record, trajectory = run_episode(spec, record_trajectory=True)
+    assert record.noise == "authors_code" and record.error == ""
+    paper, _ = run_episode(replace(spec, noise=""))
+    assert record.min_distance != paper.min_distance
+    from agents.evaluation import make_env
+
+    env, _ = make_env(spec)
+    env.reset(seed=0)
+    assert env.unwrapped.predictions.shape[1] == 20  # the authors' code draws 20 samples
+    path = tmp_path / "noise.csv"
+    evaluate(["SafeNav/HeadOn-v0"], ["cvar"], episodes=1, csv_path=path, progress=False,
+             planner="mpc", noise="authors_code")
+    assert read_records(path)[0].noise == "authors_code"
+
+
 def test_bad_evaluation_arguments_are_named():
     with pytest.raises(InvalidParameterError, match="risk"):
         episode_specs(["SafeNav/HeadOn-v0"], ["maximal"], 1)
@@ -101,6 +118,8 @@ def test_bad_evaluation_arguments_are_named():
         episode_specs(["SafeNav/HeadOn-v0"], ["none"], 0)
     with pytest.raises(InvalidParameterError, match="planner"):
         episode_specs(["SafeNav/HeadOn-v0"], ["none"], 1, planner="rrt")
+    with pytest.raises(InvalidParameterError, match="noise"):
+        episode_specs(["SafeNav/HeadOn-v0"], ["none"], 1, noise="pink")
 
 
 def test_wilson_interval_brackets_the_rate_and_matches_a_known_value():
