@@ -214,16 +214,7 @@ def run_episode(
             obs, info = env.reset(seed=int(spec.seed))
             base = env.unwrapped
             stats.start(base, info)
-            if record_trajectory:
-                trajectory = Trajectory(
-                    ego=np.empty((0, 2)), obstacles=np.empty((0, 0, 2)),
-                    obstacle_radii=np.asarray(base.obstacle_radii, dtype=float).copy(),
-                    ego_radius=float(base.ego_radius), goal=np.asarray(base.goal).copy(),
-                    halfspaces=[], statuses=[], frames=[])
-                ego_positions = [np.asarray(base.ego_state[:2], dtype=float).copy()]
-                obstacle_positions = [np.asarray(base.obstacle_positions, dtype=float).copy()]
-                if render:
-                    trajectory.frames.append(env.render())
+            recorder = _TrajectoryRecorder(env, render) if record_trajectory else None
             done = False
             while not done:
                 action, _ = planner.predict(obs, deterministic=True)
@@ -231,21 +222,11 @@ def run_episode(
                 if not np.all(np.isfinite(obs)):
                     raise FloatingPointError(f"non-finite observation at step {stats.steps + 1}")
                 stats.step(base, reward, info)
-                if record_trajectory:
-                    ego_positions.append(np.asarray(base.ego_state[:2], dtype=float).copy())
-                    obstacle_positions.append(
-                        np.asarray(base.obstacle_positions, dtype=float).copy())
-                    report = info["filter"]
-                    trajectory.statuses.append(report["status"])
-                    if render:
-                        trajectory.frames.append(env.render())
-                    if report["normals"] is not None:
-                        trajectory.halfspaces.append(
-                            (np.asarray(report["normals"]), np.asarray(report["offsets"])))
+                if recorder is not None:
+                    recorder.record(info["filter"])
                 done = terminated or truncated
-            if record_trajectory:
-                trajectory.ego = np.asarray(ego_positions)
-                trajectory.obstacles = np.asarray(obstacle_positions)
+            if recorder is not None:
+                trajectory = recorder.trajectory()
         finally:
             env.close()
         error = ""
@@ -256,6 +237,41 @@ def run_episode(
     record = EpisodeRecord(**base_fields, **stats.summary(), wall_time=time.perf_counter() - start,
                            error=error)
     return record, trajectory
+
+
+class _TrajectoryRecorder:
+    """Collects an episode's positions, statuses, halfspaces and (optionally) frames."""
+
+    def __init__(self, env: Any, render: bool) -> None:
+        self._env, self._base, self._render = env, env.unwrapped, render
+        self._ego: list[np.ndarray] = []
+        self._obstacles: list[np.ndarray] = []
+        self._statuses: list[str] = []
+        self._halfspaces: list[tuple[np.ndarray, np.ndarray]] = []
+        self._frames: list[np.ndarray] = []
+        self._snapshot()
+
+    def _snapshot(self) -> None:
+        self._ego.append(np.asarray(self._base.ego_state[:2], dtype=float).copy())
+        self._obstacles.append(np.asarray(self._base.obstacle_positions, dtype=float).copy())
+        if self._render:
+            self._frames.append(self._env.render())
+
+    def record(self, report: Any) -> None:
+        """After a step: the new positions and what the filter did."""
+        self._snapshot()
+        self._statuses.append(report["status"])
+        if report["normals"] is not None:
+            self._halfspaces.append((np.asarray(report["normals"]),
+                                     np.asarray(report["offsets"])))
+
+    def trajectory(self) -> Trajectory:
+        base = self._base
+        return Trajectory(
+            ego=np.asarray(self._ego), obstacles=np.asarray(self._obstacles),
+            obstacle_radii=np.asarray(base.obstacle_radii, dtype=float).copy(),
+            ego_radius=float(base.ego_radius), goal=np.asarray(base.goal, dtype=float).copy(),
+            halfspaces=self._halfspaces, statuses=self._statuses, frames=self._frames)
 
 
 class _EpisodeStats:

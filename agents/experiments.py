@@ -108,32 +108,35 @@ def make_figures(
     from agents import plots
 
     files: dict[str, Path] = {}
+    # One rendered run (MultiObstacle if evaluated, DR-CVaR if evaluated) also gives the
+    # safe-polytope figure and the animation; every other run only its trajectory.
+    featured = ("SafeNav/MultiObstacle-v0" if "SafeNav/MultiObstacle-v0" in scenarios
+                else scenarios[0], "dr_cvar" if "dr_cvar" in risks else risks[-1])
+    featured_trajectory = None
     for scenario in scenarios:
         trajectories = {}
         for risk in risks:
+            render = (scenario, risk) == featured
             _, traj = run_episode(EpisodeSpec(scenario, risk, seed, **spec_kwargs),
-                                  record_trajectory=True)
+                                  record_trajectory=True, render=render)
             if traj is not None:
                 trajectories[risk] = traj
+                if render:
+                    featured_trajectory = traj
         name = short_name(scenario)
         files[f"trajectories_{name}"] = plots.plot_trajectories(
             trajectories, folder / f"trajectories_{name}.png", title=f"{name}, seed {seed}")
     files["distance_boxplots"] = plots.plot_distance_boxplots(records,
                                                               folder / "distance_boxplots.png")
     files["collision_rates"] = plots.plot_collision_rates(rows, folder / "collision_rates.png")
-    polytope_scenario = ("SafeNav/MultiObstacle-v0" if "SafeNav/MultiObstacle-v0" in scenarios
-                         else scenarios[0])
-    polytope_risk = "dr_cvar" if "dr_cvar" in risks else risks[-1]
-    _, traj = run_episode(EpisodeSpec(polytope_scenario, polytope_risk, seed, **spec_kwargs),
-                          record_trajectory=True)
-    if traj is not None:
+    if featured_trajectory is not None:
+        scenario, risk = featured
         files["safe_polytopes"] = plots.plot_safe_polytopes(
-            traj, folder / "safe_polytopes.png",
-            title=f"{short_name(polytope_scenario)}: {polytope_risk} safe polytopes")
-    _, traj = run_episode(EpisodeSpec(polytope_scenario, polytope_risk, seed, **spec_kwargs),
-                          record_trajectory=True, render=True)
-    if traj is not None and traj.frames:
-        files["animation"] = plots.save_gif(traj.frames, folder / "episode.gif")
+            featured_trajectory, folder / "safe_polytopes.png",
+            title=f"{short_name(scenario)}: {risk} safe polytopes")
+        if featured_trajectory.frames:
+            files["animation"] = plots.save_gif(featured_trajectory.frames,
+                                                folder / "episode.gif")
     return files
 
 

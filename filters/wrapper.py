@@ -42,11 +42,8 @@ RISKS = ("none", "mean", "cvar", "dr_cvar")
 PASSTHROUGH = "passthrough"
 """Filter status reported when ``risk="none"``."""
 
-_PROTOCOL_ATTRIBUTES = (
-    "dt", "dynamics", "ego_state", "ego_radius", "obstacle_radii", "obstacle_positions",
-    "obstacle_velocities", "predictions", "input_bounds", "position_bounds", "goal",
-    "render_hooks", "observe",
-)
+_PROTOCOL_ATTRIBUTES = (*FilterableEnv.__annotations__, "observe")
+"""Everything :class:`filters.protocol.FilterableEnv` asks of ``env.unwrapped``."""
 
 
 _TIMING_FIELDS = ("solve_time", "halfspace_time", "filter_time", "reference_time")
