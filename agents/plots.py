@@ -228,19 +228,25 @@ def find_collisions(trajectory: Any, *, dt: float | None = None) -> list[Collisi
 # ---------------------------------------------------------------------------- figures
 def plot_trajectories(
     trajectories: Mapping[str, Any], path: str | Path, *, title: str = "", every: int = 5,
-    bounds=((-5.0, -5.0), (5.0, 5.0)),
+    bounds: tuple[tuple[float, float], tuple[float, float]] | None = None,
 ) -> Path:
     """Ego paths of one seed under each risk setting, obstacles in black (Fig. 4, left).
 
-    The discs (ego in the risk's colour, obstacles in black) are drawn to scale at
-    every ``every``-th sample and at the end. Each first contact with an obstacle
-    (:func:`find_collisions`) is marked with an ``x`` at the ego's centre, both discs
-    drawn at that instant with a thick outline, and the contact time.
+    ``bounds`` ``((x_min, y_min), (x_max, y_max))`` in m; default: the paths, the
+    discs and the goal with a 0.5 m margin. The discs (ego in the risk's colour,
+    obstacles in black) are drawn to scale at every ``every``-th sample and at the end.
+    Each first contact with an obstacle (:func:`find_collisions`) is marked with an
+    ``x`` at the ego's centre, both discs drawn at that instant with a thick outline,
+    and the contact time.
     """
     if every < 1:
         raise InvalidParameterError(f"every must be >= 1, got {every!r}")
     plt = _pyplot()
-    fig, ax = plt.subplots(figsize=(6.5, 6.5))
+    if bounds is None:
+        bounds = _fit_bounds(trajectories.values())
+    (x0, y0), (x1, y1) = bounds
+    width = 7.0
+    fig, ax = plt.subplots(figsize=(width, max(3.0, min(8.0, width * (y1 - y0) / (x1 - x0)))))
     _arena(ax, bounds)
     drawn_obstacles = False
     collision_label = None
@@ -277,9 +283,25 @@ def plot_trajectories(
                         color=color, textcoords="offset points", xytext=(6, 6))
     if collision_label is not None:
         ax.plot([], [], "x", color="crimson", ms=8, mew=2, label=collision_label)
-    ax.legend(loc="best", fontsize=8)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
     ax.set_title(title)
     return _save(fig, path)
+
+
+def _fit_bounds(trajectories: Any, margin: float = 0.5) -> tuple[tuple[float, float], ...]:
+    points = []
+    for traj in trajectories:
+        reach = max([float(traj.ego_radius)] + list(np.asarray(traj.obstacle_radii, float)))
+        points.append(np.asarray(traj.ego, float).reshape(-1, 2))
+        points.append(np.asarray(traj.obstacles, float).reshape(-1, 2))
+        points.append(np.asarray(traj.goal, float).reshape(1, 2))
+    if not points:
+        return ((-5.0, -5.0), (5.0, 5.0))
+    cloud = np.concatenate(points)
+    cloud = cloud[np.all(np.isfinite(cloud), axis=1)]
+    pad = margin + reach
+    low, high = cloud.min(axis=0) - pad, cloud.max(axis=0) + pad
+    return (tuple(low.tolist()), tuple(high.tolist()))
 
 
 def plot_distance_boxplots(records: Sequence[EpisodeRecord], path: str | Path) -> Path:
@@ -360,7 +382,7 @@ def plot_window_boxplots(
     axes[0][0].set_ylabel("sampled distance to collision (m)")
     axes[0][-1].legend(fontsize=7)
     if title:
-        fig.suptitle(title)
+        fig.suptitle(title, y=1.04)
     return _save(fig, path)
 
 
@@ -405,9 +427,10 @@ def plot_collision_rates(
                     rotation=90, gid="bar-count")
     ax.set_xticks(range(len(scenarios)), [short_name(s) for s in scenarios])
     ax.set_ylabel(ylabel)
-    ax.set_ylim(0, 1.15)
+    ax.set_ylim(0, 1.18)
     ax.set_yticks(np.linspace(0, 1, 6))
-    ax.legend(fontsize=8, loc="upper right", ncol=len(risks))
+    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=len(risks),
+              frameon=False)
     ax.grid(alpha=0.3, axis="y")
     return _save(fig, path)
 

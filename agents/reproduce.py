@@ -40,8 +40,7 @@ three ways, and this module follows the paper in each:
 
 Collisions are given both ways: *continuous time* (the minimum clearance over each
 step, ego on its constant-acceleration arc, obstacles on the chord between their
-realised positions: ``info["swept_distance_to_collision"]``, recomputed here with
-:func:`agents.plots.step_clearance` if the environment does not report it) and
+realised positions: ``info["swept_distance_to_collision"]`` of the environment) and
 *sampled* (the clearance at the 0.2 s samples, ``info["distance_to_collision"]``),
 which is what the paper's numbers count.
 """
@@ -291,10 +290,8 @@ class EncounterRecord:
     distances
         (S+1, n) sampled distances to collision, in m (``info["distance_to_collision"]``).
     swept
-        (S, n) minimum clearance over each step, in m (continuous time).
-    swept_source
-        ``"environment"`` (``info["swept_distance_to_collision"]``) or ``"recomputed"``
-        (:func:`agents.plots.step_clearance` on the recorded states).
+        (S, n) minimum clearance over each step, in m (continuous time,
+        ``info["swept_distance_to_collision"]``).
     statuses, filter_times
         The filter's status and its step time (s) at each step.
     halfspaces, frames
@@ -316,7 +313,6 @@ class EncounterRecord:
     obstacles: np.ndarray
     distances: np.ndarray
     swept: np.ndarray
-    swept_source: str
     statuses: tuple[str, ...]
     filter_times: np.ndarray
     halfspaces: list = field(default_factory=list)
@@ -388,7 +384,6 @@ def run_encounter(job: EncounterJob) -> EncounterRecord:
     start = time.perf_counter()
     ego_states, inputs, obstacles, distances, swept = [], [], [], [], []
     statuses, filter_times, halfspaces, frames = [], [], [], []
-    sources: set[str] = set()
     error = ""
     dt, ego_radius, radii, goal = 0.2, 0.3, np.zeros(0), np.zeros(2)
     try:
@@ -414,13 +409,10 @@ def run_encounter(job: EncounterJob) -> EncounterRecord:
                 ego_states.append(np.asarray(base.ego_state, dtype=float).copy())
                 obstacles.append(np.asarray(base.obstacle_positions, dtype=float).copy())
                 distances.append(np.asarray(info["distance_to_collision"], dtype=float).copy())
-                if "swept_distance_to_collision" in info:
-                    swept.append(np.asarray(info["swept_distance_to_collision"], float).copy())
-                    sources.add("environment")
-                else:
-                    swept.append(_recompute_swept(ego_states[-2], applied, obstacles[-2],
-                                                  obstacles[-1], radii + ego_radius, dt))
-                    sources.add("recomputed")
+                if "swept_distance_to_collision" not in info:
+                    raise KeyError("the environment does not report "
+                                   "info['swept_distance_to_collision'] (continuous time)")
+                swept.append(np.asarray(info["swept_distance_to_collision"], float).copy())
                 statuses.append(str(report["status"]))
                 filter_times.append(float(report["filter_time"]))
                 if job.record_halfspaces and report["normals"] is not None:
@@ -444,18 +436,9 @@ def run_encounter(job: EncounterJob) -> EncounterRecord:
         obstacles=np.asarray(obstacles, dtype=float).reshape(-1, n, 2),
         distances=np.asarray(distances, dtype=float).reshape(-1, n),
         swept=np.asarray(swept, dtype=float).reshape(-1, n),
-        swept_source="+".join(sorted(sources)) or "none",
         statuses=tuple(statuses), filter_times=np.asarray(filter_times, dtype=float),
         halfspaces=halfspaces, frames=frames, error=error,
         wall_time=time.perf_counter() - start)
-
-
-def _recompute_swept(state, applied, start, end, radius_sums, dt) -> np.ndarray:
-    from agents.plots import step_clearance
-
-    return np.array([step_clearance(state[:2], state[2:], applied, start[i], end[i],
-                                    radius_sum=float(radius_sums[i]), dt=dt).clearance
-                     for i in range(len(radius_sums))])
 
 
 def _worker_init() -> None:
@@ -608,8 +591,11 @@ class WindowRow:
     """Statistics of one (preset, scenario, risk) on its window and on the whole episode.
 
     Collision counts are episodes with at least one collision. ``window`` are sample
-    indices ``(first, last)``, both included; the continuous-time window covers the
-    steps between those samples. Distances in m, the filter time in ms.
+    indices ``(first, last)``, both included (the paper's: :data:`PAPER_WINDOWS` when
+    the scenario has one); the continuous-time window covers the steps between those
+    samples. ``encounter_window`` is :func:`closest_approach_window` of the unfiltered
+    run, the same statistic centred on this preset's own encounter. Distances in m,
+    the filter time in ms.
     """
 
     preset: str
@@ -627,10 +613,12 @@ class WindowRow:
     window_worst_swept: float
     episode_worst: float
     episode_worst_swept: float
+    encounter_window: tuple[int, int]
+    encounter_sampled_collisions: int
+    encounter_worst: float
     fallback_share: float
     fallback_episodes: int
     filter_time_ms: float
-    swept_source: str
 
     @property
     def ok(self) -> int:
@@ -638,16 +626,21 @@ class WindowRow:
         return self.episodes - self.failed
 
 
-def resolve_windows(records: Sequence[EncounterRecord]) -> dict[str, tuple[tuple[int, int], str]]:
+def resolve_windows(
+    records: Sequence[EncounterRecord], *, mode: str = "paper",
+) -> dict[str, tuple[tuple[int, int], str]]:
     """The window of every scenario in ``records`` and where it comes from.
 
-    :data:`PAPER_WINDOWS` when the scenario has one, else
-    :func:`closest_approach_window` of its unfiltered (``risk="none"``) episodes (of
-    all its episodes if none was unfiltered).
+    ``mode="paper"``: :data:`PAPER_WINDOWS` when the scenario has one, else as
+    ``"encounter"``. ``mode="encounter"``: :func:`closest_approach_window` of the
+    scenario's unfiltered (``risk="none"``) episodes (of all its episodes if none was
+    unfiltered).
     """
+    if mode not in ("paper", "encounter"):
+        raise InvalidParameterError(f"mode must be 'paper' or 'encounter', got {mode!r}")
     windows = {}
     for scenario in dict.fromkeys(r.scenario for r in records):
-        if scenario in PAPER_WINDOWS:
+        if mode == "paper" and scenario in PAPER_WINDOWS:
             windows[scenario] = (PAPER_WINDOWS[scenario], "authors' script")
             continue
         group = [r for r in records if r.scenario == scenario and not r.error]
@@ -673,6 +666,7 @@ def closest_approach_sample(records: Sequence[EncounterRecord]) -> int | None:
 def summarise_windows(records: Sequence[EncounterRecord]) -> list[WindowRow]:
     """One :class:`WindowRow` per (preset, scenario, risk), in the records' order."""
     windows = resolve_windows(records)
+    encounters = resolve_windows(records, mode="encounter")
     groups: dict[tuple[str, str, str], list[EncounterRecord]] = {}
     for record in records:
         groups.setdefault((record.preset, record.scenario, record.risk), []).append(record)
@@ -682,7 +676,9 @@ def summarise_windows(records: Sequence[EncounterRecord]) -> list[WindowRow]:
         window, source = windows[scenario]
         sampled, swept = _series(ok, "distances"), _series(ok, "swept")
         first, last = window
-        in_window = (window_minimum(sampled, window) if ok else np.zeros(0))
+        in_window = window_minimum(sampled, window) if ok else np.zeros(0)
+        encounter = encounters[scenario][0]
+        in_encounter = window_minimum(sampled, encounter) if ok else np.zeros(0)
         swept_window = (window_minimum(swept, (first, max(first, last - 1)))
                         if ok and swept.shape[1] else np.full(len(ok), np.nan))
         steps = sum(r.steps for r in ok)
@@ -696,10 +692,12 @@ def summarise_windows(records: Sequence[EncounterRecord]) -> list[WindowRow]:
             window_collisions=int(np.sum(swept_window <= 0.0)),
             window_worst=_nanmin(in_window), window_worst_swept=_nanmin(swept_window),
             episode_worst=_nanmin(sampled), episode_worst_swept=_nanmin(swept),
+            encounter_window=encounter,
+            encounter_sampled_collisions=int(np.sum(in_encounter <= 0.0)),
+            encounter_worst=_nanmin(in_encounter),
             fallback_share=sum(r.fallback_steps for r in ok) / steps if steps else math.nan,
             fallback_episodes=sum(r.fallback_steps > 0 for r in ok),
             filter_time_ms=1e3 * float(np.median(times)) if times.size else math.nan,
-            swept_source="+".join(sorted({r.swept_source for r in ok})) or "none",
         ))
     return rows
 
@@ -729,7 +727,7 @@ def _summary_rows(rows: Sequence[WindowRow], *, sampled: bool) -> list[SummaryRo
 
 EPISODE_COLUMNS = ("preset", "scenario", "risk", "seed", "steps", "collision",
                    "sampled_collision", "window_first", "window_last", "window_min_distance",
-                   "min_distance", "min_swept_distance", "fallback_steps", "swept_source",
+                   "min_distance", "min_swept_distance", "fallback_steps",
                    "wall_time", "error")
 """Columns of ``episodes.csv`` (distances in m: sampled, except ``min_swept_distance``)."""
 
@@ -748,7 +746,7 @@ def write_episodes_csv(records: Sequence[EncounterRecord], path: Path) -> Path:
                 r.preset, r.scenario, r.risk, r.seed, r.steps, r.collision,
                 r.sampled_collision, window[0], window[1],
                 f"{window_minimum(series, window)[0]:.6g}", f"{_nanmin(r.distances):.6g}",
-                f"{_nanmin(r.swept):.6g}", r.fallback_steps, r.swept_source,
+                f"{_nanmin(r.swept):.6g}", r.fallback_steps,
                 f"{r.wall_time:.4f}", r.error])
     return path
 
@@ -802,17 +800,21 @@ def _window_table(rows: Sequence[WindowRow], dt: float) -> list[str]:
         "| scenario | risk | episodes | window (samples) | collisions, continuous time "
         "| collisions, sampled | sampled collisions in window | worst sampled distance in "
         "window (m) | worst continuous-time clearance in window (m) | worst sampled distance, "
-        "whole episode (m) | infeasible steps (episodes) | filter time (ms) |",
-        "|" + "---|" * 12]
+        "whole episode (m) | encounter window: sampled collisions, worst sampled distance (m) "
+        "| infeasible steps (episodes) | filter time (ms) |",
+        "|" + "---|" * 13]
     for r in rows:
         failed = f" ({r.failed} failed)" if r.failed else ""
         first, last = r.window
+        e_first, e_last = r.encounter_window
         lines.append(
             f"| {short_name(r.scenario)} | {r.risk} | {r.episodes}{failed} | {first}-{last} "
             f"({first * dt:.1f}-{last * dt:.1f} s) | {r.collisions}/{r.ok} | "
             f"{r.sampled_collisions}/{r.ok} | {r.window_sampled_collisions}/{r.ok} | "
             f"{r.window_worst:.3f} | {r.window_worst_swept:.3f} | {r.episode_worst:.3f} | "
-            f"{r.fallback_share:.1%} ({r.fallback_episodes}) | {r.filter_time_ms:.2f} |")
+            f"{e_first}-{e_last}: {r.encounter_sampled_collisions}/{r.ok}, "
+            f"{r.encounter_worst:.3f} | {r.fallback_share:.1%} ({r.fallback_episodes}) | "
+            f"{r.filter_time_ms:.2f} |")
     return lines
 
 
@@ -830,11 +832,13 @@ def compare_with_paper(rows: Sequence[WindowRow]) -> list[str]:
             ours = min(r.window_worst for r in group)
             each = ", ".join(f"{short_name(r.scenario)} {r.window_worst:.3f}" for r in group)
             whole = min(r.episode_worst for r in group)
+            encounter = min(r.encounter_worst for r in group)
             verdict = _verdict(abs(ours - paper) <= TOLERANCE_M)
             lines.append(
                 f"- Worst sampled distance in the window, {risk} halfspaces: paper about "
                 f"{paper} m, here {ours:.3f} m ({each}): {verdict}"
-                f" (tolerance {TOLERANCE_M} m). Whole episode: {whole:.3f} m.")
+                f" (tolerance {TOLERANCE_M} m). On this preset's encounter window "
+                f"{encounter:.3f} m; whole episode {whole:.3f} m.")
     dr = [r for r in single if r.risk == "dr_cvar"]
     if dr:
         n = sum(r.ok for r in dr)
@@ -880,6 +884,7 @@ def _monte_carlo_section(
     scenarios = list(dict.fromkeys(r.scenario for r in records))
     dt = records[0].dt if records else 0.2
     windows = resolve_windows(records)
+    encounters = resolve_windows(records, mode="encounter")
     lines = [f"### Preset `{preset.name}`", "", f"Settings: {preset.description}.", "",
              f"{episodes} runs per scenario and risk, seeds {seed}..{seed + episodes - 1}, "
              f"took {wall_time:.0f} s. Episode lengths (the scenarios' `duration`): "
@@ -889,13 +894,15 @@ def _monte_carlo_section(
     for scenario in scenarios:
         (first, last), source = windows[scenario]
         closest = closest_approach_sample([r for r in records if r.scenario == scenario])
+        e_first, e_last = encounters[scenario][0]
         check = (f"; the unfiltered reference is closest to the obstacle at sample {closest} "
-                 f"({closest * dt:.1f} s, median over the seeds)" if closest is not None else "")
+                 f"({closest * dt:.1f} s, median over the seeds), encounter window "
+                 f"{e_first}-{e_last}" if closest is not None else "")
         lines.append(f"- {short_name(scenario)}: samples {first}-{last} "
                      f"({first * dt:.1f}-{last * dt:.1f} s), {source}{check}.")
-    sources = sorted({r.swept_source for r in rows})
-    lines += ["", "Continuous-time clearances: " + ", ".join(sources) + " (see the module "
-              "docstring). Collision counts are episodes with at least one collision.", ""]
+    lines += ["", "Collision counts are episodes with at least one collision: in continuous "
+              "time (the environment's swept clearance over each step) and sampled (at the "
+              "0.2 s samples, the paper's count).", ""]
     lines += _window_table(rows, dt)
     lines += ["", f"![window box plots]({relative}/figures/distance_boxplots.png)", "",
               f"![collisions, continuous time]({relative}/figures/collision_rates.png)", "",
