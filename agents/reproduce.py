@@ -430,14 +430,16 @@ def run_encounter(job: EncounterJob) -> EncounterRecord:
     except Exception as exc:  # noqa: BLE001 — a Monte Carlo run records failures
         error = f"{type(exc).__name__}: {exc}".replace("\n", " ")[:500]
     n = radii.shape[0]
+
+    def stack(rows: list, shape: tuple[int, ...]) -> np.ndarray:
+        return np.asarray(rows, dtype=float).reshape((len(rows), *shape))
+
     return EncounterRecord(
         preset=job.preset.name, scenario=job.scenario, risk=job.risk, seed=int(job.seed), dt=dt,
         ego_radius=ego_radius, obstacle_radii=radii, goal=goal,
-        ego_states=np.asarray(ego_states, dtype=float).reshape(-1, 4),
-        inputs=np.asarray(inputs, dtype=float).reshape(-1, 2),
-        obstacles=np.asarray(obstacles, dtype=float).reshape(-1, n, 2),
-        distances=np.asarray(distances, dtype=float).reshape(-1, n),
-        swept=np.asarray(swept, dtype=float).reshape(-1, n),
+        ego_states=stack(ego_states, (4,)), inputs=stack(inputs, (2,)),
+        obstacles=stack(obstacles, (n, 2)), distances=stack(distances, (n,)),
+        swept=stack(swept, (n,)),
         statuses=tuple(statuses), filter_times=np.asarray(filter_times, dtype=float),
         halfspaces=halfspaces, frames=frames, error=error,
         wall_time=time.perf_counter() - start)
@@ -902,6 +904,11 @@ def _monte_carlo_section(
                  f"{e_first}-{e_last}" if closest is not None else "")
         lines.append(f"- {short_name(scenario)}: samples {first}-{last} "
                      f"({first * dt:.1f}-{last * dt:.1f} s), {source}{check}.")
+    failed = [r for r in records if r.error]
+    if failed:
+        lines += ["", f"**{len(failed)} of {len(records)} episodes failed** (kept out of the "
+                  f"statistics); the first: {short_name(failed[0].scenario)} {failed[0].risk} "
+                  f"seed {failed[0].seed}: `{failed[0].error[:200]}`."]
     lines += ["", "Collision counts are episodes with at least one collision: in continuous "
               "time (the environment's swept clearance over each step) and sampled (at the "
               "0.2 s samples, the paper's count).", ""]

@@ -249,6 +249,14 @@ def test_an_encounter_lasts_the_paper_duration_and_records_both_clearances(prese
     assert np.max(np.abs(record.inputs)) <= PRESETS[preset].max_acceleration
 
 
+def test_a_failing_episode_is_recorded_not_raised():
+    record = run_encounter(EncounterJob(PRESETS["paper"], "SafeNav/RandomCrossing-v0", "cvar",
+                                        0))
+    assert "RandomCrossing" in record.error and record.steps == 0
+    (row,) = summarise_windows([record])
+    assert (row.episodes, row.failed) == (1, 1) and math.isnan(row.window_worst)
+
+
 def test_the_authors_planner_takes_a_large_first_step():
     # Their u_0 is unpenalised: with |u| <= 100 the first input is far above 10 m/s².
     record = run_encounter(EncounterJob(PRESETS["authors_code"], "SafeNav/HeadOn-v0", "none",
