@@ -509,8 +509,12 @@ def save_gif(
         raise InvalidArrayError(f"frames must all have shape (H, W, 3), got {shape} and "
                                 f"{sorted({a.shape for a in arrays})}")
     height, width = shape[:2]
-    font = ImageFont.load_default(size=max(10, width // 45))
-    line = int(font.size * 1.4)
+    size = max(10, width // 45)
+    try:
+        font = ImageFont.load_default(size=size)
+    except TypeError:  # Pillow < 10.1: the fixed bitmap font
+        font = ImageFont.load_default()
+    line = int(1.4 * max(size if hasattr(font, "size") else 0, font.getbbox("Ag")[3]))
     banner = _gif_banner(width, line, label, legend, font, Image, ImageDraw)
     images = []
     for array in arrays:

@@ -60,6 +60,7 @@ from typing import Any
 import numpy as np
 
 from agents.evaluation import PAPER_SCENARIOS
+from agents.planners import AUTHORS_CODE_PLANNER
 from agents.summary import SummaryRow, short_name, wilson_interval
 from filters.errors import InvalidArrayError, InvalidParameterError
 
@@ -165,8 +166,11 @@ PRESETS: dict[str, ReproductionPreset] = {
                     "sum_squares((x-x_ref) Q) with Q 2, Q_T 5, R 1 (effective 4, 25, 1); "
                     "|u| <= 100 m/s²; the mean halfspace with δ = 0",
         noise="authors_code", planner_convention="authors_code",
-        planner_weights=(1.0, 3.0, 1.0), filter_weights=authors_weights(2.0, 5.0, 1.0),
-        max_acceleration=100.0, mean_delta=0.0,
+        planner_weights=(AUTHORS_CODE_PLANNER["Q"], AUTHORS_CODE_PLANNER["Q_terminal"],
+                         AUTHORS_CODE_PLANNER["R"]),
+        filter_weights=authors_weights(2.0, 5.0, 1.0),
+        max_acceleration=AUTHORS_CODE_PLANNER["max_acceleration"], mean_delta=0.0,
+        horizon=int(AUTHORS_CODE_PLANNER["horizon"]),
     ),
 }
 """The two settings :func:`reproduce` compares with the paper."""
