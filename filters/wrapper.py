@@ -28,6 +28,7 @@ from filters.errors import InvalidParameterError, InvalidTypeError
 from filters.geometry import Disc
 from filters.halfspaces import Halfspaces, safe_halfspaces
 from filters.mpc import FilterResult, FilterStatus, MPCSafetyFilter
+from filters.mpc.filter import FALLBACKS
 from filters.protocol import FilterableEnv
 from filters.references import (
     Policy,
@@ -162,6 +163,10 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         the filter in the loop); 0 leaves the reward untouched.
     support
         Optional polytope ``(V, v)`` bounding the obstacle positions (Proposition 1).
+    fallback
+        When the hard QP fails: ``"soft"`` (the recovery QP, then braking) or
+        ``"paper"`` (the last plan shifted, then braking: the paper's Remark); see
+        :class:`filters.MPCSafetyFilter`.
 
     Notes
     -----
@@ -190,6 +195,7 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         intervention_penalty: float = 0.0,
         support: tuple[np.ndarray, np.ndarray] | None = None,
         draw_halfspaces: bool = True,
+        fallback: str = "soft",
     ) -> None:
         # No deep copy: policies and planners hold solver and torch state.
         gym.utils.RecordConstructorArgs.__init__(
@@ -197,7 +203,7 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             epsilon=epsilon, horizon=horizon, Q=Q,
             Q_terminal=Q_terminal, R=R, policy=policy, reference=reference, soft=soft,
             intervention_penalty=intervention_penalty, support=support,
-            draw_halfspaces=draw_halfspaces,
+            draw_halfspaces=draw_halfspaces, fallback=fallback,
         )
         gym.Wrapper.__init__(self, env)
         missing = [a for a in _PROTOCOL_ATTRIBUTES if not hasattr(env.unwrapped, a)]
@@ -208,6 +214,9 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             )
         if risk not in RISKS:
             raise InvalidParameterError(f"risk must be one of {RISKS}, got {risk!r}")
+        if fallback not in FALLBACKS:
+            raise InvalidParameterError(f"fallback must be one of {FALLBACKS}, got {fallback!r}")
+        self.fallback = fallback
         if intervention_penalty < 0 or not np.isfinite(intervention_penalty):
             raise InvalidParameterError(
                 f"intervention_penalty must be finite and >= 0, got {intervention_penalty!r}"
@@ -261,7 +270,7 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             A, B, C, horizon=self.horizon, Q=Q, Q_terminal=Q_terminal, R=R,
             input_bounds=base.input_bounds, position_bounds=base.position_bounds,
             n_obstacles=max(n_obstacles, int(getattr(base, "max_obstacles", 0))),
-            soft=self.soft,
+            soft=self.soft, fallback=self.fallback,
         )
 
     # ------------------------------------------------------------------ gym API
