@@ -159,6 +159,12 @@ def test_presets_carry_the_documented_effective_weights():
         filter_weights = env._weights
         for matrix, value in zip(filter_weights, (4.0, 25.0, 1.0), strict=True):
             np.testing.assert_array_equal(matrix, value * np.eye(matrix.shape[0]))
+        # Problem 2's input cost u'Ru (zero reference inputs) and the paper's fallback.
+        assert env.fallback == "paper"
+        env.reset(seed=0)
+        states, inputs = env.reference(env.unwrapped, np.zeros(2), 10)
+        assert states.shape == (11, 4) and np.all(inputs == 0.0)
+        assert np.any(planner.plan(env.unwrapped.ego_state, env.unwrapped.goal)[1] != 0.0)
     finally:
         env.close()
 
@@ -203,6 +209,15 @@ def test_authors_convention_planner_equals_their_cvxpy_problem_on_random_instanc
         np.testing.assert_allclose(inputs, u.value.T, atol=2e-5 * max(1.0, bound / 10))
         np.testing.assert_allclose(states, x.value.T, atol=1e-4)
         assert np.all(np.abs(inputs) <= bound + 1e-12)
+
+
+def test_the_wrapper_rejects_an_unknown_fallback():
+    import gymnasium as gym
+
+    from filters import SafetyFilterWrapper
+
+    with pytest.raises(InvalidParameterError, match="fallback"):
+        SafetyFilterWrapper(gym.make("SafeNav/HeadOn-v0"), fallback="pray")
 
 
 def test_authors_convention_rejects_a_position_bound_and_unknown_conventions():
