@@ -249,7 +249,8 @@ class ConformalMargin:
     :math:`\\ge 1 - \\alpha` per look-ahead once ``n >= (1 - \\alpha)/\\alpha`` scores are in the
     window (distribution free; pooling obstacles assumes their scores exchangeable).
     With ``gamma > 0`` and *any* sequence: Gibbs & Candès' Proposition 4.1,
-    :math:`|\\frac1T \\sum_t \\mathrm{err}_t - \\alpha| \\le (\\max(\\alpha, 1-\\alpha) + \\gamma)/(\\gamma T)`,
+    :math:`|\\frac1T \\sum_t \\mathrm{err}_t - \\alpha|
+    \\le (\\max(\\alpha, 1-\\alpha) + \\gamma)/(\\gamma T)`,
     holds when a level :math:`\\le 0` yields an infinite margin. Here the level is
     clipped to :math:`[-\\gamma, 1 + \\gamma]` (the range that proposition shows it never
     leaves) and a level with rank ``> n`` uses ``fallback``; with a finite fallback the
@@ -350,7 +351,7 @@ class ConformalMargin:
                 self.update_scores(realisation.lookahead, realisation.scores)
 
     def coverage(self) -> np.ndarray:
-        """Empirical coverage so far per look-ahead, shape ``(T,)`` (``nan`` where nothing scored)."""
+        """Empirical coverage so far per look-ahead, shape ``(T,)`` (``nan``: nothing scored)."""
         with np.errstate(invalid="ignore", divide="ignore"):
             return 1.0 - self.n_exceeded / self.n_scored
 
@@ -362,7 +363,7 @@ class ConformalMargin:
 
 
 def _directions(dim: int, count: int) -> np.ndarray:
-    """Unit directions: ``[[1]]`` for ``d = 1``; ``count`` evenly spaced on the half circle for 2."""
+    """Unit directions: ``[[1]]`` for ``d = 1``; ``count`` evenly spaced on a half circle for 2."""
     if dim == 1:
         return np.ones((1, 1))
     if dim == 2:
@@ -372,7 +373,7 @@ def _directions(dim: int, count: int) -> np.ndarray:
 
 
 def _grid_slack(dim: int, count: int) -> float:
-    """Largest :math:`\\lVert h - h_m \\rVert` from a unit ``h`` to the nearest ``±`` grid direction."""
+    """Largest :math:`\\lVert h - h_m \\rVert` from a unit ``h`` to the nearest ``±`` grid one."""
     return 0.0 if dim == 1 else 2.0 * math.sin(math.pi / (4.0 * count))
 
 
@@ -430,7 +431,7 @@ def _sliced_w1(a: np.ndarray, b: np.ndarray, directions: np.ndarray) -> np.ndarr
 def _bootstrap_fluctuation(
     points: np.ndarray, directions: np.ndarray, n_boot: int, level: float, rng: np.random.Generator
 ) -> float:
-    """Quantile at ``level`` of :math:`\\sup_h \\sqrt{n}\\, W_1(h_\\#\\hat P_n, h_\\# P)`, by a multiplier bootstrap.
+    """Bootstrap quantile at ``level`` of :math:`\\sup_h \\sqrt{n}\\, W_1(h_\\#\\hat P_n, h_\\# P)`.
 
     On :math:`[y_{(j)}, y_{(j+1)})` the bootstrapped empirical process is
     :math:`n^{-1/2}(S_j - \\tfrac{j}{n} S_n)`, :math:`S_j` the partial sums of i.i.d.
@@ -468,7 +469,8 @@ class WassersteinRadius:
     .. math::
 
         \\epsilon_k = \\underbrace{\\max_m W_1(h_{m\\#} \\hat E_n, h_{m\\#} \\hat\\Xi) +
-        2\\sin\\tfrac{\\pi}{4M}\\,(\\overline{\\lVert e \\rVert} + \\overline{\\lVert \\xi \\rVert})}_{D_k}
+        2\\sin\\tfrac{\\pi}{4M}\\,
+        (\\overline{\\lVert e \\rVert} + \\overline{\\lVert \\xi \\rVert})}_{D_k}
         + \\frac{c_E}{\\sqrt n} + c_\\Xi\\Big(\\frac{1}{\\sqrt{N_s}} + \\frac{1}{\\sqrt{m}}\\Big),
 
     with :math:`\\hat E_n` the last ``n <= window`` realised errors at look-ahead ``k``
@@ -483,7 +485,8 @@ class WassersteinRadius:
 
     What is guaranteed and what is heuristic.
 
-    * Exact: :math:`D_k \\ge \\sup_{\\lVert h \\rVert = 1} W_1(h_\\#\\hat E_n, h_\\#\\hat\\Xi)` for the
+    * Exact: :math:`D_k \\ge \\sup_{\\lVert h \\rVert = 1} W_1(h_\\#\\hat E_n, h_\\#\\hat\\Xi)`
+      for the
       two empirical laws (the map :math:`h \\mapsto W_1(h_\\# P, h_\\# Q)` is Lipschitz with
       constant :math:`E_P\\lVert \\cdot \\rVert + E_Q\\lVert \\cdot \\rVert`, and every unit ``h``
       is within :math:`2\\sin(\\pi/4M)` of a grid direction up to sign); the reduction
@@ -577,7 +580,7 @@ class WassersteinRadius:
         *,
         n_samples: int | None = None,
     ) -> None:
-        """Add realised errors ``(n, d)`` and predicted errors ``(m, d)`` (or ``(n, m, d)``) at ``k``.
+        """Add realised errors ``(n, d)``, predicted errors ``(m, d)`` or ``(n, m, d)`` at ``k``.
 
         ``n_samples`` is ``N_s``, the number of samples of the filter's empirical law
         (default: the number of predicted errors per obstacle given).
@@ -637,7 +640,8 @@ class WassersteinRadius:
         dim = errors.shape[1]
         directions = _directions(dim, self.n_directions)
         distance = float(_sliced_w1(errors, predicted, directions).max())
-        mean_norms = np.linalg.norm(errors, axis=1).mean() + np.linalg.norm(predicted, axis=1).mean()
+        mean_norms = (np.linalg.norm(errors, axis=1).mean()
+                      + np.linalg.norm(predicted, axis=1).mean())
         distance += _grid_slack(dim, self.n_directions) * float(mean_norms)
         if self._constants[k] is None or self._since[k] >= self.refresh:
             level = 0.5 * (1.0 + self.confidence)

@@ -210,9 +210,11 @@ def safe_halfspaces(
         * ``"cvar"``: the empirical :math:`\\mathrm{CVaR}_\\alpha`;
         * ``"dr_cvar"``: Proposition 1 (:math:`\\mathrm{CVaR}_\\alpha + \\epsilon/\\alpha`
           without ``support``);
-        * ``"gaussian_cc"``: :math:`-h \\cdot \\hat\\mu + z_{1-\\alpha}\\sqrt{h^\\top\\hat\\Sigma h}`,
+        * ``"gaussian_cc"``:
+          :math:`-h \\cdot \\hat\\mu + z_{1-\\alpha}\\sqrt{h^\\top\\hat\\Sigma h}`,
           :math:`P(\\text{intrusion} > \\delta) \\le \\alpha` if :math:`p` is Gaussian;
-        * ``"moment_dr"``: :math:`-h \\cdot \\hat\\mu + \\sqrt{(1-\\alpha)/\\alpha}\\sqrt{h^\\top\\hat\\Sigma h}`,
+        * ``"moment_dr"``:
+          :math:`-h \\cdot \\hat\\mu + \\sqrt{(1-\\alpha)/\\alpha}\\sqrt{h^\\top\\hat\\Sigma h}`,
           the same promise for every law with those two moments (Cantelli);
         * ``"conformal"``: :math:`-h \\cdot \\hat\\mu + q_t` with ``conformal_margins``
           :math:`q_t`; valid whenever :math:`\\lVert p - \\hat\\mu \\rVert \\le q_t`.

@@ -110,7 +110,7 @@ def check_alpha(alpha: object, risk: str | None = None) -> float:
 
 
 def gaussian_factor(alpha: float) -> float:
-    """:math:`z_{1-\\alpha} = \\Phi^{-1}(1 - \\alpha)`, the standard normal quantile (no validation).
+    """:math:`z_{1-\\alpha} = \\Phi^{-1}(1 - \\alpha)`, the standard normal quantile (unchecked).
 
     Negative for :math:`\\alpha > 1/2`, zero at :math:`\\alpha = 1/2`.
     """
@@ -118,7 +118,7 @@ def gaussian_factor(alpha: float) -> float:
 
 
 def cantelli_factor(alpha: float) -> float:
-    """:math:`\\sqrt{(1-\\alpha)/\\alpha}`, the one-sided Chebyshev (Cantelli) factor (no validation).
+    """:math:`\\sqrt{(1-\\alpha)/\\alpha}`, the one-sided Chebyshev (Cantelli) factor (unchecked).
 
     For every law with mean :math:`\\mu` and standard deviation :math:`\\sigma`,
     :math:`P(x \\ge \\mu + k\\sigma) \\le 1/(1+k^2) = \\alpha`, with equality for a two-point law.
