@@ -418,14 +418,14 @@ def sliced_wasserstein_max(a: object, b: object, directions: object) -> np.ndarr
 
 def _sliced_w1(a: np.ndarray, b: np.ndarray, directions: np.ndarray) -> np.ndarray:
     na, nb = a.shape[0], b.shape[0]
-    qa = np.sort(a @ directions.T, axis=0)  # (na, M)
-    qb = np.sort(b @ directions.T, axis=0)
+    qa = np.sort(directions @ a.T, axis=1)  # (M, na), sorted projections
+    qb = np.sort(directions @ b.T, axis=1)
     grid = np.union1d(np.arange(1, na + 1) / na, np.arange(1, nb + 1) / nb)
     widths = np.diff(grid, prepend=0.0)
     mids = grid - 0.5 * widths
     ia = np.minimum((mids * na).astype(np.int64), na - 1)
     ib = np.minimum((mids * nb).astype(np.int64), nb - 1)
-    return widths @ np.abs(qa[ia] - qb[ib])
+    return np.abs(qa[:, ia] - qb[:, ib]) @ widths
 
 
 def _bootstrap_fluctuation(
@@ -515,11 +515,16 @@ class WassersteinRadius:
     n_directions
         Grid directions ``M`` on the half circle for ``d = 2`` (default 32).
     n_bootstrap
-        Bootstrap draws (default 100).
+        Bootstrap draws (default 50). The bootstrap uses every other grid direction
+        when ``n_directions >= 16``.
     refresh
+        Recompute the radius of a look-ahead after this many updates of it (default
+        10; ``1``: after every update). The radius is piecewise constant in between
+        (a few ms per look-ahead per recomputation at the defaults).
+    bootstrap_refresh
         Recompute the bootstrap constants :math:`c_E, c_\\Xi` of a look-ahead after this
-        many updates of it (default 20; the data term :math:`D_k` and the sample sizes
-        are always current). ``1`` recomputes every time (slow: ~10 ms per look-ahead).
+        many updates of it (default 100; they scale with the spread of the errors,
+        which changes slowly, and cost ~10 ms per look-ahead).
     min_errors
         Realised errors needed at a look-ahead before the radius is estimated (default 10).
     fallback
@@ -543,8 +548,9 @@ class WassersteinRadius:
         window: int = 200,
         max_predicted: int = 1000,
         n_directions: int = 32,
-        n_bootstrap: int = 100,
-        refresh: int = 20,
+        n_bootstrap: int = 50,
+        refresh: int = 10,
+        bootstrap_refresh: int = 100,
         min_errors: int = 10,
         fallback: float = math.inf,
         seed: int | np.random.Generator = 0,
@@ -559,6 +565,7 @@ class WassersteinRadius:
         self.n_directions = _count("n_directions", n_directions)
         self.n_bootstrap = _count("n_bootstrap", n_bootstrap, low=10)
         self.refresh = _count("refresh", refresh)
+        self.bootstrap_refresh = _count("bootstrap_refresh", bootstrap_refresh)
         self.min_errors = _count("min_errors", min_errors, low=2)
         self.fallback = scalar_in_range("fallback", fallback, low=0.0)
         self._rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
@@ -569,7 +576,8 @@ class WassersteinRadius:
         self._n_samples = np.zeros(self.horizon, dtype=np.int64)  # N_s of the centre
         self._cache: list[float | None] = [None] * self.horizon
         self._constants: list[tuple[float, float] | None] = [None] * self.horizon
-        self._since = np.zeros(self.horizon, dtype=np.int64)  # updates since the bootstrap
+        self._since = np.zeros(self.horizon, dtype=np.int64)  # updates since the radius
+        self._since_bootstrap = np.zeros(self.horizon, dtype=np.int64)
         self._dim: int | None = None
 
     def update_errors(
@@ -610,8 +618,10 @@ class WassersteinRadius:
         self._n_samples[k] = size if self._n_samples[k] == 0 else min(self._n_samples[k], size)
         self._push(self._errors[k], e, self._n_errors, k, self.window)
         self._push(self._predicted[k], xi, self._n_predicted, k, self.max_predicted)
-        self._cache[k] = None
         self._since[k] += 1
+        self._since_bootstrap[k] += 1
+        if self._since[k] >= self.refresh:
+            self._cache[k] = None
 
     @staticmethod
     def _push(buffer: deque, rows: np.ndarray, counts: np.ndarray, k: int, cap: int) -> None:
@@ -635,6 +645,7 @@ class WassersteinRadius:
         cached = self._cache[k]
         if cached is not None:
             return cached
+        self._since[k] = 0
         errors = np.concatenate(list(self._errors[k]))[-self.window :]
         predicted = np.concatenate(list(self._predicted[k]))[-self.max_predicted :]
         dim = errors.shape[1]
@@ -643,13 +654,14 @@ class WassersteinRadius:
         mean_norms = (np.linalg.norm(errors, axis=1).mean()
                       + np.linalg.norm(predicted, axis=1).mean())
         distance += _grid_slack(dim, self.n_directions) * float(mean_norms)
-        if self._constants[k] is None or self._since[k] >= self.refresh:
+        if self._constants[k] is None or self._since_bootstrap[k] >= self.bootstrap_refresh:
             level = 0.5 * (1.0 + self.confidence)
-            c_e = _bootstrap_fluctuation(errors, directions, self.n_bootstrap, level, self._rng)
+            boot = directions[::2] if directions.shape[0] >= 16 else directions
+            c_e = _bootstrap_fluctuation(errors, boot, self.n_bootstrap, level, self._rng)
             pool = predicted[-200:]  # the limit law does not depend on the sample size
-            c_xi = _bootstrap_fluctuation(pool, directions, self.n_bootstrap, level, self._rng)
+            c_xi = _bootstrap_fluctuation(pool, boot, self.n_bootstrap, level, self._rng)
             self._constants[k] = (c_e, c_xi)
-            self._since[k] = 0
+            self._since_bootstrap[k] = 0
         c_e, c_xi = self._constants[k]
         n, m, n_s = errors.shape[0], predicted.shape[0], int(self._n_samples[k])
         value = distance + c_e / math.sqrt(n) + c_xi * (1.0 / math.sqrt(n_s) + 1.0 / math.sqrt(m))
