@@ -297,7 +297,14 @@ def test_wasserstein_radius_fallback_cache_and_validation():
     radius.update_errors(1, rng.normal(size=(12, 2)) * 0.1, rng.normal(size=(3, 20, 2)) * 0.1)
     first = radius.radius(1)
     assert first > 0.0 and radius.radius(2) == 0.05
-    assert radius.radius(1) == first  # cached until new data
+    assert radius.radius(1) == first  # cached
+    radius.update_errors(1, np.ones((1, 2)), np.zeros((1, 2)))
+    assert radius.radius(1) == first  # still: recomputed after `refresh` (10) updates
+    eager = WassersteinRadius(horizon=1, fallback=0.05, refresh=1, seed=0)
+    eager.update_errors(1, rng.normal(size=(12, 2)) * 0.1, rng.normal(size=(20, 2)) * 0.1)
+    before = eager.radius(1)
+    eager.update_errors(1, np.full((1, 2), 3.0), np.zeros((1, 2)))
+    assert eager.radius(1) > before  # an outlying error widens the radius at once
     same = WassersteinRadius(horizon=2, fallback=0.05, min_errors=10, seed=0)
     rng = np.random.default_rng(8)
     same.update_errors(1, rng.normal(size=(12, 2)) * 0.1, rng.normal(size=(3, 20, 2)) * 0.1)
