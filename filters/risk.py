@@ -137,7 +137,7 @@ def check_epsilon_array(epsilon: object, length: int) -> float | np.ndarray:
         If an array does not have shape ``(length,)`` or holds negative or
         non-finite entries.
     """
-    if np.ndim(epsilon) == 0 and not isinstance(epsilon, np.ndarray):
+    if np.ndim(epsilon) == 0:
         return check_epsilon(epsilon)
     array = finite_array("epsilon", epsilon, shape=(length,))
     if np.any(array < 0.0):

@@ -107,7 +107,11 @@ class ConstantVelocityKalman:
     Parameters
     ----------
     acceleration_psd
-        :math:`q`, power spectral density of the white acceleration, m²/s³ (default 0.5).
+        :math:`q`, power spectral density of the white acceleration, m²/s³ (default
+        0.02: under the paper's noise, a random walk along the lane, the Gaussian fit's
+        80 % one-sided quantile along random normals was exceeded 14-19 % of the time
+        at look-aheads 1, 5 and 10 in 15 head-on and multi-obstacle episodes; 0.5 gave
+        1-13 %, over-wide).
     measurement_variance
         :math:`r`, variance of the position jitter around the constant-velocity
         motion, m² (default 0.01, the paper's noise).
@@ -124,7 +128,7 @@ class ConstantVelocityKalman:
     def __init__(
         self,
         *,
-        acceleration_psd: float = 0.5,
+        acceleration_psd: float = 0.02,
         measurement_variance: float = 0.01,
         initial_speed_std: float = 2.0,
     ) -> None:
