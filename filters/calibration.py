@@ -51,6 +51,7 @@ from filters.errors import InvalidArrayError, InvalidParameterError
 
 __all__ = [
     "ConformalMargin",
+    "OnlineCalibration",
     "PredictionRecord",
     "Realisation",
     "WassersteinRadius",
@@ -677,3 +678,77 @@ class WassersteinRadius:
         if k > self.horizon:
             raise InvalidParameterError(f"lookahead must be in 1..{self.horizon}, got {k}")
         return k - 1
+
+
+class OnlineCalibration:
+    """A :class:`PredictionRecord` feeding a :class:`ConformalMargin` and a Wasserstein radius.
+
+    The one object a filter wrapper needs for ``risk="conformal"`` and
+    ``epsilon="auto"``: call :meth:`reset` at each episode start (the calibration
+    itself carries over between episodes) and :meth:`update` with every new set of
+    predictions and realised positions (after reset and after each step), then read
+    :meth:`margins` / :meth:`radii` for the halfspaces of this step.
+
+    Parameters
+    ----------
+    horizon
+        ``T``.
+    alpha
+        Target miscoverage of the conformal margins, in :math:`(0, 1)`.
+    margin_fallback, radius_fallback
+        Values before enough data (m), see :class:`ConformalMargin` and
+        :class:`WassersteinRadius`. Defaults: 1.0 m and the paper's 0.05 m, both finite
+        so that :func:`filters.safe_halfspaces` accepts them from the first step.
+    keep_samples
+        Predicted errors kept per obstacle and step (default 20); see
+        :class:`PredictionRecord`.
+    conformal, wasserstein
+        Extra keyword arguments of :class:`ConformalMargin` / :class:`WassersteinRadius`
+        (e.g. ``{"gamma": 0.01}``, ``{"confidence": 0.95, "seed": 1}``).
+    """
+
+    def __init__(
+        self,
+        horizon: int,
+        alpha: float,
+        *,
+        margin_fallback: float | str = 1.0,
+        radius_fallback: float = 0.05,
+        keep_samples: int = 20,
+        conformal: dict | None = None,
+        wasserstein: dict | None = None,
+    ) -> None:
+        self.record = PredictionRecord(horizon, keep_samples=keep_samples)
+        self.conformal = ConformalMargin(alpha, horizon=horizon, fallback=margin_fallback,
+                                         **(conformal or {}))
+        self.wasserstein = WassersteinRadius(horizon=horizon, fallback=radius_fallback,
+                                             **(wasserstein or {}))
+
+    def reset(self) -> None:
+        """Start a new episode: pending predictions are dropped, the calibration kept."""
+        self.record.reset()
+
+    def update(
+        self, samples: object, realised_positions: object, present: object | None = None
+    ) -> tuple[Realisation, ...]:
+        """Record this step (see :meth:`PredictionRecord.update`) and update both estimators.
+
+        ``present`` is an optional boolean mask ``(n_rows,)`` selecting the real
+        obstacles of padded arrays (``info["obstacle_present"]``).
+        """
+        if present is not None:
+            mask = np.asarray(present, dtype=bool)
+            samples = np.asarray(samples)[mask]
+            realised_positions = np.asarray(realised_positions)[mask]
+        realised = self.record.update(samples, realised_positions)
+        self.conformal.update(realised)
+        self.wasserstein.update(realised)
+        return realised
+
+    def margins(self) -> np.ndarray:
+        """Conformal margins ``(T,)``, m (``conformal_margins=``)."""
+        return self.conformal.margins()
+
+    def radii(self) -> np.ndarray:
+        """Wasserstein radii ``(T,)``, m (``epsilon=``)."""
+        return self.wasserstein.radii()

@@ -11,6 +11,7 @@ from scipy.special import ndtr, ndtri
 
 from filters.calibration import (
     ConformalMargin,
+    OnlineCalibration,
     PredictionRecord,
     WassersteinRadius,
     _grid_slack,
@@ -334,3 +335,31 @@ def test_wasserstein_radius_grows_with_the_mismatch_and_feeds_from_a_record():
                         n_samples=50)
     assert np.all(small < 0.1)
     assert wrong.radius(1) > 0.15 > small.max()
+
+
+def test_online_calibration_runs_on_environment_episodes_and_feeds_safe_halfspaces():
+    gym = pytest.importorskip("gymnasium")
+    import safe_nav_env  # noqa: F401  (registers the ids)
+    from filters import Disc, safe_halfspaces
+
+    env = gym.make("SafeNav/RandomCrossing-v0")  # padded info: obstacle counts vary
+    calibration = OnlineCalibration(horizon=10, alpha=0.2, wasserstein={"seed": 3})
+    assert np.all(calibration.margins() == 1.0) and np.all(calibration.radii() == 0.05)
+    for seed in range(3):
+        _, info = env.reset(seed=seed)
+        calibration.reset()
+        for _ in range(15):
+            present = info["obstacle_present"]
+            calibration.update(info["predictions"], info["obstacle_positions"], present)
+            samples = info["predictions"][present]
+            n = samples.shape[0]
+            for risk, options in (("conformal", {"conformal_margins": calibration.margins()}),
+                                  ("dr_cvar", {"epsilon": calibration.radii()})):
+                hs = safe_halfspaces(np.zeros((10, 2)), samples, ego_shape=Disc(0.3),
+                                     obstacle_shapes=[Disc(0.3)] * n, risk=risk, **options)
+                assert np.isfinite(hs.offsets).all()
+            info = env.step(np.zeros(2))[4]
+    margins, radii = calibration.margins(), calibration.radii()
+    assert np.all(np.isfinite(margins)) and np.all(margins < 1.0)  # data replaced the fallback
+    assert np.all(radii > 0) and np.all(np.diff(margins) > -0.05)  # wider further ahead
+    assert calibration.conformal.n_scored.min() > 0
