@@ -25,6 +25,7 @@ import gymnasium as gym
 import numpy as np
 
 from filters._validation import scalar_in_range
+from filters.calibration import OnlineCalibration
 from filters.errors import InvalidParameterError, InvalidTypeError
 from filters.geometry import Disc
 from filters.halfspaces import Halfspaces, safe_halfspaces
@@ -38,8 +39,8 @@ from filters.references import (
     ReferenceMaker,
     hold_action_reference,
 )
+from filters.risk import CHANCE_RISKS, check_alpha, check_epsilon, check_risk
 from filters.risk import RISKS as _METRICS
-from filters.risk import check_alpha, check_epsilon, check_risk
 
 RISKS: tuple[str, ...] = ("none", *_METRICS)
 """Risk settings accepted by :class:`SafetyFilterWrapper` (``"none"``: pass-through)."""
@@ -153,13 +154,20 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         in the environment's physical units (m/s²).
     risk
         ``"none"`` (pass-through) or a metric of :data:`filters.risk.RISKS`
-        (``"mean"``, ``"cvar"``, ``"dr_cvar"``, ...).
+        (``"mean"``, ``"cvar"``, ``"dr_cvar"``, ``"gaussian_cc"``, ``"moment_dr"``,
+        ``"conformal"``). ``"conformal"`` takes its margin per look-ahead step from an
+        online split-conformal calibration of the realised positions against the
+        predictions (:class:`filters.calibration.ConformalMargin`, 1 m until enough
+        data), at miscoverage ``alpha``.
     alpha
         CVaR tail mass in (0, 1]; alpha = 1 gives the mean.
     delta
         Risk bound on the intrusion depth, in m (Definition 2 of the paper), finite.
     epsilon
-        Radius of the Wasserstein ball, in m, finite and >= 0 (DR-CVaR only).
+        Radius of the Wasserstein ball, in m, finite and >= 0 (DR-CVaR only), or
+        ``"auto"``: a radius per look-ahead step estimated online from the realised
+        against the predicted positions (:class:`filters.calibration.WassersteinRadius`,
+        0.05 m until enough data; the calibration carries over between episodes).
     horizon
         Filter horizon T in steps; at most the environment's prediction horizon.
         ``None`` uses the prediction horizon.
@@ -251,7 +259,7 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         risk: str = "dr_cvar",
         alpha: float = 0.2,
         delta: float = 0.1,
-        epsilon: float = 0.05,
+        epsilon: float | str = 0.05,
         horizon: int | None = None,
         *,
         objective: str | None = None,
@@ -293,7 +301,12 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if self.risk != "none":
             check_risk(self.risk)
         self.alpha = check_alpha(alpha)
-        self.epsilon = check_epsilon(epsilon)
+        if self.risk in (*CHANCE_RISKS, "conformal") and self.alpha >= 1.0:
+            raise InvalidParameterError(
+                f"alpha must lie in (0, 1) for risk={self.risk!r} (a violation probability), "
+                f"got {alpha!r}"
+            )
+        self.epsilon: float | str = "auto" if epsilon == "auto" else check_epsilon(epsilon)
         self.delta = scalar_in_range("delta", delta, low=-np.inf, high=np.inf,
                                      low_inclusive=False, high_inclusive=False)
         planned = policy is not None or reference is not None
@@ -350,6 +363,12 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             25.0 * np.eye(n) if Q_terminal is None else np.asarray(Q_terminal, dtype=float),
             np.eye(m) if R is None else np.asarray(R, dtype=float),
         )
+        self._calibration: OnlineCalibration | None = None
+        if self.risk == "conformal" or self.epsilon == "auto":
+            # alpha is the conformal miscoverage; with epsilon="auto" alone it is unused
+            self._calibration = OnlineCalibration(
+                self.horizon, self.alpha if self.risk == "conformal" else 0.2
+            )
         self._mpc: MPCSafetyFilter | None = None
         self._previous_normals: np.ndarray | None = None
         self._last_halfspaces: Halfspaces | None = None
@@ -392,6 +411,9 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         obs, info = self.env.reset(seed=seed, options=options)
         if self._mpc is not None:
             self._mpc.reset()
+        if self._calibration is not None:
+            self._calibration.reset()
+            self._calibrate()
         self._previous_normals = None
         self._last_halfspaces = None
         self._last_plan = None
@@ -409,12 +431,31 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         else:
             applied, report = self._filter(proposed, finite=bool(np.all(np.isfinite(raw))))
         obs, reward, terminated, truncated, info = self.env.step(applied.astype(np.float32))
+        if self._calibration is not None:
+            self._calibrate()
         if self.intervention_penalty:
             reward = float(reward) - self.intervention_penalty * report.intervention**2
         info["filter"] = report
         return obs, reward, terminated, truncated, info
 
     # ------------------------------------------------------------------ internals
+    def _calibrate(self) -> None:
+        """Score the realised obstacle positions against the predictions issued for now."""
+        base = self._base
+        predictions = np.asarray(base.predictions, dtype=float)[:, :, : self.horizon]
+        if np.all(np.isfinite(predictions)):
+            self._calibration.update(predictions, np.asarray(base.obstacle_positions))
+
+    def _risk_options(self) -> dict[str, Any]:
+        """Risk settings of this step (the calibrated ones per look-ahead step)."""
+        options: dict[str, Any] = dict(risk=self.risk, alpha=self.alpha, delta=self.delta,
+                                       epsilon=self.epsilon)
+        if self.epsilon == "auto":
+            options["epsilon"] = self._calibration.radii()
+        if self.risk == "conformal":
+            options["conformal_margins"] = self._calibration.margins()
+        return options
+
     @staticmethod
     def _passthrough_report(proposed: np.ndarray) -> FilterReport:
         return FilterReport(PASSTHROUGH, proposed, proposed)
@@ -503,16 +544,17 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         ego_shape, obstacle_shapes = self._shapes(float(base.ego_radius), radii)
         C = base.dynamics[2]
         origins = self._normal_origins(x0, ref_states[1:, :] @ C.T)
+        options = self._risk_options()
         halfspaces = safe_halfspaces(
             origins, samples, ego_shape=ego_shape, obstacle_shapes=obstacle_shapes,
-            risk=self.risk, alpha=self.alpha, delta=self.delta, epsilon=self.epsilon,
-            support=self.support, previous_normals=previous, ego_velocity=x0[2:],
+            support=self.support, previous_normals=previous, ego_velocity=x0[2:], **options,
         )
         if not self.intersample:
             return halfspaces, (halfspaces.normals, halfspaces.offsets)
         rows = intersample_rows(
             halfspaces, samples, ego_shape=ego_shape, obstacle_shapes=obstacle_shapes,
             input_bounds=base.input_bounds, dt=float(base.dt), support=self.support,
+            **options,
         )
         return halfspaces, (rows.normals, rows.offsets)
 
