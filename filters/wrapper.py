@@ -48,7 +48,7 @@ RISKS: tuple[str, ...] = ("none", *_METRICS)
 OBJECTIVES = ("first_input", "trajectory")
 """Filter objectives: the predictive safety filter's, or the paper's Problem 2."""
 
-NORMAL_SOURCES = ("paper", "ego", "previous_plan")
+NORMAL_SOURCES = ("paper", "ego", "nearside", "previous_plan")
 """Where the halfspace normals start (they end at the obstacles' sample means)."""
 
 FALLBACKS = ("soft", "paper")
@@ -545,9 +545,13 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         C = base.dynamics[2]
         origins = self._normal_origins(x0, ref_states[1:, :] @ C.T)
         options = self._risk_options()
+        given = None
+        if self.normals == "nearside" and len(radii):
+            given = _nearside_normals(samples, origins, x0[: origins.shape[1]])
         halfspaces = safe_halfspaces(
             origins, samples, ego_shape=ego_shape, obstacle_shapes=obstacle_shapes,
-            support=self.support, previous_normals=previous, ego_velocity=x0[2:], **options,
+            support=self.support, previous_normals=previous, ego_velocity=x0[2:],
+            normals=given, **options,
         )
         if not self.intersample:
             return halfspaces, (halfspaces.normals, halfspaces.offsets)
@@ -583,6 +587,28 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
         for normal, offset in zip(halfspaces.normals[:, 0], halfspaces.offsets[:, 0], strict=True):
             draw_halfspace(ax, normal, offset)
+
+
+def _nearside_normals(samples: np.ndarray, reference: np.ndarray, ego: np.ndarray) -> np.ndarray:
+    """Paper normals where the reference is on the ego's side of the obstacle, else the ego's.
+
+    For obstacle ``i`` and step ``t`` the normal starts at the reference position
+    ``y^r_t`` when ``(y^r_t - p̄_{i,t}) . (y_0 - p̄_{i,t}) > 0`` (the reference has not
+    passed the obstacle's centre as seen from the ego), else at the current position
+    ``y_0``: the normals then never flip inside the horizon.
+    """
+    means = samples.mean(axis=1)  # (k, T, d)
+    to_reference = reference[None] - means
+    to_ego = ego[None, None] - means
+    near = np.einsum("ktd,ktd->kt", to_reference, to_ego) > 0.0
+    origin = np.where(near[..., None], reference[None], ego[None, None])
+    diff = means - origin
+    size = np.linalg.norm(diff, axis=-1, keepdims=True)
+    fallback = means - ego[None, None]  # the ego is never at the obstacle's mean
+    fallback_size = np.linalg.norm(fallback, axis=-1, keepdims=True)
+    ok = size > 1e-9
+    return np.where(ok, diff / np.where(ok, size, 1.0),
+                    fallback / np.maximum(fallback_size, 1e-12))
 
 
 def _choice(name: str, value: object, choices: tuple[str, ...]) -> str:
