@@ -36,10 +36,14 @@ from safe_nav_env.scenarios import (
     INTERSECTION,
     MULTI_OBSTACLE,
     OVERTAKING,
+    SCENARIO_NAMES,
     SCENARIOS,
     ObstacleSpec,
     Scenario,
+    ScenarioNameWarning,
+    env_id,
     random_crossing,
+    scenario_name,
 )
 
 register_envs()
@@ -52,6 +56,7 @@ __all__ = [
     "NOISE_PRESETS",
     "OVERTAKING",
     "SCENARIOS",
+    "SCENARIO_NAMES",
     "ConfigError",
     "Gaussian",
     "InvalidActionError",
@@ -63,11 +68,14 @@ __all__ = [
     "SafeNavEnvError",
     "Scenario",
     "ScenarioError",
+    "ScenarioNameWarning",
     "StudentT",
     "distance_to_collision",
     "double_integrator",
+    "env_id",
     "random_crossing",
     "register_envs",
     "resolve_noise",
+    "scenario_name",
     "single_integrator",
 ]
