@@ -218,7 +218,7 @@ class EpisodeSpec:
         return episode_key(self)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class EpisodeRecord:
     """One row of the results: what happened in one episode.
 
@@ -316,6 +316,21 @@ class EpisodeRecord:
     def key(self) -> tuple:
         """Identity of the episode (:data:`KEY_FIELDS`), as for its :class:`EpisodeSpec`."""
         return episode_key(self)
+
+    def __eq__(self, other: object) -> bool:
+        """Field by field, NaN equal to NaN (a CSV round trip keeps a record equal)."""
+        if not isinstance(other, EpisodeRecord):
+            return NotImplemented
+        return all(_same(getattr(self, name), getattr(other, name)) for name in RECORD_FIELDS)
+
+    def __hash__(self) -> int:
+        return hash(self.key())
+
+
+def _same(a: Any, b: Any) -> bool:
+    if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
+        return True
+    return a == b
 
 
 RECORD_FIELDS = tuple(f.name for f in fields(EpisodeRecord))
@@ -521,7 +536,7 @@ def check_run_key(csv_path: str | Path, key: Mapping[str, Any]) -> None:
     csv_path = Path(csv_path)
     key_path = run_key_path(csv_path)
     has_rows = csv_path.exists() and csv_path.stat().st_size > 0
-    hint = "use another output folder, or --overwrite (overwrite=True) to start afresh"
+    hint = "choose another output folder (--output), or discard it (--overwrite)"
     if not key_path.exists():
         if has_rows:
             raise RunMismatchError(f"{csv_path} holds results but no run key {key_path.name} "

@@ -24,7 +24,7 @@ MPC = dict(planner="mpc")
 
 
 def test_episode_record_matches_a_manual_rollout():
-    spec = EpisodeSpec("SafeNav/HeadOn-v0", "dr_cvar", 3, **MPC)
+    spec = EpisodeSpec("HeadOn", "dr_cvar", 3, **MPC)
     record, trajectory = run_episode(spec, record_trajectory=True)
     assert record.error == ""
     assert record.steps == len(trajectory.statuses) == len(trajectory.ego) - 1
@@ -41,7 +41,7 @@ def test_episode_record_matches_a_manual_rollout():
 
 def test_same_seed_same_record_whatever_the_worker_count(tmp_path):
     kwargs = dict(episodes=2, seed=7, progress=False, **MPC)
-    scenarios = ["SafeNav/HeadOn-v0", "SafeNav/MultiObstacle-v0"]
+    scenarios = ["HeadOn", "MultiObstacle"]
     serial = evaluate(scenarios, ["none", "dr_cvar"], workers=1, **kwargs)
     parallel = evaluate(scenarios, ["none", "dr_cvar"], workers=2, **kwargs)
     strip = [replace(r, wall_time=0.0, filter_time_median=0.0, filter_time_max=0.0)
@@ -56,7 +56,7 @@ def test_a_failing_episode_is_recorded_not_raised():
         def predict(self, observation, state=None, episode_start=None, deterministic=True):
             raise RuntimeError("policy exploded")
 
-    spec = EpisodeSpec("SafeNav/HeadOn-v0", "none", 0)
+    spec = EpisodeSpec("HeadOn", "none", 0)
     record, _ = run_episode(spec, policy=BrokenPolicy())
     assert "policy exploded" in record.error
     assert record.steps == 0
@@ -67,7 +67,7 @@ def test_non_finite_actions_are_braked_by_the_filter_and_recorded():
         def predict(self, observation, state=None, episode_start=None, deterministic=True):
             return np.array([np.nan, np.nan], dtype=np.float32), None
 
-    record, _ = run_episode(EpisodeSpec("SafeNav/HeadOn-v0", "dr_cvar", 0, reference="hold"),
+    record, _ = run_episode(EpisodeSpec("HeadOn", "dr_cvar", 0, reference="hold"),
                             policy=NaNPolicy())
     assert record.error == ""
     assert record.statuses.startswith("brake:")
@@ -75,10 +75,10 @@ def test_non_finite_actions_are_braked_by_the_filter_and_recorded():
 
 def test_interrupted_run_resumes_from_its_csv(tmp_path):
     path = tmp_path / "episodes.csv"
-    first = evaluate(["SafeNav/HeadOn-v0"], ["mean"], episodes=2, csv_path=path,
+    first = evaluate(["HeadOn"], ["mean"], episodes=2, csv_path=path,
                      progress=False, **MPC)
     assert len(read_records(path)) == 2
-    both = evaluate(["SafeNav/HeadOn-v0"], ["mean"], episodes=3, csv_path=path,
+    both = evaluate(["HeadOn"], ["mean"], episodes=3, csv_path=path,
                     progress=False, **MPC)
     rows = list(csv.DictReader(path.open()))
     assert len(rows) == 3  # only the missing episode ran
@@ -89,13 +89,13 @@ def test_interrupted_run_resumes_from_its_csv(tmp_path):
 
 def test_records_round_trip_through_csv(tmp_path):
     path = tmp_path / "episodes.csv"
-    records = evaluate(["SafeNav/Overtaking-v0"], ["cvar"], episodes=1, csv_path=path,
+    records = evaluate(["Overtaking"], ["cvar"], episodes=1, csv_path=path,
                        progress=False, **MPC)
     assert read_records(path) == records
 
 
 def test_noise_preset_reaches_the_environment_and_the_record(tmp_path):
-    spec = EpisodeSpec("SafeNav/HeadOn-v0", "cvar", 0, planner="mpc", noise="authors_code")
+    spec = EpisodeSpec("HeadOn", "cvar", 0, planner="mpc", noise="authors_code")
     record, trajectory = run_episode(spec, record_trajectory=True)
     assert record.noise == "authors_code" and record.error == ""
     paper, _ = run_episode(replace(spec, noise=""))
@@ -106,20 +106,20 @@ def test_noise_preset_reaches_the_environment_and_the_record(tmp_path):
     env.reset(seed=0)
     assert env.unwrapped.predictions.shape[1] == 20  # the authors' code draws 20 samples
     path = tmp_path / "noise.csv"
-    evaluate(["SafeNav/HeadOn-v0"], ["cvar"], episodes=1, csv_path=path, progress=False,
+    evaluate(["HeadOn"], ["cvar"], episodes=1, csv_path=path, progress=False,
              planner="mpc", noise="authors_code")
     assert read_records(path)[0].noise == "authors_code"
 
 
 def test_bad_evaluation_arguments_are_named():
     with pytest.raises(InvalidParameterError, match="risk"):
-        episode_specs(["SafeNav/HeadOn-v0"], ["maximal"], 1)
+        episode_specs(["HeadOn"], ["maximal"], 1)
     with pytest.raises(InvalidParameterError, match="episodes"):
-        episode_specs(["SafeNav/HeadOn-v0"], ["none"], 0)
+        episode_specs(["HeadOn"], ["none"], 0)
     with pytest.raises(InvalidParameterError, match="planner"):
-        episode_specs(["SafeNav/HeadOn-v0"], ["none"], 1, planner="rrt")
+        episode_specs(["HeadOn"], ["none"], 1, planner="rrt")
     with pytest.raises(InvalidParameterError, match="noise"):
-        episode_specs(["SafeNav/HeadOn-v0"], ["none"], 1, noise="pink")
+        episode_specs(["HeadOn"], ["none"], 1, noise="pink")
 
 
 def test_wilson_interval_brackets_the_rate_and_matches_a_known_value():
@@ -137,7 +137,7 @@ def test_collision_bars_draw_rates_of_zero_and_one(tmp_path):
     rows = []
     for risk, hits in (("none", 300), ("dr_cvar", 0)):
         low, high = wilson_interval(hits, 300)
-        rows.append(SummaryRow("SafeNav/HeadOn-v0", "ppo", risk, 300, 0, hits / 300, low, high,
+        rows.append(SummaryRow("HeadOn", "ppo", risk, 300, 0, hits / 300, low, high,
                                0.0, 0.0, 1.0, 2.0, 0.0, 0.0, 0.0))
     assert plot_collision_rates(rows, tmp_path / "bars.png").stat().st_size > 1000
 
@@ -149,7 +149,7 @@ def test_lower_tail_mean_is_the_mean_of_the_worst_share():
 
 
 def test_summary_counts_collisions_and_failures():
-    base = EpisodeSpec("SafeNav/HeadOn-v0", "mean", 0)
+    base = EpisodeSpec("HeadOn", "mean", 0)
     from agents.evaluation import EpisodeRecord
 
     records = [
