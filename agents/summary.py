@@ -159,7 +159,8 @@ def status_table(rows: Sequence[SummaryRow]) -> str:
     for r in rows:
         shares = dict(r.status_shares)
         causes = dict(r.collision_causes)
-        cells = " | ".join(f"{shares[s]:.1%}" if s in shares else "-" for s in FILTER_STATUSES)
+        cells = " | ".join(f"{shares[s]:.1%}" if s in shares and r.risk != "none" else "-"
+                           for s in FILTER_STATUSES)  # "none": every step is a passthrough
         cause_cell = " / ".join(str(causes.get(c, 0)) for c in COLLISION_CAUSES)
         reason = (r.first_error or r.first_failure or "").replace("|", "/")
         lines.append(f"| {short_name(r.scenario)} | {r.planner} | {r.risk} | {cells} | "

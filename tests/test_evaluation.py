@@ -33,7 +33,12 @@ def test_episode_record_matches_a_manual_rollout():
     distances = (np.linalg.norm(trajectory.ego[:, None] - trajectory.obstacles, axis=2)
                  - trajectory.ego_radius - trajectory.obstacle_radii)
     assert record.min_distance == pytest.approx(distances.min())
-    assert record.collision == (distances.min() <= 0.0)
+    # The sampled flag is the paper's; a sampled collision is a continuous-time one too.
+    assert record.sampled_collision == (distances.min() <= 0.0)
+    assert record.collision >= record.sampled_collision
+    assert record.collision == any(trajectory.collisions)
+    if not np.isnan(record.min_swept_distance):
+        assert record.min_swept_distance <= record.min_distance + 1e-12
     if record.goal_reached:
         assert np.linalg.norm(trajectory.ego[-1] - trajectory.goal) <= 0.3 + 1e-9
         assert record.time_to_goal == pytest.approx(0.2 * record.steps)
@@ -70,7 +75,8 @@ def test_non_finite_actions_are_braked_by_the_filter_and_recorded():
     record, _ = run_episode(EpisodeSpec("HeadOn", "dr_cvar", 0, reference="hold"),
                             policy=NaNPolicy())
     assert record.error == ""
-    assert record.statuses.startswith("brake:")
+    assert record.share_brake + record.share_error == pytest.approx(1.0)
+    assert record.first_error.startswith("step 1: ") and "nan" in record.first_error.lower()
 
 
 def test_interrupted_run_resumes_from_its_csv(tmp_path):
@@ -164,3 +170,99 @@ def test_summary_counts_collisions_and_failures():
     assert row.collision_rate == pytest.approx(0.4)
     assert row.worst_distance == pytest.approx(-0.1)
     assert "(1 failed)" in markdown_table([row])
+
+
+def test_a_missing_policy_fails_before_any_episode_runs(tmp_path):
+    from agents.errors import PolicyFileError
+
+    path = tmp_path / "episodes.csv"
+    with pytest.raises(PolicyFileError, match="no PPO policy file"):
+        evaluate(["HeadOn"], ["none"], episodes=1, csv_path=path, progress=False,
+                 policy_path=str(tmp_path / "missing.zip"))
+    assert not path.exists()
+
+
+def test_bad_filter_settings_fail_before_any_episode_runs(tmp_path):
+    path = tmp_path / "episodes.csv"
+    with pytest.raises(InvalidParameterError, match="bogus"):
+        evaluate(["HeadOn"], ["cvar"], episodes=1, csv_path=path, progress=False,
+                 filter_options={"bogus": 1}, **MPC)
+    assert not path.exists()
+
+
+@pytest.mark.slow
+def test_the_cache_refuses_a_different_policy(tmp_path):
+    import shutil
+    import zipfile
+
+    from agents.errors import RunMismatchError
+    from agents.training import pretrained_policy_path
+
+    policy = tmp_path / "policy.zip"
+    shutil.copy(pretrained_policy_path(), policy)
+    path = tmp_path / "episodes.csv"
+    kwargs = dict(episodes=1, csv_path=path, progress=False, policy_path=str(policy))
+    first = evaluate(["Overtaking"], ["none"], **kwargs)
+    with zipfile.ZipFile(policy, "a") as archive:
+        archive.comment = b"one byte more"
+    with pytest.raises(RunMismatchError, match="policy_sha256"):
+        evaluate(["Overtaking"], ["none"], **kwargs)
+    assert read_records(path) == first  # untouched
+    again = evaluate(["Overtaking"], ["none"], overwrite=True, **kwargs)
+    assert again[0].policy_sha256 != first[0].policy_sha256
+    assert again[0].policy == str(policy)
+
+
+def test_failed_and_repeated_rows_are_not_reused(tmp_path):
+    from agents.records import write_records
+
+    path = tmp_path / "episodes.csv"
+    good = evaluate(["HeadOn"], ["mean"], episodes=2, csv_path=path, progress=False, **MPC)
+    failed = replace(good[1], error="RuntimeError: boom", steps=0)
+    write_records(path, [good[0], good[1], failed])  # seed 1: a later failed row wins
+    rerun = evaluate(["HeadOn"], ["mean"], episodes=2, csv_path=path, progress=False, **MPC)
+    stored = read_records(path)
+    assert len(stored) == 2 and not any(r.error for r in stored)
+    assert [r.seed for r in rerun] == [0, 1] and rerun[0] == good[0]
+    strip = dict(wall_time=0.0, filter_time_median=0.0, filter_time_max=0.0)
+    assert replace(rerun[1], **strip) == replace(good[1], **strip)  # ran again, same result
+
+
+def test_a_sweep_runs_its_whole_grid_on_one_executor(tmp_path):
+    from agents.executors import SerialExecutor
+    from agents.experiments import run_sweep
+
+    class Counting(SerialExecutor):
+        def __init__(self):
+            self.batches = []
+
+        def run(self, specs):
+            self.batches.append([(s.delta, s.epsilon) for s in specs])
+            yield from super().run(specs)
+
+    executor = Counting()
+    outputs = run_sweep(tmp_path / "sweep", ["HeadOn"], epsilons=(0.0, 0.1), deltas=(0.0, 0.1),
+                        episodes=1, workers=1, planner="mpc", executor=executor,
+                        progress=False)
+    assert len(executor.batches) == 1
+    assert sorted(executor.batches[0]) == [(0.0, 0.0), (0.0, 0.1), (0.1, 0.0), (0.1, 0.1)]
+    assert len(outputs.records) == 4
+    # Resuming the sweep with one more epsilon runs only the new points.
+    run_sweep(tmp_path / "sweep", ["HeadOn"], epsilons=(0.0, 0.1, 0.2), deltas=(0.0, 0.1),
+              episodes=1, workers=1, planner="mpc", executor=executor, progress=False)
+    assert sorted(executor.batches[1]) == [(0.0, 0.2), (0.1, 0.2)]
+
+
+@pytest.mark.slow
+def test_a_process_pool_starts_once_for_several_runs():
+    from agents.executors import ProcessExecutor
+
+    specs = episode_specs(["HeadOn"], ["none", "cvar"], 2, seed=5, **MPC)
+    serial = sorted((run_episode(spec)[0] for spec in specs), key=lambda r: r.key())
+    strip = dict(wall_time=0.0, filter_time_median=0.0, filter_time_max=0.0)
+    with ProcessExecutor(2) as executor:
+        first = list(executor.run(specs[:2]))
+        second = list(executor.run(specs[2:]))
+        assert executor.starts == 1
+    pooled = sorted(first + second, key=lambda r: r.key())
+    assert [replace(r, **strip) for r in pooled] == [replace(r, **strip) for r in serial]
