@@ -29,6 +29,7 @@ import numpy as np
 
 from agents.errors import RecordsFileError, RunMismatchError
 from filters.errors import InvalidParameterError
+from filters.mpc import FilterStatus
 from filters.wrapper import RISKS
 from safe_nav_env.scenarios import SCENARIO_NAMES, scenario_name
 
@@ -63,8 +64,9 @@ PLANNERS = ("ppo", "mpc")
 REFERENCES = ("rollout", "hold")
 """How the filter makes a reference trajectory from a PPO proposal."""
 
-FILTER_STATUSES = ("optimal", "soft", "recovery", "shifted", "brake", "error")
-"""Filter statuses whose share of the steps is a column ``share_<status>`` of a record."""
+FILTER_STATUSES = tuple(status.value for status in FilterStatus)
+"""Filter statuses (:class:`filters.mpc.FilterStatus`: optimal, soft, recovery, shifted,
+brake, error) whose share of the steps is a column ``share_<status>`` of a record."""
 
 NOMINAL_STATUSES = ("optimal", "passthrough")
 """Statuses of a step where the filter did its normal job (no fallback, no slack)."""

@@ -251,10 +251,19 @@ def run_episode(
         scenario=spec.scenario, risk=spec.risk, seed=spec.seed, planner=spec.planner,
         reference=spec.reference, alpha=spec.alpha, delta=spec.delta, epsilon=spec.epsilon,
         noise=spec.noise, filter_options=spec.filter_options, env_options=spec.env_options,
-        policy=spec.policy_path if spec.planner == "ppo" else "",
+        policy=_policy_name(spec, policy),
         policy_sha256=spec.policy_sha256 or sha, version=package_version(),
         **stats.summary(), wall_time=time.perf_counter() - start, error=error)
     return record, trajectory
+
+
+def _policy_name(spec: EpisodeSpec, policy: Any) -> str:
+    """The policy column: the file that ran (the shipped one resolved), else ""."""
+    if spec.planner != "ppo":
+        return ""
+    if policy is not None:
+        return f"<{type(policy).__name__} object>"
+    return str(policy_file(spec.policy_path))
 
 
 def run_spec(spec: EpisodeSpec) -> EpisodeRecord:
