@@ -266,3 +266,34 @@ def test_a_process_pool_starts_once_for_several_runs():
         assert executor.starts == 1
     pooled = sorted(first + second, key=lambda r: r.key())
     assert [replace(r, **strip) for r in pooled] == [replace(r, **strip) for r in serial]
+
+
+def test_collision_columns_match_the_environment_step_by_step():
+    from agents.evaluation import make_env
+
+    # The unfiltered PPO on HeadOn crosses the obstacle between samples in most seeds.
+    for seed in range(3):
+        spec = EpisodeSpec("HeadOn", "none", seed)
+        record, _ = run_episode(spec)
+        env, planner = make_env(spec)
+        obs, info = env.reset(seed=seed)
+        swept, sampled, continuous, done = [info["min_swept_distance_to_collision"]], [], [], False
+        while not done:
+            action, _ = planner.predict(obs, deterministic=True)
+            obs, _, terminated, truncated, info = env.step(action)
+            swept.append(info["min_swept_distance_to_collision"])
+            sampled.append(info["sampled_collision"])
+            continuous.append(info["collision"])
+            done = terminated or truncated
+        env.close()
+        assert record.error == ""
+        assert record.min_swept_distance == pytest.approx(min(swept))
+        assert record.collision_steps == sum(continuous)
+        assert record.sampled_collision_steps == sum(sampled)
+        assert record.first_collision_step == (continuous.index(True) + 1 if any(continuous)
+                                               else 0)
+        if any(continuous):
+            first = continuous.index(True)
+            assert record.collision_cause == ("noise" if sampled[first] else "inter_sample")
+        else:
+            assert record.collision_cause == ""
