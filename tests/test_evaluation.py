@@ -268,6 +268,7 @@ def test_a_process_pool_starts_once_for_several_runs():
     assert [replace(r, **strip) for r in pooled] == [replace(r, **strip) for r in serial]
 
 
+@pytest.mark.slow
 def test_collision_columns_match_the_environment_step_by_step():
     from agents.evaluation import make_env
 
