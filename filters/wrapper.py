@@ -25,6 +25,7 @@ import gymnasium as gym
 import numpy as np
 
 from filters._validation import scalar_in_range
+from filters.calibration import OnlineCalibration
 from filters.errors import InvalidParameterError, InvalidTypeError
 from filters.geometry import Disc
 from filters.halfspaces import Halfspaces, safe_halfspaces
@@ -38,8 +39,8 @@ from filters.references import (
     ReferenceMaker,
     hold_action_reference,
 )
+from filters.risk import CHANCE_RISKS, check_alpha, check_epsilon, check_risk
 from filters.risk import RISKS as _METRICS
-from filters.risk import check_alpha, check_epsilon, check_risk
 
 RISKS: tuple[str, ...] = ("none", *_METRICS)
 """Risk settings accepted by :class:`SafetyFilterWrapper` (``"none"``: pass-through)."""
@@ -153,34 +154,48 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         in the environment's physical units (m/s²).
     risk
         ``"none"`` (pass-through) or a metric of :data:`filters.risk.RISKS`
-        (``"mean"``, ``"cvar"``, ``"dr_cvar"``, ...).
+        (``"mean"``, ``"cvar"``, ``"dr_cvar"``, ``"gaussian_cc"``, ``"moment_dr"``,
+        ``"conformal"``). ``"conformal"`` takes its margin per look-ahead step from an
+        online split-conformal calibration of the realised positions against the
+        predictions (:class:`filters.calibration.ConformalMargin`, 1 m until enough
+        data), at miscoverage ``alpha``.
     alpha
         CVaR tail mass in (0, 1]; alpha = 1 gives the mean.
     delta
         Risk bound on the intrusion depth, in m (Definition 2 of the paper), finite.
     epsilon
-        Radius of the Wasserstein ball, in m, finite and >= 0 (DR-CVaR only).
+        Radius of the Wasserstein ball, in m, finite and >= 0 (DR-CVaR only), or
+        ``"auto"``: a radius per look-ahead step estimated online from the realised
+        against the predicted positions (:class:`filters.calibration.WassersteinRadius`,
+        0.05 m until enough data; the calibration carries over between episodes).
     horizon
         Filter horizon T in steps; at most the environment's prediction horizon.
         ``None`` uses the prediction horizon.
     objective
-        ``"first_input"`` (default): the predictive safety filter of Wabersich &
+        ``None`` (default): ``"trajectory"`` when a ``policy`` or ``reference`` gives a
+        planned route, ``"first_input"`` when only the held action is known.
+        ``"first_input"``: the predictive safety filter of Wabersich &
         Zeilinger, :math:`\\min \\|u_0 - a\\|^2_R + \\eta \\sum_{t \\ge 1}
         \\|u_t - u^r_t\\|^2_R` with no state tracking: the proposed action ``a`` is
         changed as little as possible, the rest of the plan only has to exist.
         ``"trajectory"``: the paper's Problem 2, tracking the reference states and inputs
         with ``Q``, ``Q_terminal`` and ``R``. With the held action as reference the
-        tracking objective chases states far outside the arena and can deadlock; the
-        default needs no planner.
+        tracking objective chases states far outside the arena and deadlocks (measured:
+        no goal reached in 100 episodes of the shipped PPO); with a planner's roll-out it
+        follows the planned route closely.
     later_input_weight
         :math:`\\eta > 0` of the first-input objective (default 0.01).
     intersample
         Add the inter-sample rows of :mod:`filters.intersample` (default ``True``): the
         plan is then safe in continuous time, between the samples too, not only at them.
     normals
-        Where the halfspace normals start: ``"paper"`` (the reference positions, the
-        paper's Definition 3), ``"ego"`` (the current ego position for every step: they
-        cannot flip when the reference runs through an obstacle) or ``"previous_plan"``
+        Where the halfspace normals start. ``None`` (default): ``"paper"`` with a
+        ``policy`` or ``reference``, ``"ego"`` with the held action (whose reference runs
+        straight through obstacles, so that the paper's normals flip inside the horizon
+        and the filter brakes in front of a head-on obstacle). ``"paper"`` (the reference
+        positions, the paper's Definition 3), ``"ego"`` (the current ego position for
+        every step: they cannot flip when the reference runs through an obstacle) or
+        ``"previous_plan"``
         (the last filtered plan shifted by one step, starting at the current position;
         the reference until there is one).
     fallback
@@ -244,13 +259,13 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         risk: str = "dr_cvar",
         alpha: float = 0.2,
         delta: float = 0.1,
-        epsilon: float = 0.05,
+        epsilon: float | str = 0.05,
         horizon: int | None = None,
         *,
-        objective: str = "first_input",
+        objective: str | None = None,
         later_input_weight: float = 1e-2,
         intersample: bool = True,
-        normals: str = "paper",
+        normals: str | None = None,
         fallback: str = "soft",
         terminal: bool = True,
         stop_time: float = 0.5,
@@ -286,11 +301,23 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if self.risk != "none":
             check_risk(self.risk)
         self.alpha = check_alpha(alpha)
-        self.epsilon = check_epsilon(epsilon)
+        if self.risk in (*CHANCE_RISKS, "conformal") and self.alpha >= 1.0:
+            raise InvalidParameterError(
+                f"alpha must lie in (0, 1) for risk={self.risk!r} (a violation probability), "
+                f"got {alpha!r}"
+            )
+        self.epsilon: float | str = "auto" if epsilon == "auto" else check_epsilon(epsilon)
         self.delta = scalar_in_range("delta", delta, low=-np.inf, high=np.inf,
                                      low_inclusive=False, high_inclusive=False)
-        self.objective = _choice("objective", objective, OBJECTIVES)
-        self.normals = _choice("normals", normals, NORMAL_SOURCES)
+        planned = policy is not None or reference is not None
+        self.objective = _choice(
+            "objective", ("trajectory" if planned else "first_input") if objective is None
+            else objective, OBJECTIVES,
+        )
+        self.normals = _choice(
+            "normals", ("paper" if planned else "ego") if normals is None else normals,
+            NORMAL_SOURCES,
+        )
         self.fallback = _choice("fallback", fallback, FALLBACKS)
         self.later_input_weight = scalar_in_range(
             "later_input_weight", later_input_weight, low=0.0, high=np.inf,
@@ -336,6 +363,12 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             25.0 * np.eye(n) if Q_terminal is None else np.asarray(Q_terminal, dtype=float),
             np.eye(m) if R is None else np.asarray(R, dtype=float),
         )
+        self._calibration: OnlineCalibration | None = None
+        if self.risk == "conformal" or self.epsilon == "auto":
+            # alpha is the conformal miscoverage; with epsilon="auto" alone it is unused
+            self._calibration = OnlineCalibration(
+                self.horizon, self.alpha if self.risk == "conformal" else 0.2
+            )
         self._mpc: MPCSafetyFilter | None = None
         self._previous_normals: np.ndarray | None = None
         self._last_halfspaces: Halfspaces | None = None
@@ -378,6 +411,9 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         obs, info = self.env.reset(seed=seed, options=options)
         if self._mpc is not None:
             self._mpc.reset()
+        if self._calibration is not None:
+            self._calibration.reset()
+            self._calibrate()
         self._previous_normals = None
         self._last_halfspaces = None
         self._last_plan = None
@@ -395,12 +431,31 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         else:
             applied, report = self._filter(proposed, finite=bool(np.all(np.isfinite(raw))))
         obs, reward, terminated, truncated, info = self.env.step(applied.astype(np.float32))
+        if self._calibration is not None:
+            self._calibrate()
         if self.intervention_penalty:
             reward = float(reward) - self.intervention_penalty * report.intervention**2
         info["filter"] = report
         return obs, reward, terminated, truncated, info
 
     # ------------------------------------------------------------------ internals
+    def _calibrate(self) -> None:
+        """Score the realised obstacle positions against the predictions issued for now."""
+        base = self._base
+        predictions = np.asarray(base.predictions, dtype=float)[:, :, : self.horizon]
+        if np.all(np.isfinite(predictions)):
+            self._calibration.update(predictions, np.asarray(base.obstacle_positions))
+
+    def _risk_options(self) -> dict[str, Any]:
+        """Risk settings of this step (the calibrated ones per look-ahead step)."""
+        options: dict[str, Any] = dict(risk=self.risk, alpha=self.alpha, delta=self.delta,
+                                       epsilon=self.epsilon)
+        if self.epsilon == "auto":
+            options["epsilon"] = self._calibration.radii()
+        if self.risk == "conformal":
+            options["conformal_margins"] = self._calibration.margins()
+        return options
+
     @staticmethod
     def _passthrough_report(proposed: np.ndarray) -> FilterReport:
         return FilterReport(PASSTHROUGH, proposed, proposed)
@@ -489,16 +544,17 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         ego_shape, obstacle_shapes = self._shapes(float(base.ego_radius), radii)
         C = base.dynamics[2]
         origins = self._normal_origins(x0, ref_states[1:, :] @ C.T)
+        options = self._risk_options()
         halfspaces = safe_halfspaces(
             origins, samples, ego_shape=ego_shape, obstacle_shapes=obstacle_shapes,
-            risk=self.risk, alpha=self.alpha, delta=self.delta, epsilon=self.epsilon,
-            support=self.support, previous_normals=previous, ego_velocity=x0[2:],
+            support=self.support, previous_normals=previous, ego_velocity=x0[2:], **options,
         )
         if not self.intersample:
             return halfspaces, (halfspaces.normals, halfspaces.offsets)
         rows = intersample_rows(
             halfspaces, samples, ego_shape=ego_shape, obstacle_shapes=obstacle_shapes,
             input_bounds=base.input_bounds, dt=float(base.dt), support=self.support,
+            **options,
         )
         return halfspaces, (rows.normals, rows.offsets)
 

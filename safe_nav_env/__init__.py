@@ -30,6 +30,7 @@ from safe_nav_env.noise import (
     resolve_noise,
 )
 from safe_nav_env.obstacles import ObstacleModel, distance_to_collision
+from safe_nav_env.predictors import ConstantVelocityKalman, Predictor, resolve_predictor
 from safe_nav_env.registration import ENV_IDS, register_envs
 from safe_nav_env.scenarios import (
     HEAD_ON,
@@ -45,6 +46,7 @@ from safe_nav_env.scenarios import (
     random_crossing,
     scenario_name,
 )
+from safe_nav_env.stress import STRESS_SUITE, StressCase
 
 register_envs()
 
@@ -57,18 +59,22 @@ __all__ = [
     "OVERTAKING",
     "SCENARIOS",
     "SCENARIO_NAMES",
+    "STRESS_SUITE",
     "ConfigError",
+    "ConstantVelocityKalman",
     "Gaussian",
     "InvalidActionError",
     "Laplace",
     "NoiseModel",
     "ObstacleModel",
     "ObstacleSpec",
+    "Predictor",
     "SafeNavEnv",
     "SafeNavEnvError",
     "Scenario",
     "ScenarioError",
     "ScenarioNameWarning",
+    "StressCase",
     "StudentT",
     "distance_to_collision",
     "double_integrator",
@@ -77,5 +83,6 @@ __all__ = [
     "register_envs",
     "resolve_noise",
     "scenario_name",
+    "resolve_predictor",
     "single_integrator",
 ]

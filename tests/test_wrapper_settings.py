@@ -116,3 +116,23 @@ def test_every_normal_source_keeps_optimal_plans_inside_the_rows(normals):
             assert violation.max() <= 1e-5
         if terminated or truncated:
             break
+
+
+@pytest.mark.parametrize(("risk", "epsilon"), [("conformal", 0.05), ("dr_cvar", "auto"),
+                                               ("gaussian_cc", 0.05), ("moment_dr", 0.05)])
+def test_calibrated_and_chance_risks_run_in_the_loop(risk, epsilon):
+    env = SafetyFilterWrapper(gym.make("SafeNav/HeadOn-v0"), risk=risk, epsilon=epsilon)
+    obs, _ = env.reset(seed=0)
+    statuses = set()
+    for _ in range(12):
+        obs, _, terminated, truncated, info = env.step(_goal_seeking(obs))
+        statuses.add(info["filter"].status)
+        assert np.all(np.isfinite(info["filter"].offsets))
+        if terminated or truncated:
+            break
+    assert "error" not in statuses
+
+
+def test_conformal_needs_a_probability():
+    with pytest.raises(InvalidParameterError, match="alpha"):
+        SafetyFilterWrapper(gym.make("SafeNav/HeadOn-v0"), risk="conformal", alpha=1.0)
