@@ -59,8 +59,8 @@ from typing import Any
 
 import numpy as np
 
-from agents.records import PAPER_SCENARIOS as PAPER_SCENARIO_NAMES
 from agents.planners import AUTHORS_CODE_PLANNER
+from agents.records import PAPER_SCENARIOS as PAPER_SCENARIO_NAMES
 from agents.summary import SummaryRow, short_name, wilson_interval
 from filters.errors import InvalidArrayError, InvalidParameterError
 from safe_nav_env.scenarios import env_id
