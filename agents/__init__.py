@@ -3,20 +3,28 @@
 * :func:`train_ppo`, :func:`load_ppo` — the PPO reference planner (Stable-Baselines3);
   ``load_ppo()`` loads the policy shipped with the package.
 * :class:`MPCReferencePlanner` — the paper's obstacle-agnostic goal-tracking MPC.
-* :func:`evaluate` — Monte Carlo comparison of risk settings, one record per episode.
+* :func:`evaluate` — Monte Carlo comparison of risk settings, one record per episode
+  (:mod:`agents.records`: specs, records, CSV; :mod:`agents.runner`: one episode;
+  :mod:`agents.executors`: process pool, Ray).
 
 torch and Stable-Baselines3 are imported only when a PPO policy is trained or loaded.
 """
 
-from agents.evaluation import EpisodeRecord, EpisodeSpec, evaluate, run_episode
+from agents.errors import AgentsError, PolicyFileError, RunMismatchError
+from agents.evaluation import evaluate
 from agents.planners import MPCReferencePlanner
+from agents.records import EpisodeRecord, EpisodeSpec
+from agents.runner import run_episode
 from agents.summary import summarise
 from agents.training import load_ppo, train_ppo
 
 __all__ = [
+    "AgentsError",
     "EpisodeRecord",
     "EpisodeSpec",
     "MPCReferencePlanner",
+    "PolicyFileError",
+    "RunMismatchError",
     "evaluate",
     "load_ppo",
     "run_episode",

@@ -2,48 +2,164 @@
 
 Every subcommand is a thin layer over a plain function of :mod:`agents`, and
 :func:`main` takes ``argv`` so tests call it directly. Defaults run on the PPO
-policy shipped with the package, with no other set-up.
+policy shipped with the package, with no other set-up. ``safe-nav evaluate --help``
+shows every option with its default and unit.
+
+Exit codes (one line on stderr, no traceback):
+
+* 0 -- done;
+* 1 -- some episode failed (the CSV's ``error`` column says why; running the same
+  command again re-runs the failed episodes);
+* 2 -- a bad option or setting, a missing or corrupt policy file, an output path
+  that is a file, an output folder holding another run;
+* 130 -- Ctrl-C (the finished episodes are saved; the same command resumes).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
-from agents.evaluation import PAPER_SCENARIOS, PLANNERS, REFERENCES
+from agents.records import PAPER_SCENARIOS, PLANNERS, REFERENCES
 from filters.wrapper import RISKS
 
-SCENARIO_IDS = {
-    "HeadOn": "SafeNav/HeadOn-v0",
-    "Overtaking": "SafeNav/Overtaking-v0",
-    "Intersection": "SafeNav/Intersection-v0",
-    "MultiObstacle": "SafeNav/MultiObstacle-v0",
-    "RandomCrossing": "SafeNav/RandomCrossing-v0",
-}
+EXIT_FAILED_EPISODES = 1
+EXIT_BAD_INPUT = 2
+EXIT_INTERRUPTED = 130
+
+
+def _canonical_scenario(name: str, *, gym_id_ok: bool = False) -> str:
+    from safe_nav_env.errors import ScenarioError
+    from safe_nav_env.scenarios import env_id, scenario_name
+
+    try:
+        canonical = scenario_name(name, warn=False)
+    except ScenarioError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    if canonical != name and not (gym_id_ok and name == env_id(canonical)):
+        print(f"safe-nav: note: scenario {name!r} is called {canonical!r}; use {canonical!r}",
+              file=sys.stderr)
+    return canonical
 
 
 def scenario_id(name: str) -> str:
-    """Accept ``HeadOn`` or ``SafeNav/HeadOn-v0``."""
-    if name in SCENARIO_IDS:
-        return SCENARIO_IDS[name]
-    if name in SCENARIO_IDS.values():
-        return name
-    raise argparse.ArgumentTypeError(
-        f"unknown scenario {name!r}; choose from {sorted(SCENARIO_IDS)}"
-    )
+    """The gym id of a scenario spelled ``HeadOn``, ``head_on`` or ``SafeNav/HeadOn-v0``."""
+    from safe_nav_env.scenarios import env_id
+
+    return env_id(_canonical_scenario(name, gym_id_ok=True))
+
+
+def scenario(name: str) -> str:
+    """The canonical name (``HeadOn``) of a scenario in any of its spellings."""
+    return _canonical_scenario(name)
 
 
 def _positive_int(text: str) -> int:
-    value = int(text)
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}") from None
     if value < 1:
         raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
     return value
 
 
+def _seed(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
+    return value
+
+
+def _number(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return value
+
+
+def _tail_mass(text: str) -> float:
+    value = _number(text)
+    if not 0.0 < value <= 1.0:
+        raise argparse.ArgumentTypeError(f"expected a tail mass in (0, 1], got {text!r}")
+    return value
+
+
+def _metres(text: str) -> float:
+    value = _number(text)
+    if value < 0.0:
+        raise argparse.ArgumentTypeError(f"expected a distance >= 0 (in m), got {text!r}")
+    return value
+
+
+def _noise(text: str) -> str:
+    from safe_nav_env import NOISE_PRESETS
+
+    if text and text not in NOISE_PRESETS:
+        raise argparse.ArgumentTypeError(
+            f"unknown noise preset {text!r}; choose one of {sorted(NOISE_PRESETS)} (or '' for "
+            "the scenario's own)")
+    return text
+
+
+def _policy(text: str) -> str:
+    from agents.errors import PolicyFileError
+    from agents.runner import check_policy
+
+    if not text:  # the shipped policy: checked (and loaded) before the run, if the PPO runs
+        return text
+    try:
+        check_policy(text)
+    except PolicyFileError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
+
+
+def _output(text: str) -> Path:
+    path = Path(text)
+    for folder in (path, *path.parents):
+        if folder.exists():
+            if not folder.is_dir():
+                raise argparse.ArgumentTypeError(
+                    f"{text!r} cannot be an output folder: {folder} is a file")
+            break
+    return path
+
+
+def _option(text: str) -> tuple[str, Any]:
+    key, sep, raw = text.partition("=")
+    if not sep or not key:
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
+    try:
+        value = json.loads(raw)
+    except json.JSONDecodeError:
+        value = raw
+    return key, value
+
+
+class _Parser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line (no usage block)."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+_FORMAT = dict(formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="safe-nav",
         description="DR-CVaR safety filtering of learned motion planners.",
     )
@@ -62,51 +178,124 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--tensorboard", type=str, default=None)
     train.add_argument("--no-progress", action="store_true")
 
-    evaluate = sub.add_parser("evaluate", help="Monte Carlo: filtered vs unfiltered policies")
+    evaluate = sub.add_parser("evaluate", help="Monte Carlo: filtered vs unfiltered policies",
+                              **_FORMAT)
     _add_evaluation_arguments(evaluate, episodes=300)
     evaluate.add_argument("--sweep", action="store_true",
-                          help="sweep epsilon and delta (DR-CVaR) and plot collisions vs deviation")
-    evaluate.add_argument("--epsilons", type=float, nargs="+", default=[0.0, 0.05, 0.1, 0.2])
-    evaluate.add_argument("--deltas", type=float, nargs="+", default=[0.0, 0.1, 0.2])
+                          help="sweep epsilon and delta (DR-CVaR) and plot collisions vs "
+                          "deviation (writes sweep.csv, sweep.md, figures/sweep.png)")
+    evaluate.add_argument("--epsilons", type=_metres, nargs="+", default=[0.0, 0.05, 0.1, 0.2],
+                          help="--sweep: Wasserstein radii, in m (>= 0)")
+    evaluate.add_argument("--deltas", type=_metres, nargs="+", default=[0.0, 0.1, 0.2],
+                          help="--sweep: risk bounds, in m (>= 0)")
 
-    reproduce = sub.add_parser("reproduce", help="reproduce the paper's figures and tables")
-    reproduce.add_argument("--episodes", type=_positive_int, default=300)
-    reproduce.add_argument("--workers", type=_positive_int, default=2)
-    reproduce.add_argument("--seed", type=int, default=0)
-    reproduce.add_argument("--output", type=Path, default=Path("results/reproduce"))
-    reproduce.add_argument("--timing-repeats", type=_positive_int, default=100)
-    reproduce.add_argument("--no-progress", action="store_true")
+    reproduce = sub.add_parser("reproduce", help="reproduce the paper's figures and tables",
+                               **_FORMAT)
+    reproduce.add_argument("--episodes", type=_positive_int, default=300,
+                           help="Monte Carlo episodes per scenario and risk (>= 1)")
+    reproduce.add_argument("--workers", type=_positive_int, default=2,
+                           help="local worker processes (>= 1)")
+    reproduce.add_argument("--seed", type=_seed, default=0,
+                           help="seed of the first episode (episode i uses seed + i)")
+    reproduce.add_argument("--output", type=_output, default=Path("results/reproduce"),
+                           help="output folder")
+    reproduce.add_argument("--timing-repeats", type=_positive_int, default=100,
+                           help="repeats of each Table I timing (>= 1)")
+    reproduce.add_argument("--no-progress", action="store_true", help="no progress bar")
 
-    bench = sub.add_parser("bench", help="speed benchmarks (ratios in one run)")
-    bench.add_argument("--steps", type=_positive_int, default=500)
-    bench.add_argument("--repeats", type=_positive_int, default=100)
+    bench = sub.add_parser("bench", help="speed benchmarks (ratios in one run)", **_FORMAT)
+    bench.add_argument("--steps", type=_positive_int, default=500,
+                       help="filter steps timed per size (>= 1)")
+    bench.add_argument("--repeats", type=_positive_int, default=100,
+                       help="repeats of each halfspace timing (>= 1)")
     return parser
 
 
 def _add_evaluation_arguments(parser: argparse.ArgumentParser, *, episodes: int) -> None:
-    parser.add_argument("--scenarios", type=scenario_id, nargs="+", default=list(PAPER_SCENARIOS))
-    parser.add_argument("--risks", choices=RISKS, nargs="+", default=list(RISKS))
-    parser.add_argument("--planner", choices=PLANNERS, default="ppo")
-    parser.add_argument("--reference", choices=REFERENCES, default="rollout")
-    parser.add_argument("--policy", type=str, default="", help="PPO .zip (default: shipped)")
-    parser.add_argument("--episodes", type=_positive_int, default=episodes)
-    parser.add_argument("--workers", type=_positive_int, default=2)
-    parser.add_argument("--executor", choices=("process", "ray"), default="process")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--alpha", type=float, default=0.2)
-    parser.add_argument("--delta", type=float, default=0.1)
-    parser.add_argument("--epsilon", type=float, default=0.05)
-    parser.add_argument("--noise", default="",
-                        help="noise preset of the environment, e.g. authors_code "
-                        "(default: the scenario's, as in the paper's text)")
-    parser.add_argument("--output", type=Path, default=Path("results/evaluate"))
-    parser.add_argument("--no-plots", action="store_true")
-    parser.add_argument("--no-progress", action="store_true")
+    parser.add_argument("--scenarios", type=scenario, nargs="+", default=list(PAPER_SCENARIOS),
+                        help="scenario names (HeadOn, Overtaking, Intersection, MultiObstacle, "
+                        "RandomCrossing)")
+    parser.add_argument("--risks", choices=RISKS, nargs="+", default=list(RISKS),
+                        help="risk settings; none is the unfiltered planner")
+    parser.add_argument("--planner", choices=PLANNERS, default="ppo",
+                        help="reference planner: the PPO policy or the paper's "
+                        "obstacle-agnostic MPC")
+    parser.add_argument("--reference", choices=REFERENCES, default="rollout",
+                        help="PPO reference trajectory: roll the policy out on the predicted "
+                        "obstacle motion, or hold its action")
+    parser.add_argument("--policy", type=_policy, default="",
+                        help="PPO policy .zip (default: the shipped one)%(default).0s")
+    parser.add_argument("--episodes", type=_positive_int, default=episodes,
+                        help="episodes per scenario and risk (>= 1)")
+    parser.add_argument("--workers", type=_positive_int, default=2,
+                        help="local worker processes (>= 1; 1 runs in this process)")
+    parser.add_argument("--executor", choices=("process", "ray"), default="process",
+                        help="where episodes run: local processes or a Ray cluster")
+    parser.add_argument("--seed", type=_seed, default=0,
+                        help="seed of the first episode (episode i uses seed + i)")
+    parser.add_argument("--alpha", type=_tail_mass, default=0.2,
+                        help="CVaR tail mass, in (0, 1]")
+    parser.add_argument("--delta", type=_metres, default=0.1,
+                        help="risk bound on the intrusion depth, in m (>= 0)")
+    parser.add_argument("--epsilon", type=_metres, default=0.05,
+                        help="Wasserstein radius of DR-CVaR, in m (>= 0)")
+    parser.add_argument("--noise", type=_noise, default="",
+                        help="noise preset of the environment, e.g. authors_code (default: the "
+                        "scenario's own, as in the paper's text)%(default).0s")
+    parser.add_argument("--filter-option", type=_option, action="append", default=[],
+                        metavar="KEY=VALUE", dest="filter_options",
+                        help="further SafetyFilterWrapper keyword (VALUE as JSON, else a "
+                        "string), e.g. soft=true; repeatable (default: none)%(default).0s")
+    parser.add_argument("--env-option", type=_option, action="append", default=[],
+                        metavar="KEY=VALUE", dest="env_options",
+                        help="further gym.make keyword, e.g. n_samples=50; repeatable "
+                        "(default: none)%(default).0s")
+    parser.add_argument("--output", type=_output, default=Path("results/evaluate"),
+                        help="output folder (CSV, run key, summary, figures)")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="discard the results already in --output instead of resuming")
+    parser.add_argument("--no-plots", action="store_true", help="no figures")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of ``safe-nav``; returns the exit code."""
-    args = build_parser().parse_args(argv)
+    """Entry point of ``safe-nav``; returns the exit code (see the module docstring)."""
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as exc:  # --help (0) or a bad option (2, one line already printed)
+        return exc.code if isinstance(exc.code, int) else EXIT_BAD_INPUT
+    prog = f"safe-nav {args.command}"
+    try:
+        return _dispatch(args)
+    except KeyboardInterrupt as exc:
+        print(_interrupted_message(prog, exc, args), file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except _bad_input_errors() as exc:
+        print(f"{prog}: error: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}",
+              file=sys.stderr)
+        return EXIT_BAD_INPUT
+
+
+def _bad_input_errors() -> tuple[type[BaseException], ...]:
+    from agents.errors import AgentsError
+    from filters.errors import SafeNavError
+    from safe_nav_env.errors import SafeNavEnvError
+
+    return (AgentsError, SafeNavError, SafeNavEnvError)
+
+
+def _interrupted_message(prog: str, exc: KeyboardInterrupt, args: argparse.Namespace) -> str:
+    from agents.evaluation import EvaluationInterrupted
+
+    if isinstance(exc, EvaluationInterrupted) and exc.csv_path is not None:
+        return (f"{prog}: interrupted: {exc.finished} of {exc.total} episodes finished, saved "
+                f"in {exc.csv_path}; run the same command again to resume")
+    where = f" in {args.output}" if getattr(args, "output", None) else ""
+    return (f"{prog}: interrupted; the finished episodes are saved{where}; run the same command "
+            "again to resume")
+
+
+def _dispatch(args: argparse.Namespace) -> int:
     if args.command == "train":
         return _train(args)
     if args.command == "evaluate":
@@ -123,7 +312,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         print(run_benchmarks(filter_steps=args.steps, table_repeats=args.repeats))
         return 0
-    return 2  # pragma: no cover - argparse rejects unknown commands
+    return EXIT_BAD_INPUT  # pragma: no cover - argparse rejects unknown commands
 
 
 def _evaluate(args: argparse.Namespace) -> int:
@@ -132,7 +321,8 @@ def _evaluate(args: argparse.Namespace) -> int:
     common = dict(episodes=args.episodes, workers=args.workers, seed=args.seed,
                   planner=args.planner, reference=args.reference, policy_path=args.policy,
                   alpha=args.alpha, noise=args.noise, executor=args.executor,
-                  progress=not args.no_progress)
+                  filter_options=dict(args.filter_options), env_options=dict(args.env_options),
+                  progress=not args.no_progress, overwrite=args.overwrite)
     if args.sweep:
         outputs = run_sweep(args.output, args.scenarios, epsilons=args.epsilons,
                             deltas=args.deltas, **common)
@@ -140,6 +330,15 @@ def _evaluate(args: argparse.Namespace) -> int:
         outputs = run_evaluation(args.output, args.scenarios, args.risks, delta=args.delta,
                                  epsilon=args.epsilon, plots=not args.no_plots, **common)
     print(outputs)
+    failed = outputs.failed
+    if failed:
+        first = failed[0]
+        print(f"safe-nav evaluate: error: {len(failed)} of {len(outputs.records)} episodes "
+              f"failed (first: {first.scenario} {first.risk} seed {first.seed}: "
+              f"{first.error.split(' | ')[0][:200]}); see the error column of "
+              f"{outputs.files['episodes']}; run the same command again to re-run them",
+              file=sys.stderr)
+        return EXIT_FAILED_EPISODES
     return 0
 
 

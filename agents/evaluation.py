@@ -5,339 +5,94 @@ with the same seed see the same obstacle noise whatever the risk setting (the
 environment draws the same random numbers each step whatever the action), so
 risk settings are compared on common random numbers.
 
-Every episode returns an :class:`EpisodeRecord`, a flat row of the CSV. A failing
-episode (an exception, a NaN) is recorded with ``error`` set instead of stopping
-the run, like ``diffrax``'s ``throw=False``.
+:func:`evaluate` is the orchestration: it checks every setting and the policy file
+*before* anything runs (:func:`check_specs`), resumes from the results CSV of the
+same run (its run key must match: :func:`agents.records.check_run_key`; failed rows
+are run again), runs the rest on an executor and writes each record as it finishes.
+Every episode returns an :class:`~agents.records.EpisodeRecord`; a failing episode
+(an exception, a NaN) is recorded with ``error`` set instead of stopping the run.
+
+The parts live in :mod:`agents.records` (specs, records, CSV, run keys),
+:mod:`agents.runner` (one episode) and :mod:`agents.executors` (process pool, Ray);
+their public names are re-exported here.
 """
 
 from __future__ import annotations
 
-import csv
-import math
-import time
-import traceback
-from collections import Counter
-from collections.abc import Callable, Iterable, Iterator, Sequence
-from concurrent.futures import ProcessPoolExecutor
-from dataclasses import asdict, dataclass, fields
+from collections.abc import Sequence
+from dataclasses import fields, replace
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from filters.errors import InvalidParameterError
-from filters.wrapper import RISKS
-
-PAPER_SCENARIOS = (
-    "SafeNav/HeadOn-v0",
-    "SafeNav/Overtaking-v0",
-    "SafeNav/Intersection-v0",
-    "SafeNav/MultiObstacle-v0",
+from agents.errors import OutputPathError, RecordsFileError
+from agents.executors import Executor, make_executor
+from agents.records import (
+    FILTER_STATUSES,
+    KEY_FIELDS,
+    PAPER_SCENARIOS,
+    PLANNERS,
+    RECORD_FIELDS,
+    REFERENCES,
+    RISKS,
+    EpisodeRecord,
+    EpisodeSpec,
+    RecordWriter,
+    check_run_key,
+    read_records,
+    run_key,
+    run_key_path,
+    sort_records,
+    write_records,
 )
-"""The paper's four scenarios."""
+from agents.runner import Trajectory, check_policy, load_policy, make_env, run_episode, run_spec
+from filters.errors import InvalidParameterError
 
-PLANNERS = ("ppo", "mpc")
-"""Reference planners: the shipped PPO policy, or the paper's obstacle-agnostic MPC."""
+__all__ = [
+    "FILTER_STATUSES",
+    "KEY_FIELDS",
+    "PAPER_SCENARIOS",
+    "PLANNERS",
+    "RECORD_FIELDS",
+    "REFERENCES",
+    "RISKS",
+    "EpisodeRecord",
+    "EpisodeSpec",
+    "EvaluationInterrupted",
+    "RecordWriter",
+    "Trajectory",
+    "check_policy",
+    "check_specs",
+    "episode_specs",
+    "evaluate",
+    "make_env",
+    "read_records",
+    "run_episode",
+    "run_spec",
+    "run_specs",
+    "sort_records",
+]
 
-REFERENCES = ("rollout", "hold")
-"""How the filter makes a reference trajectory from a PPO proposal."""
+SPEC_OPTIONS = tuple(f.name for f in fields(EpisodeSpec)
+                     if f.name not in ("scenario", "risk", "seed", "policy_sha256"))
+"""Keywords of :func:`evaluate` that become fields of every :class:`EpisodeSpec`."""
 
 
-@dataclass(frozen=True)
-class EpisodeSpec:
-    """One episode to run.
+class EvaluationInterrupted(KeyboardInterrupt):
+    """Ctrl-C during :func:`evaluate`; the finished episodes are saved.
 
     Attributes
     ----------
-    scenario
-        Registered environment id, e.g. ``"SafeNav/HeadOn-v0"``.
-    risk
-        ``"none"``, ``"mean"``, ``"cvar"`` or ``"dr_cvar"``.
-    seed
-        Seed of ``env.reset``: the obstacles' noise and any random scenario data.
-    planner
-        ``"ppo"`` or ``"mpc"``.
-    reference
-        ``"rollout"`` (roll the policy out on the predicted mean motion) or
-        ``"hold"`` (hold the proposed action); the MPC planner always uses its plan.
-    alpha, delta, epsilon
-        Risk parameters (tail mass, risk bound in m, Wasserstein radius in m).
-    policy_path
-        PPO policy file; empty for the shipped one.
-    noise
-        Noise preset of the environment (``safe_nav_env.NOISE_PRESETS``, e.g.
-        ``"authors_code"``); empty for the scenario's own (the paper's text).
+    finished, total
+        Episodes finished (and saved, if there is a CSV) and asked for.
+    csv_path
+        The results CSV, or ``None``.
     """
 
-    scenario: str
-    risk: str
-    seed: int
-    planner: str = "ppo"
-    reference: str = "rollout"
-    alpha: float = 0.2
-    delta: float = 0.1
-    epsilon: float = 0.05
-    policy_path: str = ""
-    noise: str = ""
-
-    def key(self) -> tuple:
-        """Identity of the episode in a results file (used to resume)."""
-        return (self.scenario, self.risk, int(self.seed), self.planner, self.reference,
-                float(self.alpha), float(self.delta), float(self.epsilon), self.noise)
+    def __init__(self, finished: int, total: int, csv_path: Path | None) -> None:
+        super().__init__(f"interrupted after {finished} of {total} episodes")
+        self.finished, self.total, self.csv_path = finished, total, csv_path
 
 
-@dataclass(frozen=True)
-class EpisodeRecord:
-    """One row of the results: what happened in one episode.
-
-    Distances are in m, times in s, interventions in m/s².
-    """
-
-    scenario: str
-    risk: str
-    seed: int
-    planner: str
-    reference: str
-    alpha: float
-    delta: float
-    epsilon: float
-    noise: str = ""
-    steps: int = 0
-    collision: bool = False
-    collision_steps: int = 0
-    min_distance: float = math.nan
-    goal_reached: bool = False
-    time_to_goal: float = math.nan
-    path_length: float = 0.0
-    mean_intervention: float = 0.0
-    max_intervention: float = 0.0
-    statuses: str = ""
-    fallback_steps: int = 0
-    filter_time_median: float = 0.0
-    filter_time_max: float = 0.0
-    episode_return: float = 0.0
-    wall_time: float = 0.0
-    error: str = ""
-
-    def key(self) -> tuple:
-        return (self.scenario, self.risk, int(self.seed), self.planner, self.reference,
-                float(self.alpha), float(self.delta), float(self.epsilon), self.noise)
-
-
-RECORD_FIELDS = tuple(f.name for f in fields(EpisodeRecord))
-"""CSV columns, in order."""
-
-
-@dataclass
-class Trajectory:
-    """Positions of one episode, for plots: ego (steps+1, 2), obstacles (steps+1, k, 2)."""
-
-    ego: np.ndarray
-    obstacles: np.ndarray
-    obstacle_radii: np.ndarray
-    ego_radius: float
-    goal: np.ndarray
-    halfspaces: list[tuple[np.ndarray, np.ndarray]]
-    statuses: list[str]
-    frames: list[np.ndarray]
-
-
-# ---------------------------------------------------------------------------- policies
-_POLICY_CACHE: dict[tuple[str, str], Any] = {}
-
-
-def _load_planner(planner: str, policy_path: str, env: Any) -> Any:
-    if planner == "mpc":
-        from agents.planners import MPCReferencePlanner
-
-        return MPCReferencePlanner.from_env(env)
-    key = (planner, policy_path)
-    if key not in _POLICY_CACHE:
-        from agents.training import load_ppo, set_torch_threads
-
-        set_torch_threads(1)
-        _POLICY_CACHE[key] = load_ppo(policy_path or None)
-    return _POLICY_CACHE[key]
-
-
-def make_env(spec: EpisodeSpec, *, render_mode: str | None = None, policy: Any = None,
-             env_kwargs: dict[str, Any] | None = None):
-    """The filtered (or pass-through) environment of an episode and its planner."""
-    import gymnasium as gym
-
-    import safe_nav_env  # noqa: F401
-    from filters import SafetyFilterWrapper
-
-    kwargs = dict(env_kwargs or {})
-    if spec.noise:
-        kwargs.setdefault("noise", spec.noise)
-    env = gym.make(spec.scenario, render_mode=render_mode, **kwargs)
-    planner = policy if policy is not None else _load_planner(spec.planner, spec.policy_path, env)
-    filter_kwargs: dict[str, Any] = dict(risk=spec.risk, alpha=spec.alpha, delta=spec.delta,
-                                         epsilon=spec.epsilon)
-    if spec.planner == "mpc":
-        filter_kwargs["reference"] = planner
-    elif spec.reference == "rollout":
-        filter_kwargs["policy"] = planner
-    return SafetyFilterWrapper(env, **filter_kwargs), planner
-
-
-# ---------------------------------------------------------------------------- one episode
-def run_episode(
-    spec: EpisodeSpec,
-    *,
-    policy: Any = None,
-    record_trajectory: bool = False,
-    render: bool = False,
-    env_kwargs: dict[str, Any] | None = None,
-) -> tuple[EpisodeRecord, Trajectory | None]:
-    """Run one episode and summarise it; never raises for a failure inside the episode.
-
-    Returns
-    -------
-    record : EpisodeRecord
-        ``error`` is non-empty if the episode failed (its partial statistics are kept).
-    trajectory : Trajectory or None
-        Positions and halfspaces, if ``record_trajectory``; with ``render`` also the
-        ``rgb_array`` frames (halfspaces drawn by the wrapper's render hook).
-    """
-    base_fields = dict(scenario=spec.scenario, risk=spec.risk, seed=int(spec.seed),
-                       planner=spec.planner, reference=spec.reference, alpha=spec.alpha,
-                       delta=spec.delta, epsilon=spec.epsilon, noise=spec.noise)
-    start = time.perf_counter()
-    stats = _EpisodeStats()
-    trajectory = None
-    try:
-        env, planner = make_env(spec, policy=policy, env_kwargs=env_kwargs,
-                                render_mode="rgb_array" if render else None)
-        try:
-            obs, info = env.reset(seed=int(spec.seed))
-            base = env.unwrapped
-            stats.start(base, info)
-            recorder = _TrajectoryRecorder(env, render) if record_trajectory else None
-            done = False
-            while not done:
-                action, _ = planner.predict(obs, deterministic=True)
-                obs, reward, terminated, truncated, info = env.step(action)
-                if not np.all(np.isfinite(obs)):
-                    raise FloatingPointError(f"non-finite observation at step {stats.steps + 1}")
-                stats.step(base, reward, info)
-                if recorder is not None:
-                    recorder.record(info["filter"])
-                done = terminated or truncated
-            if recorder is not None:
-                trajectory = recorder.trajectory()
-        finally:
-            env.close()
-        error = ""
-    except Exception as exc:  # noqa: BLE001 — a Monte Carlo run records failures
-        error = f"{type(exc).__name__}: {exc}".replace("\n", " ")[:500]
-        if not isinstance(exc, FloatingPointError):
-            error += " | " + traceback.format_exc(limit=3).replace("\n", " ")[-300:]
-    record = EpisodeRecord(**base_fields, **stats.summary(), wall_time=time.perf_counter() - start,
-                           error=error)
-    return record, trajectory
-
-
-class _TrajectoryRecorder:
-    """Collects an episode's positions, statuses, halfspaces and (optionally) frames."""
-
-    def __init__(self, env: Any, render: bool) -> None:
-        self._env, self._base, self._render = env, env.unwrapped, render
-        self._ego: list[np.ndarray] = []
-        self._obstacles: list[np.ndarray] = []
-        self._statuses: list[str] = []
-        self._halfspaces: list[tuple[np.ndarray, np.ndarray]] = []
-        self._frames: list[np.ndarray] = []
-        self._snapshot()
-
-    def _snapshot(self) -> None:
-        self._ego.append(np.asarray(self._base.ego_state[:2], dtype=float).copy())
-        self._obstacles.append(np.asarray(self._base.obstacle_positions, dtype=float).copy())
-        if self._render:
-            self._frames.append(self._env.render())
-
-    def record(self, report: Any) -> None:
-        """After a step: the new positions and what the filter did."""
-        self._snapshot()
-        self._statuses.append(report["status"])
-        if report["normals"] is not None:
-            self._halfspaces.append((np.asarray(report["normals"]),
-                                     np.asarray(report["offsets"])))
-
-    def trajectory(self) -> Trajectory:
-        base = self._base
-        return Trajectory(
-            ego=np.asarray(self._ego), obstacles=np.asarray(self._obstacles),
-            obstacle_radii=np.asarray(base.obstacle_radii, dtype=float).copy(),
-            ego_radius=float(base.ego_radius), goal=np.asarray(base.goal, dtype=float).copy(),
-            halfspaces=self._halfspaces, statuses=self._statuses, frames=self._frames)
-
-
-class _EpisodeStats:
-    """Accumulates the per-step quantities of an episode."""
-
-    def __init__(self) -> None:
-        self.steps = 0
-        self.collision_steps = 0
-        self.min_distance = math.inf
-        self.goal_time = math.nan
-        self.path_length = 0.0
-        self.interventions: list[float] = []
-        self.filter_times: list[float] = []
-        self.statuses: Counter[str] = Counter()
-        self.episode_return = 0.0
-        self.dt = 0.2
-        self._position = np.zeros(2)
-
-    def start(self, base: Any, info: dict[str, Any]) -> None:
-        self.dt = float(base.dt)
-        self._position = np.asarray(base.ego_state[:2], dtype=float).copy()
-        self._distance(info)
-
-    def _distance(self, info: dict[str, Any]) -> None:
-        distances = np.asarray(info.get("distance_to_collision", []), dtype=float)
-        if distances.size:
-            self.min_distance = min(self.min_distance, float(distances.min()))
-
-    def step(self, base: Any, reward: float, info: dict[str, Any]) -> None:
-        self.steps += 1
-        self.episode_return += float(reward)
-        self._distance(info)
-        self.collision_steps += int(bool(info.get("collision", False)))
-        position = np.asarray(base.ego_state[:2], dtype=float)
-        self.path_length += float(np.linalg.norm(position - self._position))
-        self._position = position.copy()
-        if info.get("is_success", False) and math.isnan(self.goal_time):
-            self.goal_time = self.steps * self.dt
-        report = info["filter"]
-        self.statuses[report["status"]] += 1
-        self.interventions.append(float(report["intervention"]))
-        self.filter_times.append(float(report["filter_time"]))
-
-    def summary(self) -> dict[str, Any]:
-        fallback = sum(c for s, c in self.statuses.items() if s in ("shifted", "brake"))
-        interventions = np.asarray(self.interventions or [0.0])
-        times = np.asarray(self.filter_times or [0.0])
-        return dict(
-            steps=self.steps,
-            collision=self.collision_steps > 0,
-            collision_steps=self.collision_steps,
-            min_distance=self.min_distance if math.isfinite(self.min_distance) else math.nan,
-            goal_reached=not math.isnan(self.goal_time),
-            time_to_goal=self.goal_time,
-            path_length=self.path_length,
-            mean_intervention=float(interventions.mean()),
-            max_intervention=float(interventions.max()),
-            statuses=";".join(f"{s}:{c}" for s, c in sorted(self.statuses.items())),
-            fallback_steps=int(fallback),
-            filter_time_median=float(np.median(times)),
-            filter_time_max=float(times.max()),
-            episode_return=self.episode_return,
-        )
-
-
-# ---------------------------------------------------------------------------- many episodes
 def episode_specs(
     scenarios: Sequence[str],
     risks: Sequence[str],
@@ -345,141 +100,130 @@ def episode_specs(
     seed: int = 0,
     **spec_kwargs: Any,
 ) -> list[EpisodeSpec]:
-    """Every (scenario, risk, episode) combination; episode ``i`` uses seed ``seed + i``."""
+    """Every (scenario, risk, episode) combination; episode ``i`` uses seed ``seed + i``.
+
+    Raises
+    ------
+    InvalidParameterError
+        For an unknown risk, planner, reference, noise preset or keyword, or
+        ``episodes < 1``.
+    ScenarioError
+        For an unknown scenario.
+    """
+    unknown = sorted(set(spec_kwargs) - set(SPEC_OPTIONS))
+    if unknown:
+        raise InvalidParameterError(f"unknown episode setting(s) {unknown}; expected some of "
+                                    f"{list(SPEC_OPTIONS)}")
     for risk in risks:
         if risk not in RISKS:
             raise InvalidParameterError(f"risk must be one of {RISKS}, got {risk!r}")
-    if episodes < 1:
-        raise InvalidParameterError(f"episodes must be >= 1, got {episodes!r}")
-    planner = spec_kwargs.get("planner", "ppo")
-    if planner not in PLANNERS:
-        raise InvalidParameterError(f"planner must be one of {PLANNERS}, got {planner!r}")
-    reference = spec_kwargs.get("reference", "rollout")
-    if reference not in REFERENCES:
-        raise InvalidParameterError(f"reference must be one of {REFERENCES}, got {reference!r}")
-    noise = spec_kwargs.get("noise", "")
-    if noise:
-        from safe_nav_env import NOISE_PRESETS
-
-        if noise not in NOISE_PRESETS:
-            raise InvalidParameterError(
-                f"noise must be '' or one of {sorted(NOISE_PRESETS)}, got {noise!r}")
+    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
+        raise InvalidParameterError(f"episodes must be an integer >= 1, got {episodes!r}")
     return [EpisodeSpec(scenario=s, risk=r, seed=seed + i, **spec_kwargs)
             for s in scenarios for r in risks for i in range(episodes)]
 
 
-def _run_spec(spec: EpisodeSpec) -> EpisodeRecord:
-    return run_episode(spec)[0]
+def check_specs(specs: Sequence[EpisodeSpec]) -> list[EpisodeSpec]:
+    """Check every setting before anything runs; return the specs with the policy's hash.
 
+    Loads each PPO policy once (a missing or corrupt file fails here, not in every
+    episode) and builds the filtered environment of each distinct setting once, so
+    that the filter's and the environment's own validation run up front.
 
-def _worker_init() -> None:
-    import os
-
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
-    try:
-        import torch
-
-        torch.set_num_threads(1)
-    except ImportError:  # pragma: no cover - torch is optional for the MPC planner
-        pass
+    Raises
+    ------
+    PolicyFileError
+        If a policy file is missing, corrupt or does not load.
+    InvalidParameterError, ScenarioError, ConfigError
+        For a setting the filter or the environment rejects.
+    """
+    hashes: dict[str, str] = {}
+    checked = []
+    built: set[tuple] = set()
+    for spec in specs:
+        if spec.planner == "ppo":
+            if spec.policy_path not in hashes:
+                _, hashes[spec.policy_path] = load_policy(spec.policy_path)
+            if spec.policy_sha256 and spec.policy_sha256 != hashes[spec.policy_path]:
+                raise InvalidParameterError(
+                    f"policy_sha256 {spec.policy_sha256[:12]}... does not match the file "
+                    f"{spec.policy_path or 'shipped'} ({hashes[spec.policy_path][:12]}...)")
+            spec = replace(spec, policy_sha256=hashes[spec.policy_path])
+        setting = replace(spec, seed=0).key()
+        if setting not in built:
+            env, _ = make_env(spec)
+            env.close()
+            built.add(setting)
+        checked.append(spec)
+    return checked
 
 
 def run_specs(
     specs: Sequence[EpisodeSpec],
     *,
     workers: int = 1,
-    executor: str = "process",
-    on_record: Callable[[EpisodeRecord], None] | None = None,
-) -> Iterator[EpisodeRecord]:
+    executor: str | Executor = "process",
+    on_record: Any = None,
+):
     """Run episodes, yielding records as they finish (order of completion).
 
     ``executor="process"`` spreads them over ``workers`` local processes
-    (``workers=1`` runs in this process); ``executor="ray"`` submits them as Ray tasks.
+    (``workers=1`` runs in this process); ``executor="ray"`` submits them as Ray
+    tasks; an :class:`~agents.executors.Executor` instance is used as is (and left
+    open, so its workers serve the next call too).
     """
-    if workers < 1:
-        raise InvalidParameterError(f"workers must be >= 1, got {workers!r}")
-    if executor == "ray":
-        from agents.ray_executor import run_on_ray
-
-        iterator: Iterable[EpisodeRecord] = run_on_ray(specs)
-    elif executor != "process":
-        raise InvalidParameterError(f"executor must be 'process' or 'ray', got {executor!r}")
-    elif workers == 1:
-        iterator = (_run_spec(spec) for spec in specs)
-    else:
-        iterator = _run_in_pool(specs, workers)
-    for record in iterator:
-        if on_record is not None:
-            on_record(record)
-        yield record
+    own = not isinstance(executor, Executor)
+    runner = make_executor(executor, workers) if own else executor
+    try:
+        for record in runner.run(specs):
+            if on_record is not None:
+                on_record(record)
+            yield record
+    except BaseException:
+        if own:
+            runner.terminate()
+        raise
+    if own:
+        runner.close()
 
 
-def _run_in_pool(specs: Sequence[EpisodeSpec], workers: int) -> Iterator[EpisodeRecord]:
-    import multiprocessing
-
-    context = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=workers, mp_context=context,
-                             initializer=_worker_init) as pool:
-        chunk = max(1, min(16, len(specs) // (4 * workers) or 1))
-        yield from pool.map(_run_spec, specs, chunksize=chunk)
-
-
-# ---------------------------------------------------------------------------- CSV
-def read_records(path: str | Path) -> list[EpisodeRecord]:
-    """Records from a results CSV (written by :class:`RecordWriter`)."""
-    types = {f.name: f.type for f in fields(EpisodeRecord)}
-    records = []
-    with open(path, newline="") as handle:
-        for row in csv.DictReader(handle):
-            values: dict[str, Any] = {}
-            for name in RECORD_FIELDS:
-                raw = row.get(name, "")
-                kind = types[name]
-                if kind in ("int", int):
-                    values[name] = int(float(raw)) if raw else 0
-                elif kind in ("float", float):
-                    values[name] = float(raw) if raw else math.nan
-                elif kind in ("bool", bool):
-                    values[name] = raw == "True"
-                else:
-                    values[name] = raw
-            records.append(EpisodeRecord(**values))
-    return records
+def _output_csv(csv_path: str | Path) -> Path:
+    path = Path(csv_path)
+    for folder in (path.parent, *path.parent.parents):
+        if folder.exists():
+            if not folder.is_dir():
+                raise OutputPathError(f"output folder {folder} is a file, not a folder; "
+                                      "choose another --output")
+            break
+    if path.exists() and not path.is_file():
+        raise OutputPathError(f"results file {path} is a folder")
+    return path
 
 
-class RecordWriter:
-    """Appends records to a CSV as they finish, so an interrupted run can resume."""
-
-    def __init__(self, path: str | Path) -> None:
-        self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        new = not self.path.exists() or self.path.stat().st_size == 0
-        self._handle = open(self.path, "a", newline="")
-        self._writer = csv.DictWriter(self._handle, fieldnames=RECORD_FIELDS)
-        if new:
-            self._writer.writeheader()
-            self._handle.flush()
-
-    def __call__(self, record: EpisodeRecord) -> None:
-        self._writer.writerow(asdict(record))
-        self._handle.flush()
-
-    def close(self) -> None:
-        self._handle.close()
-
-    def __enter__(self) -> RecordWriter:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+def _resume(path: Path, specs: Sequence[EpisodeSpec], key: dict[str, Any],
+            overwrite: bool) -> list[EpisodeRecord]:
+    """The finished records of ``specs`` in ``path``; drops its failed rows from the file."""
+    if overwrite:
+        for old in (path, run_key_path(path)):
+            if old.exists():
+                old.unlink()
+    check_run_key(path, key)
+    if not (path.exists() and path.stat().st_size):
+        return []
+    try:
+        stored = read_records(path)
+    except RecordsFileError as exc:
+        raise RecordsFileError(f"{exc}; use another output folder or --overwrite") from None
+    latest: dict[tuple, EpisodeRecord] = {}
+    for record in stored:
+        latest[record.key()] = record
+    kept = [r for r in latest.values() if not r.error]
+    if len(kept) != len(stored):  # failed or repeated rows: rewrite without them
+        write_records(path, kept)
+    wanted = {spec.key() for spec in specs}
+    return [r for r in kept if r.key() in wanted]
 
 
-def sort_records(records: Iterable[EpisodeRecord]) -> list[EpisodeRecord]:
-    """Records in a canonical order (scenario, risk, seed, ...), independent of completion order."""
-    return sorted(records, key=lambda r: tuple(str(k) for k in r.key()[:2]) + r.key()[2:])
-
-
-# ---------------------------------------------------------------------------- the main job
 def evaluate(
     scenarios: Sequence[str] = PAPER_SCENARIOS,
     risks: Sequence[str] = RISKS,
@@ -487,9 +231,12 @@ def evaluate(
     episodes: int = 100,
     seed: int = 0,
     workers: int = 1,
-    executor: str = "process",
+    executor: str | Executor = "process",
     csv_path: str | Path | None = None,
     progress: bool = True,
+    overwrite: bool = False,
+    specs: Sequence[EpisodeSpec] | None = None,
+    vary: Sequence[str] = (),
     **spec_kwargs: Any,
 ) -> list[EpisodeRecord]:
     """Run the Monte Carlo comparison of risk settings and return every episode's record.
@@ -497,7 +244,7 @@ def evaluate(
     Parameters
     ----------
     scenarios
-        Environment ids.
+        Scenario names (``"HeadOn"``, ...; gym ids are accepted with a warning).
     risks
         Risk settings, ``"none"`` being the unfiltered planner.
     episodes
@@ -505,42 +252,73 @@ def evaluate(
     workers
         Local worker processes (``executor="process"``).
     executor
-        ``"process"`` (default) or ``"ray"``.
+        ``"process"`` (default), ``"ray"``, or an :class:`~agents.executors.Executor`
+        to reuse (a sweep passes one, so its worker pool serves every grid point).
     csv_path
-        If given, records are appended there as they finish, and episodes already in
-        the file are not run again (an interrupted run resumes).
+        If given, records are appended there as they finish, and the finished episodes
+        of the same run are not run again (an interrupted run resumes; failed rows are
+        run again). The run key (``<csv stem>.run.json``) must match.
     progress
         Show a progress bar.
+    overwrite
+        Delete the CSV and its run key first.
+    specs
+        Run these episodes instead of the (scenarios x risks x episodes) grid.
+    vary
+        Key fields besides scenario, risk and seed that vary within the run (see
+        :func:`agents.records.run_key`).
     **spec_kwargs
         ``planner``, ``reference``, ``alpha``, ``delta``, ``epsilon``, ``policy_path``,
-        ``noise`` (see :class:`EpisodeSpec`).
+        ``noise``, ``filter_options``, ``env_options`` (see :class:`EpisodeSpec`).
 
     Returns
     -------
     list of EpisodeRecord
         Sorted by scenario, risk and seed, whatever the order they finished in, so the
         result does not depend on the number of workers.
+
+    Raises
+    ------
+    PolicyFileError, InvalidParameterError, ScenarioError, ConfigError
+        For a bad setting or policy, before any episode runs.
+    RunMismatchError, RecordsFileError, OutputPathError
+        If ``csv_path`` holds another run's results or cannot be written.
+    EvaluationInterrupted
+        On Ctrl-C, after saving the finished episodes.
     """
-    specs = episode_specs(scenarios, risks, episodes, seed, **spec_kwargs)
+    if specs is None:
+        specs = episode_specs(scenarios, risks, episodes, seed, **spec_kwargs)
+    elif spec_kwargs:
+        raise InvalidParameterError(f"pass either specs or settings, got both ({spec_kwargs})")
+    specs = check_specs(specs)
     done: list[EpisodeRecord] = []
     writer = None
+    path = None
     if csv_path is not None:
-        path = Path(csv_path)
-        if path.exists() and path.stat().st_size:
-            wanted = {spec.key() for spec in specs}
-            done = [r for r in read_records(path) if r.key() in wanted]
-            finished = {r.key() for r in done}
-            specs = [spec for spec in specs if spec.key() not in finished]
+        path = _output_csv(csv_path)
+        done = _resume(path, specs, run_key(specs, vary=vary), overwrite)
+        finished = {r.key() for r in done}
+        todo = [spec for spec in specs if spec.key() not in finished]
         writer = RecordWriter(path)
+    else:
+        todo = list(specs)
     records = list(done)
+    bar = None
     try:
-        iterator = run_specs(specs, workers=workers, executor=executor, on_record=writer)
-        if progress and specs:
+        iterator = run_specs(todo, workers=workers, executor=executor, on_record=writer)
+        if progress and todo:
             from tqdm.auto import tqdm
 
-            iterator = tqdm(iterator, total=len(specs), desc="episodes", unit="ep")
-        records.extend(iterator)
+            bar = tqdm(iterator, total=len(todo), desc="episodes", unit="ep")
+            iterator = bar
+        for record in iterator:
+            records.append(record)
+    except KeyboardInterrupt as exc:
+        raise EvaluationInterrupted(len(records), len(specs), path) from exc
     finally:
+        if bar is not None:
+            bar.close()
         if writer is not None:
             writer.close()
     return sort_records(records)
+

@@ -59,10 +59,14 @@ from typing import Any
 
 import numpy as np
 
-from agents.evaluation import PAPER_SCENARIOS
 from agents.planners import AUTHORS_CODE_PLANNER
+from agents.records import PAPER_SCENARIOS as PAPER_SCENARIO_NAMES
 from agents.summary import SummaryRow, short_name, wilson_interval
 from filters.errors import InvalidArrayError, InvalidParameterError
+from safe_nav_env.scenarios import env_id
+
+PAPER_SCENARIOS = tuple(env_id(name) for name in PAPER_SCENARIO_NAMES)
+"""The paper's four scenarios by gym id (reproduce's encounters are keyed by gym id)."""
 
 PAPER_TABLE_ONE_MS = {
     "cvar": {50: (0.144, 2.23), 500: (1.91, 4.32), 1500: (5.98, 8.95)},

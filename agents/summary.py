@@ -1,9 +1,11 @@
-"""Summary statistics of evaluation records: the table users read.
+"""Summary statistics of evaluation records: the tables users read.
 
-Per (scenario, planner, risk): the collision rate with a Wilson 95 % confidence
-interval, the worst and the CVaR (lower 10 % tail mean) of the minimum distance to
-collision, the goal rate and time to goal, the intervention size (how far the filter
-moved the reference planner's action) and the filter's step time.
+Per (scenario, planner, risk): the collision rate in continuous time with a Wilson
+95 % confidence interval and the sampled one (the paper's), the worst and the CVaR
+(lower 10 % tail mean) of the minimum distance to collision, the goal rate and time
+to goal, the intervention size (how far the filter moved the reference planner's
+action), the filter's step time; then the share of steps with each filter status,
+the collisions by cause and the first reason the filter braked on bad data.
 """
 
 from __future__ import annotations
@@ -15,9 +17,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agents.evaluation import EpisodeRecord
+from agents.records import FILTER_STATUSES, RISKS, EpisodeRecord
 
-RISK_ORDER = {"none": 0, "mean": 1, "cvar": 2, "dr_cvar": 3}
+RISK_ORDER = {risk: i for i, risk in enumerate(RISKS)}
+"""Table order of the risk settings (:data:`filters.wrapper.RISKS`)."""
+
+COLLISION_CAUSES = ("fallback", "inter_sample", "noise")
+"""Values of :attr:`EpisodeRecord.collision_cause` for a collided episode."""
 
 
 def wilson_interval(successes: int, trials: int, z: float = 1.959964) -> tuple[float, float]:
@@ -63,6 +69,12 @@ class SummaryRow:
     mean_intervention: float
     fallback_share: float
     filter_time_ms: float
+    sampled_collision_rate: float = math.nan
+    worst_swept_distance: float = math.nan
+    status_shares: tuple[tuple[str, float], ...] = ()
+    collision_causes: tuple[tuple[str, int], ...] = ()
+    first_error: str = ""
+    first_failure: str = ""
 
 
 def summarise(records: Iterable[EpisodeRecord]) -> list[SummaryRow]:
@@ -72,7 +84,8 @@ def summarise(records: Iterable[EpisodeRecord]) -> list[SummaryRow]:
         groups[(record.scenario, record.planner, record.risk)].append(record)
     rows = []
     for (scenario, planner, risk), group in sorted(
-        groups.items(), key=lambda item: (item[0][0], item[0][1], RISK_ORDER.get(item[0][2], 9))
+        groups.items(), key=lambda item: (item[0][0], item[0][1],
+                                           RISK_ORDER.get(item[0][2], len(RISK_ORDER)))
     ):
         ok = [r for r in group if not r.error]
         n = len(ok)
@@ -81,6 +94,14 @@ def summarise(records: Iterable[EpisodeRecord]) -> list[SummaryRow]:
         distances = np.array([r.min_distance for r in ok], dtype=float)
         times = [r.time_to_goal for r in ok if r.goal_reached]
         steps = sum(r.steps for r in ok)
+        swept = np.array([r.min_swept_distance for r in ok], dtype=float)
+        shares = tuple(
+            (status, sum(getattr(r, f"share_{status}") * r.steps for r in ok) / steps)
+            for status in FILTER_STATUSES) if steps else ()
+        causes = tuple((cause, sum(r.collision_cause == cause for r in ok))
+                       for cause in COLLISION_CAUSES)
+        errors = [f"seed {r.seed}, {r.first_error}" for r in ok if r.first_error]
+        failures = [f"seed {r.seed}: {r.error}" for r in group if r.error]
         rows.append(SummaryRow(
             scenario=scenario, planner=planner, risk=risk, episodes=len(group),
             failed=len(group) - n,
@@ -94,6 +115,12 @@ def summarise(records: Iterable[EpisodeRecord]) -> list[SummaryRow]:
             fallback_share=sum(r.fallback_steps for r in ok) / steps if steps else math.nan,
             filter_time_ms=1e3 * float(np.median([r.filter_time_median for r in ok]))
             if n else math.nan,
+            sampled_collision_rate=sum(r.sampled_collision for r in ok) / n if n else math.nan,
+            worst_swept_distance=(float(np.nanmin(swept)) if n and np.isfinite(swept).any()
+                                  else math.nan),
+            status_shares=shares, collision_causes=causes,
+            first_error=errors[0] if errors else "",
+            first_failure=failures[0][:200] if failures else "",
         ))
     return rows
 
@@ -104,18 +131,38 @@ def short_name(scenario: str) -> str:
 
 
 def markdown_table(rows: Sequence[SummaryRow]) -> str:
-    """The summary as a Markdown table."""
+    """The summary as a Markdown table (collisions in continuous time unless "sampled")."""
     header = ("| scenario | planner | risk | episodes | collision rate [95 % CI] | "
-              "worst distance (m) | CVaR10 distance (m) | goal rate | time to goal (s) | "
+              "sampled collision rate | worst distance (m) | worst swept distance (m) | "
+              "CVaR10 distance (m) | goal rate | time to goal (s) | "
               "mean intervention (m/s²) | fallback steps | filter time (ms) |")
-    lines = [header, "|" + "---|" * 12]
+    lines = [header, "|" + "---|" * 14]
     for r in rows:
         failed = f" ({r.failed} failed)" if r.failed else ""
         lines.append(
             f"| {short_name(r.scenario)} | {r.planner} | {r.risk} | {r.episodes}{failed} | "
             f"{r.collision_rate:.1%} [{r.collision_low:.1%}, {r.collision_high:.1%}] | "
-            f"{r.worst_distance:.3f} | {r.cvar_distance:.3f} | {r.goal_rate:.1%} | "
+            f"{r.sampled_collision_rate:.1%} | "
+            f"{r.worst_distance:.3f} | {r.worst_swept_distance:.3f} | {r.cvar_distance:.3f} | "
+            f"{r.goal_rate:.1%} | "
             f"{r.time_to_goal:.2f} | {r.mean_intervention:.3f} | {r.fallback_share:.1%} | "
             f"{r.filter_time_ms:.2f} |"
         )
+    return "\n".join(lines) + "\n"
+
+
+def status_table(rows: Sequence[SummaryRow]) -> str:
+    """Share of steps per filter status, collisions by cause, first bad-data reason."""
+    header = ("| scenario | planner | risk | " + " | ".join(FILTER_STATUSES) + " | "
+              "collisions by cause (" + " / ".join(COLLISION_CAUSES) + ") | first error |")
+    lines = [header, "|" + "---|" * (len(FILTER_STATUSES) + 5)]
+    for r in rows:
+        shares = dict(r.status_shares)
+        causes = dict(r.collision_causes)
+        cells = " | ".join(f"{shares[s]:.1%}" if s in shares and r.risk != "none" else "-"
+                           for s in FILTER_STATUSES)  # "none": every step is a passthrough
+        cause_cell = " / ".join(str(causes.get(c, 0)) for c in COLLISION_CAUSES)
+        reason = (r.first_error or r.first_failure or "").replace("|", "/")
+        lines.append(f"| {short_name(r.scenario)} | {r.planner} | {r.risk} | {cells} | "
+                     f"{cause_cell} | {reason} |")
     return "\n".join(lines) + "\n"

@@ -4,17 +4,16 @@ from __future__ import annotations
 
 import gymnasium as gym
 
+from safe_nav_env.scenarios import CUSTOM, SCENARIO_NAMES, env_id
+
 ENTRY_POINT = "safe_nav_env.env:SafeNavEnv"
 
 ENV_IDS: dict[str, str | None] = {
-    "SafeNav/HeadOn-v0": "head_on",
-    "SafeNav/Overtaking-v0": "overtaking",
-    "SafeNav/Intersection-v0": "intersection",
-    "SafeNav/MultiObstacle-v0": "multi_obstacle",
-    "SafeNav/RandomCrossing-v0": "random_crossing",
-    "SafeNav/Custom-v0": None,
+    env_id(name): (None if name == CUSTOM else name) for name in SCENARIO_NAMES
 }
-"""Registered ids and the scenario each uses (``None``: pass ``scenario=`` to ``gym.make``)."""
+"""Registered ids and the scenario each uses (``None``: pass ``scenario=`` to ``gym.make``).
+
+The scenario's name is the id's: ``"SafeNav/HeadOn-v0"`` runs ``SCENARIOS["HeadOn"]``."""
 
 
 def register_envs() -> None:
@@ -24,8 +23,8 @@ def register_envs() -> None:
     ``max_episode_steps`` is registered; ``gym.make(..., max_episode_steps=n)``
     can still shorten episodes with a :class:`gymnasium.wrappers.TimeLimit`.
     """
-    for env_id, scenario in ENV_IDS.items():
-        if env_id in gym.registry:
+    for env_id_, scenario in ENV_IDS.items():
+        if env_id_ in gym.registry:
             continue
         kwargs = {} if scenario is None else {"scenario": scenario}
-        gym.register(id=env_id, entry_point=ENTRY_POINT, kwargs=kwargs)
+        gym.register(id=env_id_, entry_point=ENTRY_POINT, kwargs=kwargs)

@@ -4,7 +4,14 @@ A :class:`Scenario` is a frozen, validated value. The paper's four encounters
 (Section IV-B, with the numbers of the authors' simulation code) are
 :data:`HEAD_ON`, :data:`OVERTAKING`, :data:`INTERSECTION` and :data:`MULTI_OBSTACLE`;
 :func:`random_crossing` draws a randomised training scenario. :data:`SCENARIOS`
-maps the names accepted by :class:`~safe_nav_env.SafeNavEnv` to either.
+maps the scenario names to either.
+
+One name per scenario: the canonical name is the one in the Gymnasium id
+(``"HeadOn"`` for ``SafeNav/HeadOn-v0``), used by :data:`SCENARIOS`, the command
+line and the evaluation records. The other spellings (``"head_on"``,
+``"SafeNav/HeadOn-v0"``) are accepted everywhere a name is, with a
+:class:`ScenarioNameWarning` naming the canonical one; :func:`scenario_name`
+does the conversion and :func:`env_id` gives the Gymnasium id.
 
 Positions are in m, velocities in m/s, times in s, angles in rad.
 """
@@ -12,6 +19,8 @@ Positions are in m, velocities in m/s, times in s, angles in rad.
 from __future__ import annotations
 
 import math
+import re
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, fields
 from typing import Any
@@ -22,6 +31,9 @@ from safe_nav_env.errors import ScenarioError
 from safe_nav_env.noise import NoiseModel, resolve_noise
 
 Vector = tuple[float, ...]
+
+DEFAULT_DURATION = 10.0
+"""Length in s of a scenario given neither ``duration`` nor ``episode_length``."""
 
 
 def _vector(value: Any, path: str, sizes: Sequence[int]) -> Vector:
@@ -169,10 +181,14 @@ class Scenario:
     one obstacle, 10 s for three). To reproduce the paper's runs, pass
     ``episode_length=scenario.duration`` to the environment.
 
+    A scenario given neither lasts :data:`DEFAULT_DURATION` (10 s, the
+    multi-obstacle preset's episode length: a 9.4 m crossing at 1.5 m/s takes 6.3 s);
+    one given only ``duration`` ends after ``duration``.
+
     Parameters
     ----------
     name
-        Short identifier, e.g. ``"head_on"``.
+        Short identifier, e.g. ``"HeadOn"``.
     ego_start
         Initial ego state ``(p_x, p_y, v_x, v_y)`` or position ``(p_x, p_y)`` (then
         at rest); stored as the 4-vector. The position must lie in the arena.
@@ -181,7 +197,8 @@ class Scenario:
     obstacles
         :class:`ObstacleSpec` objects or mappings of their fields (possibly empty).
     duration
-        Length of the encounter, in s, ``> 0``.
+        Length of the encounter, in s, ``> 0``; ``None`` (default) means
+        ``episode_length`` if given, else :data:`DEFAULT_DURATION`.
     episode_length
         Default time limit of an episode, in s, ``> 0``; ``None`` means ``duration``.
     noise
@@ -203,7 +220,7 @@ class Scenario:
     ego_start: Vector
     goal: Vector
     obstacles: tuple[ObstacleSpec, ...] = ()
-    duration: float = 3.0
+    duration: float | None = None
     episode_length: float | None = None
     noise: NoiseModel = field(default_factory=NoiseModel)
     ego_radius: float = 0.3
@@ -247,10 +264,13 @@ class Scenario:
         set_(self, "obstacles",
              tuple(_obstacle(o, f"obstacles[{i}]") for i, o in enumerate(self.obstacles)))
 
-        set_(self, "duration", _number(self.duration, "duration", low=0.0, strict=True))
         if self.episode_length is not None:
             set_(self, "episode_length",
                  _number(self.episode_length, "episode_length", low=0.0, strict=True))
+        if self.duration is None:
+            set_(self, "duration", DEFAULT_DURATION if self.episode_length is None
+                 else self.episode_length)
+        set_(self, "duration", _number(self.duration, "duration", low=0.0, strict=True))
         set_(self, "noise", resolve_noise(self.noise, "noise"))
         set_(self, "ego_radius", _number(self.ego_radius, "ego_radius", low=0.0, strict=True))
 
@@ -268,7 +288,7 @@ class Scenario:
 _EGO_SPEED = 1.5  # m/s along +x at the start, as in the authors' code.
 
 HEAD_ON = Scenario(
-    name="head_on",
+    name="HeadOn",
     ego_start=(-4.7, 0.0, _EGO_SPEED, 0.0),
     goal=(4.7, 0.0),
     obstacles=(ObstacleSpec(start=(2.0, -0.01), velocity=(-1.0, 0.0)),),
@@ -278,7 +298,7 @@ HEAD_ON = Scenario(
 """Head-on encounter: one obstacle coming towards the ego along its path."""
 
 OVERTAKING = Scenario(
-    name="overtaking",
+    name="Overtaking",
     ego_start=(-4.7, 0.0, _EGO_SPEED, 0.0),
     goal=(4.7, 0.0),
     obstacles=(ObstacleSpec(start=(-2.0, -0.05), velocity=(1.0, 0.0)),),
@@ -288,7 +308,7 @@ OVERTAKING = Scenario(
 """Overtaking: one slower obstacle ahead of the ego, moving the same way."""
 
 INTERSECTION = Scenario(
-    name="intersection",
+    name="Intersection",
     ego_start=(-3.5, 1.0, _EGO_SPEED, 0.0),
     goal=(1.0, -3.0),
     obstacles=(ObstacleSpec(start=(-2.5, -1.0), velocity=(1.5, 0.0)),),
@@ -298,7 +318,7 @@ INTERSECTION = Scenario(
 """Intersection: the ego heads down-right across the lane of an obstacle moving along +x."""
 
 MULTI_OBSTACLE = Scenario(
-    name="multi_obstacle",
+    name="MultiObstacle",
     ego_start=(-4.7, -1.0, _EGO_SPEED, 0.0),
     goal=(4.7, 0.0),
     obstacles=(
@@ -346,7 +366,7 @@ def random_crossing(
     Returns
     -------
     Scenario
-        Named ``"random_crossing"``.
+        Named ``"RandomCrossing"``.
     """
     if not 0 <= min_obstacles <= max_obstacles:
         raise ScenarioError(
@@ -375,7 +395,7 @@ def random_crossing(
                 break
         obstacles.append(ObstacleSpec(start=tuple(obstacle_start), velocity=tuple(speed * heading)))
     return Scenario(
-        name="random_crossing",
+        name="RandomCrossing",
         ego_start=(start[0], start[1], ego_speed, 0.0),
         goal=tuple(goal),
         obstacles=tuple(obstacles),
@@ -387,11 +407,99 @@ def random_crossing(
 ScenarioFactory = Callable[[np.random.Generator], Scenario]
 """A scenario family: called with the environment's generator at each reset."""
 
-SCENARIOS: dict[str, Scenario | ScenarioFactory] = {
-    "head_on": HEAD_ON,
-    "overtaking": OVERTAKING,
-    "intersection": INTERSECTION,
-    "multi_obstacle": MULTI_OBSTACLE,
-    "random_crossing": random_crossing,
-}
-"""Scenarios and scenario families by name, as accepted by ``SafeNavEnv(scenario=...)``."""
+class ScenarioNameWarning(UserWarning):
+    """A scenario was named by another spelling than its canonical name."""
+
+
+CUSTOM = "Custom"
+"""Name of ``SafeNav/Custom-v0``: the scenario is passed as ``scenario=``."""
+
+
+def _snake(name: str) -> str:
+    return re.sub(r"(?<!^)(?=[A-Z])", "_", name).lower()
+
+
+class _ScenarioTable(dict):
+    """A dict of scenarios by canonical name that also finds the other spellings.
+
+    ``"head_on" in SCENARIOS`` is true and ``SCENARIOS["head_on"]`` returns the
+    head-on preset with a :class:`ScenarioNameWarning`; iteration, ``keys()`` and
+    ``sorted(SCENARIOS)`` give the canonical names only.
+    """
+
+    def __contains__(self, name: object) -> bool:
+        return isinstance(name, str) and _canonical(name, self) is not None
+
+    def __getitem__(self, name: str) -> Scenario | ScenarioFactory:
+        canonical = _canonical(name, self) if isinstance(name, str) else None
+        if canonical is None:
+            raise KeyError(name)
+        if canonical != name:
+            _warn_spelling(name, canonical, stacklevel=3)
+        return dict.__getitem__(self, canonical)
+
+    def get(self, name: str, default: Any = None) -> Any:
+        return self[name] if name in self else default
+
+
+def _canonical(name: str, names: Any) -> str | None:
+    """The canonical name ``name`` spells (exact, snake_case or gym id), or ``None``."""
+    canonical_names = tuple(dict.keys(names)) if isinstance(names, dict) else tuple(names)
+    if name in canonical_names:
+        return name
+    match = re.fullmatch(r"SafeNav/(\w+)-v0", name)
+    for canonical in canonical_names:
+        if (match and match.group(1) == canonical) or name == _snake(canonical):
+            return canonical
+    return None
+
+
+def _warn_spelling(name: str, canonical: str, *, stacklevel: int = 2) -> None:
+    warnings.warn(f"{name!r} spells the scenario {canonical!r}; use {canonical!r} (its gym id "
+                  f"is {env_id(canonical)!r})", ScenarioNameWarning, stacklevel=stacklevel + 1)
+
+
+SCENARIOS: dict[str, Scenario | ScenarioFactory] = _ScenarioTable({
+    "HeadOn": HEAD_ON,
+    "Overtaking": OVERTAKING,
+    "Intersection": INTERSECTION,
+    "MultiObstacle": MULTI_OBSTACLE,
+    "RandomCrossing": random_crossing,
+})
+"""Scenarios and scenario families by canonical name, as accepted by
+``SafeNavEnv(scenario=...)`` (the other spellings are found too, with a warning)."""
+
+SCENARIO_NAMES: tuple[str, ...] = (*SCENARIOS, CUSTOM)
+"""Every canonical scenario name, one per registered gym id."""
+
+
+def scenario_name(name: str, *, warn: bool = True) -> str:
+    """The canonical name of a scenario spelled ``name``.
+
+    Parameters
+    ----------
+    name
+        ``"HeadOn"`` (canonical), ``"head_on"`` or ``"SafeNav/HeadOn-v0"``.
+    warn
+        Warn (:class:`ScenarioNameWarning`) when ``name`` is not the canonical spelling.
+
+    Raises
+    ------
+    ScenarioError
+        If ``name`` spells no scenario; the message lists the names.
+    """
+    canonical = _canonical(name, SCENARIO_NAMES) if isinstance(name, str) else None
+    if canonical is None:
+        raise ScenarioError(f"unknown scenario {name!r}; choose one of {list(SCENARIO_NAMES)} "
+                            "(or their gym ids, e.g. 'SafeNav/HeadOn-v0')")
+    if warn and canonical != name:
+        _warn_spelling(name, canonical)
+    return canonical
+
+
+def env_id(name: str) -> str:
+    """The Gymnasium id of a scenario: ``env_id("HeadOn") == "SafeNav/HeadOn-v0"``.
+
+    Accepts every spelling :func:`scenario_name` does, without a warning.
+    """
+    return f"SafeNav/{scenario_name(name, warn=False)}-v0"

@@ -25,7 +25,7 @@ def _timeless(records):
 
 def test_ray_executor_reproduces_the_local_records(local_ray, tmp_path):
     kwargs = dict(episodes=2, seed=11, progress=False, planner="mpc")
-    scenarios = ["SafeNav/Intersection-v0"]
+    scenarios = ["Intersection"]
     local = evaluate(scenarios, ["none", "cvar"], workers=1, **kwargs)
     remote = evaluate(scenarios, ["none", "cvar"], executor="ray",
                       csv_path=tmp_path / "ray.csv", **kwargs)
