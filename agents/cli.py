@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from agents.records import PAPER_SCENARIOS, PLANNERS, REFERENCES
+from filters.risk import PAPER_RISKS
 from filters.wrapper import RISKS
 
 EXIT_FAILED_EPISODES = 1
@@ -215,8 +216,11 @@ def _add_evaluation_arguments(parser: argparse.ArgumentParser, *, episodes: int)
     parser.add_argument("--scenarios", type=scenario, nargs="+", default=list(PAPER_SCENARIOS),
                         help="scenario names (HeadOn, Overtaking, Intersection, MultiObstacle, "
                         "RandomCrossing)")
-    parser.add_argument("--risks", choices=RISKS, nargs="+", default=list(RISKS),
-                        help="risk settings; none is the unfiltered planner")
+    parser.add_argument("--risks", choices=RISKS, nargs="+",
+                        default=["none", *PAPER_RISKS],
+                        help="risk settings; none is the unfiltered planner (the default is "
+                        "the paper's comparison; gaussian_cc, moment_dr and conformal on "
+                        "request)")
     parser.add_argument("--planner", choices=PLANNERS, default="ppo",
                         help="reference planner: the PPO policy or the paper's "
                         "obstacle-agnostic MPC")
