@@ -625,6 +625,7 @@ def test_scalar_and_infinite_bounds_are_accepted():
     assert solve(mpc, random_instance(np.random.default_rng(16), 2)).status is FilterStatus.OPTIMAL
 
 
+@pytest.mark.slow
 def test_importing_the_filter_does_not_import_cvxpy():
     code = ("import sys, filters, filters.mpc; assert 'cvxpy' not in sys.modules; "
             "filters.CVXPYSafetyFilter; sys.exit(int('cvxpy' not in sys.modules))")
