@@ -625,6 +625,7 @@ def test_scalar_and_infinite_bounds_are_accepted():
     assert solve(mpc, random_instance(np.random.default_rng(16), 2)).status is FilterStatus.OPTIMAL
 
 
+@pytest.mark.slow
 def test_importing_the_filter_does_not_import_cvxpy():
     code = ("import sys, filters, filters.mpc; assert 'cvxpy' not in sys.modules; "
             "filters.CVXPYSafetyFilter; sys.exit(int('cvxpy' not in sys.modules))")
@@ -638,3 +639,18 @@ def test_benchmark_runs_and_formats():
     assert result.agreement == 1.0 and result.max_input_difference < 1e-4
     text = format_filter_qp(result)
     assert "MPCSafetyFilter" in text and "speed-up" in text
+
+
+@pytest.mark.parametrize("soft", [False, True])
+def test_a_general_output_map_matches_the_reference(soft):
+    """C mixes state entries (not [I 0]): the halfspace entries a' C are written through
+    the index map instead of copied from the normals."""
+    mixed = np.array([[1.0, 0.0, 0.3, 0.0], [0.2, 1.0, 0.0, -0.1]])
+    fast = MPCSafetyFilter(A, B, mixed, **{**KWARGS, "soft": soft})
+    reference = MPCSafetyFilter(A, B, mixed, backend="cvxpy", **{**KWARGS, "soft": soft})
+    for instance in mode_instances("soft", 17, 6):
+        ours, theirs = solve(fast, instance), solve(reference, instance)
+        assert ours.status == theirs.status
+        np.testing.assert_allclose(ours.inputs[0], theirs.inputs[0], atol=3e-3)
+        if ours.status is FilterStatus.OPTIMAL:
+            np.testing.assert_allclose(ours.inputs, theirs.inputs, atol=1e-4)

@@ -39,17 +39,17 @@ def test_rows_are_the_documented_ones():
 def test_the_set_is_invariant_under_its_stopping_feedback(stop_time):
     rng = np.random.default_rng(0)
     G, g = stopping_terminal_set(TS, (-5.0, 5.0), (-ARENA, ARENA), stop_time)
-    for x in random_states_in_the_set(rng, 300, G, g):
-        reach = x[:2] + stop_time * x[2:]
-        for _ in range(5):
-            u = stopping_input(x, TS, stop_time)
-            assert np.all(np.abs(u) <= 5.0 + 1e-12)
-            # inside the arena along the whole arc, not only at the samples
-            for s in np.linspace(0.0, TS, 9):
-                assert np.all(np.abs(x[:2] + s * x[2:] + 0.5 * s**2 * u) <= ARENA + 1e-12)
-            x = A @ x + B @ u
-            assert np.all(G @ x <= g + 1e-12) and np.all(np.abs(x[:2]) <= ARENA + 1e-12)
-            np.testing.assert_allclose(x[:2] + stop_time * x[2:], reach, atol=1e-12)
+    x = random_states_in_the_set(rng, 300, G, g)  # (300, 4), all at once
+    reach = x[:, :2] + stop_time * x[:, 2:]
+    for _ in range(5):
+        u = stopping_input(x, TS, stop_time)
+        assert np.all(np.abs(u) <= 5.0 + 1e-12)
+        # inside the arena along the whole arc, not only at the samples
+        for s in np.linspace(0.0, TS, 9):
+            assert np.all(np.abs(x[:, :2] + s * x[:, 2:] + 0.5 * s**2 * u) <= ARENA + 1e-12)
+        x = x @ A.T + u @ B.T
+        assert np.all(x @ G.T <= g + 1e-12) and np.all(np.abs(x[:, :2]) <= ARENA + 1e-12)
+        np.testing.assert_allclose(x[:, :2] + stop_time * x[:, 2:], reach, atol=1e-12)
 
 
 def test_bad_arguments_raise():

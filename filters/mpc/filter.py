@@ -27,6 +27,7 @@ from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
+import scipy.linalg
 
 from filters._validation import finite_array
 from filters.errors import InvalidParameterError, InvalidTypeError
@@ -210,17 +211,29 @@ class MPCSafetyFilter:
         # Precomputed for the per-step checks (a few NumPy calls per step).
         phi, gamma = problem.rollout
         self._phi, self._gamma, self._gain = phi, gamma, problem.gain
-        self._eval = problem.evaluation_map
+        # One product M @ [x0; u] - r gives the roll-out, the positions and the excess of
+        # every bound row (upper arena faces by step and axis, lower faces, terminal rows:
+        # the back ends' order): each small NumPy call costs microseconds, so few of them.
+        evaluation = problem.evaluation_map  # [x_0..x_T; C x_1..C x_T]
+        split = (T + 1) * n
+        positions = evaluation[split:].reshape(T, problem.d, -1)
+        y_low, y_high = problem.position_bounds
+        hi, lo = np.flatnonzero(np.isfinite(y_high)), np.flatnonzero(np.isfinite(y_low))
+        G, g = problem.terminal_set if problem.terminal_set is not None else (
+            np.zeros((0, n)), np.zeros(0))
+        last_state = evaluation[T * n : split]
+        rows = [evaluation, positions[:, hi].reshape(-1, evaluation.shape[1]),
+                -positions[:, lo].reshape(-1, evaluation.shape[1]), G @ last_state]
+        offsets = [np.zeros(split + T * problem.d), np.tile(y_high[hi], T),
+                   -np.tile(y_low[lo], T), g]
+        self._eval = np.ascontiguousarray(np.vstack(rows))
+        self._eval_offset = np.concatenate(offsets)
+        self._split = (split, split + T * problem.d)
+        # Block-diagonal weights of the cost (8) on the flattened deviations.
+        self._R_block = scipy.linalg.block_diag(*problem.input_weights)
+        self._Q_block = scipy.linalg.block_diag(*problem.state_weights)
         u_low, u_high = problem.input_bounds
         self._u_low_all, self._u_high_all = np.tile(u_low, T), np.tile(u_high, T)
-        y_low, y_high = problem.position_bounds
-        self._hi = np.flatnonzero(np.isfinite(y_high))
-        self._lo = np.flatnonzero(np.isfinite(y_low))
-        self._y_high, self._y_low = y_high[self._hi], y_low[self._lo]
-        if problem.terminal_set is not None:
-            self._G, self._g = problem.terminal_set
-        else:
-            self._G, self._g = np.zeros((0, n)), np.zeros(0)
         self._zero_inputs = np.zeros((T, m))
         self._zero_inputs.setflags(write=False)
         self._plan: np.ndarray | None = None
@@ -305,18 +318,11 @@ class MPCSafetyFilter:
         back ends: upper arena faces (by step, then axis), lower faces, terminal rows.
         """
         p = self.problem
-        T, n, d = p.horizon, p.n, p.d
-        out = self._eval @ np.concatenate((x0, inputs.reshape(-1)))
-        split = (T + 1) * n
-        states = out[:split].reshape(T + 1, n)
-        positions = out[split:].reshape(T, d)
-        halfspace = _vecdot(normals, positions) - offsets
-        bounds = np.concatenate((
-            (positions[:, self._hi] - self._y_high).reshape(-1),
-            (self._y_low - positions[:, self._lo]).reshape(-1),
-            self._G @ states[-1] - self._g,
-        ))
-        return states, halfspace, bounds
+        out = self._eval @ np.concatenate((x0, inputs.reshape(-1))) - self._eval_offset
+        split, end = self._split
+        states = out[:split].reshape(p.horizon + 1, p.n)
+        halfspace = _vecdot(normals, out[split:end].reshape(p.horizon, p.d)) - offsets
+        return states, halfspace, out[end:]
 
     def _call(self, backend: Any, step: StepData) -> QPSolution:
         self._qp_solves += 1
@@ -337,7 +343,7 @@ class MPCSafetyFilter:
             return "rejected: non-finite solution"
         inputs = np.minimum(np.maximum(raw, self.problem.input_bounds[0]),
                             self.problem.input_bounds[1])  # interior point: ~1e-9 outside
-        clipped = float(np.max(np.abs(inputs - raw)))
+        clipped = float(np.maximum.reduce(np.abs(inputs - raw), axis=None))
         if not clipped <= FEASIBILITY_TOLERANCE:
             return f"rejected: input bound violated by {clipped:.3g}"
         states, halfspace, bounds = self._evaluate(x0, inputs, normals, offsets)
@@ -348,9 +354,9 @@ class MPCSafetyFilter:
         allowed_b = 0.0
         if "bounds" in soft_rows and solution.bound_slack is not None:
             allowed_b = np.maximum(solution.bound_slack, 0.0)
-        worst = float(np.max(bounds - allowed_b, initial=-np.inf))
+        worst = float(np.maximum.reduce(bounds - allowed_b, initial=-np.inf))
         if k:
-            worst = max(worst, float(np.max(halfspace - allowed_h)))
+            worst = max(worst, float(np.maximum.reduce(halfspace - allowed_h, axis=None)))
         if not worst <= FEASIBILITY_TOLERANCE:  # False for NaN too
             return f"rejected: constraint violation {worst:.3g} > {FEASIBILITY_TOLERANCE:g}"
         return inputs, states, halfspace, bounds
@@ -417,8 +423,8 @@ class MPCSafetyFilter:
                 u = u + self._gain @ residual
             if np.all(u >= self._u_low_all) and np.all(u <= self._u_high_all):
                 states, halfspace, bounds = self._evaluate(x0, u, normals, offsets)
-                if np.max(bounds, initial=-np.inf) <= 0.0 and (
-                    not k or np.max(halfspace) <= 0.0
+                if np.maximum.reduce(bounds, initial=-np.inf) <= 0.0 and (
+                    not k or np.maximum.reduce(halfspace, axis=None) <= 0.0
                 ):
                     inputs = u.reshape(T, m)
                     self._plan, self._failures = inputs, 0
@@ -490,6 +496,16 @@ class MPCSafetyFilter:
                             self._bound_total(bounds), status_text, iterations, solve_time,
                             ref_states, ref_inputs, start)
 
+    def _cost(self, inputs: np.ndarray, states: np.ndarray, ref_states: np.ndarray,
+              ref_inputs: np.ndarray) -> float:
+        """:meth:`MPCProblem.cost` with the block-diagonal weights (two products)."""
+        du = (inputs - ref_inputs).reshape(-1)
+        total = du @ (self._R_block @ du)
+        if self.problem.has_state_cost:
+            dx = (states[1:] - ref_states).reshape(-1)
+            total += dx @ (self._Q_block @ dx)
+        return float(total)
+
     @staticmethod
     def _slack(halfspace: np.ndarray) -> np.ndarray:
         """Violations ``max(0, excess)``, entries <= SLACK_TOLERANCE set to 0."""
@@ -497,7 +513,10 @@ class MPCSafetyFilter:
 
     @staticmethod
     def _bound_total(bounds: np.ndarray) -> float:
-        return float(np.sum(bounds[bounds > SLACK_TOLERANCE]))
+        """Total violation of the bound rows, entries <= SLACK_TOLERANCE not counted."""
+        if not np.maximum.reduce(bounds, initial=-np.inf) > SLACK_TOLERANCE:
+            return 0.0
+        return float(np.add.reduce(bounds[bounds > SLACK_TOLERANCE]))
 
     def _result(
         self, status: FilterStatus, inputs: np.ndarray, states: np.ndarray,
@@ -516,7 +535,7 @@ class MPCSafetyFilter:
             slack=slack,
             solver_status=solver_status,
             iterations=iterations,
-            objective=self.problem.cost(inputs, states, ref_states, ref_inputs),
+            objective=self._cost(inputs, states, ref_states, ref_inputs),
             consecutive_failures=self._failures,
             bound_slack=bound_slack,
         )

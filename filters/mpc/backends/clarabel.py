@@ -224,13 +224,13 @@ class ClarabelBackend:
         touched = np.flatnonzero(np.any(C != 0.0, axis=0))
         placeholder = (np.full(d, 1.0 / np.sqrt(d)) @ np.abs(C))[touched]
         hs_first = sum(len(r) for r in rows)
-        hs_flat = []
+        hs_index = []
         for i in range(K):
             for t in range(1, T + 1):
                 rows.append(np.full(len(touched), row))
                 cols.append(x_col(t) + touched)
                 vals.append(placeholder)
-                hs_flat.append((i * T + (t - 1)) * n + touched)
+                hs_index.append((i * T + (t - 1)) * n + touched)
                 row += 1
         hs_last = sum(len(r) for r in rows)
 
@@ -273,7 +273,7 @@ class ClarabelBackend:
         self._W_full = np.vstack([self._W, self._positions_map])
         self._hs_row0 = hs_row0
         self._hs_positions = position[hs_first:hs_last].tolist() if K else []
-        self._hs_flat = np.concatenate(hs_flat) if hs_flat else np.zeros(0, dtype=np.int64)
+        self._hs_index = np.concatenate(hs_index) if hs_index else np.zeros(0, dtype=np.int64)
         self._hs_direct = len(touched) == d and np.array_equal(C[:, touched], np.eye(d))
         self._slack_b = [0.0] * ns
         self._n_hs_slack = n_hs_slack
@@ -307,7 +307,7 @@ class ClarabelBackend:
             if self._hs_direct:  # C = [I 0]: the entries of a' C are those of a
                 a_values = normals.reshape(-1).tolist()
             else:
-                a_values = (normals.reshape(-1, d) @ p.C).reshape(-1)[self._hs_flat].tolist()
+                a_values = (normals.reshape(-1, d) @ p.C).reshape(-1)[self._hs_index].tolist()
         b += self._slack_b
         try:
             if normals.shape[0]:
