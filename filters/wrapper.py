@@ -190,12 +190,14 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         plan is then safe in continuous time, between the samples too, not only at them.
     normals
         Where the halfspace normals start. ``None`` (default): ``"paper"`` with a
-        ``policy`` or ``reference``, ``"ego"`` with the held action (whose reference runs
-        straight through obstacles, so that the paper's normals flip inside the horizon
-        and the filter brakes in front of a head-on obstacle). ``"paper"`` (the reference
-        positions, the paper's Definition 3), ``"ego"`` (the current ego position for
-        every step: they cannot flip when the reference runs through an obstacle) or
-        ``"previous_plan"``
+        ``policy`` or ``reference``, ``"nearside"`` with the held action (whose reference
+        runs straight through obstacles, so that the paper's normals flip inside the
+        horizon and the filter brakes in front of a head-on obstacle). ``"paper"`` (the
+        reference positions, the paper's Definition 3), ``"ego"`` (the current ego
+        position for every step: they cannot flip when the reference runs through an
+        obstacle, but block overtaking), ``"nearside"`` (the reference position while it
+        is on the ego's side of the obstacle's centre, the ego's position once it has
+        passed it) or ``"previous_plan"``
         (the last filtered plan shifted by one step, starting at the current position;
         the reference until there is one).
     fallback
@@ -315,7 +317,7 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             else objective, OBJECTIVES,
         )
         self.normals = _choice(
-            "normals", ("paper" if planned else "ego") if normals is None else normals,
+            "normals", ("paper" if planned else "nearside") if normals is None else normals,
             NORMAL_SOURCES,
         )
         self.fallback = _choice("fallback", fallback, FALLBACKS)
