@@ -27,6 +27,7 @@ import numpy as np
 from agents.evaluation import EpisodeRecord, Trajectory
 from agents.summary import RISK_ORDER, SummaryRow, short_name
 from filters.errors import InvalidArrayError, InvalidParameterError
+from filters.wrapper import FALLBACK_STATUSES
 
 RISK_COLORS = {"none": "tab:gray", "mean": "tab:red", "cvar": "tab:blue", "dr_cvar": "tab:green"}
 """The paper's colours: red mean, blue CVaR, green DR-CVaR (grey: unfiltered)."""
@@ -467,7 +468,7 @@ def plot_safe_polytopes(
         for t in range(0, len(path_i), every):
             ax.add_patch(plt.Circle(path_i[t], trajectory.obstacle_radii[i], color=colors[i],
                                     alpha=0.15))
-    fallback = [t + 1 for t, s in enumerate(trajectory.statuses) if s in ("shifted", "brake")]
+    fallback = [t + 1 for t, s in enumerate(trajectory.statuses) if s in FALLBACK_STATUSES]
     if fallback:
         ax.plot(ego[fallback, 0], ego[fallback, 1], "kx", ms=8, label="fallback step")
     ax.plot(*trajectory.goal, "k*", ms=12, label="goal")

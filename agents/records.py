@@ -68,8 +68,6 @@ FILTER_STATUSES = tuple(status.value for status in FilterStatus)
 """Filter statuses (:class:`filters.mpc.FilterStatus`: optimal, soft, recovery, shifted,
 brake, error) whose share of the steps is a column ``share_<status>`` of a record."""
 
-NOMINAL_STATUSES = ("optimal", "passthrough")
-"""Statuses of a step where the filter did its normal job (no fallback, no slack)."""
 
 
 def options_json(options: Mapping[str, Any] | str | None, name: str = "options") -> str:

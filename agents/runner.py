@@ -22,13 +22,13 @@ import numpy as np
 from agents.errors import PolicyFileError
 from agents.records import (
     FILTER_STATUSES,
-    NOMINAL_STATUSES,
     EpisodeRecord,
     EpisodeSpec,
     file_sha256,
     package_version,
 )
 from filters.errors import InvalidParameterError
+from filters.wrapper import FALLBACK_STATUSES, NOMINAL_STATUSES
 
 __all__ = ["EpisodeStats", "Trajectory", "TrajectoryRecorder", "check_policy", "load_policy",
            "make_env", "policy_file", "run_episode", "run_spec"]
@@ -381,7 +381,7 @@ class EpisodeStats:
     def summary(self) -> dict[str, Any]:
         """The record's columns that describe what happened."""
         counts = Counter(self.status_list)
-        fallback = counts["shifted"] + counts["brake"]
+        fallback = sum(counts[status] for status in FALLBACK_STATUSES)
         interventions = np.asarray(self.interventions or [0.0])
         times = np.asarray(self.filter_times or [0.0])
         steps = max(1, self.steps)

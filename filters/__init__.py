@@ -4,7 +4,11 @@
   and predicted step in one vectorised call (safe side: ``normals @ y <= offsets``).
 * :class:`MPCSafetyFilter` — Problem 2 of the paper (or the predictive safety filter),
   built once, solved with Clarabel, with a recovery that never raises.
-* :class:`SafetyFilterWrapper` — a Gymnasium wrapper that filters any policy's actions.
+* :func:`intersample_rows` — the rows that keep a plan safe between the samples too.
+* :class:`SafetyFilterWrapper` — a Gymnasium wrapper that filters any policy's actions;
+  :class:`FilterReport` is its ``info["filter"]``, :class:`FilterableEnv` the protocol it
+  needs of ``env.unwrapped``, :func:`hold_action_reference` and
+  :class:`PolicyRolloutReference` its reference makers.
 * :class:`Disc`, :class:`ConvexPolygon` — shapes with support functions.
 
 ``import filters`` imports neither CVXPY (only :mod:`filters.halfspace_cvxpy` and
@@ -23,6 +27,7 @@ from filters.errors import (
 )
 from filters.geometry import ConvexPolygon, Disc, collision_margin
 from filters.halfspaces import Halfspaces, safe_halfspaces
+from filters.intersample import intersample_rows
 from filters.mpc import (
     FilterResult,
     FilterStatus,
@@ -30,15 +35,19 @@ from filters.mpc import (
     MPCSafetyFilter,
     stopping_terminal_set,
 )
+from filters.protocol import FilterableEnv
+from filters.references import PolicyRolloutReference, hold_action_reference
 from filters.risk import empirical_cvar
-from filters.wrapper import SafetyFilterWrapper
+from filters.wrapper import FilterReport, SafetyFilterWrapper
 
 __all__ = [
     "CVXPYSafetyFilter",
     "ConvexPolygon",
     "Disc",
+    "FilterReport",
     "FilterResult",
     "FilterStatus",
+    "FilterableEnv",
     "Halfspaces",
     "InvalidArrayError",
     "InvalidParameterError",
@@ -46,10 +55,13 @@ __all__ = [
     "InvalidTypeError",
     "MPCProblem",
     "MPCSafetyFilter",
+    "PolicyRolloutReference",
     "SafeNavError",
     "SafetyFilterWrapper",
     "collision_margin",
     "empirical_cvar",
+    "hold_action_reference",
+    "intersample_rows",
     "safe_halfspaces",
     "stopping_terminal_set",
 ]

@@ -57,6 +57,12 @@ FALLBACKS = ("soft", "paper")
 PASSTHROUGH = "passthrough"
 """Filter status reported when ``risk="none"``."""
 
+NOMINAL_STATUSES = ("optimal", PASSTHROUGH)
+"""Statuses of a step where the filter's constraints all held (or no filter ran)."""
+
+FALLBACK_STATUSES = ("soft", "recovery", "shifted", "brake", "error")
+"""Statuses of a step where some constraint could not be met: slack, a fallback, bad data."""
+
 _PROTOCOL_ATTRIBUTES = (*FilterableEnv.__annotations__, "observe")
 """Everything :class:`filters.protocol.FilterableEnv` asks of ``env.unwrapped``."""
 
