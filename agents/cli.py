@@ -78,8 +78,21 @@ def build_parser() -> argparse.ArgumentParser:
     reproduce.add_argument("--no-progress", action="store_true")
 
     bench = sub.add_parser("bench", help="speed benchmarks (ratios in one run)")
-    bench.add_argument("--steps", type=_positive_int, default=500)
+    bench.add_argument("--steps", type=_positive_int, default=None,
+                       help="filter steps timed (default 500; --scaling: per grid point, 100)")
     bench.add_argument("--repeats", type=_positive_int, default=100)
+    bench.add_argument("--scaling", action="store_true",
+                       help="scaling grid: obstacles x horizon x samples, ours vs CVXPY")
+    bench.add_argument("--quick", action="store_true", help="--scaling on a small subset")
+    bench.add_argument("--obstacles", type=_positive_int, nargs="+", default=None)
+    bench.add_argument("--horizons", type=_positive_int, nargs="+", default=None)
+    bench.add_argument("--samples", type=_positive_int, nargs="+", default=None)
+    bench.add_argument("--seed", type=int, default=0)
+    bench.add_argument("--output", type=Path, default=None,
+                       help="--scaling: folder for scaling.csv, scaling.md, scaling.png")
+    bench.add_argument("--no-plot", action="store_true")
+    bench.add_argument("--no-policy", action="store_true",
+                       help="--scaling: skip the policy (SB3 vs numpy) timings")
     return parser
 
 
@@ -119,9 +132,12 @@ def main(argv: Sequence[str] | None = None) -> int:
                         progress=not args.no_progress))
         return 0
     if args.command == "bench":
+        if args.scaling:
+            return _bench_scaling(args)
         from agents.bench import run_benchmarks
 
-        print(run_benchmarks(filter_steps=args.steps, table_repeats=args.repeats))
+        print(run_benchmarks(filter_steps=args.steps or 500, table_repeats=args.repeats,
+                             seed=args.seed))
         return 0
     return 2  # pragma: no cover - argparse rejects unknown commands
 
@@ -140,6 +156,24 @@ def _evaluate(args: argparse.Namespace) -> int:
         outputs = run_evaluation(args.output, args.scenarios, args.risks, delta=args.delta,
                                  epsilon=args.epsilon, plots=not args.no_plots, **common)
     print(outputs)
+    return 0
+
+
+def _bench_scaling(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    from agents.bench import run_scaling
+    from filters.benchmarks.scaling import FULL_GRID, QUICK_GRID
+
+    grid = QUICK_GRID if args.quick else FULL_GRID
+    overrides = {name: tuple(values) for name, values in (
+        ("obstacles", args.obstacles), ("horizons", args.horizons), ("samples", args.samples))
+        if values}
+    if args.steps:
+        overrides["steps"] = max(2, args.steps)
+    grid = replace(grid, **overrides)
+    print(run_scaling(grid, seed=args.seed, output=args.output, plot=not args.no_plot,
+                      policy=not args.no_policy))
     return 0
 
 
