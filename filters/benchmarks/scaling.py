@@ -13,12 +13,13 @@ Instances are made as in :mod:`filters.benchmarks.filter_qp`: the paper's double
 integrator (Ts = 0.2 s) crosses the arena from the left at 1.5 m/s with a
 straight-line reference while obstacles start ahead of it with random headings
 and speeds up to 1 m/s, so that they cross its path and some halfspace rows are
-active. The obstacles' area widens with their number (``|y| <= 1.5 sqrt(n/3)`` m, at
-most 4.5 m) so that 20 obstacles still leave room to pass. Predictions are the
+active. Beyond 3 obstacles their starting area widens with their number (see
+:func:`obstacle_area`) so that each keeps about as much room. Predictions are the
 nominal constant-velocity positions plus N(0, 0.01 I) samples at each step (the
 paper's model). The fast filter drives the ego, so the episodes have active rows,
-the occasional infeasible step and the fallbacks that follow; the statuses are
-reported with the times.
+the occasional infeasible step and the fallbacks that follow; an episode ends at
+the far side, after 40 steps, on a collision, or when the filter had to brake (as
+an environment episode would end). The statuses are reported with the times.
 
 The two filters are timed in separate passes over the same instances (interleaved,
 each evicts the other's data from the caches). Every number is a median over the
@@ -131,6 +132,16 @@ def _reference(x: np.ndarray, lane: float, horizon: int) -> np.ndarray:
     return reference
 
 
+def obstacle_area(n_obstacles: int) -> tuple[float, float, float]:
+    """``(x_low, x_high, y_half)`` in m: obstacles start in ``[x_low, x_high] x [-y_half, y_half]``.
+
+    :mod:`filters.benchmarks.filter_qp`'s ``[-2, 3] x [-1.5, 1.5]`` up to 3 obstacles,
+    widened beyond so that each obstacle keeps about as much room.
+    """
+    scale = max(1.0, n_obstacles / 3.0)
+    return -2.0, min(4.5, -2.0 + 5.0 * np.sqrt(scale)), min(4.5, 1.5 * np.sqrt(scale))
+
+
 def make_scaling_instances(
     n_steps: int, n_obstacles: int, horizon: int, n_samples: int, rng: np.random.Generator
 ) -> list[Instance]:
@@ -144,7 +155,7 @@ def make_scaling_instances(
     mpc = MPCSafetyFilter(A, B, C, **filter_kwargs(horizon, n_obstacles))
     ego_shape, shapes = Disc(RADIUS), [Disc(RADIUS)] * n_obstacles
     steps = np.arange(1, horizon + 1)[:, None] * TS  # (T, 1), s
-    spread = min(4.5, 1.5 * np.sqrt(n_obstacles / 3.0))
+    x_low, x_high, y_half = obstacle_area(n_obstacles)
     instances: list[Instance] = []
     new_episode = True
     while len(instances) < n_steps:
@@ -153,7 +164,7 @@ def make_scaling_instances(
             x = np.array([-4.5, rng.uniform(-1.0, 1.0), SPEED, 0.0])
             lane = x[1]
             obstacles = np.column_stack(
-                [rng.uniform(-2.0, 3.0, n_obstacles), rng.uniform(-spread, spread, n_obstacles)]
+                [rng.uniform(x_low, x_high, n_obstacles), rng.uniform(-y_half, y_half, n_obstacles)]
             )
             speed = rng.uniform(0.0, 1.0, n_obstacles)
             heading = rng.uniform(0.0, 2.0 * np.pi, n_obstacles)
@@ -170,7 +181,11 @@ def make_scaling_instances(
         x = A @ x + B @ result.inputs[0]
         obstacles = obstacles + TS * velocities
         step_in_episode += 1
-        new_episode = step_in_episode >= EPISODE_STEPS or x[0] > 4.5
+        clearance = np.min(np.linalg.norm(obstacles - x[:2], axis=-1), initial=np.inf)
+        # An episode ends as the environment's do: at the goal side, on a collision, or
+        # (here) when the filter had to brake; so the steps are those of a working loop.
+        new_episode = (step_in_episode >= EPISODE_STEPS or x[0] > 4.5
+                       or clearance < 2 * RADIUS or result.status.value == "brake")
     return instances
 
 
