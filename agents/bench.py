@@ -21,8 +21,12 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from filters.benchmarks.scaling import ScalingGrid
 
 
 def halfspace_timing_table(
@@ -216,7 +220,7 @@ def benchmark_rollout_reference(
 
 
 def run_scaling(
-    grid=None,
+    grid: ScalingGrid | None = None,
     *,
     quick: bool = False,
     seed: int = 0,

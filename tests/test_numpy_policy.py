@@ -175,3 +175,14 @@ def test_numpy_policy_drops_into_the_rollout_reference(shipped):
         np.testing.assert_allclose(numpy_states, torch_states, rtol=0, atol=1e-5)
         obs, *_ = env.step(action)
     env.close()
+
+
+def test_benchmark_numpy_policy_reports_medians_and_agreement():
+    from agents.numpy_policy import benchmark_numpy_policy
+
+    timing = benchmark_numpy_policy(calls=40, batch=8, seed=1)
+    assert timing.calls == 40 and timing.batch == 8
+    assert timing.sb3_us > 0 and timing.numpy_us > 0
+    assert np.isclose(timing.ratio, timing.sb3_us / timing.numpy_us)
+    assert timing.max_difference < 1e-5
+    assert "NumpyPolicy" in timing.format()

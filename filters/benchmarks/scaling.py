@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from filters import Disc, MPCSafetyFilter, safe_halfspaces
+from filters import Disc, FilterStatus, MPCSafetyFilter, safe_halfspaces
 from filters.benchmarks.filter_qp import RADIUS, SPEED, TS, double_integrator, filter_kwargs
 from filters.errors import InvalidParameterError
 
@@ -47,10 +47,12 @@ __all__ = [
     "QUICK_GRID",
     "ScalingGrid",
     "ScalingPoint",
+    "benchmark_point",
     "benchmark_scaling",
     "cvxpy_filter_class",
     "format_scaling_table",
     "make_scaling_instances",
+    "obstacle_area",
     "plot_scaling",
     "write_scaling_csv",
 ]
@@ -185,7 +187,7 @@ def make_scaling_instances(
         # An episode ends as the environment's do: at the goal side, on a collision, or
         # (here) when the filter had to brake; so the steps are those of a working loop.
         new_episode = (step_in_episode >= EPISODE_STEPS or x[0] > 4.5
-                       or clearance < 2 * RADIUS or result.status.value == "brake")
+                       or clearance < 2 * RADIUS or result.status == FilterStatus.BRAKE)
     return instances
 
 
@@ -276,7 +278,7 @@ def benchmark_point(
         cvxpy_ms.append(1e3 * (time.perf_counter() - begin))
         statuses[fast.status.value] += 1
         same += fast.status == slow.status
-        if fast.status == slow.status and fast.status.value == "optimal":
+        if fast.status == slow.status == FilterStatus.OPTIMAL:
             difference = max(difference, float(np.max(np.abs(fast.inputs - slow.inputs))))
 
     step, qp, cvxpy_median = (float(np.median(v)) for v in (step_ms, qp_ms, cvxpy_ms))
