@@ -3,7 +3,8 @@
 * :func:`train_ppo`, :func:`load_ppo` — the PPO reference planner (Stable-Baselines3);
   ``load_ppo()`` loads the policy shipped with the package.
 * :func:`load_numpy_policy`, :class:`NumpyPolicy` — the same actor exported once to
-  numpy (deterministic ``predict`` about 10x faster; for the roll-out reference).
+  numpy (deterministic ``predict`` about 10x faster; for the roll-out reference);
+  :class:`TorchActorPolicy` — the same actions as SB3 bit for bit, about 6x faster.
 * :class:`MPCReferencePlanner` — the paper's obstacle-agnostic goal-tracking MPC.
 * :func:`evaluate` — Monte Carlo comparison of risk settings, one record per episode.
 
@@ -11,7 +12,7 @@ torch and Stable-Baselines3 are imported only when a PPO policy is trained or lo
 """
 
 from agents.evaluation import EpisodeRecord, EpisodeSpec, evaluate, run_episode
-from agents.numpy_policy import NumpyPolicy, load_numpy_policy
+from agents.numpy_policy import NumpyPolicy, TorchActorPolicy, load_numpy_policy
 from agents.planners import MPCReferencePlanner
 from agents.summary import summarise
 from agents.training import load_ppo, train_ppo
@@ -21,6 +22,7 @@ __all__ = [
     "EpisodeSpec",
     "MPCReferencePlanner",
     "NumpyPolicy",
+    "TorchActorPolicy",
     "evaluate",
     "load_numpy_policy",
     "load_ppo",

@@ -187,20 +187,22 @@ def benchmark_rollout_reference(
 ) -> dict[str, float]:
     """Median wall time (ms) of one roll-out reference (``T - 1`` policy calls) per step.
 
-    The shipped PPO policy through SB3 against its :class:`agents.NumpyPolicy` export,
-    along unfiltered MultiObstacle episodes (the same states for both).
+    The shipped PPO policy through SB3 against its :class:`agents.NumpyPolicy` export
+    and :class:`agents.TorchActorPolicy`, along unfiltered MultiObstacle episodes (the
+    same states for all).
     """
     import gymnasium as gym
 
     import safe_nav_env  # noqa: F401
-    from agents.numpy_policy import NumpyPolicy
+    from agents.numpy_policy import NumpyPolicy, TorchActorPolicy
     from agents.training import load_ppo, set_torch_threads
     from filters.references import PolicyRolloutReference
 
     set_torch_threads(1)
     model = load_ppo(path)
     makers = {"sb3": PolicyRolloutReference(model),
-              "numpy": PolicyRolloutReference(NumpyPolicy.from_sb3(model))}
+              "numpy": PolicyRolloutReference(NumpyPolicy.from_sb3(model)),
+              "torch_actor": PolicyRolloutReference(TorchActorPolicy.from_sb3(model))}
     times: dict[str, list[float]] = {name: [] for name in makers}
     env = gym.make("SafeNav/MultiObstacle-v0", horizon=horizon)
     episode, done = 0, True
@@ -287,7 +289,8 @@ def run_scaling(
         parts.append(
             f"roll-out reference, T = {horizon} ({horizon - 1} policy calls), MultiObstacle, "
             f"medians: SB3 {rollout['sb3']:.3f} ms, NumpyPolicy {rollout['numpy']:.3f} ms "
-            f"({rollout['sb3'] / rollout['numpy']:.1f}x)"
+            f"({rollout['sb3'] / rollout['numpy']:.1f}x), TorchActorPolicy "
+            f"{rollout['torch_actor']:.3f} ms ({rollout['sb3'] / rollout['torch_actor']:.1f}x)"
         )
     report = "\n\n".join(parts)
     if output is not None:

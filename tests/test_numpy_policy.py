@@ -8,7 +8,12 @@ import pytest
 
 import safe_nav_env  # noqa: F401
 from agents import load_ppo
-from agents.numpy_policy import NumpyPolicy, UnsupportedPolicyError, load_numpy_policy
+from agents.numpy_policy import (
+    NumpyPolicy,
+    TorchActorPolicy,
+    UnsupportedPolicyError,
+    load_numpy_policy,
+)
 from filters import InvalidArrayError, InvalidParameterError
 
 
@@ -125,6 +130,10 @@ def test_any_mlp_policy_equals_torch_and_clips_as_sb3(policy_kwargs):
     for obs in observations[:20]:
         torch_action, _ = model.predict(obs, deterministic=True)
         assert_matches_torch(policy.predict(obs)[0], torch_action, unit=unit)
+    exact = TorchActorPolicy.from_sb3(model)
+    assert np.array_equal(exact.predict_batch(observations), torch_actions)
+    for obs in observations[:20]:
+        assert np.array_equal(exact.predict(obs)[0], model.predict(obs, deterministic=True)[0])
     at_bounds = np.mean(np.abs(torch_actions) >= 10.0 - 1e-3)
     assert 0.05 < at_bounds < 0.95  # some actions were clipped (or squashed to the box edge)
     assert np.all(np.abs(policy.predict_batch(observations)) <= 10.0)
@@ -154,7 +163,7 @@ def test_unsupported_policies_are_refused():
     with pytest.raises(UnsupportedPolicyError, match="Sigmoid"):
         NumpyPolicy.from_sb3(_model(net_arch=[8], activation_fn=torch.nn.Sigmoid))
     discrete = PPO("MlpPolicy", gym.make("CartPole-v1"), device="cpu", n_steps=64, batch_size=64)
-    with pytest.raises(UnsupportedPolicyError, match="Box action spaces"):
+    with pytest.raises(UnsupportedPolicyError, match="Box action spaces are supported"):
         NumpyPolicy.from_sb3(discrete)
     with pytest.raises(UnsupportedPolicyError, match="ActorCriticPolicy"):
         NumpyPolicy.from_sb3(object())
@@ -186,3 +195,45 @@ def test_benchmark_numpy_policy_reports_medians_and_agreement():
     assert np.isclose(timing.ratio, timing.sb3_us / timing.numpy_us)
     assert timing.max_difference < 1e-5
     assert "NumpyPolicy" in timing.format()
+
+
+def test_torch_actor_is_bit_identical_to_sb3_predict(shipped):
+    model, _ = shipped
+    actor = TorchActorPolicy.from_sb3(model)
+    rng = np.random.default_rng(4)
+    observations = (2.0 * rng.standard_normal((300, 26))).astype(np.float32)
+    torch_batch, _ = model.predict(observations, deterministic=True)
+    assert np.array_equal(actor.predict(observations)[0], torch_batch)
+    for obs in observations[:100]:
+        assert np.array_equal(actor.predict(obs)[0], model.predict(obs, deterministic=True)[0])
+        as_float64 = obs.astype(np.float64)  # SB3 casts to float32 first; so does the actor
+        assert np.array_equal(actor.predict(as_float64)[0],
+                              model.predict(as_float64, deterministic=True)[0])
+    with pytest.raises(InvalidParameterError, match="TorchActorPolicy"):
+        actor.predict(observations[0], deterministic=False)
+    # any policy_net is called as it is
+    import torch
+
+    sigmoid = _model(net_arch=[8], activation_fn=torch.nn.Sigmoid)
+    obs = observations[:10]
+    assert np.array_equal(TorchActorPolicy.from_sb3(sigmoid).predict_batch(obs),
+                          sigmoid.predict(obs, deterministic=True)[0])
+
+
+def test_torch_actor_keeps_evaluation_records_identical(shipped):
+    """Same records as the SB3 model (apart from wall times), unlike the numpy export."""
+    import dataclasses
+
+    from agents.evaluation import EpisodeSpec, run_episode
+
+    model, _ = shipped
+    actor = TorchActorPolicy.from_sb3(model)
+    timing = {"wall_time", "filter_time_median", "filter_time_max"}
+    for spec in (EpisodeSpec("SafeNav/MultiObstacle-v0", "dr_cvar", 0),
+                 EpisodeSpec("SafeNav/HeadOn-v0", "none", 1)):
+        records = [dataclasses.asdict(run_episode(spec, policy=p)[0]) for p in (model, actor)]
+        assert records[0]["steps"] > 5
+        for key in records[0]:
+            if key not in timing:
+                a, b = records[0][key], records[1][key]
+                assert a == b or (a != a and b != b), key  # NaN (no goal) in both
