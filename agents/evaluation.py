@@ -153,10 +153,15 @@ def _load_planner(planner: str, policy_path: str, env: Any) -> Any:
         return MPCReferencePlanner.from_env(env)
     key = (planner, policy_path)
     if key not in _POLICY_CACHE:
+        from agents.numpy_policy import TorchActorPolicy, UnsupportedPolicyError
         from agents.training import load_ppo, set_torch_threads
 
         set_torch_threads(1)
-        _POLICY_CACHE[key] = load_ppo(policy_path or None)
+        model = load_ppo(policy_path or None)
+        try:  # the same actions bit for bit, without SB3's per-call overhead
+            _POLICY_CACHE[key] = TorchActorPolicy.from_sb3(model)
+        except UnsupportedPolicyError:
+            _POLICY_CACHE[key] = model
     return _POLICY_CACHE[key]
 
 
