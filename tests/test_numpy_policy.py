@@ -237,3 +237,11 @@ def test_torch_actor_keeps_evaluation_records_identical(shipped):
             if key not in timing:
                 a, b = records[0][key], records[1][key]
                 assert a == b or (a != a and b != b), key  # NaN (no goal) in both
+
+
+def test_rollout_reference_timing_covers_the_three_policies():
+    from agents.bench import benchmark_rollout_reference
+
+    medians = benchmark_rollout_reference(horizon=5, steps=4)
+    assert set(medians) == {"sb3", "numpy", "torch_actor"}
+    assert all(value > 0 for value in medians.values())
