@@ -205,10 +205,25 @@ def build_parser() -> argparse.ArgumentParser:
     reproduce.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     bench = sub.add_parser("bench", help="speed benchmarks (ratios in one run)", **_FORMAT)
-    bench.add_argument("--steps", type=_positive_int, default=500,
-                       help="filter steps timed per size (>= 1)")
+    bench.add_argument("--steps", type=_positive_int, default=None,
+                       help="filter steps timed (default 500; --scaling: per grid point, 100)")
     bench.add_argument("--repeats", type=_positive_int, default=100,
                        help="repeats of each halfspace timing (>= 1)")
+    bench.add_argument("--scaling", action="store_true",
+                       help="scaling grid: obstacles x horizon x samples, ours vs CVXPY")
+    bench.add_argument("--quick", action="store_true", help="--scaling on a small subset")
+    bench.add_argument("--obstacles", type=_positive_int, nargs="+", default=None,
+                       help="--scaling: obstacle counts (default 1 3 10 20)")
+    bench.add_argument("--horizons", type=_positive_int, nargs="+", default=None,
+                       help="--scaling: horizons T in steps (default 10 20 40 80)")
+    bench.add_argument("--samples", type=_positive_int, nargs="+", default=None,
+                       help="--scaling: prediction samples N_s (default 100 1000)")
+    bench.add_argument("--seed", type=_seed, default=0, help="seed of the instances")
+    bench.add_argument("--output", type=Path, default=None,
+                       help="--scaling: folder for scaling.csv, scaling.md, scaling.png")
+    bench.add_argument("--no-plot", action="store_true", help="--scaling: no figure")
+    bench.add_argument("--no-policy", action="store_true",
+                       help="--scaling: skip the policy (SB3 vs numpy) timings")
     return parser
 
 
@@ -312,9 +327,12 @@ def _dispatch(args: argparse.Namespace) -> int:
                         progress=not args.no_progress))
         return 0
     if args.command == "bench":
+        if args.scaling:
+            return _bench_scaling(args)
         from agents.bench import run_benchmarks
 
-        print(run_benchmarks(filter_steps=args.steps, table_repeats=args.repeats))
+        print(run_benchmarks(filter_steps=args.steps or 500, table_repeats=args.repeats,
+                             seed=args.seed))
         return 0
     return EXIT_BAD_INPUT  # pragma: no cover - argparse rejects unknown commands
 
@@ -343,6 +361,24 @@ def _evaluate(args: argparse.Namespace) -> int:
               f"{outputs.files['episodes']}; run the same command again to re-run them",
               file=sys.stderr)
         return EXIT_FAILED_EPISODES
+    return 0
+
+
+def _bench_scaling(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    from agents.bench import run_scaling
+    from filters.benchmarks.scaling import FULL_GRID, QUICK_GRID
+
+    grid = QUICK_GRID if args.quick else FULL_GRID
+    overrides = {name: tuple(values) for name, values in (
+        ("obstacles", args.obstacles), ("horizons", args.horizons), ("samples", args.samples))
+        if values}
+    if args.steps:
+        overrides["steps"] = max(2, args.steps)
+    grid = replace(grid, **overrides)
+    print(run_scaling(grid, seed=args.seed, output=args.output, plot=not args.no_plot,
+                      policy=not args.no_policy))
     return 0
 
 

@@ -531,17 +531,37 @@ def _sample_means(points: np.ndarray) -> np.ndarray:
     return (weights @ flat).reshape(n_obstacles, horizon, dim)
 
 
+#: Prediction steps per block-diagonal product in :func:`_losses`: the work grows
+#: linearly in T beyond it, and horizons up to it give the same bits as one product.
+_LOSS_STEPS_PER_PRODUCT = 16
+
+
 def _losses(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
     """Samples of :math:`-h_{i,t} \\cdot p`, shape ``(n, T, N)``, sample axis last and contiguous.
 
-    One batched product with the block-diagonal ``(T, T d)`` matrix of the normals.
+    Batched products with the block-diagonal ``(c, c d)`` matrices of the normals of
+    ``c = min(T, 16)`` consecutive steps: a product over all ``T`` steps at once would
+    cost O(T^2 d N) per obstacle, these cost O(16 T d N).
     """
     n_obstacles, n_samples, horizon, dim = points.shape
-    steps = np.arange(horizon)
-    blocks = np.zeros((n_obstacles, horizon, horizon, dim))
-    blocks[:, steps, steps, :] = normals
     flat = points.reshape(n_obstacles, n_samples, horizon * dim)
-    return -(blocks.reshape(n_obstacles, horizon, horizon * dim) @ flat.transpose(0, 2, 1))
+    if horizon <= _LOSS_STEPS_PER_PRODUCT:
+        return -(_block_diagonal(normals) @ flat.transpose(0, 2, 1))
+    losses = np.empty((n_obstacles, horizon, n_samples))
+    for start in range(0, horizon, _LOSS_STEPS_PER_PRODUCT):
+        stop = min(start + _LOSS_STEPS_PER_PRODUCT, horizon)
+        columns = flat[:, :, start * dim : stop * dim].transpose(0, 2, 1)
+        np.matmul(_block_diagonal(normals[:, start:stop]), columns, out=losses[:, start:stop])
+    return np.negative(losses, out=losses)
+
+
+def _block_diagonal(normals: np.ndarray) -> np.ndarray:
+    """``(n, c, c d)``: row ``t`` holds ``normals[:, t]`` in columns ``t d .. t d + d - 1``."""
+    n_obstacles, steps, dim = normals.shape
+    index = np.arange(steps)
+    blocks = np.zeros((n_obstacles, steps, steps, dim))
+    blocks[:, index, index, :] = normals
+    return blocks.reshape(n_obstacles, steps, steps * dim)
 
 
 # --------------------------------------------------------------------------- Proposition 1

@@ -1,0 +1,389 @@
+"""How the filter step scales: obstacles x horizon x samples, ours against CVXPY compiled once.
+
+For every grid point ``(n_obstacles, T, N_s)`` (default: {1, 3, 10, 20} x {10, 20,
+40, 80} x {100, 1000}) the same recorded instances are solved by
+
+* ours: :func:`filters.safe_halfspaces` (DR-CVaR, the paper's defaults) on the
+  ``N_s`` prediction samples, then :meth:`filters.MPCSafetyFilter.solve` (built once
+  per grid point), timed separately; the *step* is their sum, what a control loop pays;
+* the reference: the same QP (the same halfspaces) in CVXPY, built once with
+  Parameters (DPP) and compiled by its first solve, which is timed apart.
+
+Instances are made as in :mod:`filters.benchmarks.filter_qp`: the paper's double
+integrator (Ts = 0.2 s) crosses the arena from the left at 1.5 m/s with a
+straight-line reference while obstacles start ahead of it with random headings
+and speeds up to 1 m/s, so that they cross its path and some halfspace rows are
+active. Beyond 3 obstacles their starting area widens with their number (see
+:func:`obstacle_area`) so that each keeps about as much room. Predictions are the
+nominal constant-velocity positions plus N(0, 0.01 I) samples at each step (the
+paper's model). The fast filter drives the ego, so the episodes have active rows,
+the occasional infeasible step and the fallbacks that follow; an episode ends at
+the far side, after 40 steps, on a collision, or when the filter had to brake (as
+an environment episode would end). The statuses are reported with the times.
+
+The two filters are timed in separate passes over the same instances (interleaved,
+each evicts the other's data from the caches). Every number is a median over the
+steps of one run; the ratios compare numbers of the same run.
+"""
+
+from __future__ import annotations
+
+import csv
+import importlib
+import time
+from collections import Counter
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+
+import numpy as np
+
+from filters import Disc, FilterStatus, MPCSafetyFilter, safe_halfspaces
+from filters.benchmarks.filter_qp import RADIUS, SPEED, TS, double_integrator, filter_kwargs
+from filters.errors import InvalidParameterError
+
+__all__ = [
+    "FULL_GRID",
+    "QUICK_GRID",
+    "ScalingGrid",
+    "ScalingPoint",
+    "benchmark_point",
+    "benchmark_scaling",
+    "cvxpy_filter_class",
+    "format_scaling_table",
+    "make_scaling_instances",
+    "obstacle_area",
+    "plot_scaling",
+    "write_scaling_csv",
+]
+
+PREDICTION_STD = 0.1  # m per axis, the paper's N(0, 0.01 I) prediction noise
+EPISODE_STEPS = 40  # steps per crossing episode (8 s)
+
+
+@dataclass(frozen=True)
+class ScalingGrid:
+    """The grid of problem sizes, and how many filter steps are timed at each point."""
+
+    obstacles: tuple[int, ...] = (1, 3, 10, 20)
+    horizons: tuple[int, ...] = (10, 20, 40, 80)
+    samples: tuple[int, ...] = (100, 1000)
+    steps: int = 100
+
+    def __post_init__(self) -> None:
+        for name in ("obstacles", "horizons", "samples"):
+            values = getattr(self, name)
+            if not values or any(int(v) != v or v < 1 for v in values):
+                raise InvalidParameterError(
+                    f"ScalingGrid.{name} must be a non-empty tuple of integers >= 1, "
+                    f"got {values!r}"
+                )
+        if int(self.steps) != self.steps or self.steps < 2:
+            raise InvalidParameterError(
+                f"ScalingGrid.steps must be an integer >= 2, got {self.steps!r}"
+            )
+
+    @property
+    def points(self) -> list[tuple[int, int, int]]:
+        """``(n_obstacles, T, N_s)`` in the order they are run."""
+        return [(n, t, s) for n in self.obstacles for t in self.horizons for s in self.samples]
+
+
+FULL_GRID = ScalingGrid()
+"""The issue's grid: {1, 3, 10, 20} obstacles x T in {10, 20, 40, 80} x N_s in {100, 1000}."""
+
+QUICK_GRID = ScalingGrid(obstacles=(1, 3, 10), horizons=(10, 40), samples=(100,), steps=30)
+"""A subset that runs in well under a minute."""
+
+
+def cvxpy_filter_class() -> type:
+    """The CVXPY reference filter class, wherever the package keeps it.
+
+    ``filters.mpc.backends.cvxpy`` (the back-end package) first, then the older
+    module ``filters.mpc_cvxpy``.
+    """
+    for module_name in ("filters.mpc.backends.cvxpy", "filters.mpc_cvxpy"):
+        try:
+            module = importlib.import_module(module_name)
+        except ImportError:
+            continue
+        if hasattr(module, "CVXPYSafetyFilter"):
+            return module.CVXPYSafetyFilter
+    raise ImportError(
+        "CVXPYSafetyFilter found neither in filters.mpc.backends.cvxpy nor in filters.mpc_cvxpy"
+    )
+
+
+@dataclass(frozen=True)
+class Instance:
+    """One control step: state, reference (T+1, 4) and prediction samples (n, N_s, T, 2)."""
+
+    x0: np.ndarray
+    reference_states: np.ndarray
+    samples: np.ndarray
+    new_episode: bool
+
+
+def _reference(x: np.ndarray, lane: float, horizon: int) -> np.ndarray:
+    """Straight-line reference at :data:`SPEED` along +x on the ego's lane; row 0 is ``x``."""
+    reference = np.empty((horizon + 1, 4))
+    reference[:, 0] = x[0] + SPEED * TS * np.arange(horizon + 1)
+    reference[:, 1] = lane
+    reference[:, 2:] = (SPEED, 0.0)
+    reference[0] = x
+    return reference
+
+
+def obstacle_area(n_obstacles: int) -> tuple[float, float, float]:
+    """``(x_low, x_high, y_half)`` in m: obstacles start in ``[x_low, x_high] x [-y_half, y_half]``.
+
+    :mod:`filters.benchmarks.filter_qp`'s ``[-2, 3] x [-1.5, 1.5]`` up to 3 obstacles,
+    widened beyond so that each obstacle keeps about as much room.
+    """
+    scale = max(1.0, n_obstacles / 3.0)
+    return -2.0, min(4.5, -2.0 + 5.0 * np.sqrt(scale)), min(4.5, 1.5 * np.sqrt(scale))
+
+
+def make_scaling_instances(
+    n_steps: int, n_obstacles: int, horizon: int, n_samples: int, rng: np.random.Generator
+) -> list[Instance]:
+    """Crossing episodes with the fast DR-CVaR filter in the loop; record each step's data.
+
+    The episode set-up is :func:`filters.benchmarks.filter_qp.make_instances`'s, with
+    real prediction samples instead of its fixed risk margins, and an obstacle area
+    that widens with the number of obstacles (see the module docstring).
+    """
+    A, B, C = double_integrator()
+    mpc = MPCSafetyFilter(A, B, C, **filter_kwargs(horizon, n_obstacles))
+    ego_shape, shapes = Disc(RADIUS), [Disc(RADIUS)] * n_obstacles
+    steps = np.arange(1, horizon + 1)[:, None] * TS  # (T, 1), s
+    x_low, x_high, y_half = obstacle_area(n_obstacles)
+    instances: list[Instance] = []
+    new_episode = True
+    while len(instances) < n_steps:
+        if new_episode:
+            mpc.reset()
+            x = np.array([-4.5, rng.uniform(-1.0, 1.0), SPEED, 0.0])
+            lane = x[1]
+            obstacles = np.column_stack(
+                [rng.uniform(x_low, x_high, n_obstacles), rng.uniform(-y_half, y_half, n_obstacles)]
+            )
+            speed = rng.uniform(0.0, 1.0, n_obstacles)
+            heading = rng.uniform(0.0, 2.0 * np.pi, n_obstacles)
+            velocities = speed[:, None] * np.column_stack([np.cos(heading), np.sin(heading)])
+            step_in_episode = 0
+        reference = _reference(x, lane, horizon)
+        nominal = obstacles[:, None, :] + velocities[:, None, :] * steps[None]  # (n, T, 2)
+        samples = nominal[:, None] + PREDICTION_STD * rng.standard_normal(
+            (n_obstacles, n_samples, horizon, 2))
+        instances.append(Instance(x.copy(), reference, samples, new_episode))
+        hs = safe_halfspaces(reference[1:, :2], samples, ego_shape=ego_shape,
+                             obstacle_shapes=shapes, risk="dr_cvar", ego_velocity=x[2:])
+        result = mpc.solve(x, reference, hs)
+        x = A @ x + B @ result.inputs[0]
+        obstacles = obstacles + TS * velocities
+        step_in_episode += 1
+        clearance = np.min(np.linalg.norm(obstacles - x[:2], axis=-1), initial=np.inf)
+        # An episode ends as the environment's do: at the goal side, on a collision, or
+        # (here) when the filter had to brake; so the steps are those of a working loop.
+        new_episode = (step_in_episode >= EPISODE_STEPS or x[0] > 4.5
+                       or clearance < 2 * RADIUS or result.status == FilterStatus.BRAKE)
+    return instances
+
+
+@dataclass(frozen=True)
+class ScalingPoint:
+    """Medians (ms) at one grid point, ours and CVXPY on the same instances."""
+
+    n_obstacles: int
+    horizon: int
+    n_samples: int
+    steps: int
+    halfspaces_ms: float
+    qp_ms: float
+    step_ms: float  # halfspaces + QP, per step
+    step_p90_ms: float
+    cvxpy_ms: float  # the same QP in CVXPY compiled once (Clarabel), per step
+    cvxpy_compile_ms: float  # its first solve (canonicalisation), not in cvxpy_ms
+    ratio: float  # cvxpy_ms / step_ms: CVXPY's QP alone against our whole step
+    qp_ratio: float  # cvxpy_ms / qp_ms
+    agreement: float  # share of steps with the same status
+    max_input_difference: float  # m/s^2, over the steps where both were optimal
+    statuses: dict[str, int] = field(default_factory=dict)  # ours
+
+    def as_row(self) -> dict:
+        """Flat ``dict`` for CSV (statuses as ``name:count`` pairs)."""
+        row = asdict(self)
+        row["statuses"] = " ".join(f"{k}:{v}" for k, v in sorted(self.statuses.items()))
+        return row
+
+
+def benchmark_point(
+    n_obstacles: int, horizon: int, n_samples: int, *, steps: int = 100, seed: int = 0
+) -> ScalingPoint:
+    """Time halfspaces, QP, step and the CVXPY reference at one grid point.
+
+    Parameters
+    ----------
+    n_obstacles, horizon, n_samples
+        Obstacles, MPC horizon ``T`` and prediction samples ``N_s`` per obstacle and step.
+    steps
+        Filter steps (recorded instances) timed.
+    seed
+        Seed of the ``numpy.random.Generator`` that draws the episodes and samples.
+    """
+    rng = np.random.default_rng([seed, n_obstacles, horizon, n_samples])
+    instances = make_scaling_instances(steps, n_obstacles, horizon, n_samples, rng)
+    A, B, C = double_integrator()
+    kwargs = filter_kwargs(horizon, n_obstacles)
+    ego_shape, shapes = Disc(RADIUS), [Disc(RADIUS)] * n_obstacles
+
+    ours = MPCSafetyFilter(A, B, C, **kwargs)
+    for instance in instances[: min(20, len(instances))]:  # build the lazily made QPs
+        if instance.new_episode:
+            ours.reset()
+        hs = safe_halfspaces(instance.reference_states[1:, :2], instance.samples,
+                             ego_shape=ego_shape, obstacle_shapes=shapes, risk="dr_cvar",
+                             ego_velocity=instance.x0[2:])
+        ours.solve(instance.x0, instance.reference_states, hs)
+    halfspace_ms, qp_ms, step_ms, recorded, results = [], [], [], [], []
+    for instance in instances:
+        if instance.new_episode:
+            ours.reset()
+        begin = time.perf_counter()
+        hs = safe_halfspaces(instance.reference_states[1:, :2], instance.samples,
+                             ego_shape=ego_shape, obstacle_shapes=shapes, risk="dr_cvar",
+                             ego_velocity=instance.x0[2:])
+        middle = time.perf_counter()
+        result = ours.solve(instance.x0, instance.reference_states, hs)
+        end = time.perf_counter()
+        halfspace_ms.append(1e3 * (middle - begin))
+        qp_ms.append(1e3 * (end - middle))
+        step_ms.append(1e3 * (end - begin))
+        recorded.append(hs)
+        results.append(result)
+
+    reference = cvxpy_filter_class()(A, B, C, **kwargs)
+    first = instances[0]
+    begin = time.perf_counter()
+    reference.solve(first.x0, first.reference_states, recorded[0])
+    compile_ms = 1e3 * (time.perf_counter() - begin)
+    cvxpy_ms, same, difference = [], 0, 0.0
+    statuses: Counter[str] = Counter()
+    for instance, hs, fast in zip(instances, recorded, results, strict=True):
+        if instance.new_episode:
+            reference.reset()
+        begin = time.perf_counter()
+        slow = reference.solve(instance.x0, instance.reference_states, hs)
+        cvxpy_ms.append(1e3 * (time.perf_counter() - begin))
+        statuses[fast.status.value] += 1
+        same += fast.status == slow.status
+        if fast.status == slow.status == FilterStatus.OPTIMAL:
+            difference = max(difference, float(np.max(np.abs(fast.inputs - slow.inputs))))
+
+    step, qp, cvxpy_median = (float(np.median(v)) for v in (step_ms, qp_ms, cvxpy_ms))
+    return ScalingPoint(
+        n_obstacles=n_obstacles, horizon=horizon, n_samples=n_samples, steps=len(instances),
+        halfspaces_ms=float(np.median(halfspace_ms)), qp_ms=qp, step_ms=step,
+        step_p90_ms=float(np.percentile(step_ms, 90)), cvxpy_ms=cvxpy_median,
+        cvxpy_compile_ms=compile_ms, ratio=cvxpy_median / step, qp_ratio=cvxpy_median / qp,
+        agreement=same / len(instances), max_input_difference=difference,
+        statuses=dict(statuses),
+    )
+
+
+def benchmark_scaling(
+    grid: ScalingGrid = FULL_GRID, *, seed: int = 0, progress: bool = False
+) -> list[ScalingPoint]:
+    """Run :func:`benchmark_point` at every point of ``grid`` (see the module docstring)."""
+    points = []
+    for n_obstacles, horizon, n_samples in grid.points:
+        point = benchmark_point(n_obstacles, horizon, n_samples, steps=grid.steps, seed=seed)
+        if progress:
+            print(f"  obstacles {n_obstacles:>2}, T {horizon:>2}, N_s {n_samples:>4}: step "
+                  f"{point.step_ms:.3f} ms, CVXPY {point.cvxpy_ms:.3f} ms ({point.ratio:.1f}x)",
+                  flush=True)
+        points.append(point)
+    return points
+
+
+def format_scaling_table(points: Sequence[ScalingPoint]) -> str:
+    """The ratio table in markdown (medians in ms; ratios of the same run)."""
+    lines = [
+        "| obstacles | T | N_s | halfspaces | QP | step | CVXPY QP | CVXPY / step | "
+        "CVXPY / QP | statuses (ours) | same status |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for p in points:
+        statuses = ", ".join(f"{k} {v}" for k, v in sorted(p.statuses.items()))
+        lines.append(
+            f"| {p.n_obstacles} | {p.horizon} | {p.n_samples} | {p.halfspaces_ms:.3f} | "
+            f"{p.qp_ms:.3f} | {p.step_ms:.3f} | {p.cvxpy_ms:.2f} | {p.ratio:.1f}x | "
+            f"{p.qp_ratio:.1f}x | {statuses} | {100 * p.agreement:.0f}% |"
+        )
+    return "\n".join(lines)
+
+
+def write_scaling_csv(points: Sequence[ScalingPoint], path: str | Path) -> Path:
+    """One row per grid point (the fields of :class:`ScalingPoint`)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=[f.name for f in fields(ScalingPoint)])
+        writer.writeheader()
+        for point in points:
+            writer.writerow(point.as_row())
+    return path
+
+
+def plot_scaling(points: Sequence[ScalingPoint], path: str | Path) -> Path:
+    """Log-log plot of time against problem size, saved to ``path`` (PNG/SVG/PDF).
+
+    Left: our QP, our whole step and CVXPY's QP against the horizon ``T``, one colour
+    per obstacle count (at the smallest ``N_s``). Right: the halfspaces against the
+    number of samples processed, ``n_obstacles * T * N_s``, with a slope-1 guide
+    (linear work) through the larger half of the points.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2))
+    n_samples = min(p.n_samples for p in points)
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for index, n_obstacles in enumerate(sorted({p.n_obstacles for p in points})):
+        row = sorted((p for p in points if p.n_obstacles == n_obstacles
+                      and p.n_samples == n_samples), key=lambda p: p.horizon)
+        horizons = [p.horizon for p in row]
+        colour = colours[index % len(colours)]
+        left.plot(horizons, [p.cvxpy_ms for p in row], "--", color=colour, marker="s",
+                  label=f"{n_obstacles} obst.: CVXPY QP")
+        left.plot(horizons, [p.step_ms for p in row], "-", color=colour, marker="o",
+                  label=f"{n_obstacles} obst.: our step")
+        left.plot(horizons, [p.qp_ms for p in row], ":", color=colour, marker=".")
+    left.set(xscale="log", yscale="log", xlabel="horizon T (steps)", ylabel="time per step (ms)",
+             title=f"filter step vs CVXPY compiled once (N_s = {n_samples}; dotted: our QP)")
+    all_horizons = sorted({p.horizon for p in points})
+    left.set_xticks(all_horizons, [str(h) for h in all_horizons])
+    left.minorticks_off()
+    left.legend(fontsize=7, ncol=2)
+    left.grid(True, which="both", alpha=0.3)
+    work = np.array([p.n_obstacles * p.horizon * p.n_samples for p in points], dtype=float)
+    times = np.array([p.halfspaces_ms for p in points])
+    right.scatter(work, times, c=[colours[sorted({q.n_obstacles for q in points}).index(
+        p.n_obstacles) % len(colours)] for p in points], s=18)
+    guide = np.array([work.min(), work.max()])
+    large = work >= np.median(work)  # fixed costs dominate the small sizes
+    anchor = float(np.median(times[large] / work[large]))
+    right.plot(guide, anchor * guide, "k--", lw=1, label="slope 1 (linear work)")
+    right.set(xscale="log", yscale="log", xlabel="samples processed, n_obstacles x T x N_s",
+              ylabel="halfspaces time (ms)", title="DR-CVaR halfspaces")
+    right.legend(fontsize=8)
+    right.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
