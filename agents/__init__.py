@@ -4,6 +4,8 @@
   ``load_ppo()`` loads the policy shipped with the package.
 * :class:`MPCReferencePlanner` — the paper's obstacle-agnostic goal-tracking MPC.
 * :func:`evaluate` — Monte Carlo comparison of risk settings, one record per episode.
+* :class:`SafetyMetricsCallback` (SB3 callback: safety metrics per rollout) and
+  :class:`PPOLagrangian` (the constrained-RL baseline), imported on first use.
 
 torch and Stable-Baselines3 are imported only when a PPO policy is trained or loaded.
 """
@@ -13,10 +15,29 @@ from agents.planners import MPCReferencePlanner
 from agents.summary import summarise
 from agents.training import load_ppo, train_ppo
 
+_LAZY = {
+    "SafetyMetricsCallback": "agents.callbacks",
+    "SafetyEvalCallback": "agents.callbacks",
+    "PPOLagrangian": "agents.lagrangian",
+}
+"""Names whose modules import Stable-Baselines3 (and torch): loaded on first access."""
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'agents' has no attribute {name!r}")
+
+
 __all__ = [
     "EpisodeRecord",
     "EpisodeSpec",
     "MPCReferencePlanner",
+    "PPOLagrangian",
+    "SafetyEvalCallback",
+    "SafetyMetricsCallback",
     "evaluate",
     "load_ppo",
     "run_episode",

@@ -175,11 +175,18 @@ def make_env(spec: EpisodeSpec, *, render_mode: str | None = None, policy: Any =
     planner = policy if policy is not None else _load_planner(spec.planner, spec.policy_path, env)
     filter_kwargs: dict[str, Any] = dict(risk=spec.risk, alpha=spec.alpha, delta=spec.delta,
                                          epsilon=spec.epsilon)
+    # A PPO policy trained on the normalised view acts in [-1, 1]: it steps through
+    # NormalisedActions (outside the filter) and the roll-out reference gets m/s².
+    from agents.wrappers import NormalisedActions, PhysicalUnitsPolicy, is_normalised_policy
+
+    normalised = spec.planner != "mpc" and is_normalised_policy(planner, env.action_space)
     if spec.planner == "mpc":
         filter_kwargs["reference"] = planner
     elif spec.reference == "rollout":
-        filter_kwargs["policy"] = planner
-    return SafetyFilterWrapper(env, **filter_kwargs), planner
+        filter_kwargs["policy"] = (PhysicalUnitsPolicy(planner, env.action_space)
+                                   if normalised else planner)
+    filtered = SafetyFilterWrapper(env, **filter_kwargs)
+    return (NormalisedActions(filtered) if normalised else filtered), planner
 
 
 # ---------------------------------------------------------------------------- one episode
