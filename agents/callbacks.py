@@ -32,6 +32,8 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
 
+from agents.wrappers import report_field
+
 FILTER_STATUSES = ("optimal", "soft", "recovery", "shifted", "brake", "error", "passthrough")
 """Filter statuses always logged (share 0 when absent), so the CSV columns are fixed;
 any other status seen is logged too."""
@@ -97,12 +99,12 @@ class SafetyTally:
         self._steps[index] += 1
         report = info.get("filter")
         if report is not None:
-            value = float(report["intervention"])
+            value = float(report_field(report, "intervention"))
             self._intervention[index] += value
             self._filtered[index] += 1
             self.intervention_sum += value
             self.filtered_steps += 1
-            self.statuses[str(report["status"])] += 1
+            self.statuses[str(report_field(report, "status"))] += 1
         if not done:
             return None
         filtered = self._filtered[index]

@@ -104,6 +104,9 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--eval-episodes", type=_positive_int, default=20)
     train.add_argument("--tensorboard", type=str, default=None, metavar="DIR",
                        help="write TensorBoard event files to DIR (pip install 'safe-nav[train]')")
+    train.add_argument("--physical-actions", action="store_true",
+                       help="let the learner act on the ±10 m/s² box instead of [-1, 1] (as the "
+                       "shipped policy was trained)")
     train.add_argument("--quiet", action="store_true", help="do not print the metrics table")
     train.add_argument("--no-progress", action="store_true")
 
@@ -233,6 +236,7 @@ def _train(args: argparse.Namespace) -> int:
         lagrangian=args.lagrangian, cost_limit=args.cost_limit, lambda_lr=args.lambda_lr,
         eval_freq=args.eval_freq, eval_episodes=args.eval_episodes, vec_env=args.vec_env,
         tensorboard_log=args.tensorboard, print_metrics=not args.quiet,
+        normalise_actions=not args.physical_actions,
         progress_bar=not args.no_progress, save_path=args.output,
     )
     print(f"trained {report.total_timesteps} steps in {report.wall_time:.1f} s "

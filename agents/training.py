@@ -459,7 +459,11 @@ def train_ppo(
     if eval_freq:
         eval_env = make_training_env(
             env_id, n_envs=1, seed=seed + EVAL_SEED_OFFSET, env_kwargs=env_kwargs,
-            filter_kwargs=filter_kwargs, normalise_actions=normalise_actions, vec_env="dummy")
+            filter_kwargs=filter_kwargs, normalise_actions=normalise_actions, vec_env=vec_env)
+        if lagrangian:  # same wrapper type as the training env (EvalCallback checks it);
+            from agents.lagrangian import CostPenaltyVecEnv  # multiplier 0: task reward
+
+            eval_env = CostPenaltyVecEnv(eval_env)
         best_dir = None
         if save_path is not None:
             best_dir = save_path.with_name(save_path.stem + "_best")

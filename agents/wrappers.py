@@ -77,7 +77,7 @@ class EpisodeCostInfo(gym.Wrapper):
         self._collision = self._collision or bool(info.get("collision", False))
         report = info.get("filter")
         if report is not None:
-            self._intervention += float(report["intervention"])
+            self._intervention += float(report_field(report, "intervention"))
             self._filtered_steps += 1
         if terminated or truncated:
             info["episode_cost"] = self._cost
@@ -86,6 +86,12 @@ class EpisodeCostInfo(gym.Wrapper):
                 self._intervention / self._filtered_steps if self._filtered_steps else 0.0
             )
         return obs, reward, terminated, truncated, info
+
+
+def report_field(report: Any, name: str) -> Any:
+    """A field of ``info["filter"]``: a :class:`filters.wrapper.FilterReport` (attribute)
+    or a plain mapping (key)."""
+    return getattr(report, name) if hasattr(report, name) else report[name]
 
 
 def _box_map(space: spaces.Space, what: str) -> tuple[np.ndarray, np.ndarray]:
@@ -198,5 +204,5 @@ class PhysicalUnitsPolicy:
 
 __all__ = [
     "EPISODE_INFO_KEYS", "EpisodeCostInfo", "NormalisedActions", "PhysicalUnitsPolicy",
-    "is_normalised_policy",
+    "is_normalised_policy", "report_field",
 ]
