@@ -85,8 +85,7 @@ def benchmark_filter_step(n_steps: int = 500, seed: int = 0) -> FilterStepBenchm
 
     import safe_nav_env  # noqa: F401
     from agents.planners import MPCReferencePlanner
-    from filters import Disc, MPCSafetyFilter, safe_halfspaces
-    from filters.mpc_cvxpy import CVXPYSafetyFilter
+    from filters import CVXPYSafetyFilter, Disc, MPCSafetyFilter, safe_halfspaces
 
     env = gym.make("SafeNav/MultiObstacle-v0", n_samples=100, horizon=10)
     base = env.unwrapped

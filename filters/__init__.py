@@ -2,13 +2,17 @@
 
 * :func:`safe_halfspaces` — mean, CVaR and DR-CVaR safe halfspaces for every obstacle
   and predicted step in one vectorised call (safe side: ``normals @ y <= offsets``).
-* :class:`MPCSafetyFilter` — Problem 2 of the paper, built once, solved with Clarabel.
+* :class:`MPCSafetyFilter` — Problem 2 of the paper (or the predictive safety filter),
+  built once, solved with Clarabel, with a recovery that never raises.
 * :class:`SafetyFilterWrapper` — a Gymnasium wrapper that filters any policy's actions.
 * :class:`Disc`, :class:`ConvexPolygon` — shapes with support functions.
 
 ``import filters`` imports neither CVXPY (only :mod:`filters.halfspace_cvxpy` and
-:mod:`filters.mpc_cvxpy`, the readable reference formulations, do) nor matplotlib.
+:mod:`filters.mpc.backends.cvxpy`, the readable reference formulations, do; reach
+``filters.CVXPYSafetyFilter`` lazily) nor matplotlib.
 """
+
+from typing import Any
 
 from filters.errors import (
     InvalidArrayError,
@@ -19,11 +23,18 @@ from filters.errors import (
 )
 from filters.geometry import ConvexPolygon, Disc, collision_margin
 from filters.halfspaces import Halfspaces, safe_halfspaces
-from filters.mpc import FilterResult, FilterStatus, MPCSafetyFilter
+from filters.mpc import (
+    FilterResult,
+    FilterStatus,
+    MPCProblem,
+    MPCSafetyFilter,
+    stopping_terminal_set,
+)
 from filters.risk import empirical_cvar
 from filters.wrapper import SafetyFilterWrapper
 
 __all__ = [
+    "CVXPYSafetyFilter",
     "ConvexPolygon",
     "Disc",
     "FilterResult",
@@ -33,10 +44,20 @@ __all__ = [
     "InvalidParameterError",
     "InvalidShapeError",
     "InvalidTypeError",
+    "MPCProblem",
     "MPCSafetyFilter",
     "SafeNavError",
     "SafetyFilterWrapper",
     "collision_margin",
     "empirical_cvar",
     "safe_halfspaces",
+    "stopping_terminal_set",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    if name == "CVXPYSafetyFilter":  # imports cvxpy, so only on demand
+        from filters.mpc.backends.cvxpy import CVXPYSafetyFilter
+
+        return CVXPYSafetyFilter
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

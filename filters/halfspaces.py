@@ -170,6 +170,7 @@ def safe_halfspaces(
     support: tuple[object, object] | None = None,
     previous_normals: object | None = None,
     ego_velocity: object | None = None,
+    normals: object | None = None,
 ) -> Halfspaces:
     """Risk-based safe halfspaces for every obstacle and prediction step (Definitions 2-3).
 
@@ -215,6 +216,11 @@ def safe_halfspaces(
     ego_velocity
         Optional ego velocity, shape ``(d,)`` or ``(T, d)`` (m/s); its opposite is the
         second fallback for a degenerate normal.
+    normals
+        Optional given normals ``(n_obstacles, T, d)`` (normalised here; each must be
+        non-zero). The offsets are then computed along them and ``reference_positions``
+        only fixes the shapes. Used for the inter-sample rows
+        (:mod:`filters.intersample`), whose normal comes from the next step.
 
     Returns
     -------
@@ -254,8 +260,12 @@ def safe_halfspaces(
         )
     velocity = None if ego_velocity is None else _check_velocity(ego_velocity, horizon, dim)
 
+    given = None if normals is None else _check_normals(normals, points.shape)
     with np.errstate(all="ignore"):  # non-finite samples are reported below, by name
-        normals, degenerate = _normals(_sample_means(points), y_ref, previous, velocity)
+        if given is None:
+            normals, degenerate = _normals(_sample_means(points), y_ref, previous, velocity)
+        else:
+            normals, degenerate = given, np.zeros(given.shape[:2], dtype=bool)
         if n_obstacles == 0:
             offsets = np.zeros((0, horizon))
             return Halfspaces(normals, offsets, risk, alpha, delta, epsilon, degenerate)
@@ -361,6 +371,15 @@ def _check_shapes(
                 f"{name} is a ConvexPolygon, which needs d = 2 positions, got d = {dim}"
             )
     return shapes
+
+
+def _check_normals(normals: object, shape: tuple[int, ...]) -> np.ndarray:
+    n_obstacles, _, horizon, dim = shape
+    array = finite_array("normals", normals, shape=(n_obstacles, horizon, dim))
+    size = np.sqrt((array * array).sum(axis=-1))
+    if np.any(size < DEGENERATE_DISTANCE):
+        raise InvalidArrayError("normals must be non-zero vectors, got a zero normal")
+    return array / size[..., None]
 
 
 def _check_velocity(ego_velocity: object, horizon: int, dim: int) -> np.ndarray:

@@ -10,6 +10,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from safe_nav_env.collision import swept_clearance
 from safe_nav_env.dynamics import double_integrator
 from safe_nav_env.errors import ConfigError, InvalidActionError, ScenarioError
 from safe_nav_env.noise import NoiseModel, resolve_noise
@@ -99,7 +100,7 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         r = progress_weight * (||p_t - g|| - ||p_{t+1} - g||)      progress, per m
             + arrival_bonus            if ||p_{t+1} - g|| <= goal_tolerance
             - control_cost_weight * ||u||²      u: the (clipped) action, in m/s²
-            - collision_penalty        if any distance to collision <= 0
+            - collision_penalty        on a collision in the step (continuous time, below)
             - time_penalty
 
     The defaults (1.0, 10.0, 1e-3, 1.0, 0.0; tolerance 0.3 m) make the plain policy
@@ -119,12 +120,22 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
     ``obstacle_positions``, ``obstacle_velocities`` (n, 2)
         Current positions (m) and nominal velocities (m/s).
     ``distance_to_collision`` (n,)
-        ``||y - p_i|| - r_A - r_O,i``, in m (``<= 0``: collision).
+        ``||y - p_i|| - r_A - r_O,i`` at the sample instant, in m (``<= 0``: overlap).
     ``min_distance_to_collision``
         Its minimum (``inf`` without obstacles).
+    ``swept_distance_to_collision`` (n,), ``min_swept_distance_to_collision``
+        The exact minimum clearance over the step just taken, in continuous time: the
+        ego on its constant-acceleration arc ``p + s v + s²/2 u``, each obstacle on the
+        chord between its realised positions, ``s`` in ``[0, dt]``
+        (:func:`~safe_nav_env.collision.swept_clearance`). Never larger than the
+        sampled clearance; after :meth:`reset` it equals it.
     ``collision``, ``cost``
-        ``True`` / ``1.0`` when some distance is ``<= 0`` (touching counts), else
-        ``False`` / ``0.0``.
+        ``True`` / ``1.0`` when some swept clearance is ``<= 0`` (touching counts): a
+        collision anywhere in the step, between the samples too. Else ``False`` /
+        ``0.0``. This drives the reward, ``cost`` and ``terminate_on_collision``.
+    ``sampled_collision``
+        ``True`` when some clearance at the sample instant is ``<= 0`` (the paper's
+        sampled statistic; it implies ``collision``).
     ``is_success``, ``distance_to_goal``, ``ego_state``, ``out_of_bounds``, ``time``
         Goal reached; ``||y - g||`` in m; ``x`` (4,); ego outside the arena; time in s.
 
@@ -361,9 +372,12 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
 
     # ------------------------------------------------------------------ info
 
-    def _info(self, distances: np.ndarray, distance_to_goal: float) -> dict[str, Any]:
+    def _info(
+        self, distances: np.ndarray, swept: np.ndarray, distance_to_goal: float
+    ) -> dict[str, Any]:
         minimum = float(distances.min()) if distances.shape[0] else math.inf
-        collision = minimum <= 0.0
+        swept_minimum = float(swept.min()) if swept.shape[0] else math.inf
+        collision = swept_minimum <= 0.0
         px, py = float(self.ego_state[0]), float(self.ego_state[1])
         low, high = self._arena
         info: dict[str, Any] = {
@@ -372,7 +386,10 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
             "obstacle_velocities": self.obstacle_velocities,
             "distance_to_collision": distances,
             "min_distance_to_collision": minimum,
+            "swept_distance_to_collision": swept,
+            "min_swept_distance_to_collision": swept_minimum,
             "collision": collision,
+            "sampled_collision": minimum <= 0.0,
             "cost": 1.0 if collision else 0.0,
             "is_success": distance_to_goal <= self.goal_tolerance,
             "distance_to_goal": distance_to_goal,
@@ -388,7 +405,8 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         n, rows = self._model.n, self.max_obstacles
         padded: dict[str, Any] = {}
         for key, fill in (("predictions", np.inf), ("obstacle_positions", np.inf),
-                          ("obstacle_velocities", 0.0), ("distance_to_collision", np.inf)):
+                          ("obstacle_velocities", 0.0), ("distance_to_collision", np.inf),
+                          ("swept_distance_to_collision", np.inf)):
             value = info[key]
             array = np.full((rows, *value.shape[1:]), fill)
             array[:n] = value
@@ -448,7 +466,8 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
             if self.render_mode == "human":
                 self.render()
         obs = self.observe(self.ego_state, self.obstacle_positions, self.obstacle_velocities)
-        return obs, self._info(_read_only(distances), self._distance_to_goal)
+        distances = _read_only(distances)
+        return obs, self._info(distances, distances, self._distance_to_goal)
 
     def step(
         self, action: np.ndarray
@@ -456,8 +475,9 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         """Apply the acceleration ``action`` for one sampling period.
 
         Order of events: the ego moves (``x_{t+1} = A x_t + B u_t``), the obstacles
-        move with reality noise, collisions and the reward are evaluated at the new
-        positions, and the predictions for the ``T`` steps after the new state are drawn.
+        move with reality noise, collisions are evaluated over the whole step (continuous
+        time, see the class docstring) and at the new positions (sampled), the reward
+        follows, and the predictions for the ``T`` steps after the new state are drawn.
 
         Raises
         ------
@@ -478,13 +498,15 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         uy = min(max(uy, -a_max), a_max)
         dt = self.dt
         half_dt2 = 0.5 * dt * dt
-        px, py, vx, vy = self.ego_state.tolist()
+        start = self.ego_state.tolist()
+        px, py, vx, vy = start
         # x_{t+1} = A x_t + B u_t: p + T_s v + T_s²/2 u, v + T_s u.
         px, py = px + dt * vx + half_dt2 * ux, py + dt * vy + half_dt2 * uy
         vx, vy = vx + dt * ux, vy + dt * uy
         self.ego_state = _read_only(np.array((px, py, vx, vy)))
 
         model = self._model
+        before = self.obstacle_positions
         self.obstacle_positions = _read_only(model.step(self.np_random, self.noise.reality))
         self.obstacle_velocities = _read_only(model.velocities)
         self.predictions = _read_only(
@@ -495,9 +517,14 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         delta = self.obstacle_positions - self.ego_state[:2]
         centre = np.hypot(delta[:, 0], delta[:, 1])
         distances = _read_only(centre - self._radii_sum)  # as distance_to_collision()
+        swept = np.minimum(
+            swept_clearance(start, (ux, uy), dt, before.tolist(),
+                            self.obstacle_positions.tolist(), self._radii_sum.tolist()),
+            distances,  # the end point, bit-for-bit: a sampled collision is a collision
+        )
         gx, gy = self._goal
         distance_to_goal = math.hypot(px - gx, py - gy)
-        info = self._info(distances, distance_to_goal)
+        info = self._info(distances, _read_only(swept), distance_to_goal)
 
         reward = self.progress_weight * (self._distance_to_goal - distance_to_goal)
         reward -= self.control_cost_weight * (ux * ux + uy * uy) + self.time_penalty

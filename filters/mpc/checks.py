@@ -1,11 +1,10 @@
 """Input checks of the MPC safety filter: constructor arguments and per-step arrays.
 
-Validation shared by every QP back end (:class:`filters.mpc_base.SafetyFilterBase`
-and its subclasses): integers, weight matrices, input/position boxes, the
-per-step arrays (with a one-reduction fast path for the common case) and the
-halfspaces in any accepted form (:func:`parse_halfspaces`). Errors are the
-project's (:mod:`filters.errors`); the per-step fast path :func:`_finite` raises
-exactly what :func:`filters._validation.finite_array` raises.
+Integers, weight matrices, input/position boxes, the per-step arrays (with a
+one-reduction fast path for the common case) and the halfspaces in any accepted
+form (:func:`parse_halfspaces`). Errors are the project's (:mod:`filters.errors`);
+the per-step fast path :func:`finite_step_array` raises exactly what
+:func:`filters._validation.finite_array` raises.
 """
 
 from __future__ import annotations
@@ -18,16 +17,15 @@ import numpy as np
 from filters._validation import finite_array
 from filters.errors import InvalidArrayError, InvalidParameterError, InvalidTypeError
 
-__all__ = ["parse_halfspaces"]
+__all__ = ["all_finite", "box", "finite_step_array", "integer", "parse_halfspaces", "weight"]
 
 
-def _finite(name: str, value: object, shape: tuple[int, ...]) -> np.ndarray:
+def finite_step_array(name: str, value: object, shape: tuple[int, ...]) -> np.ndarray:
     """Fast path of :func:`finite_array` for the per-step arrays (same errors).
 
-    A float64 array of the right shape is accepted when its sum is finite: one
-    reduction (about 1 us) instead of ``np.isfinite(a).all()`` (two passes and
-    a temporary, about 3 us). A sum that overflows, or any NaN/inf, takes the
-    full check below, which raises only if an entry is really not finite.
+    A float64 array of the right shape is accepted when its sum is finite (one
+    reduction instead of two passes and a temporary). A sum that overflows, or any
+    NaN/inf, takes the full check, which raises only if an entry is really not finite.
     """
     if type(value) is np.ndarray and value.dtype == np.float64 and value.shape == shape:
         if math.isfinite(np.add.reduce(value, axis=None)):
@@ -45,7 +43,7 @@ def _finite(name: str, value: object, shape: tuple[int, ...]) -> np.ndarray:
     return finite_array(name, value, shape=shape)  # raises with the message
 
 
-def _integer(name: str, value: object, *, low: int) -> int:
+def integer(name: str, value: object, *, low: int) -> int:
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):
         raise InvalidTypeError(f"{name} must be an integer, got {value!r}")
     if int(value) < low:
@@ -53,7 +51,7 @@ def _integer(name: str, value: object, *, low: int) -> int:
     return int(value)
 
 
-def _weight(name: str, value: object, size: int, *, definite: bool) -> np.ndarray:
+def weight(name: str, value: object, size: int, *, definite: bool) -> np.ndarray:
     matrix = finite_array(name, value, shape=(size, size))
     scale = max(1.0, float(np.max(np.abs(matrix))))
     if not np.allclose(matrix, matrix.T, rtol=0.0, atol=1e-10 * scale):
@@ -75,7 +73,7 @@ def _weight(name: str, value: object, size: int, *, definite: bool) -> np.ndarra
     return matrix
 
 
-def _box(name: str, value: object, size: int) -> tuple[np.ndarray, np.ndarray]:
+def box(name: str, value: object, size: int) -> tuple[np.ndarray, np.ndarray]:
     """``(low, high)`` broadcast to ``(size,)``; ``None`` means unbounded."""
     if value is None:
         return np.full(size, -np.inf), np.full(size, np.inf)
@@ -107,8 +105,8 @@ def _box(name: str, value: object, size: int) -> tuple[np.ndarray, np.ndarray]:
     return low, high
 
 
-def _all_finite(array: np.ndarray) -> bool:
-    """``np.isfinite(array).all()``, with a one-reduction fast path (see :func:`_finite`)."""
+def all_finite(array: np.ndarray) -> bool:
+    """``np.isfinite(array).all()``, with a one-reduction fast path."""
     return math.isfinite(np.add.reduce(array, axis=None)) or bool(np.isfinite(array).all())
 
 
@@ -154,8 +152,8 @@ def parse_halfspaces(
         normals = None
     if normals is None or normals.ndim != 3:  # let finite_array raise the message
         normals = finite_array("halfspaces.normals", raw_normals, shape=(None, horizon, dim))
-    normals = _finite("halfspaces.normals", normals, (normals.shape[0], horizon, dim))
-    offsets = _finite("halfspaces.offsets", raw_offsets, (normals.shape[0], horizon))
+    normals = finite_step_array("halfspaces.normals", normals, (normals.shape[0], horizon, dim))
+    offsets = finite_step_array("halfspaces.offsets", raw_offsets, (normals.shape[0], horizon))
     if normals.shape[0] > n_obstacles:
         raise InvalidArrayError(
             f"halfspaces has {normals.shape[0]} obstacle rows but the filter was built "

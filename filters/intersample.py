@@ -1,0 +1,197 @@
+r"""Inter-sample safety: halfspace rows that keep the ego safe *between* the samples.
+
+The halfspaces of Definitions 2-3 constrain the predicted ego positions :math:`y_t`
+at the sample instants only. At 5-6 m/s the ego covers more than a disc diameter in
+one 0.2 s step, so a plan whose samples are all safe can pass through an obstacle in
+between. This module adds the rows that cover every intermediate time.
+
+Derivation
+----------
+Take the interval :math:`[t, t+1]` of one obstacle, a unit normal :math:`h` common to
+both ends, and write :math:`\lambda = s / T_s \in [0, 1]`. Between the samples
+
+* the obstacle moves on the chord between its positions,
+  :math:`o(\lambda) = (1-\lambda) o_t + \lambda o_{t+1}` (the environment's own
+  continuous-time model, DESIGN.md section 5);
+* the ego, under the constant input :math:`u_t`, follows
+  :math:`y(\lambda) = (1-\lambda) y_t + \lambda y_{t+1} - \tfrac{T_s^2}{2}
+  \lambda(1-\lambda) u_t`, its chord plus a bow whose size along :math:`h` is at most
+  :math:`m(h) = \tfrac{T_s^2}{8} \max_{u \in \mathcal U} (-h \cdot u)` (the maximum of
+  :math:`\lambda(1-\lambda)` is 1/4). For the box :math:`[u_\text{low}, u_\text{high}]`,
+  :math:`m(h) = \tfrac{T_s^2}{8} \sum_j \max(-h_j u_{\text{low},j}, -h_j
+  u_{\text{high},j})`; at ±10 m/s² and :math:`T_s = 0.2` s it is at most 0.071 m.
+
+The loss (intrusion depth) at :math:`\lambda` is
+:math:`\ell(\lambda) = h \cdot y(\lambda) + r - h \cdot o(\lambda)
+\le (1-\lambda)\,\ell_t + \lambda\,\ell_{t+1} + m(h)`, with :math:`\ell_t = h \cdot y_t
++ r - h \cdot o_t`. The mean, CVaR and DR-CVaR are monotone, translation equivariant,
+convex and positively homogeneous (coherent), and so subadditive for any joint law of
+:math:`(o_t, o_{t+1})`:
+
+.. math::
+
+    R(\ell(\lambda)) \le (1-\lambda)\, R(\ell_t) + \lambda\, R(\ell_{t+1}) + m(h)
+    \le \max\big(R(\ell_t), R(\ell_{t+1})\big) + m(h).
+
+So if **both** ends satisfy :math:`h \cdot y \le b(h) - m(h)`, each with the offset
+:math:`b(h)` of Definition 2 computed from *its own* samples along the common normal
+:math:`h`, then :math:`R(\ell(\lambda)) \le \delta` at every intermediate time. (Imposing
+the tighter of the two offsets on both ends, as the issue suggests, is also sufficient,
+but more conservative than needed.)
+
+The rows
+--------
+For obstacle :math:`i` and the interval :math:`[t-1, t]` we use the normal
+:math:`h_{i,t}` of the step-:math:`t` halfspace (paper's Definition 3), so
+
+* **end rows** (one per step :math:`t = 1..T`): :math:`h_{i,t} \cdot y_t \le b_{i,t}
+  - m(h_{i,t})`: the ordinary halfspace, tightened by the bow;
+* **start rows** (:math:`t = 1..T-1`): :math:`h_{i,t+1} \cdot y_t \le b_t(h_{i,t+1})
+  - m(h_{i,t+1})`, the offset from the step-:math:`t` samples along the next normal.
+
+The first interval starts at the current position :math:`y_0`, which the filter cannot
+move: its start row is a check only (:attr:`IntersampleRows.start_violation`), reported
+so that a user sees when continuous-time safety of the first step is out of reach.
+The chance-constraint and conformal risks of :mod:`filters.risk` are not coherent in
+general (a quantile is not subadditive); for them the rows are a heuristic.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from filters.geometry import Shape
+from filters.halfspaces import Halfspaces, safe_halfspaces
+
+__all__ = ["IntersampleRows", "arc_margin", "intersample_rows"]
+
+#: Offset of a disabled row ``0 @ y <= 1`` (always satisfied, slack 1).
+_DISABLED_OFFSET = 1.0
+
+
+def arc_margin(
+    normals: np.ndarray, input_bounds: tuple[np.ndarray, np.ndarray], dt: float
+) -> np.ndarray:
+    r"""Largest excursion of the ego arc beyond its chord along each normal, in m.
+
+    .. math:: m(h) = \frac{T_s^2}{8} \max_{u_\text{low} \le u \le u_\text{high}} (-h\cdot u)
+              = \frac{T_s^2}{8} \sum_j \max(-h_j u_{\text{low},j}, -h_j u_{\text{high},j})
+
+    Parameters
+    ----------
+    normals
+        Unit normals, shape ``(..., d)``.
+    input_bounds
+        ``(low, high)`` accelerations, each shape ``(d,)``, in m/s² (finite).
+    dt
+        Sampling time :math:`T_s`, in s.
+
+    Returns
+    -------
+    numpy.ndarray
+        Shape ``normals.shape[:-1]``, ``>= 0`` when the box contains 0.
+    """
+    low, high = (np.asarray(bound, dtype=np.float64) for bound in input_bounds)
+    worst = np.maximum(-normals * low, -normals * high).sum(axis=-1)
+    return (dt * dt / 8.0) * worst
+
+
+@dataclass(frozen=True, eq=False)
+class IntersampleRows:
+    """The halfspace rows that make a plan safe in continuous time.
+
+    Attributes
+    ----------
+    normals, offsets
+        Shapes ``(2 k, T, d)`` and ``(2 k, T)``: rows ``0..k-1`` are the end rows (the
+        step-``t`` halfspaces tightened by the bow), rows ``k..2k-1`` the start rows
+        (step-``t`` position, next step's normal); the start rows at ``t = T`` are
+        disabled (``0 @ y <= 1``). Safe side ``normals[j, t-1] @ y_t <= offsets[j, t-1]``.
+    margins
+        The bow :math:`m(h_{i,t})` of the end rows, ``(k, T)``, in m.
+    start_violation
+        ``h_{i,1} @ y_0 - (b_0(h_{i,1}) - m)``, shape ``(k,)``, in m: the start row of the
+        first interval at the current position, which no plan can change (``<= 0``:
+        satisfied). ``None`` when the current obstacle positions were not given.
+    """
+
+    normals: np.ndarray
+    offsets: np.ndarray
+    margins: np.ndarray
+    start_violation: np.ndarray | None
+
+
+def intersample_rows(
+    halfspaces: Halfspaces,
+    samples: np.ndarray,
+    *,
+    ego_shape: Shape,
+    obstacle_shapes: Sequence[Shape],
+    input_bounds: tuple[np.ndarray, np.ndarray],
+    dt: float,
+    support: tuple[object, object] | None = None,
+    current_position: np.ndarray | None = None,
+    current_obstacles: np.ndarray | None = None,
+    **risk_options: object,
+) -> IntersampleRows:
+    r"""End and start rows for every obstacle and interval (see the module docstring).
+
+    Parameters
+    ----------
+    halfspaces
+        The step halfspaces from :func:`filters.safe_halfspaces` (their normals are
+        reused; their risk, alpha, delta and epsilon are used for the start rows unless
+        ``risk_options`` overrides them, e.g. per-step arrays).
+    samples
+        The same prediction samples, ``(k, N_s, T, d)``, in m.
+    ego_shape, obstacle_shapes, support
+        As for :func:`filters.safe_halfspaces`.
+    input_bounds
+        The ego's input box ``(low, high)``, in m/s², finite.
+    dt
+        Sampling time :math:`T_s`, in s.
+    current_position, current_obstacles
+        Optional ego position ``(d,)`` and obstacle positions ``(k, d)`` now, to report
+        the start row of the first interval.
+    **risk_options
+        Passed on to :func:`filters.safe_halfspaces` for the start rows.
+    """
+    normals, offsets = halfspaces.normals, halfspaces.offsets
+    k, horizon, dim = normals.shape
+    margins = arc_margin(normals, input_bounds, dt)
+    rows_n = np.zeros((2 * k, horizon, dim))
+    rows_b = np.full((2 * k, horizon), _DISABLED_OFFSET)
+    rows_n[:k] = normals
+    rows_b[:k] = offsets - margins
+    options = dict(risk=halfspaces.risk, alpha=halfspaces.alpha, delta=halfspaces.delta,
+                   epsilon=halfspaces.epsilon)
+    options.update(risk_options)
+    if k and horizon > 1:
+        start = safe_halfspaces(
+            np.zeros((horizon - 1, dim)), samples[:, :, : horizon - 1],
+            ego_shape=ego_shape, obstacle_shapes=obstacle_shapes, support=support,
+            normals=normals[:, 1:], **_steps(options, slice(0, horizon - 1)),
+        )
+        rows_n[k:, : horizon - 1] = normals[:, 1:]
+        rows_b[k:, : horizon - 1] = start.offsets - margins[:, 1:]
+    violation = None
+    if k and current_position is not None and current_obstacles is not None:
+        now = safe_halfspaces(
+            np.zeros((1, dim)), np.asarray(current_obstacles, dtype=np.float64)[:, None, None],
+            ego_shape=ego_shape, obstacle_shapes=obstacle_shapes, support=support,
+            normals=normals[:, :1], **_steps(options, slice(0, 1)),
+        )
+        violation = normals[:, 0] @ np.asarray(current_position, dtype=np.float64)
+        violation = violation - (now.offsets[:, 0] - margins[:, 0])
+    return IntersampleRows(rows_n, rows_b, margins, violation)
+
+
+def _steps(options: dict[str, object], steps: slice) -> dict[str, object]:
+    """The options of the given steps: per-step arrays (last axis ``T``) are sliced."""
+    return {
+        key: value[..., steps] if isinstance(value, np.ndarray) and value.ndim else value
+        for key, value in options.items()
+    }

@@ -1,0 +1,41 @@
+"""The MPC safety filter, from composed parts (in the shape of qpmpc).
+
+* :mod:`filters.mpc.problem`: :class:`MPCProblem`, the frozen, validated QP definition
+  (model, horizon, objective, bounds, terminal set, soft rows, penalty).
+* :mod:`filters.mpc.terminal`: :func:`stopping_terminal_set` (recursive feasibility
+  against the arena for the double integrator).
+* :mod:`filters.mpc.backends`: Clarabel (sparse, built once) and CVXPY (reference).
+* :mod:`filters.mpc.filter`: :class:`MPCSafetyFilter`, the step: validation, shortcut,
+  acceptance check, recovery.
+* :mod:`filters.mpc.recovery`: the paper's Remark (shift the last plan, then brake).
+* :mod:`filters.mpc.result`: :class:`FilterStatus`, :class:`FilterResult`.
+
+``import filters.mpc`` does not import CVXPY; ``filters.mpc.CVXPYSafetyFilter`` is
+resolved lazily.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from filters.mpc.filter import MPCSafetyFilter
+from filters.mpc.problem import MPCProblem
+from filters.mpc.result import FilterResult, FilterStatus
+from filters.mpc.terminal import stopping_terminal_set
+
+__all__ = [
+    "CVXPYSafetyFilter",
+    "FilterResult",
+    "FilterStatus",
+    "MPCProblem",
+    "MPCSafetyFilter",
+    "stopping_terminal_set",
+]
+
+
+def __getattr__(name: str) -> Any:
+    if name == "CVXPYSafetyFilter":
+        from filters.mpc.backends.cvxpy import CVXPYSafetyFilter
+
+        return CVXPYSafetyFilter
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

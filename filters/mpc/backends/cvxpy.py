@@ -1,0 +1,177 @@
+r"""CVXPY back end: the same QP as :mod:`filters.mpc.backends.clarabel`, written as read.
+
+The reference the fast back end is tested against: states and inputs as variables,
+the cost and the rows of :class:`~filters.mpc.MPCProblem` spelled out, built once with
+``cvxpy.Parameter`` objects (DPP, so CVXPY caches the canonicalisation and each solve
+only refills the parameters), solved with Clarabel through CVXPY. Never in the control
+loop: a solve costs milliseconds of CVXPY overhead.
+
+This module imports CVXPY; ``import filters`` does not import it (reach
+:class:`CVXPYSafetyFilter` as ``filters.CVXPYSafetyFilter``, resolved lazily).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping
+from typing import Any
+
+import cvxpy as cp
+import numpy as np
+
+from filters.mpc.backends.clarabel import SOFT_GAP_TOLERANCE
+from filters.mpc.filter import MPCSafetyFilter
+from filters.mpc.problem import MPCProblem
+from filters.mpc.result import QPSolution, StepData
+
+__all__ = ["CVXPYBackend", "CVXPYSafetyFilter"]
+
+_SOLVED = (cp.OPTIMAL, cp.OPTIMAL_INACCURATE)
+
+
+def _square_root(matrix: np.ndarray) -> np.ndarray:
+    """``L`` with ``L.T @ L = matrix`` for a symmetric PSD ``matrix``."""
+    eigenvalues, vectors = np.linalg.eigh(matrix)
+    return np.sqrt(np.clip(eigenvalues, 0.0, None))[:, None] * vectors.T
+
+
+class CVXPYBackend:
+    """The QP of one :class:`~filters.mpc.MPCProblem` in CVXPY with Parameters.
+
+    Parameters
+    ----------
+    problem
+        What to build.
+    solver_settings
+        Keyword arguments for ``problem.solve`` (Clarabel's settings, e.g.
+        ``{"tol_feas": 1e-9}``). Soft QPs get the gap tolerances of the fast back end.
+    """
+
+    name = "cvxpy"
+
+    def __init__(
+        self, problem: MPCProblem, *, solver_settings: Mapping[str, Any] | None = None
+    ) -> None:
+        self.problem = problem
+        self._kwargs: dict[str, Any] = {}
+        if problem.soft_rows:
+            self._kwargs.update(tol_gap_abs=SOFT_GAP_TOLERANCE, tol_gap_rel=SOFT_GAP_TOLERANCE)
+        self._kwargs.update(solver_settings or {})
+        self._build()
+
+    def _build(self) -> None:
+        p = self.problem
+        T, n, m, d, K = p.horizon, p.n, p.m, p.d, p.n_obstacles
+        A, B, C = p.A, p.B, p.C
+        self._x0 = cp.Parameter(n, name="x0")
+        self._x_ref = cp.Parameter((T, n), name="reference_states")  # x^r_1..x^r_T
+        self._u_ref = cp.Parameter((T, m), name="reference_inputs")
+        self._normals = [cp.Parameter((T, d), name=f"normals_{i}") for i in range(K)]
+        self._offsets = cp.Parameter((K, T), name="offsets") if K else None
+
+        u = cp.Variable((T, m), name="u")  # u_0..u_{T-1}
+        x = cp.Variable((T, n), name="x")  # x_1..x_T
+        self._u = u
+        constraints = [x[0] == A @ self._x0 + B @ u[0]]
+        if T > 1:
+            constraints.append(x[1:].T == A @ x[:-1].T + B @ u[1:].T)
+
+        u_low, u_high = p.input_bounds
+        for bound, sign in ((u_high, 1.0), (u_low, -1.0)):
+            finite = np.flatnonzero(np.isfinite(bound))
+            if finite.size:
+                constraints.append(sign * u[:, finite] <= sign * np.tile(bound[finite], (T, 1)))
+
+        bound_slack = []  # slacks of the arena and terminal rows (soft_bounds)
+
+        def bounded(lhs: cp.Expression, rhs: Any) -> cp.Constraint:
+            if p.soft_bounds:
+                slack = cp.Variable(lhs.shape, nonneg=True)
+                bound_slack.append(slack)
+                return lhs <= rhs + slack
+            return lhs <= rhs
+
+        y = x @ C.T  # positions y_1..y_T, (T, d)
+        y_low, y_high = p.position_bounds
+        for bound, sign in ((y_high, 1.0), (y_low, -1.0)):
+            finite = np.flatnonzero(np.isfinite(bound))
+            if finite.size:
+                constraints.append(
+                    bounded(sign * y[:, finite], sign * np.tile(bound[finite], (T, 1)))
+                )
+        if p.terminal_set is not None and p.terminal_set[0].shape[0]:
+            G, g = p.terminal_set
+            constraints.append(bounded(G @ x[-1], g))
+
+        self._hs_slack = (
+            cp.Variable((K, T), nonneg=True, name="slack") if (p.soft_halfspaces and K) else None
+        )
+        for i in range(K):
+            lhs = cp.sum(cp.multiply(self._normals[i], y), axis=1)  # a_it . y_t, (T,)
+            rhs = self._offsets[i]
+            if self._hs_slack is not None:
+                rhs = rhs + self._hs_slack[i]
+            constraints.append(lhs <= rhs)
+        self._bound_slack = bound_slack
+
+        cost = 0
+        for t in range(T):
+            cost += cp.sum_squares(_square_root(p.input_weights[t]) @ (u[t] - self._u_ref[t]))
+            if p.has_state_cost:
+                cost += cp.sum_squares(
+                    _square_root(p.state_weights[t]) @ (x[t] - self._x_ref[t])
+                )
+        if self._hs_slack is not None:
+            cost += p.slack_penalty * cp.sum(self._hs_slack)
+        for slack in bound_slack:
+            cost += p.slack_penalty * cp.sum(slack)
+        self._problem = cp.Problem(cp.Minimize(cost), constraints)
+        if not self._problem.is_dpp():  # pragma: no cover - formulation bug
+            raise RuntimeError("the CVXPY safety-filter QP must be DPP")
+
+    def solve(self, step: StepData) -> QPSolution:
+        """Fill the parameters and solve; never raises on a failed solve."""
+        p = self.problem
+        self._x0.value = step.x0
+        self._x_ref.value = step.ref_states
+        self._u_ref.value = step.ref_inputs
+        for i, parameter in enumerate(self._normals):
+            parameter.value = step.normals[i]
+        if self._offsets is not None:
+            self._offsets.value = step.offsets
+        begin = time.perf_counter()
+        try:
+            self._problem.solve(solver=cp.CLARABEL, **self._kwargs)
+        except (cp.error.SolverError, ValueError, ArithmeticError) as exc:
+            return QPSolution(False, f"exception: {exc!r}", solve_time=time.perf_counter() - begin)
+        solve_time = time.perf_counter() - begin
+        status = str(self._problem.status)
+        stats = self._problem.solver_stats
+        iterations = int(stats.num_iters) if stats and stats.num_iters is not None else 0
+        if status not in _SOLVED or self._u.value is None:
+            return QPSolution(False, status, iterations=iterations, solve_time=solve_time)
+        hs_slack = bound_slack = None
+        if p.soft_halfspaces:
+            hs_slack = (
+                np.array(self._hs_slack.value) if self._hs_slack is not None
+                else np.zeros((0, p.horizon))
+            )
+        if p.soft_bounds:
+            parts = [np.ravel(s.value) for s in self._bound_slack]
+            bound_slack = np.concatenate(parts) if parts else np.zeros(0)
+        return QPSolution(
+            True, status, np.array(self._u.value), hs_slack, bound_slack, iterations, solve_time
+        )
+
+
+class CVXPYSafetyFilter(MPCSafetyFilter):
+    """:class:`~filters.mpc.MPCSafetyFilter` with the CVXPY back end (``backend="cvxpy"``).
+
+    Same parameters, same results (to solver tolerance); for tests and benchmarks.
+    ``skip_feasible_reference`` defaults to ``False`` here: the reference solves every QP.
+    """
+
+    def __init__(self, A: np.ndarray, B: np.ndarray, C: np.ndarray, **kwargs: Any) -> None:
+        kwargs["backend"] = "cvxpy"
+        kwargs.setdefault("skip_feasible_reference", False)
+        super().__init__(A, B, C, **kwargs)

@@ -1,0 +1,522 @@
+r"""The MPC safety filter: step validation, the shortcut, the acceptance check, the recovery.
+
+One :meth:`MPCSafetyFilter.solve` call:
+
+1. validates the step's data (:mod:`filters.mpc.checks`; bad data raises);
+2. **shortcut** (with ``reference_inputs`` and ``skip_feasible_reference``): the
+   unconstrained minimiser of the cost (:attr:`MPCProblem.gain`; for
+   ``objective="first_input"`` it is :math:`u = u^r`) is *the* optimum whenever it meets
+   every row exactly, so no QP is solved;
+3. solves the **hard QP** (halfspace, arena and terminal rows hard; halfspace rows
+   softened with ``soft=True``) with the back end;
+4. **accepts** an answer only if its roll-out from ``x0`` meets every hard row to
+   ``FEASIBILITY_TOLERANCE`` (and every soft row to its slack plus that tolerance);
+5. otherwise **recovers**: ``fallback="soft"`` solves the recovery QP (every halfspace,
+   arena and terminal row softened, exact L1 penalty ``slack_penalty``: it has the hard
+   QP's solution whenever that one is feasible), then brakes if that fails too;
+   ``fallback="paper"`` shifts the last plan, then brakes (:mod:`filters.mpc.recovery`).
+
+A step never raises because a QP is infeasible or a solver fails; the
+:class:`~filters.mpc.FilterStatus` says what was returned.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from filters._validation import finite_array
+from filters.errors import InvalidParameterError, InvalidTypeError
+from filters.mpc.checks import all_finite, finite_step_array, parse_halfspaces
+from filters.mpc.problem import MPCProblem
+from filters.mpc.recovery import braking_gain, rollout_with_brake, shifted_plan
+from filters.mpc.result import FilterResult, FilterStatus, QPSolution, StepData
+
+__all__ = [
+    "BACKENDS",
+    "DISABLED_OFFSET",
+    "FALLBACKS",
+    "FEASIBILITY_TOLERANCE",
+    "SLACK_TOLERANCE",
+    "MPCSafetyFilter",
+]
+
+#: Back ends by name (the CVXPY one imports CVXPY when built).
+BACKENDS = ("clarabel", "cvxpy")
+#: What to do when the hard QP fails.
+FALLBACKS = ("soft", "paper")
+#: Offset written in unused halfspace rows: the row reads ``0 @ y <= 1``.
+DISABLED_OFFSET = 1.0
+#: Largest violation (m for positions and halfspaces) accepted from a "solved" QP.
+FEASIBILITY_TOLERANCE = 1e-6
+#: Slacks and violations at or below this value (m) count as zero.
+SLACK_TOLERANCE = 1e-6
+
+_NO_QP = "unconstrained optimum feasible (no QP needed)"
+_vecdot = getattr(np, "vecdot", None) or (lambda a, b: np.einsum("...d,...d->...", a, b))
+
+
+def _make_backend(name: str, problem: MPCProblem, settings: Mapping[str, Any] | None) -> Any:
+    if name == "clarabel":
+        from filters.mpc.backends.clarabel import ClarabelBackend
+
+        return ClarabelBackend(problem, solver_settings=settings)
+    from filters.mpc.backends.cvxpy import CVXPYBackend  # imports cvxpy
+
+    return CVXPYBackend(problem, solver_settings=settings)
+
+
+class MPCSafetyFilter:
+    r"""MPC safety filter (the paper's Problem 2, or the predictive safety filter).
+
+    Parameters
+    ----------
+    A, B, C
+        Dynamics :math:`x_{t+1} = A x_t + B u_t` and position :math:`y = C x`, shapes
+        ``(n, n)``, ``(n, m)``, ``(d, n)``. For the paper's ego double integrator
+        ``A = [[I, Ts I], [0, I]]``, ``B = [[Ts²/2 I], [Ts I]]``, ``C = [I, 0]``, Ts = 0.2 s.
+    horizon
+        Number of steps ``T`` (the paper: 10).
+    Q, Q_terminal
+        Symmetric PSD state weights ``(n, n)`` for steps ``1..T-1`` and ``T``
+        (weights mean :math:`x^\top Q x`); required by ``objective="trajectory"``,
+        ignored by ``"first_input"``.
+    R
+        Symmetric positive definite input weight ``(m, m)`` (keeps the QP strictly
+        convex, so the filtered input is unique).
+    input_bounds, position_bounds
+        ``(low, high)`` of the input box (m/s²) and of the arena (m): numbers or arrays of
+        shape ``(m,)`` / ``(d,)``, ±inf for a free side; ``None``: unbounded.
+    n_obstacles
+        Halfspace rows per step the QP holds; calls may pass fewer (the rest are
+        disabled). Rows with a zero normal and a positive offset are accepted (they
+        always hold): a caller can switch rows off with them.
+    soft
+        Solve the first QP with the halfspace rows softened (nonnegative slacks, exact
+        L1 penalty). The arena stays hard in that QP (softened only in the recovery QP).
+    slack_penalty
+        :math:`\rho > 0`, cost per m of violation of a softened row. The L1 penalty is
+        exact: with :math:`\rho` above the largest multiplier of the hard QP, the soft
+        QP's solution is the hard one whenever the hard one is feasible; otherwise the
+        slacks reach the minimal total violation. 1e6 (the default) gave the minimal
+        violation to 1e-8 m on strongly infeasible crossing instances.
+    brake_gain
+        Gain ``K`` ``(m, n)`` of braking :math:`u = \mathrm{clip}(-K x)`; default from the
+        model (:func:`filters.mpc.recovery.braking_gain`: :math:`-v/T_s` for the double
+        integrator).
+    solver_settings
+        Back-end settings (Clarabel settings to override; for ``backend="cvxpy"``,
+        keywords of ``problem.solve``).
+    skip_feasible_reference
+        With ``reference_inputs``, return the unconstrained optimum without a QP when it
+        meets every row exactly (``iterations`` 0, ``solve_time`` 0).
+    objective
+        ``"trajectory"`` (default; the paper's Problem 2: track reference inputs and
+        states) or ``"first_input"`` (Wabersich & Zeilinger's predictive safety filter:
+        :math:`\|u_0 - u^r_0\|^2_R + w \sum_{t \ge 1} \|u_t - u^r_t\|^2_R`, no state terms;
+        the reference states are then not used).
+    later_input_weight
+        ``w > 0`` of ``"first_input"`` (default 1e-2).
+    terminal_set
+        ``(G, g)``: the plan ends in :math:`G x_T \le g` (e.g.
+        :func:`filters.mpc.stopping_terminal_set`); ``None`` (default): none.
+    fallback
+        ``"soft"`` (default: the recovery QP, then braking) or ``"paper"`` (shift the
+        last plan, then brake).
+    backend
+        ``"clarabel"`` (default; the sparse QP built once) or ``"cvxpy"`` (the readable
+        reference; imports CVXPY).
+
+    Raises
+    ------
+    InvalidArrayError, InvalidParameterError, InvalidTypeError
+        On bad model data, weights, bounds, options (see :class:`MPCProblem`).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> Ts = 0.2
+    >>> I, Z = np.eye(2), np.zeros((2, 2))
+    >>> A = np.block([[I, Ts * I], [Z, I]]); B = np.vstack([Ts**2 / 2 * I, Ts * I])
+    >>> C = np.hstack([I, Z])
+    >>> mpc = MPCSafetyFilter(A, B, C, Q=4 * np.eye(4), Q_terminal=25 * np.eye(4),
+    ...                       R=np.eye(2), input_bounds=(-5, 5),
+    ...                       position_bounds=(-5, 5), n_obstacles=1)
+    >>> x0 = np.array([0.0, 0.0, 1.5, 0.0])
+    >>> reference = np.array([[1.5 * Ts * t, 0, 1.5, 0] for t in range(11)])
+    >>> wall = (np.tile([1.0, 0.0], (1, 10, 1)), np.full((1, 10), 2.0))  # x <= 2 m
+    >>> result = mpc.solve(x0, reference, wall)
+    >>> result.status.value, bool(np.all(result.states[:, 0] <= 2 + 1e-6))
+    ('optimal', True)
+    """
+
+    def __init__(
+        self,
+        A: np.ndarray,
+        B: np.ndarray,
+        C: np.ndarray,
+        *,
+        horizon: int = 10,
+        Q: np.ndarray | None = None,
+        Q_terminal: np.ndarray | None = None,
+        R: np.ndarray,
+        input_bounds: tuple[object, object] | None = None,
+        position_bounds: tuple[object, object] | None = None,
+        n_obstacles: int,
+        soft: bool = False,
+        slack_penalty: float = 1e6,
+        brake_gain: np.ndarray | None = None,
+        solver_settings: Mapping[str, Any] | None = None,
+        skip_feasible_reference: bool = True,
+        objective: str = "trajectory",
+        later_input_weight: float = 1e-2,
+        terminal_set: tuple[np.ndarray, np.ndarray] | None = None,
+        fallback: str = "soft",
+        backend: str = "clarabel",
+    ) -> None:
+        for name, value in (("soft", soft), ("skip_feasible_reference", skip_feasible_reference)):
+            if not isinstance(value, (bool, np.bool_)):
+                raise InvalidTypeError(f"{name} must be a bool, got {value!r}")
+        if fallback not in FALLBACKS:
+            raise InvalidParameterError(f"fallback must be one of {FALLBACKS}, got {fallback!r}")
+        if backend not in BACKENDS:
+            raise InvalidParameterError(f"backend must be one of {BACKENDS}, got {backend!r}")
+        problem = MPCProblem(
+            A, B, C, horizon, R, Q, Q_terminal, objective=objective,
+            later_input_weight=later_input_weight, input_bounds=input_bounds,
+            position_bounds=position_bounds, terminal_set=terminal_set,
+            n_obstacles=n_obstacles, soft_rows=frozenset({"halfspaces"} if soft else ()),
+            slack_penalty=slack_penalty,
+        )
+        self.problem = problem
+        self._soft = bool(soft)
+        self._skip = bool(skip_feasible_reference)
+        self._fallback = fallback
+        self._backend_name = backend
+        T, n, m = problem.horizon, problem.n, problem.m
+        if brake_gain is None:
+            self._brake_gain = braking_gain(problem.A, problem.B, problem.C)
+        else:
+            self._brake_gain = finite_array("brake_gain", brake_gain, shape=(m, n))
+        self._primary = _make_backend(backend, problem, solver_settings)
+        self._recovery = None
+        if fallback == "soft":
+            self._recovery = _make_backend(
+                backend, problem.with_soft_rows({"halfspaces", "bounds"}), solver_settings
+            )
+        # Precomputed for the per-step checks (a few NumPy calls per step).
+        phi, gamma = problem.rollout
+        self._phi, self._gamma, self._gain = phi, gamma, problem.gain
+        self._eval = problem.evaluation_map
+        u_low, u_high = problem.input_bounds
+        self._u_low_all, self._u_high_all = np.tile(u_low, T), np.tile(u_high, T)
+        y_low, y_high = problem.position_bounds
+        self._hi = np.flatnonzero(np.isfinite(y_high))
+        self._lo = np.flatnonzero(np.isfinite(y_low))
+        self._y_high, self._y_low = y_high[self._hi], y_low[self._lo]
+        if problem.terminal_set is not None:
+            self._G, self._g = problem.terminal_set
+        else:
+            self._G, self._g = np.zeros((0, n)), np.zeros(0)
+        self._zero_inputs = np.zeros((T, m))
+        self._zero_inputs.setflags(write=False)
+        self._plan: np.ndarray | None = None
+        self._failures = 0
+        self._qp_solves = 0
+        self._last_step: StepData | None = None
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def horizon(self) -> int:
+        """Prediction horizon ``T`` (number of steps)."""
+        return self.problem.horizon
+
+    @property
+    def n_obstacles(self) -> int:
+        """Largest number of halfspace rows per step the QP holds."""
+        return self.problem.n_obstacles
+
+    @property
+    def soft(self) -> bool:
+        """Whether the first QP softens the halfspace rows."""
+        return self._soft
+
+    @property
+    def slack_penalty(self) -> float:
+        """:math:`\\rho`, cost per m of violation of a softened row."""
+        return self.problem.slack_penalty
+
+    @property
+    def objective(self) -> str:
+        """``"trajectory"`` or ``"first_input"``."""
+        return self.problem.objective
+
+    @property
+    def fallback(self) -> str:
+        """``"soft"`` or ``"paper"``."""
+        return self._fallback
+
+    @property
+    def backend(self) -> str:
+        """``"clarabel"`` or ``"cvxpy"``."""
+        return self._backend_name
+
+    @property
+    def input_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(low, high)`` of the input box, each ``(m,)`` (±inf: unbounded)."""
+        low, high = self.problem.input_bounds
+        return low.copy(), high.copy()
+
+    @property
+    def position_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(low, high)`` of the arena, each ``(d,)`` (±inf: unbounded)."""
+        low, high = self.problem.position_bounds
+        return low.copy(), high.copy()
+
+    @property
+    def last_plan(self) -> np.ndarray | None:
+        """Copy of the last accepted plan ``(T, m)``, or ``None``."""
+        return None if self._plan is None else self._plan.copy()
+
+    @property
+    def last_qp_solves(self) -> int:
+        """QPs solved by the last :meth:`solve`: 0 (shortcut), 1 (hard), 2 (recovery)."""
+        return self._qp_solves
+
+    def reset(self) -> None:
+        """Forget the stored plan and the failure count (call at episode start)."""
+        self._plan = None
+        self._failures = 0
+
+    def braking_input(self, x: np.ndarray) -> np.ndarray:
+        """Braking input at state ``x``, ``clip(-K x)`` to the input box, shape ``(m,)``."""
+        return np.clip(-self._brake_gain @ x, *self.problem.input_bounds)
+
+    # ------------------------------------------------------------------ checks
+    def _evaluate(
+        self, x0: np.ndarray, inputs: np.ndarray, normals: np.ndarray, offsets: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Roll-out ``(T + 1, n)``, halfspace excess ``(k, T)``, bound-row excess (1-D).
+
+        Excess is ``lhs - rhs`` (<= 0: the row holds). Bound rows are ordered as in the
+        back ends: upper arena faces (by step, then axis), lower faces, terminal rows.
+        """
+        p = self.problem
+        T, n, d = p.horizon, p.n, p.d
+        out = self._eval @ np.concatenate((x0, inputs.reshape(-1)))
+        split = (T + 1) * n
+        states = out[:split].reshape(T + 1, n)
+        positions = out[split:].reshape(T, d)
+        halfspace = _vecdot(normals, positions) - offsets
+        bounds = np.concatenate((
+            (positions[:, self._hi] - self._y_high).reshape(-1),
+            (self._y_low - positions[:, self._lo]).reshape(-1),
+            self._G @ states[-1] - self._g,
+        ))
+        return states, halfspace, bounds
+
+    def _call(self, backend: Any, step: StepData) -> QPSolution:
+        self._qp_solves += 1
+        try:
+            return backend.solve(step)
+        except Exception as exc:  # a back end bug must not crash the control loop
+            return QPSolution(False, f"exception: {exc!r}")
+
+    def _accept(
+        self, solution: QPSolution, soft_rows: frozenset[str], x0: np.ndarray,
+        normals: np.ndarray, offsets: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | str:
+        """Inputs, states and excesses of an acceptable answer, or why it was rejected."""
+        if not solution.found or solution.inputs is None:
+            return ""
+        raw = solution.inputs
+        if not all_finite(raw):
+            return "rejected: non-finite solution"
+        inputs = np.minimum(np.maximum(raw, self.problem.input_bounds[0]),
+                            self.problem.input_bounds[1])  # interior point: ~1e-9 outside
+        clipped = float(np.max(np.abs(inputs - raw)))
+        if not clipped <= FEASIBILITY_TOLERANCE:
+            return f"rejected: input bound violated by {clipped:.3g}"
+        states, halfspace, bounds = self._evaluate(x0, inputs, normals, offsets)
+        k = normals.shape[0]
+        allowed_h = 0.0
+        if "halfspaces" in soft_rows and solution.halfspace_slack is not None:
+            allowed_h = np.maximum(solution.halfspace_slack[:k], 0.0)
+        allowed_b = 0.0
+        if "bounds" in soft_rows and solution.bound_slack is not None:
+            allowed_b = np.maximum(solution.bound_slack, 0.0)
+        worst = float(np.max(bounds - allowed_b, initial=-np.inf))
+        if k:
+            worst = max(worst, float(np.max(halfspace - allowed_h)))
+        if not worst <= FEASIBILITY_TOLERANCE:  # False for NaN too
+            return f"rejected: constraint violation {worst:.3g} > {FEASIBILITY_TOLERANCE:g}"
+        return inputs, states, halfspace, bounds
+
+    # ------------------------------------------------------------------ the step
+    def solve(
+        self,
+        x0: np.ndarray,
+        reference_states: np.ndarray,
+        halfspaces: object = None,
+        *,
+        reference_inputs: np.ndarray | None = None,
+    ) -> FilterResult:
+        r"""Filter a reference: solve the QP, or recover.
+
+        Parameters
+        ----------
+        x0
+            Current state :math:`x_0`, shape ``(n,)`` (m and m/s for the ego).
+        reference_states
+            Reference trajectory, shape ``(T + 1, n)``; row 0 is ignored (the plan starts
+            at ``x0``), rows ``1..T`` are :math:`x^r_1..x^r_T` (not used by
+            ``objective="first_input"``, but validated).
+        halfspaces
+            Safe side ``normals[i, t-1] @ (C x_t) <= offsets[i, t-1]``: an object with
+            ``.normals`` ``(k, T, d)`` and ``.offsets`` ``(k, T)`` (as from
+            :func:`filters.safe_halfspaces`), a pair ``(normals, offsets)``, or ``None``.
+            ``k <= n_obstacles``; zero normals with positive offsets switch rows off.
+        reference_inputs
+            :math:`u^r_0..u^r_{T-1}`, shape ``(T, m)``; default zeros (the paper's
+            :math:`u^\top R u`). Needed for the shortcut.
+
+        Returns
+        -------
+        FilterResult
+            Never a failure: see :class:`~filters.mpc.FilterStatus`.
+
+        Raises
+        ------
+        InvalidArrayError
+            On a wrong shape, a NaN/infinite entry, or more than ``n_obstacles`` rows.
+        InvalidTypeError
+            If ``halfspaces`` has an unsupported type.
+        """
+        start = time.perf_counter()
+        p = self.problem
+        T, n, m = p.horizon, p.n, p.m
+        x0 = finite_step_array("x0", x0, (n,))
+        ref_states = finite_step_array("reference_states", reference_states, (T + 1, n))[1:]
+        if reference_inputs is None:
+            ref_inputs = self._zero_inputs
+        else:
+            ref_inputs = finite_step_array("reference_inputs", reference_inputs, (T, m))
+        normals, offsets = parse_halfspaces(halfspaces, T, p.d, p.n_obstacles)
+        k = normals.shape[0]
+        self._qp_solves = 0
+        if not p.has_state_cost:  # first_input: x^r is the roll-out of u^r (keeps b small)
+            ref_states = (self._phi @ x0 + self._gamma @ ref_inputs.reshape(-1)).reshape(T, n)
+
+        if self._skip and reference_inputs is not None:
+            u = np.array(ref_inputs).reshape(-1)  # a copy: it may become the stored plan
+            if p.has_state_cost:
+                residual = ref_states.reshape(-1) - self._phi @ x0 - self._gamma @ u
+                u = u + self._gain @ residual
+            if np.all(u >= self._u_low_all) and np.all(u <= self._u_high_all):
+                states, halfspace, bounds = self._evaluate(x0, u, normals, offsets)
+                if np.max(bounds, initial=-np.inf) <= 0.0 and (
+                    not k or np.max(halfspace) <= 0.0
+                ):
+                    inputs = u.reshape(T, m)
+                    self._plan, self._failures = inputs, 0
+                    slack = np.zeros((k, T)) if self._soft else None
+                    return self._result(
+                        FilterStatus.OPTIMAL, inputs, states, slack, 0.0, _NO_QP, 0, 0.0,
+                        ref_states, ref_inputs, start,
+                    )
+
+        K = p.n_obstacles
+        if k == K:
+            padded_normals, padded_offsets = normals, offsets
+        else:  # unused rows read 0 @ y <= DISABLED_OFFSET
+            padded_normals = np.zeros((K, T, p.d))
+            padded_offsets = np.full((K, T), DISABLED_OFFSET)
+            padded_normals[:k] = normals
+            padded_offsets[:k] = offsets
+        step = StepData(x0, ref_states, ref_inputs, padded_normals, padded_offsets)
+        self._last_step = step  # for inspection and tests
+
+        primary = self._call(self._primary, step)
+        answer = self._accept(primary, p.soft_rows, x0, normals, offsets)
+        iterations, solve_time = primary.iterations, primary.solve_time
+        status_text = primary.status if isinstance(answer, tuple) or not answer else (
+            f"{primary.status} ({answer})"
+        )
+        if isinstance(answer, tuple):
+            inputs, states, halfspace, bounds = answer
+            self._plan, self._failures = inputs, 0
+            slack = self._slack(halfspace) if self._soft else None
+            status = FilterStatus.SOFT if slack is not None and slack.any() else (
+                FilterStatus.OPTIMAL
+            )
+            return self._result(status, inputs, states, slack, self._bound_total(bounds),
+                                status_text, iterations, solve_time, ref_states, ref_inputs,
+                                start)
+        self._failures += 1
+
+        if self._recovery is not None:  # fallback="soft": the recovery QP
+            recovery = self._call(self._recovery, step)
+            answer = self._accept(recovery, self._recovery.problem.soft_rows, x0, normals,
+                                  offsets)
+            iterations += recovery.iterations
+            solve_time += recovery.solve_time
+            reason = "" if isinstance(answer, tuple) or not answer else f" ({answer})"
+            status_text = f"hard QP: {status_text}; recovery QP: {recovery.status}{reason}"
+            if isinstance(answer, tuple):
+                inputs, states, halfspace, bounds = answer
+                self._plan = inputs
+                slack, bound_total = self._slack(halfspace), self._bound_total(bounds)
+                if bound_total > 0.0:
+                    status = FilterStatus.RECOVERY
+                elif slack.any():
+                    status = FilterStatus.SOFT
+                else:
+                    status = FilterStatus.OPTIMAL
+                return self._result(status, inputs, states, slack, bound_total, status_text,
+                                    iterations, solve_time, ref_states, ref_inputs, start)
+            prefix = None
+        else:  # fallback="paper": the last plan, shifted
+            prefix = shifted_plan(self._plan, self._failures)
+        status = FilterStatus.BRAKE if prefix is None else FilterStatus.SHIFTED
+        inputs, states = rollout_with_brake(
+            p.A, p.B, x0, np.zeros((0, m)) if prefix is None else prefix, T,
+            self._brake_gain, p.input_bounds,
+        )
+        _, halfspace, bounds = self._evaluate(x0, inputs, normals, offsets)
+        return self._result(status, inputs, states, self._slack(halfspace),
+                            self._bound_total(bounds), status_text, iterations, solve_time,
+                            ref_states, ref_inputs, start)
+
+    @staticmethod
+    def _slack(halfspace: np.ndarray) -> np.ndarray:
+        """Violations ``max(0, excess)``, entries <= SLACK_TOLERANCE set to 0."""
+        return np.where(halfspace > SLACK_TOLERANCE, halfspace, 0.0)
+
+    @staticmethod
+    def _bound_total(bounds: np.ndarray) -> float:
+        return float(np.sum(bounds[bounds > SLACK_TOLERANCE]))
+
+    def _result(
+        self, status: FilterStatus, inputs: np.ndarray, states: np.ndarray,
+        slack: np.ndarray | None, bound_slack: float, solver_status: str, iterations: int,
+        solve_time: float, ref_states: np.ndarray, ref_inputs: np.ndarray, start: float,
+    ) -> FilterResult:
+        for array in (inputs, states, slack):
+            if array is not None:
+                array.setflags(write=False)
+        return FilterResult(
+            status=status,
+            inputs=inputs,
+            states=states,
+            solve_time=solve_time,
+            total_time=time.perf_counter() - start,
+            slack=slack,
+            solver_status=solver_status,
+            iterations=iterations,
+            objective=self.problem.cost(inputs, states, ref_states, ref_inputs),
+            consecutive_failures=self._failures,
+            bound_slack=bound_slack,
+        )

@@ -1,0 +1,295 @@
+r"""The MPC safety-filter problem: model, horizon, objective, bounds, terminal set, soft rows.
+
+:class:`MPCProblem` is a frozen, validated value; the back ends
+(:mod:`filters.mpc.backends`) build their QP from it once, and
+:class:`filters.mpc.MPCSafetyFilter` uses its precomputed roll-out and
+unconstrained-optimum gain. Every QP it describes has the form
+
+.. math::
+
+    \min_{u, x} \quad & \sum_{t=0}^{T-1} (u_t - u^r_t)^\top R_t (u_t - u^r_t)
+        + \sum_{t=1}^{T} (x_t - x^r_t)^\top Q_t (x_t - x^r_t)
+        \ [+ \rho \textstyle\sum s] \\
+    \text{s.t.} \quad & x_{t+1} = A x_t + B u_t, \quad
+        u_\text{low} \le u_t \le u_\text{high}, \\
+        & y_\text{low} \le C x_t \ [+ \sigma] ,\quad C x_t \ [- \sigma] \le y_\text{high},
+          \quad t = 1..T \quad\text{(the arena)}, \\
+        & G x_T \ [- \tau] \le g \quad\text{(terminal set)}, \qquad
+          a_{i,t}^\top C x_t \ [- s_{i,t}] \le b_{i,t}  \quad\text{(halfspaces)},
+
+with the bracketed nonnegative slacks present for the rows named in ``soft_rows``
+(an exact L1 penalty: with :math:`\rho` above the largest multiplier the soft QP has
+the hard one's solution whenever that is feasible). The objectives:
+
+* ``"trajectory"`` (the paper's Problem 2, objective (8)): :math:`R_t = R`,
+  :math:`Q_t = Q` for :math:`t < T`, :math:`Q_T` = ``Q_terminal``;
+* ``"first_input"`` (the predictive safety filter of Wabersich & Zeilinger):
+  :math:`R_0 = R`, :math:`R_t = w R` for :math:`t \ge 1` with ``w =
+  later_input_weight > 0`` (the QP stays strictly convex), :math:`Q_t = 0`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+import scipy.linalg
+
+from filters._validation import finite_array, scalar_in_range
+from filters.errors import InvalidArrayError, InvalidParameterError, InvalidTypeError
+from filters.mpc.checks import box, integer, weight
+
+__all__ = ["OBJECTIVES", "SOFT_ROWS", "MPCProblem"]
+
+#: The objectives :class:`MPCProblem` accepts.
+OBJECTIVES = ("trajectory", "first_input")
+#: Row groups that can be softened: ``"halfspaces"``, and ``"bounds"`` (arena + terminal).
+SOFT_ROWS = frozenset({"halfspaces", "bounds"})
+
+
+@dataclass(frozen=True, eq=False)
+class MPCProblem:
+    r"""One safety-filter QP structure, validated on construction.
+
+    Parameters
+    ----------
+    A, B, C
+        Dynamics :math:`x_{t+1} = A x_t + B u_t` and position :math:`y = C x`, shapes
+        ``(n, n)``, ``(n, m)``, ``(d, n)``.
+    horizon
+        Number of steps ``T >= 1``.
+    R
+        Symmetric positive definite input weight ``(m, m)``.
+    Q, Q_terminal
+        Symmetric PSD state weights ``(n, n)`` for steps ``1..T-1`` and ``T``; required
+        by ``objective="trajectory"``, ignored (may be ``None``) by ``"first_input"``.
+    objective
+        ``"trajectory"`` or ``"first_input"`` (see the module docstring).
+    later_input_weight
+        ``w > 0``: weight of :math:`u_1..u_{T-1}` relative to ``R`` in ``"first_input"``.
+    input_bounds, position_bounds
+        ``(low, high)`` boxes (numbers or arrays of shape ``(m,)`` / ``(d,)``, ±inf
+        for a free side), or ``None`` (unbounded). Units: m/s² and m.
+    terminal_set
+        ``(G, g)``, shapes ``(r, n)`` and ``(r,)``: the plan ends in
+        :math:`G x_T \le g`; ``None`` for none (see :mod:`filters.mpc.terminal`).
+    n_obstacles
+        Halfspace rows per step the QP holds (calls may pass fewer).
+    soft_rows
+        Which rows carry slacks: a subset of ``{"halfspaces", "bounds"}``.
+    slack_penalty
+        :math:`\rho > 0`, cost per m of violation of a soft row.
+
+    Raises
+    ------
+    InvalidArrayError, InvalidParameterError, InvalidTypeError
+        On a wrong shape or non-finite entry, a weight that is not symmetric/(semi)definite,
+        crossed bounds, an unknown objective or soft row, a non-positive penalty.
+    """
+
+    A: np.ndarray
+    B: np.ndarray
+    C: np.ndarray
+    horizon: int
+    R: np.ndarray
+    Q: np.ndarray | None = None
+    Q_terminal: np.ndarray | None = None
+    objective: str = "trajectory"
+    later_input_weight: float = 1e-2
+    input_bounds: tuple[np.ndarray, np.ndarray] | None = None
+    position_bounds: tuple[np.ndarray, np.ndarray] | None = None
+    terminal_set: tuple[np.ndarray, np.ndarray] | None = None
+    n_obstacles: int = 0
+    soft_rows: frozenset[str] = frozenset()
+    slack_penalty: float = 1e6
+
+    def __post_init__(self) -> None:
+        put = object.__setattr__  # frozen: normalise the fields once, here
+        A = finite_array("A", self.A, ndim=2)
+        n = A.shape[0]
+        A = finite_array("A", A, shape=(n, n))
+        B = finite_array("B", self.B, ndim=2)
+        B = finite_array("B", B, shape=(n, None))
+        C = finite_array("C", self.C, ndim=2)
+        C = finite_array("C", C, shape=(None, n))
+        m, d = B.shape[1], C.shape[0]
+        if n == 0 or m == 0 or d == 0:
+            raise InvalidArrayError(
+                f"A, B and C must be non-empty, got shapes {A.shape}, {B.shape}, {C.shape}"
+            )
+        put(self, "A", A)
+        put(self, "B", B)
+        put(self, "C", C)
+        put(self, "horizon", integer("horizon", self.horizon, low=1))
+        put(self, "n_obstacles", integer("n_obstacles", self.n_obstacles, low=0))
+        if self.objective not in OBJECTIVES:
+            raise InvalidParameterError(
+                f"objective must be one of {OBJECTIVES}, got {self.objective!r}"
+            )
+        put(self, "R", weight("R", self.R, m, definite=True))
+        if self.objective == "trajectory":
+            for name in ("Q", "Q_terminal"):
+                if getattr(self, name) is None:
+                    raise InvalidParameterError(
+                        f'{name} is required by objective="trajectory" (or pass '
+                        'objective="first_input", which has no state terms)'
+                    )
+                put(self, name, weight(name, getattr(self, name), n, definite=False))
+        else:
+            put(self, "Q", None)
+            put(self, "Q_terminal", None)
+        put(self, "later_input_weight", scalar_in_range(
+            "later_input_weight", self.later_input_weight, low=0.0, low_inclusive=False,
+            high=np.inf, high_inclusive=False,
+        ))
+        put(self, "input_bounds", box("input_bounds", self.input_bounds, m))
+        put(self, "position_bounds", box("position_bounds", self.position_bounds, d))
+        if self.terminal_set is not None:
+            terminal = self.terminal_set
+            if isinstance(terminal, (str, bytes)) or not hasattr(terminal, "__len__") or len(
+                terminal
+            ) != 2:
+                raise InvalidTypeError(
+                    f"terminal_set must be None or a pair (G, g), got {terminal!r}"
+                )
+            G = finite_array("terminal_set G", terminal[0], ndim=2)
+            G = finite_array("terminal_set G", G, shape=(None, n))
+            g = finite_array("terminal_set g", terminal[1], shape=(G.shape[0],))
+            put(self, "terminal_set", (G, g))
+        if not isinstance(self.soft_rows, (set, frozenset, tuple, list)) or not set(
+            self.soft_rows
+        ) <= SOFT_ROWS:
+            raise InvalidParameterError(
+                f"soft_rows must be a subset of {sorted(SOFT_ROWS)}, got {self.soft_rows!r}"
+            )
+        put(self, "soft_rows", frozenset(self.soft_rows))
+        put(self, "slack_penalty", scalar_in_range(
+            "slack_penalty", self.slack_penalty, low=0.0, low_inclusive=False, high=np.inf,
+            high_inclusive=False,
+        ))
+        for array in (self.A, self.B, self.C, self.R, self.Q, self.Q_terminal,
+                      *self.input_bounds, *self.position_bounds, *(self.terminal_set or ())):
+            if array is not None:
+                array.setflags(write=False)
+
+    def with_soft_rows(self, soft_rows: frozenset[str] | set[str]) -> MPCProblem:
+        """The same problem with other rows softened."""
+        return dataclasses.replace(self, soft_rows=frozenset(soft_rows))
+
+    # ------------------------------------------------------------------ sizes
+    @property
+    def n(self) -> int:
+        """State dimension."""
+        return self.A.shape[0]
+
+    @property
+    def m(self) -> int:
+        """Input dimension."""
+        return self.B.shape[1]
+
+    @property
+    def d(self) -> int:
+        """Position dimension."""
+        return self.C.shape[0]
+
+    @property
+    def soft_halfspaces(self) -> bool:
+        """Whether the halfspace rows carry slacks."""
+        return "halfspaces" in self.soft_rows
+
+    @property
+    def soft_bounds(self) -> bool:
+        """Whether the arena and terminal rows carry slacks."""
+        return "bounds" in self.soft_rows
+
+    # ------------------------------------------------------------------ weights
+    @cached_property
+    def input_weights(self) -> np.ndarray:
+        """:math:`R_t`, ``t = 0..T-1``, shape ``(T, m, m)``."""
+        T = self.horizon
+        weights = np.broadcast_to(self.R, (T, self.m, self.m)).copy()
+        if self.objective == "first_input":
+            weights[1:] *= self.later_input_weight
+        return weights
+
+    @cached_property
+    def state_weights(self) -> np.ndarray:
+        """:math:`Q_t`, ``t = 1..T``, shape ``(T, n, n)`` (zeros for ``"first_input"``)."""
+        T, n = self.horizon, self.n
+        if self.objective == "first_input":
+            return np.zeros((T, n, n))
+        return np.concatenate([np.broadcast_to(self.Q, (T - 1, n, n)), self.Q_terminal[None]])
+
+    @cached_property
+    def has_state_cost(self) -> bool:
+        """Whether some :math:`Q_t` is nonzero."""
+        return bool(np.any(self.state_weights))
+
+    # ------------------------------------------------------------------ condensed maps
+    @cached_property
+    def rollout(self) -> tuple[np.ndarray, np.ndarray]:
+        r"""``(Phi, Gamma)`` with :math:`[x_1; \dots; x_T] = \Phi x_0 + \Gamma u`.
+
+        Shapes ``(T n, n)`` and ``(T n, T m)``.
+        """
+        T, n, m = self.horizon, self.n, self.m
+        powers = [np.eye(n)]
+        for _ in range(T):
+            powers.append(self.A @ powers[-1])
+        phi = np.concatenate(powers[1:])
+        gamma = np.zeros((T * n, T * m))
+        for t in range(1, T + 1):
+            for j in range(t):
+                gamma[(t - 1) * n : t * n, j * m : (j + 1) * m] = powers[t - 1 - j] @ self.B
+        return phi, gamma
+
+    @cached_property
+    def gain(self) -> np.ndarray:
+        r"""Gain of the unconstrained minimiser, shape ``(T m, T n)``.
+
+        With the states eliminated the cost is :math:`\|u - u^r\|^2_{\bar R} +
+        \|\Phi x_0 + \Gamma u - x^r\|^2_{\bar Q}`, strictly convex (every :math:`R_t` is
+        positive definite), minimised by
+
+        .. math:: u^\circ = u^r + K (x^r - \Phi x_0 - \Gamma u^r), \qquad
+            K = (\bar R + \Gamma^\top \bar Q \Gamma)^{-1} \Gamma^\top \bar Q.
+
+        For ``"first_input"`` :math:`\bar Q = 0`, so :math:`K = 0` and :math:`u^\circ = u^r`.
+        """
+        T, n, m = self.horizon, self.n, self.m
+        if not self.has_state_cost:
+            return np.zeros((T * m, T * n))
+        _, gamma = self.rollout
+        q_block = scipy.linalg.block_diag(*self.state_weights)
+        hessian = scipy.linalg.block_diag(*self.input_weights) + gamma.T @ q_block @ gamma
+        return scipy.linalg.solve(hessian, gamma.T @ q_block, assume_a="pos")
+
+    @cached_property
+    def evaluation_map(self) -> np.ndarray:
+        r"""``M`` with ``M @ [x0; u] = [x_0..x_T; C x_1..C x_T]`` (one product per roll-out)."""
+        T, n = self.horizon, self.n
+        phi, gamma = self.rollout
+        rollout = np.vstack([
+            np.hstack([np.eye(n), np.zeros((n, T * self.m))]), np.hstack([phi, gamma])
+        ])
+        positions = np.kron(np.eye(T), self.C) @ rollout[n:]
+        return np.vstack([rollout, positions])
+
+    # ------------------------------------------------------------------ cost
+    def cost(
+        self, inputs: np.ndarray, states: np.ndarray, ref_states: np.ndarray,
+        ref_inputs: np.ndarray,
+    ) -> float:
+        """The cost (8) of a trajectory (penalties not included).
+
+        ``inputs`` ``(T, m)``, ``states`` ``(T + 1, n)``, ``ref_states`` ``(T, n)`` (steps
+        1..T), ``ref_inputs`` ``(T, m)``.
+        """
+        du = inputs - ref_inputs
+        total = float(np.einsum("ti,tij,tj->", du, self.input_weights, du))
+        if self.has_state_cost:
+            dx = states[1:] - ref_states
+            total += float(np.einsum("ti,tij,tj->", dx, self.state_weights, dx))
+        return total

@@ -1,0 +1,65 @@
+r"""The paper's Remark after Problem 2: shift the last plan, then brake.
+
+When the QP fails, the paper applies the next input of the last optimal plan,
+shifting it once per failed step, :math:`u^*_j, \dots, u^*_{T-1}` after :math:`j`
+consecutive failures, until it runs out; we pad the shifted plan with braking inputs
+to the horizon length, and brake from the current state once no plan is left. This
+is ``fallback="paper"`` of :class:`filters.mpc.MPCSafetyFilter`; braking is also the
+last resort of ``fallback="soft"`` when the recovery QP fails too.
+
+The shifted plan is replayed open loop: it is *not* checked against the new
+halfspaces or the arena (the paper's rule, kept for reproduction).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.linalg
+
+__all__ = ["braking_gain", "rollout_with_brake", "shifted_plan"]
+
+
+def braking_gain(A: np.ndarray, B: np.ndarray, C: np.ndarray) -> np.ndarray:
+    r"""Gain :math:`K` of the braking input :math:`u = \mathrm{clip}(-K x)`, shape ``(m, n)``.
+
+    The "velocity" is the part of the state the output map does not see, :math:`v =
+    N^\top x` with :math:`N` an orthonormal basis of :math:`\ker C`. Braking picks the
+    input that brings the next velocity closest to zero, :math:`u = -(N^\top B)^+ N^\top
+    A x`, clipped to the input box. For the double integrator (:math:`C = [I\ 0]`,
+    ``B = [Ts²/2 I; Ts I]``) this is :math:`u = \mathrm{clip}(-v / T_s)`: the velocity is
+    cancelled in one step if the bounds allow, else as fast as they allow, per axis.
+    If ``C`` sees the whole state, braking is the input closest to zero.
+    """
+    basis = scipy.linalg.null_space(C)
+    if basis.shape[1] == 0:
+        return np.zeros((B.shape[1], A.shape[0]))
+    return np.linalg.pinv(basis.T @ B, rcond=1e-10) @ (basis.T @ A)
+
+
+def rollout_with_brake(
+    A: np.ndarray, B: np.ndarray, x0: np.ndarray, prefix: np.ndarray, horizon: int,
+    gain: np.ndarray, input_bounds: tuple[np.ndarray, np.ndarray],
+) -> tuple[np.ndarray, np.ndarray]:
+    """Apply ``prefix`` (``(j, m)``), then brake until ``horizon``; return inputs and states.
+
+    Shapes ``(T, m)`` and ``(T + 1, n)``; braking is ``clip(-gain @ x, *input_bounds)``.
+    """
+    low, high = input_bounds
+    inputs = np.empty((horizon, B.shape[1]))
+    states = np.empty((horizon + 1, A.shape[0]))
+    states[0] = x0
+    for t in range(horizon):
+        inputs[t] = prefix[t] if t < len(prefix) else np.clip(-gain @ states[t], low, high)
+        states[t + 1] = A @ states[t] + B @ inputs[t]
+    return inputs, states
+
+
+def shifted_plan(plan: np.ndarray | None, failures: int) -> np.ndarray | None:
+    """The stored plan shifted by ``failures`` steps, or ``None`` when it has run out.
+
+    After ``j`` consecutive failures the plan gives :math:`u^*_j..u^*_{T-1}`; ``None``
+    when there is no plan or ``j >= T`` (then brake).
+    """
+    if plan is None or failures > len(plan) - 1:
+        return None
+    return plan[failures:]
