@@ -159,19 +159,22 @@ def test_filter_halfspaces_are_drawn_through_the_hook():
     env.close()
 
 
-@pytest.mark.slow
-def test_blitted_frames_are_fast():
-    """A loose bound (the machine is shared); scripts/benchmark_render.py measures it."""
+def test_blitted_frames_are_much_cheaper_than_a_full_redraw():
+    """A ratio in one run (the machine is shared); scripts/benchmark_render.py gives ms."""
     import time
 
     env = gym.make("SafeNav/MultiObstacle-v0", render_mode="rgb_array")
     env.reset(seed=0)
     env.render()
-    times = []
-    for _ in range(30):
+    canvas = env.unwrapped._renderer.canvas
+    blitted, full = [], []
+    for _ in range(15):
         env.step(np.zeros(2, np.float32))
         start = time.perf_counter()
         env.render()
-        times.append(time.perf_counter() - start)
-    assert np.median(times) < 0.025  # a full matplotlib redraw took 45-65 ms here
+        blitted.append(time.perf_counter() - start)
+        start = time.perf_counter()
+        canvas.draw()  # what every frame cost before: a full redraw (here without movers)
+        full.append(time.perf_counter() - start)
+    assert np.median(blitted) < 0.5 * np.median(full)
     env.close()

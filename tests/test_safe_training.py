@@ -445,3 +445,33 @@ def test_dummy_vec_env_is_the_default():
     assert venv.action_space == gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
     raw = make_training_env("SafeNav/HeadOn-v0", n_envs=1, normalise_actions=False)
     assert raw.action_space.high[0] == 10.0
+
+
+def test_eval_callback_reruns_the_same_held_out_episodes_and_logs_safety(tmp_path):
+    from agents.callbacks import SafetyEvalCallback
+
+    venv = make_training_env("SafeNav/HeadOn-v0", n_envs=1, seed=0)
+    model = PPO("MlpPolicy", venv, seed=0, device="cpu", **TINY_PPO)
+    model.set_logger(Logger(folder=None, output_formats=[]))
+    eval_env = make_training_env("SafeNav/HeadOn-v0", n_envs=1, seed=123)
+    callback = SafetyEvalCallback(eval_env, eval_seed=123, n_eval_episodes=2, eval_freq=1,
+                                  best_model_save_path=str(tmp_path), log_path=str(tmp_path),
+                                  deterministic=True, verbose=0)
+    callback.init_callback(model)
+    for _ in range(2):  # two evaluations of the same (untrained) policy
+        callback.update_locals({})
+        callback.on_step()
+    first, second = callback.evaluations_safety
+    assert first == second and first["episodes"] == 2
+    assert {"collision_rate", "episode_cost", "goal_rate"} <= set(first)
+    np.testing.assert_array_equal(callback.evaluations_results[0],
+                                  callback.evaluations_results[1])
+    assert (tmp_path / "best_model.zip").exists()
+    # Another seed gives other episodes (so the equality above is the reseeding's doing).
+    other = SafetyEvalCallback(make_training_env("SafeNav/HeadOn-v0", n_envs=1, seed=7),
+                               eval_seed=7, n_eval_episodes=2, eval_freq=1,
+                               log_path=str(tmp_path / "other"), verbose=0)
+    other.init_callback(model)
+    other.update_locals({})
+    other.on_step()
+    assert not np.array_equal(other.evaluations_results[0], callback.evaluations_results[0])
