@@ -229,16 +229,23 @@ def _train(args: argparse.Namespace) -> int:
         print("safe-nav train: error: --cost-limit/--lambda-lr need --lagrangian",
               file=sys.stderr)
         return 2
+    from filters.errors import SafeNavError
+
     filter_kwargs = {"risk": args.filter, **options} if args.filter else None
-    _, report = train_ppo(
-        args.env_id, args.timesteps, args.seed, n_envs=args.n_envs, filter_kwargs=filter_kwargs,
-        intervention_penalty=args.intervention_penalty, filter_reference=args.reference,
-        lagrangian=args.lagrangian, cost_limit=args.cost_limit, lambda_lr=args.lambda_lr,
-        eval_freq=args.eval_freq, eval_episodes=args.eval_episodes, vec_env=args.vec_env,
-        tensorboard_log=args.tensorboard, print_metrics=not args.quiet,
-        normalise_actions=not args.physical_actions,
-        progress_bar=not args.no_progress, save_path=args.output,
-    )
+    try:
+        _, report = train_ppo(
+            args.env_id, args.timesteps, args.seed, n_envs=args.n_envs,
+            filter_kwargs=filter_kwargs, intervention_penalty=args.intervention_penalty,
+            filter_reference=args.reference, lagrangian=args.lagrangian,
+            cost_limit=args.cost_limit, lambda_lr=args.lambda_lr, eval_freq=args.eval_freq,
+            eval_episodes=args.eval_episodes, vec_env=args.vec_env,
+            tensorboard_log=args.tensorboard, print_metrics=not args.quiet,
+            normalise_actions=not args.physical_actions,
+            progress_bar=not args.no_progress, save_path=args.output,
+        )
+    except SafeNavError as exc:  # bad options, found before any training
+        print(f"safe-nav train: error: {exc}", file=sys.stderr)
+        return 2
     print(f"trained {report.total_timesteps} steps in {report.wall_time:.1f} s "
           f"({report.steps_per_second:.0f} steps/s); saved to {report.save_path}; "
           f"metrics in {report.metrics_path}")

@@ -421,6 +421,8 @@ def test_train_cli_rejects_bad_numbers(argv, capsys):
 
 @pytest.mark.parametrize("argv", [
     ["--alpha", "0.3"], ["--cost-limit", "1"], ["--filter", "cvar", "--filter-option", "oops"],
+    ["--filter", "dr_cvar", "--alpha", "1.5"], ["--filter", "cvar", "--filter-option", "bogus=1"],
+    ["--lagrangian", "--cost-limit", "-1"],
 ])
 def test_train_cli_rejects_inconsistent_options(argv, capsys):
     assert main(["train", "--timesteps", "1", *argv]) == 2
