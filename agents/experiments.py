@@ -135,8 +135,9 @@ def make_figures(
             featured_trajectory, folder / "safe_polytopes.png",
             title=f"{short_name(scenario)}: {risk} safe polytopes")
         if featured_trajectory.frames:
-            files["animation"] = plots.save_gif(featured_trajectory.frames,
-                                                folder / "episode.gif")
+            files["animation"] = plots.save_gif(
+                featured_trajectory.frames, folder / "episode.gif",
+                label=f"{plots.RISK_LABELS.get(risk, risk)}, {short_name(scenario)}, seed {seed}")
     return files
 
 

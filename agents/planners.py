@@ -4,9 +4,24 @@ Section IV-B of the paper generates the reference trajectory with "an
 obstacle-agnostic MPC-based motion planner with a target goal state"; the
 authors' code uses a goal-tracking MPC with weights Q = 1, Q_T = 3, R = 1 and
 horizon 10. It ignores the obstacles entirely: avoiding them is the safety
-filter's job. The planner is the same QP as the safety filter
-(:class:`filters.MPCSafetyFilter`) with no halfspaces and the goal state (goal
-position, zero velocity) as the reference at every step.
+filter's job.
+
+Two weight conventions are offered, chosen with ``convention=`` (the same numbers
+mean different costs in each):
+
+``"quadratic"`` (default, this package's convention)
+    ``x' Q x``: the weights are the Hessian blocks of the cost, every input
+    ``u_0 .. u_{T-1}`` is penalised, and the position stays in the arena. The
+    planner is the same QP as the safety filter (:class:`filters.MPCSafetyFilter`)
+    with no halfspaces and the goal state as the reference at every step.
+``"authors_code"``
+    What the authors' ``MPCReferenceTrajectory`` minimises,
+    ``sum_squares((x_T - g) Q_T) + sum_{t=1}^{T-1} sum_squares((x_t - g) Q) +
+    sum_squares(u_t R)``: the effective (Hessian) weights are ``Q Q'``,
+    ``Q_T Q_T'`` and ``R R'`` (1, 9 and 1 for their scalars 1, 3, 1), the first
+    input ``u_0`` is not penalised at all, and there is no position bound. With
+    their input bound ``|u| <= 100`` this plans an almost unbounded first
+    acceleration toward the goal.
 """
 
 from __future__ import annotations
@@ -24,17 +39,35 @@ OBSERVATION_EGO_STATE = slice(0, 4)
 OBSERVATION_GOAL_OFFSET = slice(4, 6)
 """Goal position minus ego position in a ``safe_nav_env`` observation."""
 
+CONVENTIONS = ("quadratic", "authors_code")
+"""Weight conventions of :class:`MPCReferencePlanner` (see the module docstring)."""
+
+AUTHORS_CODE_PLANNER = dict(Q=1.0, Q_terminal=3.0, R=1.0, horizon=10, max_acceleration=100.0)
+"""The authors' reference planner (``experiment_setup.py``): weights in the
+``"authors_code"`` convention, horizon in steps, input bound in m/s² per axis."""
+
 
 class MPCReferencePlanner:
-    """Goal-tracking MPC that ignores obstacles (the paper's reference planner).
+    r"""Goal-tracking MPC that ignores obstacles (the paper's reference planner).
+
+    With ``convention="quadratic"``:
 
     .. math::
-        \\min_u \\sum_{t=0}^{T-1} u_t^\\top R u_t
-        + \\sum_{t=1}^{T-1} (x_t - x_g)^\\top Q (x_t - x_g)
-        + (x_T - x_g)^\\top Q_T (x_T - x_g)
+        \min_u \sum_{t=0}^{T-1} u_t^\top R u_t
+        + \sum_{t=1}^{T-1} (x_t - x_g)^\top Q (x_t - x_g)
+        + (x_T - x_g)^\top Q_T (x_T - x_g)
 
     subject to the ego dynamics and input and arena bounds, with
-    :math:`x_g = [g, 0]` the goal position at rest.
+    :math:`x_g = [g, 0]` the goal position at rest. With
+    ``convention="authors_code"`` (the authors' code, read as written):
+
+    .. math::
+        \min_u \sum_{t=1}^{T-1} \left(\|Q^\top (x_t - x_g)\|^2 + \|R^\top u_t\|^2\right)
+        + \|Q_T^\top (x_T - x_g)\|^2
+
+    subject to the dynamics and the input bounds only: ``u_0`` is free and the
+    arena is not a constraint. It is solved exactly as a bounded linear least-squares
+    problem (unconstrained least squares when that already satisfies the bounds).
 
     Parameters
     ----------
@@ -42,15 +75,26 @@ class MPCReferencePlanner:
         ``(A, B, C)`` of the ego.
     input_bounds, position_bounds
         ``(low, high)`` boxes of the input (m/s²) and of the position (m).
+        ``position_bounds`` must be ``None`` with ``convention="authors_code"``.
     horizon
         Planning horizon in steps.
     Q, Q_terminal, R
-        Scalar weights (times identity) or matrices, in the ``x' Q x`` convention.
+        Scalar weights (times identity) or matrices, read in ``convention``.
+    convention
+        ``"quadratic"`` or ``"authors_code"`` (see above).
 
     It offers Stable-Baselines3's ``predict(observation, deterministic=True)`` so it
     can stand wherever a PPO model does, and the reference-maker signature
     ``planner(env, action, horizon) -> (states, inputs)`` so the safety filter can
     track its whole plan rather than a held action.
+
+    Raises
+    ------
+    InvalidParameterError
+        If ``convention`` is unknown, the horizon is not a positive integer, or
+        ``position_bounds`` is given with ``convention="authors_code"``.
+    InvalidArrayError
+        If a weight or bound has the wrong shape or is not finite.
     """
 
     def __init__(
@@ -63,7 +107,13 @@ class MPCReferencePlanner:
         Q: float | np.ndarray = 1.0,
         Q_terminal: float | np.ndarray = 3.0,
         R: float | np.ndarray = 1.0,
+        convention: str = "quadratic",
     ) -> None:
+        if convention not in CONVENTIONS:
+            raise InvalidParameterError(
+                f"convention must be one of {CONVENTIONS}, got {convention!r}")
+        if isinstance(horizon, bool) or not isinstance(horizon, int | np.integer) or horizon < 1:
+            raise InvalidParameterError(f"horizon must be an integer >= 1, got {horizon!r}")
         A, B, C = (np.asarray(M, dtype=float) for M in dynamics)
         n, m = B.shape
         if C.shape[0] * 2 != n:
@@ -73,21 +123,107 @@ class MPCReferencePlanner:
             )
         self.dynamics = (A, B, C)
         self.horizon = int(horizon)
-        self._qp = MPCSafetyFilter(
-            A, B, C, horizon=self.horizon,
-            Q=_weight("Q", Q, n), Q_terminal=_weight("Q_terminal", Q_terminal, n),
-            R=_weight("R", R, m),
-            input_bounds=input_bounds, position_bounds=position_bounds, n_obstacles=0,
-        )
+        self.convention = convention
+        weights = (_weight("Q", Q, n), _weight("Q_terminal", Q_terminal, n), _weight("R", R, m))
+        self.weights = weights
+        """``(Q, Q_terminal, R)`` as given, as matrices, in ``convention``."""
         self.last_status: str | None = None
+        if convention == "quadratic":
+            self._qp: MPCSafetyFilter | None = MPCSafetyFilter(
+                A, B, C, horizon=self.horizon, Q=weights[0], Q_terminal=weights[1],
+                R=weights[2], input_bounds=input_bounds, position_bounds=position_bounds,
+                n_obstacles=0,
+            )
+            return
+        if position_bounds is not None:
+            raise InvalidParameterError(
+                "position_bounds must be None with convention='authors_code' (the authors' "
+                f"planner has no position bound), got {position_bounds!r}")
+        self._qp = None
+        low, high = (np.broadcast_to(np.asarray(b, dtype=float), (m,)) for b in input_bounds)
+        if not (np.all(np.isfinite(low)) and np.all(np.isfinite(high)) and np.all(low <= high)):
+            raise InvalidArrayError(
+                f"input_bounds must be finite with low <= high, got {input_bounds!r}")
+        self._u_low, self._u_high = np.tile(low, self.horizon), np.tile(high, self.horizon)
+        self._build_least_squares()
 
     @classmethod
     def from_env(cls, env: Any, **kwargs: Any) -> MPCReferencePlanner:
-        """Build the planner from a ``safe_nav_env`` environment (or any wrapper of one)."""
+        """Build the planner from a ``safe_nav_env`` environment (or any wrapper of one).
+
+        The input bounds are the environment's; the arena bounds the position in the
+        ``"quadratic"`` convention only.
+        """
         base: FilterableEnv = env.unwrapped
         kwargs.setdefault("horizon", 10)
-        return cls(base.dynamics, input_bounds=base.input_bounds,
-                   position_bounds=base.position_bounds, **kwargs)
+        if kwargs.get("convention", "quadratic") == "quadratic":
+            kwargs.setdefault("position_bounds", base.position_bounds)
+        return cls(base.dynamics, input_bounds=base.input_bounds, **kwargs)
+
+    def effective_weights(self) -> dict[str, np.ndarray]:
+        """The cost's Hessian weights in the ``x' Q x`` convention, whatever ``convention``.
+
+        Returns
+        -------
+        dict
+            ``"Q"`` (n, n) on the states ``x_1 .. x_{T-1}``, ``"Q_terminal"`` (n, n) on
+            ``x_T``, and ``"R"`` (T, m, m): the weight of each input ``u_0 .. u_{T-1}``
+            (``R[0]`` is zero in the ``"authors_code"`` convention).
+        """
+        Q, Q_terminal, R = self.weights
+        if self.convention == "quadratic":
+            return {"Q": Q.copy(), "Q_terminal": Q_terminal.copy(),
+                    "R": np.repeat(R[None], self.horizon, axis=0)}
+        per_step = np.repeat((R @ R.T)[None], self.horizon, axis=0)
+        per_step[0] = 0.0
+        return {"Q": Q @ Q.T, "Q_terminal": Q_terminal @ Q_terminal.T, "R": per_step}
+
+    def _build_least_squares(self) -> None:
+        r"""Condense the authors' cost into ``|| M u + c(x_0, x_g) ||²``.
+
+        With ``x_t = A^t x_0 + \sum_{j<t} A^{t-1-j} B u_j``, the rows of step t are
+        ``W_t' (x_t - x_g)`` (``W = Q`` for ``t < T``, ``Q_T`` at ``T``) and
+        ``R' u_t`` for ``t = 1 .. T-1``. ``M`` is fixed; ``c`` is affine in
+        ``(x_0, x_g)``, stored as the two matrices ``c = G x_0 - H x_g``.
+        """
+        A, B, _ = self.dynamics
+        Q, Q_terminal, R = self.weights
+        n, m = B.shape
+        T = self.horizon
+        powers = [np.eye(n)]
+        for _ in range(T):
+            powers.append(A @ powers[-1])
+        state_rows, g_rows, h_rows = [], [], []
+        for t in range(1, T + 1):
+            W = (Q_terminal if t == T else Q).T
+            row = np.zeros((n, T * m))
+            for j in range(t):
+                row[:, j * m:(j + 1) * m] = powers[t - 1 - j] @ B
+            state_rows.append(W @ row)
+            g_rows.append(W @ powers[t])
+            h_rows.append(W)
+        input_rows = []
+        for t in range(1, T):
+            row = np.zeros((m, T * m))
+            row[:, t * m:(t + 1) * m] = R.T
+            input_rows.append(row)
+        zeros = np.zeros(((T - 1) * m, n))
+        self._M = np.vstack(state_rows + input_rows)
+        self._G = np.vstack(g_rows + [zeros])
+        self._H = np.vstack(h_rows + [zeros])
+
+    def _plan_least_squares(self, state: np.ndarray, target: np.ndarray) -> np.ndarray:
+        c = self._G @ state - self._H @ target
+        u, *_ = np.linalg.lstsq(self._M, -c, rcond=None)
+        tolerance = 1e-9 * (1.0 + np.abs(self._u_high - self._u_low))
+        if np.all(u >= self._u_low - tolerance) and np.all(u <= self._u_high + tolerance):
+            self.last_status = "optimal"
+            return np.clip(u, self._u_low, self._u_high)
+        from scipy.optimize import lsq_linear
+
+        solution = lsq_linear(self._M, -c, bounds=(self._u_low, self._u_high), method="bvls")
+        self.last_status = "optimal" if solution.success else "inaccurate"
+        return np.clip(solution.x, self._u_low, self._u_high)
 
     def plan(self, state: np.ndarray, goal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Plan from ``state`` toward ``goal`` (at rest).
@@ -102,6 +238,15 @@ class MPCReferencePlanner:
         state = np.asarray(state, dtype=float)
         goal = np.asarray(goal, dtype=float)
         target = np.concatenate([goal, np.zeros(state.shape[0] - goal.shape[0])])
+        if self._qp is None:
+            A, B, _ = self.dynamics
+            m = B.shape[1]
+            inputs = self._plan_least_squares(state, target).reshape(self.horizon, m)
+            states = np.empty((self.horizon + 1, state.shape[0]))
+            states[0] = state
+            for t in range(self.horizon):
+                states[t + 1] = A @ states[t] + B @ inputs[t]
+            return states, inputs
         reference = np.tile(target, (self.horizon + 1, 1))
         reference[0] = state
         result = self._qp.solve(state, reference)
@@ -141,6 +286,8 @@ class MPCReferencePlanner:
 
 def _weight(name: str, value: float | np.ndarray, size: int) -> np.ndarray:
     weight = np.asarray(value, dtype=float)
+    if not np.all(np.isfinite(weight)):
+        raise InvalidArrayError(f"{name} must be finite, got {value!r}")
     if weight.ndim == 0:
         return float(weight) * np.eye(size)
     if weight.shape != (size, size):

@@ -54,7 +54,7 @@ import numpy as np
 
 from filters._validation import finite_array
 from filters.errors import InvalidArrayError, InvalidParameterError
-from filters.risk import check_alpha, check_epsilon, check_risk
+from filters.risk import PAPER_RISKS, check_alpha, check_epsilon, check_risk
 
 __all__ = [
     "FORMULATIONS",
@@ -169,7 +169,7 @@ def build_halfspace_problem(
         raise InvalidParameterError(
             f"formulation must be one of {FORMULATIONS}, got {formulation!r}"
         )
-    risk = check_risk(risk)
+    risk = check_risk(risk, PAPER_RISKS)  # the CVXPY reference covers the paper's metrics
     alpha = check_alpha(alpha)
     epsilon = check_epsilon(epsilon)
     delta = float(finite_array("delta", delta, ndim=0))

@@ -66,7 +66,14 @@ import numpy as np
 from filters._validation import finite_array
 from filters.errors import InvalidArrayError, InvalidParameterError, InvalidTypeError
 from filters.geometry import ConvexPolygon, Disc, Shape, collision_margin
-from filters.risk import check_alpha, check_epsilon, check_risk, cvar_last_axis, risk_of_samples
+from filters.risk import (
+    check_alpha,
+    check_epsilon_array,
+    check_margins,
+    check_risk,
+    cvar_last_axis,
+    risk_of_samples,
+)
 
 __all__ = ["DEGENERATE_DISTANCE", "Halfspaces", "safe_halfspaces"]
 
@@ -92,13 +99,13 @@ class Halfspaces:
         Offsets :math:`b_{i,t}` in metres, shape ``(n_obstacles, T)``. The safe side is
         ``normals[i, t] @ y <= offsets[i, t]``.
     risk
-        The risk metric, ``"mean"``, ``"cvar"`` or ``"dr_cvar"``.
+        The risk metric, one of :data:`filters.risk.RISKS`.
     alpha
-        CVaR tail mass.
+        CVaR tail mass, or violation probability of a chance constraint.
     delta
         Risk bound (metres of intrusion depth).
     epsilon
-        Wasserstein radius (metres).
+        Wasserstein radius (metres): a float, or a read-only ``(T,)`` array (one per step).
     degenerate
         Bool, shape ``(n_obstacles, T)``: True where the sample mean coincided with the
         ego reference and the normal came from a fallback (see :func:`safe_halfspaces`).
@@ -109,7 +116,7 @@ class Halfspaces:
     risk: str
     alpha: float
     delta: float
-    epsilon: float
+    epsilon: float | np.ndarray
     degenerate: np.ndarray
 
     @property
@@ -166,11 +173,12 @@ def safe_halfspaces(
     risk: str = "dr_cvar",
     alpha: float = 0.2,
     delta: float = 0.1,
-    epsilon: float = 0.05,
+    epsilon: float | object = 0.05,
     support: tuple[object, object] | None = None,
     previous_normals: object | None = None,
     ego_velocity: object | None = None,
     normals: object | None = None,
+    conformal_margins: object | None = None,
 ) -> Halfspaces:
     """Risk-based safe halfspaces for every obstacle and prediction step (Definitions 2-3).
 
@@ -196,13 +204,34 @@ def safe_halfspaces(
     obstacle_shapes
         One shape :math:`\\mathcal{O}_i` per obstacle.
     risk
-        ``"mean"``, ``"cvar"`` or ``"dr_cvar"``.
+        One of :data:`filters.risk.RISKS`; :math:`R(-h \\cdot p)` is, with :math:`\\hat\\mu`,
+        :math:`\\hat\\Sigma` the sample mean and unbiased covariance of the samples:
+
+        * ``"mean"``: :math:`-h \\cdot \\hat\\mu`;
+        * ``"cvar"``: the empirical :math:`\\mathrm{CVaR}_\\alpha`;
+        * ``"dr_cvar"``: Proposition 1 (:math:`\\mathrm{CVaR}_\\alpha + \\epsilon/\\alpha`
+          without ``support``);
+        * ``"gaussian_cc"``:
+          :math:`-h \\cdot \\hat\\mu + z_{1-\\alpha}\\sqrt{h^\\top\\hat\\Sigma h}`,
+          :math:`P(\\text{intrusion} > \\delta) \\le \\alpha` if :math:`p` is Gaussian;
+        * ``"moment_dr"``:
+          :math:`-h \\cdot \\hat\\mu + \\sqrt{(1-\\alpha)/\\alpha}\\sqrt{h^\\top\\hat\\Sigma h}`,
+          the same promise for every law with those two moments (Cantelli);
+        * ``"conformal"``: :math:`-h \\cdot \\hat\\mu + q_t` with ``conformal_margins``
+          :math:`q_t`; valid whenever :math:`\\lVert p - \\hat\\mu \\rVert \\le q_t`.
+
+        See :mod:`filters.risk` (single sample: standard deviation 0).
     alpha
-        CVaR tail mass in :math:`(0, 1]` (``alpha = 1`` makes CVaR the mean).
+        CVaR tail mass in :math:`(0, 1]` (``alpha = 1`` makes CVaR the mean); for
+        ``"gaussian_cc"``/``"moment_dr"`` the violation probability, in :math:`(0, 1)`
+        (for :math:`\\alpha \\ge 1/2`, :math:`z_{1-\\alpha} \\le 0`: the Gaussian halfspace is
+        at or beyond the mean one).
     delta
         Risk bound on the intrusion depth, metres (finite, any sign).
     epsilon
-        Wasserstein radius, metres, ``>= 0`` (``"dr_cvar"`` only).
+        Wasserstein radius, metres, ``>= 0`` (``"dr_cvar"`` only): a scalar, or an array
+        of shape ``(T,)``, one radius per prediction step (e.g. from
+        :class:`filters.calibration.WassersteinRadius`).
     support
         ``None`` for :math:`\\Xi = \\mathbb{R}^d` (closed forms), or a polytope
         :math:`\\Xi = \\{p : V p \\le v\\}` given as ``(V, v)``, either shared by all
@@ -221,6 +250,10 @@ def safe_halfspaces(
         non-zero). The offsets are then computed along them and ``reference_positions``
         only fixes the shapes. Used for the inter-sample rows
         (:mod:`filters.intersample`), whose normal comes from the next step.
+    conformal_margins
+        Required for ``"conformal"`` (ignored otherwise): margins :math:`q_t \\ge 0` in
+        metres, a scalar, shape ``(T,)`` (one per look-ahead step) or ``(n_obstacles, T)``,
+        e.g. :meth:`filters.calibration.ConformalMargin.margins`.
 
     Returns
     -------
@@ -240,17 +273,21 @@ def safe_halfspaces(
         If an array has the wrong shape or holds NaN/inf, or a sample lies outside the
         support.
     InvalidParameterError
-        If ``risk`` is unknown, ``alpha`` is outside :math:`(0, 1]`, ``epsilon < 0``,
-        ``delta`` is not finite, or the number of obstacle shapes does not match.
+        If ``risk`` is unknown, ``alpha`` is outside its domain, ``epsilon < 0``,
+        ``delta`` is not finite, the number of obstacle shapes does not match, or
+        ``conformal_margins`` is missing for ``"conformal"``.
     InvalidTypeError
         If a shape is not a :class:`Disc` or :class:`ConvexPolygon`.
     """
     risk = check_risk(risk)
-    alpha = check_alpha(alpha)
-    epsilon = check_epsilon(epsilon)
+    alpha = check_alpha(alpha, risk)
     delta = _check_delta(delta)
     y_ref, points = _check_positions(reference_positions, samples)
     n_obstacles, _, horizon, dim = points.shape
+    epsilon = check_epsilon_array(epsilon, horizon)
+    margins = None
+    if risk == "conformal":
+        margins = check_margins(conformal_margins, (n_obstacles, horizon))
     shapes = _check_shapes(ego_shape, obstacle_shapes, n_obstacles, dim)
     polytope = None if support is None else _check_support(support, points)
     previous = None
@@ -273,7 +310,7 @@ def safe_halfspaces(
         if risk == "dr_cvar" and polytope is not None:
             value = _dr_cvar_on_polytope(losses, points, normals, polytope, alpha, epsilon)
         else:
-            value = risk_of_samples(losses, risk, alpha, epsilon, overwrite=True)
+            value = risk_of_samples(losses, risk, alpha, epsilon, overwrite=True, margin=margins)
         offsets = -(value - delta + _margins(ego_shape, shapes, normals))
     _check_finite_result(samples if polytope is None else points, normals, offsets)
     return Halfspaces(normals, offsets, risk, alpha, delta, epsilon, degenerate)
@@ -516,7 +553,7 @@ def _dr_cvar_on_polytope(
     normals: np.ndarray,
     polytope: tuple[np.ndarray, np.ndarray],
     alpha: float,
-    epsilon: float,
+    epsilon: float | np.ndarray,
 ) -> np.ndarray:
     """DR-CVaR of ``-h . p`` with support ``{p : V p <= v}`` (Proposition 1), shape ``(n, T)``."""
     if points.shape[-1] != 2:
@@ -652,7 +689,7 @@ def _dr_cvar_on_polytope_cvxpy(
     normals: np.ndarray,
     polytope: tuple[np.ndarray, np.ndarray],
     alpha: float,
-    epsilon: float,
+    epsilon: float | np.ndarray,
 ) -> np.ndarray:
     """Slow path for ``d != 2``: Proposition 1 with CVXPY per obstacle and step."""
     from filters.halfspace_cvxpy import cvxpy_halfspace
@@ -670,7 +707,7 @@ def _dr_cvar_on_polytope_cvxpy(
                 risk="dr_cvar",
                 alpha=alpha,
                 delta=0.0,
-                epsilon=epsilon,
+                epsilon=epsilon if np.ndim(epsilon) == 0 else float(epsilon[t]),
                 support=(V[i], v[i]),
             )
             value[i, t] = result.g

@@ -1,10 +1,37 @@
-"""Empirical risk metrics of sampled losses: mean, CVaR and Wasserstein DR-CVaR.
+"""Empirical risk metrics of sampled losses.
+
+The paper's three (mean, CVaR, Wasserstein DR-CVaR) and, beyond the paper
+(``DESIGN.md`` section 5), two chance constraints built from the first two
+sample moments (``"gaussian_cc"``, ``"moment_dr"``) and an online conformal
+margin (``"conformal"``).
 
 Conventions (see ``DESIGN.md`` section 1): a *loss* is bad when large, and
 ``alpha`` is the tail mass, so :math:`\\mathrm{CVaR}_\\alpha` averages the worst
-``alpha`` fraction of the samples; ``alpha = 1`` gives the mean. All three
-metrics are translation equivariant, :math:`R(x + c) = R(x) + c`, which is what
-turns Definition 2 of the paper into closed forms (see :mod:`filters.halfspaces`).
+``alpha`` fraction of the samples; ``alpha = 1`` gives the mean. For the chance
+constraints ``alpha`` is the allowed violation probability. Every metric is
+translation equivariant, :math:`R(x + c) = R(x) + c`, which is what turns
+Definition 2 of the paper into closed forms (see :mod:`filters.halfspaces`).
+
+Moment-based metrics: for losses :math:`x_j = -h \\cdot p^j` with a unit normal
+:math:`h`, the sample variance of the :math:`x_j` (unbiased, ``ddof = 1``) is exactly
+:math:`h^\\top \\hat\\Sigma h` for the unbiased sample covariance :math:`\\hat\\Sigma` of the
+positions, so
+
+.. math::
+
+    R_{\\text{gaussian\\_cc}}(x) = \\bar x + z_{1-\\alpha}\\, s(x), \\qquad
+    R_{\\text{moment\\_dr}}(x) = \\bar x + \\sqrt{(1-\\alpha)/\\alpha}\\; s(x),
+
+with :math:`\\bar x` the sample mean, :math:`s` the sample standard deviation
+(``ddof = 1``; with a single sample the spread is unknown and :math:`s = 0` is used,
+so both reduce to the mean), and :math:`z_{1-\\alpha} = \\Phi^{-1}(1-\\alpha)` the
+standard normal quantile. ``gaussian_cc`` is the :math:`(1-\\alpha)`-quantile of a
+Gaussian fit: :math:`R \\le c` gives :math:`P(x > c) \\le \\alpha` if the losses are
+Gaussian with exactly these moments. ``moment_dr`` is the worst-case
+:math:`(1-\\alpha)`-quantile over *every* law with that mean and variance (Cantelli's
+inequality is tight), so it is never below ``gaussian_cc`` for
+:math:`\\alpha < 1/2`. For :math:`\\alpha \\ge 1/2`, :math:`z_{1-\\alpha} \\le 0` and
+``gaussian_cc`` lies at or below the mean (allowed: it is what the Gaussian fit says).
 """
 
 from __future__ import annotations
@@ -12,40 +39,145 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy.special import ndtri
 
 from filters._validation import finite_array, scalar_in_range
 from filters.errors import InvalidArrayError, InvalidParameterError, InvalidTypeError
 
-__all__ = ["RISKS", "check_risk", "empirical_cvar", "risk_value"]
+__all__ = [
+    "CHANCE_RISKS",
+    "PAPER_RISKS",
+    "RISKS",
+    "cantelli_factor",
+    "check_risk",
+    "empirical_cvar",
+    "gaussian_factor",
+    "risk_value",
+]
+
+#: The paper's metrics (Definition 2); the CVXPY reference of
+#: :mod:`filters.halfspace_cvxpy` formulates these.
+PAPER_RISKS: tuple[str, ...] = ("mean", "cvar", "dr_cvar")
+
+#: Chance constraints from the first two sample moments: ``alpha`` must lie in (0, 1).
+CHANCE_RISKS: tuple[str, ...] = ("gaussian_cc", "moment_dr")
 
 #: Names of the risk metrics understood by :func:`risk_value` and ``safe_halfspaces``.
-RISKS: tuple[str, ...] = ("mean", "cvar", "dr_cvar")
+RISKS: tuple[str, ...] = (*PAPER_RISKS, *CHANCE_RISKS, "conformal")
 
 
-def check_risk(risk: object) -> str:
+def check_risk(risk: object, choices: tuple[str, ...] = RISKS) -> str:
     """Return ``risk`` if it names a known metric.
+
+    Parameters
+    ----------
+    risk
+        The name to check.
+    choices
+        The accepted names (default :data:`RISKS`; e.g. :data:`PAPER_RISKS` for a
+        formulation that only covers the paper's metrics).
 
     Raises
     ------
     InvalidTypeError
         If ``risk`` is not a string.
     InvalidParameterError
-        If ``risk`` is not one of :data:`RISKS`.
+        If ``risk`` is not one of ``choices``.
     """
-    if isinstance(risk, str) and risk in RISKS:
+    if isinstance(risk, str) and risk in choices:
         return risk
     if not isinstance(risk, str):
-        raise InvalidTypeError(f"risk must be a string, one of {RISKS}, got {risk!r}")
-    if risk not in RISKS:
-        raise InvalidParameterError(f"risk must be one of {RISKS}, got {risk!r}")
-    return risk
+        raise InvalidTypeError(f"risk must be a string, one of {choices}, got {risk!r}")
+    raise InvalidParameterError(f"risk must be one of {choices}, got {risk!r}")
 
 
-def check_alpha(alpha: object) -> float:
-    """Return ``alpha`` as a float in :math:`(0, 1]`, or raise ``InvalidParameterError``."""
-    if type(alpha) is float and 0.0 < alpha <= 1.0:
+def check_alpha(alpha: object, risk: str | None = None) -> float:
+    """Return ``alpha`` as a float in :math:`(0, 1]`, or raise ``InvalidParameterError``.
+
+    For the chance constraints (``risk`` in :data:`CHANCE_RISKS`) the domain is the
+    open interval :math:`(0, 1)`: a violation probability of 1 constrains nothing
+    (:math:`z_0 = -\\infty`, Cantelli factor 0 would be a silent mean).
+    """
+    if type(alpha) is float and 0.0 < alpha < 1.0:
         return alpha
-    return scalar_in_range("alpha", alpha, low=0.0, high=1.0, low_inclusive=False)
+    value = scalar_in_range("alpha", alpha, low=0.0, high=1.0, low_inclusive=False)
+    if value == 1.0 and risk in CHANCE_RISKS:
+        raise InvalidParameterError(
+            f"alpha must lie in (0, 1) for risk={risk!r} (it is the allowed violation "
+            f"probability of a chance constraint; 1 constrains nothing), got {alpha!r}"
+        )
+    return value
+
+
+def gaussian_factor(alpha: float) -> float:
+    """:math:`z_{1-\\alpha} = \\Phi^{-1}(1 - \\alpha)`, the standard normal quantile (unchecked).
+
+    Negative for :math:`\\alpha > 1/2`, zero at :math:`\\alpha = 1/2`.
+    """
+    return float(-ndtri(alpha))  # -Phi^{-1}(alpha) = Phi^{-1}(1 - alpha), exact in the tail
+
+
+def cantelli_factor(alpha: float) -> float:
+    """:math:`\\sqrt{(1-\\alpha)/\\alpha}`, the one-sided Chebyshev (Cantelli) factor (unchecked).
+
+    For every law with mean :math:`\\mu` and standard deviation :math:`\\sigma`,
+    :math:`P(x \\ge \\mu + k\\sigma) \\le 1/(1+k^2) = \\alpha`, with equality for a two-point law.
+    """
+    return math.sqrt((1.0 - alpha) / alpha)
+
+
+def check_epsilon_array(epsilon: object, length: int) -> float | np.ndarray:
+    """Return a scalar radius as a float, or a per-step radius as a read-only ``(length,)`` array.
+
+    Raises
+    ------
+    InvalidParameterError
+        If a scalar is negative or not finite.
+    InvalidArrayError
+        If an array does not have shape ``(length,)`` or holds negative or
+        non-finite entries.
+    """
+    if np.ndim(epsilon) == 0:
+        return check_epsilon(epsilon)
+    array = finite_array("epsilon", epsilon, shape=(length,))
+    if np.any(array < 0.0):
+        raise InvalidArrayError(
+            f"epsilon must be >= 0 at every step (metres), got {array.tolist()}"
+        )
+    array = array.copy()
+    array.flags.writeable = False
+    return array
+
+
+def check_margins(margins: object, shape: tuple[int, ...]) -> np.ndarray:
+    """Return conformal margins as a float array broadcastable to ``shape``.
+
+    Accepted: a scalar, shape ``(T,)`` (one margin per look-ahead step) or
+    ``(n_obstacles, T)``, where ``shape = (n_obstacles, T)``; finite and ``>= 0`` (m).
+
+    Raises
+    ------
+    InvalidParameterError
+        If ``margins`` is ``None``.
+    InvalidArrayError
+        For another shape, or a negative or non-finite entry.
+    """
+    if margins is None:
+        raise InvalidParameterError(
+            "risk='conformal' needs conformal_margins: one margin q_k >= 0 (m) per "
+            "look-ahead step, e.g. filters.calibration.ConformalMargin(...).margins()"
+        )
+    array = finite_array("conformal_margins", margins)
+    if array.ndim > len(shape) or array.shape != shape[len(shape) - array.ndim :]:
+        raise InvalidArrayError(
+            f"conformal_margins must be a scalar or have shape {shape[1:]} or {shape}, "
+            f"got {array.shape}"
+        )
+    if np.any(array < 0.0):
+        raise InvalidArrayError(
+            f"conformal_margins must be >= 0 (m), got minimum {float(array.min())}"
+        )
+    return array
 
 
 def check_epsilon(epsilon: object) -> float:
@@ -151,17 +283,25 @@ def risk_value(
     losses: object,
     risk: str = "dr_cvar",
     alpha: float = 0.2,
-    epsilon: float = 0.05,
+    epsilon: float | object = 0.05,
     *,
     axis: int = -1,
+    margin: object | None = None,
 ) -> np.ndarray:
-    """Risk :math:`R` of sampled losses, for each metric of Definition 2, unbounded support.
+    """Risk :math:`R` of sampled losses, for every metric of :data:`RISKS`, unbounded support.
 
     .. math::
 
-        R_{\\text{mean}}(x) = \\frac{1}{N}\\sum_j x_j, \\qquad
+        R_{\\text{mean}}(x) = \\bar x, \\qquad
         R_{\\text{cvar}}(x) = \\mathrm{CVaR}_\\alpha(x), \\qquad
-        R_{\\text{dr\\_cvar}}(x) = \\mathrm{CVaR}_\\alpha(x) + \\frac{\\epsilon}{\\alpha}.
+        R_{\\text{dr\\_cvar}}(x) = \\mathrm{CVaR}_\\alpha(x) + \\frac{\\epsilon}{\\alpha},
+
+        R_{\\text{gaussian\\_cc}}(x) = \\bar x + z_{1-\\alpha} s(x), \\qquad
+        R_{\\text{moment\\_dr}}(x) = \\bar x + \\sqrt{\\tfrac{1-\\alpha}{\\alpha}}\\, s(x), \\qquad
+        R_{\\text{conformal}}(x) = \\bar x + q,
+
+    with :math:`\\bar x` the sample mean and :math:`s` the sample standard deviation
+    (``ddof = 1``, and :math:`s = 0` for a single sample); see the module docstring.
 
     The DR-CVaR row is the worst case over the 2-norm Wasserstein ball of radius
     :math:`\\epsilon` (metres) around the empirical distribution of positions
@@ -170,6 +310,12 @@ def risk_value(
     it is Proposition 1 with :math:`\\lambda = \\lVert h \\rVert_*/\\alpha`.
     For a bounded support see :func:`filters.halfspaces.safe_halfspaces`.
 
+    The conformal row bounds the realised loss :math:`-h \\cdot p` whenever
+    :math:`\\lVert p - \\hat\\mu \\rVert \\le q` (Cauchy-Schwarz, :math:`\\lVert h \\rVert = 1`), so
+    with :math:`q` the conformal quantile of past errors
+    (:class:`filters.calibration.ConformalMargin`) it holds with the conformal
+    coverage :math:`1 - \\alpha`; ``alpha`` itself is not used by this row.
+
     Parameters
     ----------
     losses
@@ -177,11 +323,16 @@ def risk_value(
     risk
         One of :data:`RISKS`.
     alpha
-        Tail mass in :math:`(0, 1]` (ignored by ``"mean"`` but still validated).
+        Tail mass / violation probability in :math:`(0, 1]`; in :math:`(0, 1)` for
+        :data:`CHANCE_RISKS`. Ignored by ``"mean"`` and ``"conformal"`` but still validated.
     epsilon
-        Wasserstein radius :math:`\\ge 0` in metres (used by ``"dr_cvar"`` only).
+        Wasserstein radius :math:`\\ge 0` in metres (``"dr_cvar"`` only): a scalar, or an
+        array broadcastable against the result (e.g. one radius per prediction step).
     axis
         The sample axis.
+    margin
+        Conformal margin :math:`q \\ge 0` in metres, broadcastable against the result;
+        required by ``"conformal"``, ignored otherwise.
 
     Returns
     -------
@@ -191,30 +342,74 @@ def risk_value(
     Raises
     ------
     InvalidParameterError
-        If ``risk`` is unknown, ``alpha`` is outside :math:`(0, 1]` or ``epsilon < 0``.
+        If ``risk`` is unknown, ``alpha`` is outside its domain, ``epsilon < 0``, or
+        ``margin`` is missing for ``"conformal"``.
     InvalidArrayError
-        If ``losses`` is empty along ``axis`` or holds NaN/inf.
+        If ``losses`` is empty along ``axis`` or holds NaN/inf, or ``epsilon`` /
+        ``margin`` is negative, non-finite or does not broadcast.
     """
     risk = check_risk(risk)
-    alpha = check_alpha(alpha)
-    epsilon = check_epsilon(epsilon)
+    alpha = check_alpha(alpha, risk)
     array = finite_array("losses", losses)
     if array.ndim == 0 or array.shape[axis] == 0:
         raise InvalidArrayError(
             f"losses must hold at least one sample along axis {axis}, got shape {array.shape}"
         )
-    return risk_of_samples(np.moveaxis(array, axis, -1), risk, alpha, epsilon)
+    x = np.moveaxis(array, axis, -1)
+    out_shape = x.shape[:-1]
+    if np.ndim(epsilon) == 0 and not isinstance(epsilon, np.ndarray):
+        epsilon = check_epsilon(epsilon)
+    else:
+        epsilon = _broadcastable("epsilon", epsilon, out_shape)
+    if risk == "conformal":
+        if margin is None:
+            check_margins(None, (1, 1))  # raises, naming what is needed
+        margin = _broadcastable("margin", margin, out_shape)
+    return risk_of_samples(x, risk, alpha, epsilon, margin=margin)
+
+
+def _broadcastable(name: str, value: object, shape: tuple[int, ...]) -> np.ndarray:
+    """A finite array ``>= 0`` that broadcasts to ``shape``, or raise ``InvalidArrayError``."""
+    array = finite_array(name, value)
+    try:
+        np.broadcast_shapes(array.shape, shape)
+    except ValueError as exc:
+        raise InvalidArrayError(
+            f"{name} of shape {array.shape} does not broadcast against the result shape {shape}"
+        ) from exc
+    if np.any(array < 0.0):
+        raise InvalidArrayError(f"{name} must be >= 0 (metres), got minimum {float(array.min())}")
+    return array
+
+
+def sample_std(x: np.ndarray) -> np.ndarray:
+    """Unbiased sample standard deviation along the last axis (``ddof = 1``); 0 for one sample."""
+    if x.shape[-1] < 2:
+        return np.zeros(x.shape[:-1])
+    return np.std(x, axis=-1, ddof=1)
 
 
 def risk_of_samples(
-    x: np.ndarray, risk: str, alpha: float, epsilon: float, *, overwrite: bool = False
+    x: np.ndarray,
+    risk: str,
+    alpha: float,
+    epsilon: float | np.ndarray,
+    *,
+    overwrite: bool = False,
+    margin: np.ndarray | float | None = None,
 ) -> np.ndarray:
     """:func:`risk_value` along the last axis, without validation (for the hot path).
 
     ``overwrite=True`` lets the CVaR reorder the samples of ``x`` in place.
+    ``epsilon`` and ``margin`` broadcast against the result.
     """
     if risk == "mean":
         return np.mean(x, axis=-1)
+    if risk in CHANCE_RISKS:
+        factor = gaussian_factor(alpha) if risk == "gaussian_cc" else cantelli_factor(alpha)
+        return np.mean(x, axis=-1) + factor * sample_std(x)
+    if risk == "conformal":
+        return np.mean(x, axis=-1) + margin
     value = cvar_last_axis(x, alpha, overwrite=overwrite)
     if risk == "dr_cvar":
         value = value + epsilon / alpha

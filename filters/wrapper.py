@@ -24,10 +24,13 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from filters._validation import scalar_in_range
 from filters.errors import InvalidParameterError, InvalidTypeError
 from filters.geometry import Disc
 from filters.halfspaces import Halfspaces, safe_halfspaces
+from filters.intersample import intersample_rows
 from filters.mpc import FilterResult, FilterStatus, MPCSafetyFilter
+from filters.mpc.terminal import stopping_terminal_set
 from filters.protocol import FilterableEnv
 from filters.references import (
     Policy,
@@ -35,9 +38,20 @@ from filters.references import (
     ReferenceMaker,
     hold_action_reference,
 )
+from filters.risk import RISKS as _METRICS
+from filters.risk import check_alpha, check_epsilon, check_risk
 
-RISKS = ("none", "mean", "cvar", "dr_cvar")
-"""Risk settings accepted by :class:`SafetyFilterWrapper`."""
+RISKS: tuple[str, ...] = ("none", *_METRICS)
+"""Risk settings accepted by :class:`SafetyFilterWrapper` (``"none"``: pass-through)."""
+
+OBJECTIVES = ("first_input", "trajectory")
+"""Filter objectives: the predictive safety filter's, or the paper's Problem 2."""
+
+NORMAL_SOURCES = ("paper", "ego", "previous_plan")
+"""Where the halfspace normals start (they end at the obstacles' sample means)."""
+
+FALLBACKS = ("soft", "paper")
+"""What the filter does when the hard QP is infeasible (see :class:`SafetyFilterWrapper`)."""
 
 PASSTHROUGH = "passthrough"
 """Filter status reported when ``risk="none"``."""
@@ -58,9 +72,10 @@ class FilterReport:
     Attributes
     ----------
     status
-        ``"optimal"``, ``"soft"`` (solved with slack), ``"shifted"`` (the paper's
-        fallback: the last optimal plan, shifted), ``"brake"`` (last resort) or
-        ``"passthrough"`` (``risk="none"``).
+        ``"optimal"``, ``"soft"`` (solved with halfspace slack), ``"recovery"`` (arena or
+        terminal slack: being brought back), ``"shifted"`` (the paper's fallback: the
+        last optimal plan, shifted), ``"brake"`` (last resort), ``"error"`` (bad data:
+        braking, see ``error``) or ``"passthrough"`` (``risk="none"``).
     proposed_action, applied_action
         The reference planner's action (clipped to the input box) and the filtered one,
         in m/s².
@@ -71,7 +86,8 @@ class FilterReport:
         filter step); making the reference trajectory. They vary from run to run and
         are left out of equality, so that two runs with the same seed compare equal.
     slack
-        Soft mode: halfspace violations (n_obstacles, T) in m; else ``None``.
+        Halfspace violations (n_obstacles, T) in m when the QP had slack rows (soft
+        mode or recovery; the larger of the two inter-sample rows), else ``None``.
     normals, offsets
         The halfspaces ``normals @ y <= offsets``, shapes (n_obstacles, T, d) and
         (n_obstacles, T); ``None`` when no filter ran.
@@ -131,22 +147,64 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     ----------
     env
         Environment whose ``unwrapped`` follows :class:`filters.protocol.FilterableEnv`
-        (every ``safe_nav_env`` environment does).
+        (every ``safe_nav_env`` environment does). No wrapper between this one and the
+        base environment may change actions: put ``RescaleAction`` (or any other
+        ``ActionWrapper``) *outside* ``SafetyFilterWrapper``, so that the filter works
+        in the environment's physical units (m/s²).
     risk
-        ``"none"`` (pass-through), ``"mean"``, ``"cvar"`` or ``"dr_cvar"``.
+        ``"none"`` (pass-through) or a metric of :data:`filters.risk.RISKS`
+        (``"mean"``, ``"cvar"``, ``"dr_cvar"``, ...).
     alpha
         CVaR tail mass in (0, 1]; alpha = 1 gives the mean.
     delta
-        Risk bound on the intrusion depth, in m (Definition 2 of the paper).
+        Risk bound on the intrusion depth, in m (Definition 2 of the paper), finite.
     epsilon
-        Radius of the Wasserstein ball, in m (DR-CVaR only).
+        Radius of the Wasserstein ball, in m, finite and >= 0 (DR-CVaR only).
     horizon
         Filter horizon T in steps; at most the environment's prediction horizon.
         ``None`` uses the prediction horizon.
+    objective
+        ``None`` (default): ``"trajectory"`` when a ``policy`` or ``reference`` gives a
+        planned route, ``"first_input"`` when only the held action is known.
+        ``"first_input"``: the predictive safety filter of Wabersich &
+        Zeilinger, :math:`\\min \\|u_0 - a\\|^2_R + \\eta \\sum_{t \\ge 1}
+        \\|u_t - u^r_t\\|^2_R` with no state tracking: the proposed action ``a`` is
+        changed as little as possible, the rest of the plan only has to exist.
+        ``"trajectory"``: the paper's Problem 2, tracking the reference states and inputs
+        with ``Q``, ``Q_terminal`` and ``R``. With the held action as reference the
+        tracking objective chases states far outside the arena and deadlocks (measured:
+        no goal reached in 100 episodes of the shipped PPO); with a planner's roll-out it
+        follows the planned route closely.
+    later_input_weight
+        :math:`\\eta > 0` of the first-input objective (default 0.01).
+    intersample
+        Add the inter-sample rows of :mod:`filters.intersample` (default ``True``): the
+        plan is then safe in continuous time, between the samples too, not only at them.
+    normals
+        Where the halfspace normals start. ``None`` (default): ``"paper"`` with a
+        ``policy`` or ``reference``, ``"ego"`` with the held action (whose reference runs
+        straight through obstacles, so that the paper's normals flip inside the horizon
+        and the filter brakes in front of a head-on obstacle). ``"paper"`` (the reference
+        positions, the paper's Definition 3), ``"ego"`` (the current ego position for
+        every step: they cannot flip when the reference runs through an obstacle) or
+        ``"previous_plan"``
+        (the last filtered plan shifted by one step, starting at the current position;
+        the reference until there is one).
+    fallback
+        ``"soft"`` (default): when the hard QP is infeasible, the exact-penalty QP with
+        halfspace and arena rows softened (it equals the hard solution whenever that is
+        feasible), which brings the ego back towards safety and into the arena;
+        ``"paper"``: the paper's Remark, the last optimal plan shifted, then braking.
+    terminal
+        Add the terminal condition that the plan ends able to stop inside the arena
+        (:func:`filters.mpc.terminal.stopping_terminal_set`, ``stop_time`` in s), so
+        plans stay recursively feasible against the arena (default ``True``).
+    stop_time
+        The terminal set's :math:`c` in s (>= dt/2; default 0.5 s).
     Q, Q_terminal, R
         Filter weights on state deviation (n, n), terminal state deviation (n, n)
         and input deviation (m, m). Defaults are the authors' effective weights
-        4 I, 25 I and I (DESIGN.md).
+        4 I, 25 I and I (DESIGN.md); the first-input objective uses ``R`` only.
     policy
         If given, the reference is the policy rolled out over the horizon on the
         obstacles' predicted mean motion (:class:`filters.references.PolicyRolloutReference`);
@@ -155,21 +213,36 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         A custom reference maker ``(env, action, horizon) -> (states, inputs)``;
         overrides ``policy``.
     soft
-        Use slack variables with an exact L1 penalty on the halfspace rows, so the
-        filter is always feasible; the slack is reported.
+        Always solve with slack variables (exact L1 penalty) on the halfspace rows; the
+        slack is reported.
     intervention_penalty
         Subtracted from the reward times ``||u_safe - u_ref||^2`` (for training with
         the filter in the loop); 0 leaves the reward untouched.
     support
         Optional polytope ``(V, v)`` bounding the obstacle positions (Proposition 1).
 
+    Raises
+    ------
+    InvalidParameterError
+        (A ``ValueError``.) On any setting out of its range: an unknown ``risk``,
+        ``objective``, ``normals`` or ``fallback``, ``alpha`` outside (0, 1], a NaN or
+        infinite ``delta``, a negative or NaN ``epsilon``, a ``horizon`` longer than the
+        predictions, ``intervention_penalty < 0`` ...
+    InvalidTypeError
+        (A ``TypeError``.) If ``env.unwrapped`` lacks the protocol, a wrapper in between
+        changes actions, or ``policy``/``reference`` cannot be called.
+
     Notes
     -----
-    ``info["filter"]`` is a :class:`FilterReport`: the status (``"optimal"``,
-    ``"soft"``, ``"shifted"``, ``"brake"`` or ``"passthrough"``), the proposed and the
+    ``info["filter"]`` is a :class:`FilterReport`: the status, the proposed and the
     applied action, the intervention size, the timings, the slack and the halfspaces
-    (safe side ``normals @ y <= offsets``). A failed or infeasible solve never
-    raises: the status names the fallback that produced the applied action.
+    (safe side ``normals @ y <= offsets``). Statuses: ``"optimal"``; ``"soft"`` (some
+    halfspace violated with slack, as little as possible); ``"recovery"`` (the arena or
+    the terminal condition violated with slack: the ego is brought back);
+    ``"shifted"``/``"brake"`` (``fallback="paper"``, or a recovery QP that failed);
+    ``"error"`` (bad data such as a NaN action or NaN predictions: the ego brakes and
+    ``error`` says why); ``"passthrough"`` (``risk="none"``). A failed or infeasible
+    solve never raises.
     """
 
     def __init__(
@@ -181,6 +254,13 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         epsilon: float = 0.05,
         horizon: int | None = None,
         *,
+        objective: str | None = None,
+        later_input_weight: float = 1e-2,
+        intersample: bool = True,
+        normals: str | None = None,
+        fallback: str = "soft",
+        terminal: bool = True,
+        stop_time: float = 0.5,
         Q: np.ndarray | None = None,
         Q_terminal: np.ndarray | None = None,
         R: np.ndarray | None = None,
@@ -194,7 +274,9 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         # No deep copy: policies and planners hold solver and torch state.
         gym.utils.RecordConstructorArgs.__init__(
             self, _disable_deepcopy=True, risk=risk, alpha=alpha, delta=delta,
-            epsilon=epsilon, horizon=horizon, Q=Q,
+            epsilon=epsilon, horizon=horizon, objective=objective,
+            later_input_weight=later_input_weight, intersample=intersample, normals=normals,
+            fallback=fallback, terminal=terminal, stop_time=stop_time, Q=Q,
             Q_terminal=Q_terminal, R=R, policy=policy, reference=reference, soft=soft,
             intervention_penalty=intervention_penalty, support=support,
             draw_halfspaces=draw_halfspaces,
@@ -206,26 +288,53 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 f"env.unwrapped ({type(env.unwrapped).__name__}) lacks {missing} of the "
                 "filters.protocol.FilterableEnv protocol"
             )
-        if risk not in RISKS:
-            raise InvalidParameterError(f"risk must be one of {RISKS}, got {risk!r}")
-        if intervention_penalty < 0 or not np.isfinite(intervention_penalty):
-            raise InvalidParameterError(
-                f"intervention_penalty must be finite and >= 0, got {intervention_penalty!r}"
-            )
-        self.risk = risk
-        self.alpha, self.delta, self.epsilon = alpha, delta, epsilon
+        _check_no_action_wrapper(env)
+        self.risk = _choice("risk", risk, RISKS)
+        if self.risk != "none":
+            check_risk(self.risk)
+        self.alpha = check_alpha(alpha)
+        self.epsilon = check_epsilon(epsilon)
+        self.delta = scalar_in_range("delta", delta, low=-np.inf, high=np.inf,
+                                     low_inclusive=False, high_inclusive=False)
+        planned = policy is not None or reference is not None
+        self.objective = _choice(
+            "objective", ("trajectory" if planned else "first_input") if objective is None
+            else objective, OBJECTIVES,
+        )
+        self.normals = _choice(
+            "normals", ("paper" if planned else "ego") if normals is None else normals,
+            NORMAL_SOURCES,
+        )
+        self.fallback = _choice("fallback", fallback, FALLBACKS)
+        self.later_input_weight = scalar_in_range(
+            "later_input_weight", later_input_weight, low=0.0, high=np.inf,
+            low_inclusive=False, high_inclusive=False,
+        )
+        for name, flag in (("intersample", intersample), ("terminal", terminal),
+                           ("soft", soft), ("draw_halfspaces", draw_halfspaces)):
+            if not isinstance(flag, (bool, np.bool_)):
+                raise InvalidTypeError(f"{name} must be a bool, got {flag!r}")
+        self.intersample, self.terminal = bool(intersample), bool(terminal)
+        self.soft, self.draw_halfspaces = bool(soft), bool(draw_halfspaces)
+        self.intervention_penalty = scalar_in_range(
+            "intervention_penalty", intervention_penalty, low=0.0, high=np.inf,
+            high_inclusive=False,
+        )
         self.support = support
-        self.soft = soft
-        self.intervention_penalty = float(intervention_penalty)
-        self.draw_halfspaces = draw_halfspaces
         base = self._base
+        self.stop_time = scalar_in_range(
+            "stop_time", stop_time, low=0.5 * float(base.dt), high=np.inf,
+            high_inclusive=False,
+        )
         prediction_horizon = int(getattr(base, "horizon", np.shape(base.predictions)[2]))
-        self.horizon = int(prediction_horizon if horizon is None else horizon)
-        if not 1 <= self.horizon <= prediction_horizon:
+        self.horizon = prediction_horizon if horizon is None else horizon
+        if (isinstance(self.horizon, bool) or not isinstance(self.horizon, int | np.integer)
+                or not 1 <= self.horizon <= prediction_horizon):
             raise InvalidParameterError(
-                f"horizon must be in [1, {prediction_horizon}] (the environment's prediction "
-                f"horizon), got {horizon!r}"
+                f"horizon must be an integer in [1, {prediction_horizon}] (the environment's "
+                f"prediction horizon), got {horizon!r}"
             )
+        self.horizon = int(self.horizon)
         if reference is not None:
             if not callable(reference):
                 raise InvalidTypeError(f"reference must be callable, got {reference!r}")
@@ -244,24 +353,38 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._mpc: MPCSafetyFilter | None = None
         self._previous_normals: np.ndarray | None = None
         self._last_halfspaces: Halfspaces | None = None
+        self._last_plan: np.ndarray | None = None
         self._hook: Callable[[Any], None] | None = None
         self._shape_cache: tuple[tuple, Disc, list[Disc]] | None = None
-        if risk != "none":
+        if self.risk != "none":  # builds (and so validates) the weights and bounds now
             self._mpc = self._build_filter(max(1, len(np.asarray(base.obstacle_radii))))
 
     @property
     def _base(self) -> FilterableEnv:
         return self.env.unwrapped  # type: ignore[return-value]
 
+    @property
+    def rows_per_obstacle(self) -> int:
+        """Halfspace rows per obstacle and step: 2 with the inter-sample rows, else 1."""
+        return 2 if self.intersample else 1
+
     def _build_filter(self, n_obstacles: int) -> MPCSafetyFilter:
         base = self._base
         A, B, C = base.dynamics
         Q, Q_terminal, R = self._weights
+        terminal_set = None
+        if self.terminal:
+            terminal_set = stopping_terminal_set(
+                float(base.dt), base.input_bounds, base.position_bounds,
+                stop_time=self.stop_time,
+            )
+        rows = max(n_obstacles, int(getattr(base, "max_obstacles", 0)))
         return MPCSafetyFilter(
             A, B, C, horizon=self.horizon, Q=Q, Q_terminal=Q_terminal, R=R,
             input_bounds=base.input_bounds, position_bounds=base.position_bounds,
-            n_obstacles=max(n_obstacles, int(getattr(base, "max_obstacles", 0))),
-            soft=self.soft,
+            n_obstacles=self.rows_per_obstacle * rows, soft=self.soft,
+            objective=self.objective, later_input_weight=self.later_input_weight,
+            terminal_set=terminal_set, fallback=self.fallback,
         )
 
     # ------------------------------------------------------------------ gym API
@@ -271,18 +394,20 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self._mpc.reset()
         self._previous_normals = None
         self._last_halfspaces = None
+        self._last_plan = None
         self._install_render_hook()
         return obs, info
 
     def step(self, action: Any):
         base = self._base
         low, high = base.input_bounds
-        proposed = np.clip(np.asarray(action, dtype=float).reshape(-1), low, high)
+        raw = np.asarray(action, dtype=float).reshape(-1)
+        proposed = np.clip(raw, low, high)
         if self.risk == "none":
             report = self._passthrough_report(proposed)
             applied = proposed
         else:
-            applied, report = self._filter(proposed)
+            applied, report = self._filter(proposed, finite=bool(np.all(np.isfinite(raw))))
         obs, reward, terminated, truncated, info = self.env.step(applied.astype(np.float32))
         if self.intervention_penalty:
             reward = float(reward) - self.intervention_penalty * report.intervention**2
@@ -294,26 +419,29 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     def _passthrough_report(proposed: np.ndarray) -> FilterReport:
         return FilterReport(PASSTHROUGH, proposed, proposed)
 
-    def _filter(self, proposed: np.ndarray) -> tuple[np.ndarray, FilterReport]:
+    def _filter(self, proposed: np.ndarray, *, finite: bool) -> tuple[np.ndarray, FilterReport]:
         base = self._base
         x0 = np.asarray(base.ego_state, dtype=float)
         radii = np.asarray(base.obstacle_radii, dtype=float)
-        if self._mpc is None or len(radii) > self._mpc.n_obstacles:
+        if self._mpc is None or self.rows_per_obstacle * len(radii) > self._mpc.n_obstacles:
             self._mpc = self._build_filter(len(radii))
         begin = time.perf_counter()
         try:
+            if not finite:
+                raise InvalidParameterError(f"the proposed action is not finite: {proposed}")
             ref_states, ref_inputs = self.reference(base, proposed, self.horizon)
             start = time.perf_counter()
-            halfspaces = self._halfspaces(base, x0, ref_states, radii)
+            halfspaces, rows = self._halfspaces(base, x0, ref_states, radii)
             middle = time.perf_counter()
             result: FilterResult = self._mpc.solve(
-                x0, ref_states, halfspaces, reference_inputs=ref_inputs
+                x0, ref_states, rows, reference_inputs=ref_inputs
             )
         except (ValueError, TypeError, FloatingPointError) as exc:
             # Bad numbers from the policy or the predictions (NaN, inf): brake, say why.
             applied = np.clip(self._mpc.braking_input(x0), *base.input_bounds)
+            self._last_plan = None
             report = FilterReport(
-                FilterStatus.BRAKE.value, proposed, applied,
+                FilterStatus.ERROR.value, proposed, applied,
                 intervention=_distance(applied, proposed),
                 reference_time=time.perf_counter() - begin,
                 error=f"{type(exc).__name__}: {exc}",
@@ -323,6 +451,13 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         applied = np.asarray(result.inputs[0], dtype=float)
         self._previous_normals = halfspaces.normals
         self._last_halfspaces = halfspaces
+        self._last_plan = np.asarray(result.states)
+        slack = result.slack
+        k = halfspaces.n_obstacles
+        if slack is not None and self.intersample:
+            slack = np.maximum(slack[:k], slack[k : 2 * k])  # per obstacle and step
+        elif slack is not None:
+            slack = slack[:k]
         report = FilterReport(
             str(result.status.value), proposed, applied,
             intervention=_distance(applied, proposed),
@@ -330,22 +465,35 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             halfspace_time=middle - start,
             filter_time=end - start,
             reference_time=start - begin,
-            slack=result.slack,
+            slack=slack,
             normals=halfspaces.normals,
             offsets=halfspaces.offsets,
             planned_states=result.states,
         )
         return applied, report
 
+    def _normal_origins(self, x0: np.ndarray, ref_positions: np.ndarray) -> np.ndarray:
+        """Positions ``(T, d)`` the normals start from (see ``normals``)."""
+        if self.normals == "ego":
+            return np.broadcast_to(x0[: ref_positions.shape[1]], ref_positions.shape)
+        plan = self._last_plan
+        if self.normals == "previous_plan" and plan is not None:
+            C = self._base.dynamics[2]
+            positions = plan @ C.T  # (T+1, d) planned at the last step
+            shifted = np.concatenate([positions[2:], positions[-1:]], axis=0)
+            return shifted - positions[1] + x0[: positions.shape[1]]  # re-anchored at y0
+        return ref_positions
+
     def _halfspaces(
         self, base: FilterableEnv, x0: np.ndarray, ref_states: np.ndarray, radii: np.ndarray
-    ) -> Halfspaces:
+    ) -> tuple[Halfspaces, tuple[np.ndarray, np.ndarray]]:
         predictions = np.asarray(base.predictions, dtype=float)
         if predictions.shape[2] < self.horizon:
             raise InvalidParameterError(
                 f"the filter horizon {self.horizon} exceeds the prediction horizon "
                 f"{predictions.shape[2]} of the environment"
             )
+        samples = predictions[:, :, : self.horizon]
         previous = self._previous_normals
         if previous is not None and previous.shape[0] == len(radii):
             # Last step's normals, shifted by one step to line up with this horizon.
@@ -353,14 +501,20 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         else:
             previous = None
         ego_shape, obstacle_shapes = self._shapes(float(base.ego_radius), radii)
-        return safe_halfspaces(
-            ref_states[1:, :] @ base.dynamics[2].T,
-            predictions[:, :, : self.horizon],
-            ego_shape=ego_shape,
-            obstacle_shapes=obstacle_shapes,
+        C = base.dynamics[2]
+        origins = self._normal_origins(x0, ref_states[1:, :] @ C.T)
+        halfspaces = safe_halfspaces(
+            origins, samples, ego_shape=ego_shape, obstacle_shapes=obstacle_shapes,
             risk=self.risk, alpha=self.alpha, delta=self.delta, epsilon=self.epsilon,
             support=self.support, previous_normals=previous, ego_velocity=x0[2:],
         )
+        if not self.intersample:
+            return halfspaces, (halfspaces.normals, halfspaces.offsets)
+        rows = intersample_rows(
+            halfspaces, samples, ego_shape=ego_shape, obstacle_shapes=obstacle_shapes,
+            input_bounds=base.input_bounds, dt=float(base.dt), support=self.support,
+        )
+        return halfspaces, (rows.normals, rows.offsets)
 
     def _shapes(self, ego_radius: float, radii: np.ndarray) -> tuple[Disc, list[Disc]]:
         """The ego and obstacle discs, built once per set of radii (not every step)."""
@@ -387,6 +541,35 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
         for normal, offset in zip(halfspaces.normals[:, 0], halfspaces.offsets[:, 0], strict=True):
             draw_halfspace(ax, normal, offset)
+
+
+def _choice(name: str, value: object, choices: tuple[str, ...]) -> str:
+    """``value`` if it is one of ``choices``, else a clear error naming both."""
+    if not isinstance(value, str):
+        raise InvalidTypeError(f"{name} must be a string, one of {choices}, got {value!r}")
+    if value not in choices:
+        raise InvalidParameterError(f"{name} must be one of {choices}, got {value!r}")
+    return value
+
+
+def _check_no_action_wrapper(env: gym.Env) -> None:
+    """Raise if a wrapper between ``env`` and its base environment changes actions.
+
+    The filter computes the applied action in the base environment's units; a
+    ``RescaleAction`` (or any ``ActionWrapper``) in between would transform it again.
+    """
+    base = env.unwrapped
+    layer = env
+    while layer is not base:
+        changes_space = getattr(layer, "action_space", None) != base.action_space
+        if isinstance(layer, gym.ActionWrapper) or changes_space:
+            raise InvalidTypeError(
+                f"{type(layer).__name__} sits between SafetyFilterWrapper and the base "
+                "environment and changes actions, so the filtered action would be "
+                "transformed again; wrap it outside instead: "
+                "RescaleAction(SafetyFilterWrapper(env), -1, 1)"
+            )
+        layer = layer.env
 
 
 def _distance(a: np.ndarray, b: np.ndarray) -> float:

@@ -30,6 +30,7 @@ from safe_nav_env.noise import (
     resolve_noise,
 )
 from safe_nav_env.obstacles import ObstacleModel, distance_to_collision
+from safe_nav_env.predictors import ConstantVelocityKalman, Predictor, resolve_predictor
 from safe_nav_env.registration import ENV_IDS, register_envs
 from safe_nav_env.scenarios import (
     HEAD_ON,
@@ -41,6 +42,7 @@ from safe_nav_env.scenarios import (
     Scenario,
     random_crossing,
 )
+from safe_nav_env.stress import STRESS_SUITE, StressCase
 
 register_envs()
 
@@ -52,22 +54,27 @@ __all__ = [
     "NOISE_PRESETS",
     "OVERTAKING",
     "SCENARIOS",
+    "STRESS_SUITE",
     "ConfigError",
+    "ConstantVelocityKalman",
     "Gaussian",
     "InvalidActionError",
     "Laplace",
     "NoiseModel",
     "ObstacleModel",
     "ObstacleSpec",
+    "Predictor",
     "SafeNavEnv",
     "SafeNavEnvError",
     "Scenario",
     "ScenarioError",
+    "StressCase",
     "StudentT",
     "distance_to_collision",
     "double_integrator",
     "random_crossing",
     "register_envs",
     "resolve_noise",
+    "resolve_predictor",
     "single_integrator",
 ]

@@ -15,6 +15,7 @@ from safe_nav_env.dynamics import double_integrator
 from safe_nav_env.errors import ConfigError, InvalidActionError, ScenarioError
 from safe_nav_env.noise import NoiseModel, resolve_noise
 from safe_nav_env.obstacles import ObstacleModel, distance_to_collision
+from safe_nav_env.predictors import Predictor, check_predictions, resolve_predictor
 from safe_nav_env.scenarios import SCENARIOS, Scenario, ScenarioFactory
 
 _EGO_SIZE = 6  # ego position, ego velocity, goal - ego position
@@ -186,6 +187,13 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
     pad_info
         Pad per-obstacle info entries to ``max_obstacles`` rows; default: only when
         ``scenario`` is a function (the obstacle count may change).
+    predictor
+        Who draws ``info["predictions"]``: ``None`` / ``"environment"`` (default, the
+        lane-aware sampler above), ``"kalman"`` (a constant-velocity Kalman filter on
+        the observed positions), or a callable
+        ``(history, *, dt, horizon, n_samples, rng) -> (n, N_s, T, 2)`` receiving the
+        positions observed since reset, ``(n_steps, n, 2)``; see
+        :mod:`safe_nav_env.predictors`.
 
     Raises
     ------
@@ -215,6 +223,7 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         goal_tolerance: float = 0.3,
         terminate_on_collision: bool = False,
         pad_info: bool | None = None,
+        predictor: Predictor | str | None = None,
     ) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ConfigError(
@@ -246,6 +255,8 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         self.pad_info = (
             not isinstance(self._scenario_source, Scenario) if pad_info is None else bool(pad_info)
         )
+        self.predictor: Predictor | None = resolve_predictor(predictor)
+        self._history: list[np.ndarray] = []
 
         # What a safety filter reads (filters.protocol.FilterableEnv).
         self.dynamics: tuple[np.ndarray, np.ndarray, np.ndarray] = double_integrator(self.dt)
@@ -269,6 +280,18 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         self._model_scenario: Scenario | None = None
         first = self._scenario_source if isinstance(self._scenario_source, Scenario) else None
         self._load(first)
+
+    def _predict_from_history(self, *, reset: bool) -> np.ndarray:
+        """Samples from :attr:`predictor` given the positions observed since reset."""
+        if reset:
+            self._history = []
+        self._history.append(self.obstacle_positions)
+        n, dim = self.obstacle_positions.shape
+        samples = self.predictor(
+            np.stack(self._history), dt=self.dt, horizon=self.horizon,
+            n_samples=self.n_samples, rng=self.np_random,
+        )
+        return check_predictions(samples, n, self.n_samples, self.horizon, dim)
 
     # ------------------------------------------------------------------ setup
 
@@ -457,6 +480,7 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         self.obstacle_velocities = _read_only(model.velocities)
         self.predictions = _read_only(
             model.predict(self.np_random, self.noise.prediction, self.n_samples, self.horizon)
+            if self.predictor is None else self._predict_from_history(reset=True)
         )
         p = self.ego_state[:2]
         distances = distance_to_collision(p, self.obstacle_positions, self.ego_radius,
@@ -511,6 +535,7 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         self.obstacle_velocities = _read_only(model.velocities)
         self.predictions = _read_only(
             model.predict(self.np_random, self.noise.prediction, self.n_samples, self.horizon)
+            if self.predictor is None else self._predict_from_history(reset=False)
         )
         self.step_count += 1
 

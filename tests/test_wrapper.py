@@ -123,7 +123,7 @@ def _trap_scenario() -> Scenario:
 def test_infeasible_steps_fall_back_without_raising():
     env = SafetyFilterWrapper(
         gym.make("SafeNav/Custom-v0", scenario=_trap_scenario(), max_acceleration=1.0),
-        risk="dr_cvar")
+        risk="dr_cvar", fallback="paper", terminal=False)
     env.reset(seed=0)
     statuses = []
     for _ in range(6):
@@ -138,10 +138,24 @@ def test_infeasible_steps_fall_back_without_raising():
     assert set(statuses) <= {"brake", "shifted", "optimal"}
 
 
+def test_infeasible_steps_recover_with_the_default_fallback():
+    env = SafetyFilterWrapper(
+        gym.make("SafeNav/Custom-v0", scenario=_trap_scenario(), max_acceleration=1.0),
+        risk="dr_cvar")
+    env.reset(seed=0)
+    _, _, _, _, info = env.step(np.zeros(2, dtype=np.float32))
+    report = info["filter"]
+    assert report.status in ("soft", "recovery")  # the exact-penalty QP, not braking
+    assert report.slack is not None and np.max(report.slack) > 0.0
+    low, high = env.unwrapped.input_bounds
+    assert np.all(report.applied_action >= low - 1e-9)
+    assert np.all(report.applied_action <= high + 1e-9)
+
+
 def test_soft_mode_reports_slack_instead_of_falling_back():
     env = SafetyFilterWrapper(
         gym.make("SafeNav/Custom-v0", scenario=_trap_scenario(), max_acceleration=1.0),
-        risk="dr_cvar", soft=True)
+        risk="dr_cvar", soft=True, terminal=False)  # only the halfspaces are at stake
     env.reset(seed=0)
     _, _, _, _, info = env.step(np.zeros(2, dtype=np.float32))
     assert info["filter"]["status"] == "soft"
@@ -153,7 +167,7 @@ def test_non_finite_action_brakes_and_says_why():
     env.reset(seed=0)
     _, _, _, _, info = env.step(np.array([np.nan, 0.0], dtype=np.float32))
     report = info["filter"]
-    assert report["status"] == "brake"
+    assert report["status"] == "error"
     assert report["error"]
     assert np.all(np.isfinite(report["applied_action"]))
 

@@ -1,0 +1,319 @@
+"""Pluggable obstacle predictors: observed history in, prediction samples out.
+
+A *predictor* is any callable
+
+.. code-block:: python
+
+    predictor(history, *, dt, horizon, n_samples, rng) -> samples
+
+with ``history`` the obstacle positions observed so far, shape
+``(n_steps_so_far, n_obs, d)`` (row 0 at reset, the last row now; metres),
+``dt`` the sampling time (s), ``horizon`` ``T`` and ``n_samples`` ``N_s``, and
+``rng`` the environment's :class:`numpy.random.Generator` (the only allowed
+source of randomness, so episodes stay reproducible). It returns samples of the
+positions at steps ``t+1..t+T``, shape ``(n_obs, N_s, T, d)`` in metres
+(:class:`Predictor` is the protocol).
+
+Built in:
+
+* the environment's own sampler (``predictor=None`` or ``"environment"``, the
+  default): the nominal lane motion plus prediction noise, with access to the
+  lane and the turning schedule (:meth:`safe_nav_env.obstacles.ObstacleModel.predict`);
+  episodes are bit-for-bit those of an environment without the keyword;
+* :class:`ConstantVelocityKalman` (``"kalman"``): a constant-velocity Kalman filter
+  on the observed positions only, no access to the lane;
+* any user callable with the signature above.
+
+Pass one to the environment with ``gym.make(id, predictor=...)``. A custom
+predictor draws from the same generator as the realised noise, so the realised
+noise sequence differs from the default's for the same seed.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+
+from safe_nav_env.errors import ConfigError
+
+__all__ = [
+    "ENVIRONMENT",
+    "PREDICTORS",
+    "ConstantVelocityKalman",
+    "Predictor",
+    "check_predictions",
+    "resolve_predictor",
+]
+
+ENVIRONMENT = "environment"
+"""Name of the environment's own sampler (the default predictor)."""
+
+
+@runtime_checkable
+class Predictor(Protocol):
+    """Observed obstacle positions -> prediction samples (see the module docstring)."""
+
+    def __call__(
+        self,
+        history: np.ndarray,
+        *,
+        dt: float,
+        horizon: int,
+        n_samples: int,
+        rng: np.random.Generator,
+    ) -> np.ndarray:
+        """Samples of shape ``(n_obs, n_samples, horizon, d)``, in m."""
+        ...
+
+
+def _positive(name: str, value: Any, *, allow_zero: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
+        raise ConfigError(f"{name} must be a number, got {value!r}")
+    number = float(value)
+    if not math.isfinite(number) or number < 0.0 or (number == 0.0 and not allow_zero):
+        relation = ">= 0" if allow_zero else "> 0"
+        raise ConfigError(f"{name} must be finite and {relation}, got {value!r}")
+    return number
+
+
+class ConstantVelocityKalman:
+    """Constant-velocity Kalman filter on observed positions, sampled from its predictive law.
+
+    Per axis (axes and obstacles independent, same model), state
+    :math:`x = (p, v)`, with white-acceleration process noise and position
+    measurements:
+
+    .. math::
+
+        x_{t+1} = F x_t + w_t,\\ F = \\begin{pmatrix} 1 & T_s \\\\ 0 & 1 \\end{pmatrix},\\
+        w_t \\sim N\\Big(0,\\
+        q \\begin{pmatrix} T_s^3/3 & T_s^2/2 \\\\ T_s^2/2 & T_s \\end{pmatrix}\\Big),
+        \\qquad y_t = p_t + v_t,\\ v_t \\sim N(0, r).
+
+    Initialised at the first observation with covariance
+    :math:`\\mathrm{diag}(r, \\sigma_{v,0}^2)` and zero velocity. The samples are drawn
+    from the joint Gaussian predictive law of the *observations*
+    :math:`y_{t+1..t+T}` given :math:`y_{0..t}` (mean :math:`H F^k \\hat x_t`, covariance
+    :math:`H\\,\\mathrm{Cov}(x_{t+j}, x_{t+k}) H^\\top + r\\,\\delta_{jk}`), so a sample is a
+    coherent trajectory, not independent points. It knows nothing of the lanes or
+    turns: a turn shows up only through the observations.
+
+    The covariance recursion does not depend on the data, so it is shared by all
+    obstacles and axes; successive calls on a growing history update the state
+    incrementally (one filter step per new row).
+
+    Parameters
+    ----------
+    acceleration_psd
+        :math:`q`, power spectral density of the white acceleration, m²/s³ (default
+        0.02: under the paper's noise, a random walk along the lane, the Gaussian fit's
+        80 % one-sided quantile along random normals was exceeded 14-19 % of the time
+        at look-aheads 1, 5 and 10 in 15 head-on and multi-obstacle episodes; 0.5 gave
+        1-13 %, over-wide).
+    measurement_variance
+        :math:`r`, variance of the position jitter around the constant-velocity
+        motion, m² (default 0.01, the paper's noise).
+    initial_speed_std
+        :math:`\\sigma_{v,0}`, prior standard deviation of each velocity component, m/s
+        (default 2.0).
+
+    Raises
+    ------
+    ConfigError
+        For a non-finite or non-positive parameter.
+    """
+
+    def __init__(
+        self,
+        *,
+        acceleration_psd: float = 0.02,
+        measurement_variance: float = 0.01,
+        initial_speed_std: float = 2.0,
+    ) -> None:
+        self.acceleration_psd = _positive("acceleration_psd", acceleration_psd, allow_zero=True)
+        self.measurement_variance = _positive("measurement_variance", measurement_variance)
+        self.initial_speed_std = _positive("initial_speed_std", initial_speed_std)
+        self._state: tuple[Any, ...] | None = None  # (rows, last row, dt, mean, P)
+
+    def __repr__(self) -> str:
+        return (
+            f"ConstantVelocityKalman(acceleration_psd={self.acceleration_psd}, "
+            f"measurement_variance={self.measurement_variance}, "
+            f"initial_speed_std={self.initial_speed_std})"
+        )
+
+    def _matrices(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        F = np.array([[1.0, dt], [0.0, 1.0]])
+        q = self.acceleration_psd
+        Q = q * np.array([[dt**3 / 3.0, dt**2 / 2.0], [dt**2 / 2.0, dt]])
+        return F, Q
+
+    def filter(self, history: object, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """Filtered state after the last observation.
+
+        Parameters
+        ----------
+        history
+            Observed positions ``(n_steps, n_obs, d)``, ``n_steps >= 1``, m.
+        dt
+            Sampling time, s.
+
+        Returns
+        -------
+        mean, covariance
+            State means ``(n_obs, d, 2)`` (position, velocity per axis) and the shared
+            ``(2, 2)`` covariance.
+
+        Raises
+        ------
+        ConfigError
+            If ``history`` is not a finite ``(n_steps, n_obs, d)`` array with ``n_steps >= 1``.
+        """
+        obs = _check_history(history)
+        dt = _positive("dt", dt)
+        F, Q = self._matrices(dt)
+        r = self.measurement_variance
+        state = self._state
+        start = 0
+        if (
+            state is not None
+            and state[2] == dt
+            and state[0] <= obs.shape[0]
+            and state[1].shape == obs.shape[1:]
+            and np.array_equal(state[1], obs[state[0] - 1])
+        ):
+            start, mean, P = state[0], state[3].copy(), state[4].copy()
+        else:
+            mean = np.zeros((*obs.shape[1:], 2))
+            mean[..., 0] = obs[0]
+            P = np.diag([r, self.initial_speed_std**2])
+            start = 1
+        for row in obs[start:]:
+            mean = mean @ F.T
+            P = F @ P @ F.T + Q
+            innovation = row - mean[..., 0]
+            s = P[0, 0] + r
+            gain = P[:, 0] / s  # (2,)
+            mean = mean + innovation[..., None] * gain
+            P = P - np.outer(gain, P[0, :])
+            P = 0.5 * (P + P.T)
+        self._state = (obs.shape[0], obs[-1].copy(), dt, mean.copy(), P.copy())
+        return mean, P
+
+    def predictive(
+        self, history: object, *, dt: float, horizon: int
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Predictive mean ``(n_obs, T, d)`` and per-axis ``(T, T)`` covariance of observations."""
+        mean, P = self.filter(history, dt)
+        F, Q = self._matrices(float(dt))
+        horizon = int(horizon)
+        powers = [np.eye(2)]
+        for _ in range(horizon):
+            powers.append(F @ powers[-1])
+        # Cov(x_{t+j}, x_{t+k}) = F^j P F^k' + sum_{m=1}^{min(j,k)} F^{j-m} Q F^{k-m}'.
+        cov = np.empty((horizon, horizon))
+        for j in range(1, horizon + 1):
+            for k in range(j, horizon + 1):
+                c = powers[j] @ P @ powers[k].T
+                for m in range(1, j + 1):
+                    c = c + powers[j - m] @ Q @ powers[k - m].T
+                cov[j - 1, k - 1] = cov[k - 1, j - 1] = c[0, 0]
+        cov += self.measurement_variance * np.eye(horizon)
+        steps = np.stack([powers[k] for k in range(1, horizon + 1)])  # (T, 2, 2)
+        future = np.einsum("kab,odb->okda", steps, mean)[..., 0]  # (n_obs, T, d)
+        return future, cov
+
+    def __call__(
+        self,
+        history: np.ndarray,
+        *,
+        dt: float,
+        horizon: int,
+        n_samples: int,
+        rng: np.random.Generator,
+    ) -> np.ndarray:
+        """Samples ``(n_obs, n_samples, horizon, d)`` from the predictive law, m."""
+        future, cov = self.predictive(history, dt=dt, horizon=horizon)
+        n_obs, _, dim = future.shape
+        chol = np.linalg.cholesky(cov)
+        z = rng.standard_normal((n_obs, int(n_samples), dim, int(horizon)))
+        draws = z @ chol.T  # (n_obs, N_s, d, T)
+        return future[:, None] + np.swapaxes(draws, -1, -2)
+
+
+def _check_history(history: object) -> np.ndarray:
+    try:
+        obs = np.asarray(history, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"history must be a numeric array, got {history!r}") from exc
+    if obs.ndim != 3 or obs.shape[0] == 0:
+        raise ConfigError(
+            f"history must have shape (n_steps, n_obs, d) with n_steps >= 1, got {obs.shape}"
+        )
+    if not np.isfinite(obs).all():
+        raise ConfigError("history must be finite (observed positions, m)")
+    return obs
+
+
+PREDICTORS: dict[str, Any] = {ENVIRONMENT: None, "kalman": ConstantVelocityKalman}
+"""Predictor names accepted by :func:`resolve_predictor` (``None``: the environment's sampler)."""
+
+
+def resolve_predictor(value: object) -> Predictor | None:
+    """Return ``value`` as a predictor, or ``None`` for the environment's own sampler.
+
+    Parameters
+    ----------
+    value
+        ``None`` or ``"environment"`` (the default sampler), ``"kalman"`` (a
+        :class:`ConstantVelocityKalman` with default parameters), or a callable
+        following :class:`Predictor`.
+
+    Raises
+    ------
+    ConfigError
+        For an unknown name or a non-callable value.
+    """
+    if value is None or value == ENVIRONMENT:
+        return None
+    if isinstance(value, str):
+        if value not in PREDICTORS:
+            raise ConfigError(
+                f"predictor: unknown name {value!r}; choose one of {sorted(PREDICTORS)} or "
+                "pass a callable (history, *, dt, horizon, n_samples, rng) -> samples"
+            )
+        return PREDICTORS[value]()
+    if isinstance(value, type) or not callable(value):
+        raise ConfigError(
+            "predictor must be None, a name in "
+            f"{sorted(PREDICTORS)} or a callable (history, *, dt, horizon, n_samples, rng) -> "
+            f"samples (an instance, not a class), got {value!r}"
+        )
+    return value  # type: ignore[return-value]
+
+
+def check_predictions(
+    samples: object, n_obs: int, n_samples: int, horizon: int, dim: int
+) -> np.ndarray:
+    """Return a predictor's output as a float64 ``(n_obs, N_s, T, d)`` array, or raise.
+
+    Raises
+    ------
+    ConfigError
+        If the output has another shape or holds NaN/inf.
+    """
+    try:
+        array = np.asarray(samples, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"the predictor returned a non-numeric value {samples!r}") from exc
+    expected = (n_obs, n_samples, horizon, dim)
+    if array.shape != expected:
+        raise ConfigError(
+            f"the predictor must return samples of shape (n_obs, n_samples, horizon, d) = "
+            f"{expected}, got {array.shape}"
+        )
+    if not np.isfinite(array).all():
+        raise ConfigError("the predictor returned NaN or infinite samples")
+    return array
