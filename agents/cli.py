@@ -13,7 +13,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from agents.evaluation import PAPER_SCENARIOS, PLANNERS, REFERENCES
-from filters.wrapper import RISKS
+from filters.wrapper import FALLBACKS, OBJECTIVES, RISKS
 
 SCENARIO_IDS = {
     "HeadOn": "SafeNav/HeadOn-v0",
@@ -79,10 +79,9 @@ def build_parser() -> argparse.ArgumentParser:
                        help="filter: risk bound on the intrusion depth, m (default: the wrapper's)")
     train.add_argument("--epsilon", type=float, default=None,
                        help="filter: Wasserstein radius, m (default: the wrapper's)")
-    train.add_argument("--objective", default=None,
-                       help="filter objective, e.g. first_input or trajectory "
-                       "(default: the wrapper's)")
-    train.add_argument("--fallback", default=None,
+    train.add_argument("--objective", choices=OBJECTIVES, default=None,
+                       help="filter objective (default: the wrapper's choice for the planner)")
+    train.add_argument("--fallback", choices=FALLBACKS, default=None,
                        help="filter fallback on an infeasible QP (default: the wrapper's)")
     train.add_argument("--reference", choices=("default", "rollout"), default="default",
                        help="filter reference: the wrapper's, or the policy being trained "
