@@ -3,13 +3,15 @@
 A frame costs a few ms (600 x 600 px), not the 30-60 ms of a full matplotlib
 redraw, because nothing static is drawn twice:
 
-* once per scenario layout, a full draw of the static scene (axes, ticks, labels,
-  arena, goal) is cached as a background (``copy_from_bbox``);
+* once per arena, a full draw of the static scene (axes, ticks, labels, arena) is
+  cached as a background (``copy_from_bbox``), and once per layout the goal is
+  drawn on it and cached too;
 * per frame: the background is restored; the prediction samples (up to thousands
   of points) are composited straight into the Agg buffer with numpy (2 x 2 px dots
   of opacity :data:`SAMPLE_ALPHA`; ``k`` dots of one colour on a pixel give exactly
   what ``k`` alpha-blended scatter markers give, :math:`c + (d - c)(1 - a)^k`);
-  the moving artists (discs, trails) are drawn with ``draw_artist``; then
+  the moving artists (the ego's disc and trail, the obstacles' discs and trails as
+  two collections) are drawn with ``draw_artist``; then
   the render hooks are called with the axes and whatever artists they add
   (e.g. a filter's halfspace boundary) are drawn the same way and removed again,
   so hooks keep the matplotlib API (``hook(ax)``) they always had;
@@ -26,6 +28,7 @@ from typing import TYPE_CHECKING, Any
 import matplotlib
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.collections import EllipseCollection, LineCollection
 from matplotlib.figure import Figure
 from matplotlib.patches import Circle, Rectangle
 
@@ -107,32 +110,46 @@ class Renderer:
         self._layout = None
 
     def _setup_artists(self, env: SafeNavEnv, layout: tuple) -> None:
-        """Create the artists of a layout (goal, discs, trails); nothing is drawn here."""
+        """Cache the layout's background (arena + goal) and create the moving artists.
+
+        The obstacles are one ``EllipseCollection`` and their trails one
+        ``LineCollection``: a few artists to draw per frame, whatever the obstacle count.
+        """
         ax = self.ax
         for artist in getattr(self, "_moving", []):
             artist.remove()
-        moving = dict(animated=True)  # never part of the cached background
+        moving = dict(animated=True)  # never part of the arena's cached background
         goal = env.goal
         goal_ring = ax.add_patch(Circle(tuple(goal), env.goal_tolerance, fill=False, ls="--",
                                         edgecolor="tab:green", **moving))
         goal_star = ax.plot(*goal, marker="*", ms=14, color="tab:green", ls="none", zorder=5,
                             **moving)[0]
+        self.canvas.restore_region(self._background)
+        ax.draw_artist(goal_ring)
+        ax.draw_artist(goal_star)
+        self._layout_background = self.canvas.copy_from_bbox(self.fig.bbox)
+        goal_ring.remove()
+        goal_star.remove()
+
         n = env.n_obstacles
         colors = [OBSTACLE_COLORS[i % len(OBSTACLE_COLORS)] for i in range(n)]
-        self._sample_rgb = (matplotlib.colors.to_rgba_array(colors)[:, :3] * 255.0
-                            if n else np.zeros((0, 3)))
+        rgba = matplotlib.colors.to_rgba_array(colors) if n else np.zeros((0, 4))
+        self._sample_rgb = rgba[:, :3] * 255.0
+        discs, trails = rgba.copy(), rgba.copy()
+        discs[:, 3], trails[:, 3] = 0.6, 0.7
+        diameters = 2.0 * np.asarray(env.obstacle_radii, dtype=float)
+        self._obstacle_trails = ax.add_collection(
+            LineCollection([], colors=trails, linewidths=1.0, zorder=3, **moving),
+            autolim=False)
         self._ego_trail = ax.plot([], [], color=EGO_COLOR, lw=1.5, zorder=3, **moving)[0]
-        self._obstacle_trails = [ax.plot([], [], color=c, lw=1, alpha=0.7, zorder=3,
-                                         **moving)[0] for c in colors]
-        self._obstacles = [
-            ax.add_patch(Circle((0, 0), r, color=c, alpha=0.6, zorder=4, **moving))
-            for r, c in zip(env.obstacle_radii, colors, strict=True)
-        ]
+        self._obstacles = ax.add_collection(
+            EllipseCollection(diameters, diameters, np.zeros(n), units="xy",
+                              offsets=np.zeros((n, 2)), offset_transform=ax.transData,
+                              facecolors=discs, edgecolors=discs, zorder=4, **moving),
+            autolim=False)
         self._ego = ax.add_patch(Circle((0, 0), env.ego_radius, color=EGO_COLOR, alpha=0.8,
                                         zorder=4, **moving))
-        # Drawn in this order (zorder as in a full redraw).
-        self._moving = [goal_ring, *self._obstacle_trails, self._ego_trail, *self._obstacles,
-                        self._ego, goal_star]
+        self._moving = [self._obstacle_trails, self._ego_trail, self._obstacles, self._ego]
         self._layout = layout
 
     # -------------------------------------------------------------- drawing
@@ -211,12 +228,11 @@ class Renderer:
             self._ego_trail.set_data(ego_path[:, 0], ego_path[:, 1])
             if env.n_obstacles:
                 paths = np.array([t[1] for t in trail])  # (steps, n, 2)
-                for i, line in enumerate(self._obstacle_trails):
-                    line.set_data(paths[:, i, 0], paths[:, i, 1])
-        for circle, position in zip(self._obstacles, env.obstacle_positions, strict=True):
-            circle.set_center(tuple(position))
+                self._obstacle_trails.set_segments(list(paths.transpose(1, 0, 2)))
+        if env.n_obstacles:
+            self._obstacles.set_offsets(np.asarray(env.obstacle_positions, dtype=float))
 
-        canvas.restore_region(self._background)
+        canvas.restore_region(self._layout_background)
         buffer = np.asarray(canvas.buffer_rgba())  # a view of the Agg buffer
         self._composite_samples(buffer, np.asarray(env.predictions))
         for artist in self._moving:
