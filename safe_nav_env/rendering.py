@@ -42,10 +42,6 @@ OBSTACLE_COLORS = ("black", "tab:red", "tab:purple", "tab:brown", "tab:olive", "
 SAMPLE_ALPHA = 0.15
 """Opacity of one prediction-sample dot."""
 
-_DOT_COLUMNS = np.array([0, 1, 0, 1])
-_DOT_ROWS = np.array([0, 0, 1, 1])
-"""Pixel offsets of a 2 x 2 px sample dot."""
-
 CAPTION_FONT = {"family": "DejaVu Sans Mono", "size": 9}
 """Font of the caption (monospace: it is composed from cached glyph cells)."""
 
@@ -98,6 +94,7 @@ class Renderer:
         self.canvas.draw()
         self._background = self.canvas.copy_from_bbox(self.fig.bbox)
         self._transform = ax.transData.frozen()
+        self._affine = self._transform.get_matrix()  # data -> display pixels (affine here)
         self._height = int(round(self.fig.bbox.height))
         self._width = int(round(self.fig.bbox.width))
         x0, y0, x1, y1 = ax.bbox.extents  # display pixels, origin bottom left
@@ -159,42 +156,53 @@ class Renderer:
 
         Obstacle by obstacle, in order (as a scatter plot would draw them): a pixel
         under ``k`` dots of colour ``c`` goes from ``d`` to ``c + (d - c)(1 - a)^k``.
+        The dots are counted per pixel with ``bincount`` over the box the obstacle's
+        samples cover (clipped to the axes).
         """
-        n = predictions.shape[0]
-        if n == 0:
-            return
-        per_obstacle = predictions.shape[1] * predictions.shape[2]
-        points = predictions.reshape(-1, 2)
-        owner = np.repeat(np.arange(n), per_obstacle)
-        finite = np.isfinite(points).all(axis=1)
-        if not finite.all():
-            points, owner = points[finite], owner[finite]
-        xy = self._transform.transform(points)
-        cols = np.floor(xy[:, 0] - 0.5).astype(np.int64)
-        rows = np.floor(self._height - xy[:, 1] - 0.5).astype(np.int64)
-        cols = (cols[:, None] + _DOT_COLUMNS).ravel()
-        rows = (rows[:, None] + _DOT_ROWS).ravel()
-        owner = np.repeat(owner, 4)
+        (m00, m01, m02), (m10, m11, m12) = self._affine[0], self._affine[1]
         c0, c1, r0, r1 = self._clip
-        inside = (cols >= c0) & (cols < c1) & (rows >= r0) & (rows < r1)
-        if not inside.any():
-            return
-        size = self._height * self._width
-        keys, counts = np.unique(owner[inside] * size + rows[inside] * self._width
-                                 + cols[inside], return_counts=True)
-        obstacles, pixels = np.divmod(keys, size)
-        bounds = np.searchsorted(obstacles, np.arange(n + 1))
-        rgb = buffer.reshape(-1, 4)
+        height = self._height
         keep = 1.0 - SAMPLE_ALPHA
-        for i in range(n):
-            first, last = bounds[i], bounds[i + 1]
-            if first == last:
+        rgb = buffer.reshape(-1, 4)  # a view: the buffer is contiguous
+        for i in range(predictions.shape[0]):
+            points = predictions[i].reshape(-1, 2)
+            if not np.isfinite(points).all():
+                points = points[np.isfinite(points).all(axis=1)]
+            if points.shape[0] == 0:
                 continue
-            where = pixels[first:last]
+            x = points[:, 0] * m00 + points[:, 1] * m01 + m02  # display pixels
+            y = points[:, 0] * m10 + points[:, 1] * m11 + m12
+            cols = np.floor(x - 0.5).astype(np.int64)  # dot's left column
+            rows = np.floor(height - y - 0.5).astype(np.int64)  # dot's top row
+            cmin, cmax, rmin, rmax = int(cols.min()), int(cols.max()), int(rows.min()), \
+                int(rows.max())
+            left, right = max(cmin, c0), min(cmax + 2, c1)
+            top, bottom = max(rmin, r0), min(rmax + 2, r1)
+            if left >= right or top >= bottom:
+                continue
+            width, box_height = right - left, bottom - top
+            cols -= left
+            rows -= top
+            base = rows * width + cols
+            if left == cmin and right == cmax + 2 and top == rmin and bottom == rmax + 2:
+                index = np.concatenate((base, base + 1, base + width, base + width + 1))
+            else:  # some dots leave the axes: keep the pixels inside
+                parts = []
+                for dr, dc in ((0, 0), (0, 1), (1, 0), (1, 1)):
+                    r, c = rows + dr, cols + dc
+                    inside = (r >= 0) & (r < box_height) & (c >= 0) & (c < width)
+                    parts.append((base + dr * width + dc)[inside])
+                index = np.concatenate(parts)
+            counts = np.bincount(index, minlength=width * box_height)
+            hit = np.flatnonzero(counts)
+            if hit.size == 0:
+                continue
+            row_of, col_of = np.divmod(hit, width)
+            pixels = (row_of + top) * self._width + (col_of + left)
             colour = self._sample_rgb[i]
-            old = rgb[where, :3].astype(np.float64)
-            new = colour + (old - colour) * (keep ** counts[first:last])[:, None]
-            rgb[where, :3] = np.rint(new).astype(np.uint8)
+            old = rgb[pixels, :3].astype(np.float64)
+            new = colour + (old - colour) * (keep ** counts[hit])[:, None]
+            rgb[pixels, :3] = np.rint(new).astype(np.uint8)
 
     def draw(
         self, env: SafeNavEnv, trail: list[tuple[np.ndarray, np.ndarray]]
