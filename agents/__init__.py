@@ -9,6 +9,8 @@
 * :func:`evaluate` — Monte Carlo comparison of risk settings, one record per episode
   (:mod:`agents.records`: specs, records, CSV; :mod:`agents.runner`: one episode;
   :mod:`agents.executors`: process pool, Ray).
+* :class:`SafetyMetricsCallback` (SB3 callback: safety metrics per rollout) and
+  :class:`PPOLagrangian` (the constrained-RL baseline), imported on first use.
 
 torch and Stable-Baselines3 are imported only when a PPO policy is trained or loaded.
 """
@@ -22,14 +24,33 @@ from agents.runner import run_episode
 from agents.summary import summarise
 from agents.training import load_ppo, train_ppo
 
+_LAZY = {
+    "SafetyMetricsCallback": "agents.callbacks",
+    "SafetyEvalCallback": "agents.callbacks",
+    "PPOLagrangian": "agents.lagrangian",
+}
+"""Names whose modules import Stable-Baselines3 (and torch): loaded on first access."""
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'agents' has no attribute {name!r}")
+
+
 __all__ = [
     "AgentsError",
     "EpisodeRecord",
     "EpisodeSpec",
     "MPCReferencePlanner",
     "NumpyPolicy",
+    "PPOLagrangian",
     "PolicyFileError",
     "RunMismatchError",
+    "SafetyEvalCallback",
+    "SafetyMetricsCallback",
     "TorchActorPolicy",
     "evaluate",
     "load_numpy_policy",

@@ -27,7 +27,7 @@ from typing import Any
 
 from agents.records import PAPER_SCENARIOS, PLANNERS, REFERENCES
 from filters.risk import PAPER_RISKS
-from filters.wrapper import RISKS
+from filters.wrapper import FALLBACKS, OBJECTIVES, RISKS
 
 EXIT_FAILED_EPISODES = 1
 EXIT_BAD_INPUT = 2
@@ -70,14 +70,17 @@ def _positive_int(text: str) -> int:
     return value
 
 
-def _seed(text: str) -> int:
+def _non_negative_int(text: str) -> int:
     try:
         value = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
+        value = -1
     if value < 0:
         raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
     return value
+
+
+_seed = _non_negative_int
 
 
 def _number(text: str) -> float:
@@ -166,17 +169,54 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", required=True)
 
-    train = sub.add_parser("train", help="train a PPO reference planner")
+    train = sub.add_parser(
+        "train", help="train a PPO reference planner (plain, filter in the loop, or Lagrangian)",
+        description="Train PPO on a SafeNav scenario and print its safety metrics (episode "
+        "collision rate in continuous time, episode cost, goal rate, filter intervention and "
+        "statuses) after every rollout; they are also written to <output>.metrics.csv.")
     train.add_argument("--env-id", type=scenario_id, default="SafeNav/RandomCrossing-v0")
     train.add_argument("--timesteps", type=_positive_int, default=400_000)
-    train.add_argument("--seed", type=int, default=0)
+    train.add_argument("--seed", type=_non_negative_int, default=0)
     train.add_argument("--n-envs", type=_positive_int, default=8)
+    train.add_argument("--vec-env", choices=("dummy", "subproc"), default="dummy",
+                       help="in-process environments (default) or one process each")
     train.add_argument("--output", type=Path, default=Path("runs/ppo_random_crossing.zip"))
     train.add_argument("--filter", choices=[r for r in RISKS if r != "none"], default=None,
                        help="train with the safety filter in the loop (safe exploration)")
-    train.add_argument("--intervention-penalty", type=float, default=0.0)
-    train.add_argument("--eval-freq", type=int, default=0)
-    train.add_argument("--tensorboard", type=str, default=None)
+    train.add_argument("--alpha", type=float, default=None,
+                       help="filter: CVaR tail mass in (0, 1] (default: the wrapper's)")
+    train.add_argument("--delta", type=float, default=None,
+                       help="filter: risk bound on the intrusion depth, m (default: the wrapper's)")
+    train.add_argument("--epsilon", type=float, default=None,
+                       help="filter: Wasserstein radius, m (default: the wrapper's)")
+    train.add_argument("--objective", choices=OBJECTIVES, default=None,
+                       help="filter objective (default: the wrapper's choice for the planner)")
+    train.add_argument("--fallback", choices=FALLBACKS, default=None,
+                       help="filter fallback on an infeasible QP (default: the wrapper's)")
+    train.add_argument("--reference", choices=("default", "rollout"), default="default",
+                       help="filter reference: the wrapper's, or the policy being trained "
+                       "rolled out over the horizon")
+    train.add_argument("--filter-option", action="append", default=[], metavar="KEY=VALUE",
+                       help="any other keyword of SafetyFilterWrapper; VALUE is read as JSON "
+                       "(numbers, true/false, lists), else as a string; repeatable")
+    train.add_argument("--intervention-penalty", type=float, default=0.0,
+                       help="filter: reward penalty per (m/s^2)^2 of ||u_safe - u_ref||^2")
+    train.add_argument("--lagrangian", action="store_true",
+                       help="train PPO-Lagrangian (cost: the continuous-time collision indicator)")
+    train.add_argument("--cost-limit", type=float, default=0.0,
+                       help="PPO-Lagrangian: allowed mean episode cost (default 0)")
+    train.add_argument("--lambda-lr", type=float, default=0.05,
+                       help="PPO-Lagrangian: dual step size of the multiplier")
+    train.add_argument("--eval-freq", type=_non_negative_int, default=0,
+                       help="evaluate every N steps on held-out seeds (0: off); saves the best "
+                       "model to <output>_best/")
+    train.add_argument("--eval-episodes", type=_positive_int, default=20)
+    train.add_argument("--tensorboard", type=str, default=None, metavar="DIR",
+                       help="write TensorBoard event files to DIR (pip install 'safe-nav[train]')")
+    train.add_argument("--physical-actions", action="store_true",
+                       help="let the learner act on the ±10 m/s² box instead of [-1, 1] (as the "
+                       "shipped policy was trained)")
+    train.add_argument("--quiet", action="store_true", help="do not print the metrics table")
     train.add_argument("--no-progress", action="store_true")
 
     evaluate = sub.add_parser("evaluate", help="Monte Carlo: filtered vs unfiltered policies",
@@ -382,18 +422,70 @@ def _bench_scaling(args: argparse.Namespace) -> int:
     return 0
 
 
+def _filter_options(args: argparse.Namespace) -> dict:
+    """The SafetyFilterWrapper keywords given on the command line."""
+    import json
+
+    options: dict = {}
+    for text in args.filter_option:
+        key, sep, raw = text.partition("=")
+        if not sep or not key.isidentifier():
+            raise ValueError(f"--filter-option expects KEY=VALUE, got {text!r}")
+        try:
+            options[key] = json.loads(raw)
+        except json.JSONDecodeError:
+            options[key] = raw
+    for name in ("alpha", "delta", "epsilon", "objective", "fallback"):
+        value = getattr(args, name)
+        if value is not None:
+            options[name] = value
+    return options
+
+
 def _train(args: argparse.Namespace) -> int:
     from agents.training import train_ppo
 
-    filter_kwargs = {"risk": args.filter} if args.filter else None
-    _, report = train_ppo(
-        args.env_id, args.timesteps, args.seed, n_envs=args.n_envs, filter_kwargs=filter_kwargs,
-        intervention_penalty=args.intervention_penalty, eval_freq=args.eval_freq,
-        tensorboard_log=args.tensorboard, progress_bar=not args.no_progress,
-        save_path=args.output,
-    )
+    try:
+        options = _filter_options(args)
+    except ValueError as exc:
+        print(f"safe-nav train: error: {exc}", file=sys.stderr)
+        return 2
+    if args.filter is None and (options or args.reference != "default"
+                                or args.intervention_penalty):
+        print("safe-nav train: error: --alpha/--delta/--epsilon/--objective/--fallback/"
+              "--reference/--filter-option/--intervention-penalty need --filter",
+              file=sys.stderr)
+        return 2
+    if not args.lagrangian and (args.cost_limit != 0.0 or args.lambda_lr != 0.05):
+        print("safe-nav train: error: --cost-limit/--lambda-lr need --lagrangian",
+              file=sys.stderr)
+        return 2
+    from filters.errors import SafeNavError
+
+    filter_kwargs = {"risk": args.filter, **options} if args.filter else None
+    try:
+        _, report = train_ppo(
+            args.env_id, args.timesteps, args.seed, n_envs=args.n_envs,
+            filter_kwargs=filter_kwargs, intervention_penalty=args.intervention_penalty,
+            filter_reference=args.reference, lagrangian=args.lagrangian,
+            cost_limit=args.cost_limit, lambda_lr=args.lambda_lr, eval_freq=args.eval_freq,
+            eval_episodes=args.eval_episodes, vec_env=args.vec_env,
+            tensorboard_log=args.tensorboard, print_metrics=not args.quiet,
+            normalise_actions=not args.physical_actions,
+            progress_bar=not args.no_progress, save_path=args.output,
+        )
+    except SafeNavError as exc:  # bad options, found before any training
+        print(f"safe-nav train: error: {exc}", file=sys.stderr)
+        return 2
     print(f"trained {report.total_timesteps} steps in {report.wall_time:.1f} s "
-          f"({report.steps_per_second:.0f} steps/s); saved to {report.save_path}")
+          f"({report.steps_per_second:.0f} steps/s); saved to {report.save_path}; "
+          f"metrics in {report.metrics_path}")
+    if report.safety:
+        print("last rollout: " + ", ".join(f"{k} {v:.3g}" for k, v in report.safety.items()))
+    if report.lagrange_multiplier is not None:
+        print(f"final Lagrange multiplier {report.lagrange_multiplier:.4g}")
+    if report.best_model_path is not None:
+        print(f"best model (evaluation return) in {report.best_model_path}")
     return 0
 
 

@@ -117,14 +117,19 @@ def load_policy(policy_path: str | Path = "", *, sha256: str = "") -> tuple[Any,
                               f"run (SHA-256 {sha[:12]}..., expected {sha256[:12]}...)")
     key = (str(policy_file(policy_path).resolve()), sha)
     if key not in _POLICY_CACHE:
+        from agents.numpy_policy import TorchActorPolicy, UnsupportedPolicyError
         from agents.training import load_ppo, set_torch_threads
 
         set_torch_threads(1)
         try:
-            _POLICY_CACHE[key] = load_ppo(policy_file(policy_path))
+            model = load_ppo(policy_file(policy_path))
         except Exception as exc:  # noqa: BLE001 - SB3/torch/zip raise many kinds
             raise PolicyFileError(f"cannot load the PPO policy {policy_file(policy_path)} "
                                   f"({type(exc).__name__}: {exc})".replace("\n", " ")) from exc
+        try:  # the same actions bit for bit, without SB3's per-call overhead
+            _POLICY_CACHE[key] = TorchActorPolicy.from_sb3(model)
+        except UnsupportedPolicyError:
+            _POLICY_CACHE[key] = model
     return _POLICY_CACHE[key], sha
 
 
@@ -181,14 +186,22 @@ def make_env(spec: EpisodeSpec, *, render_mode: str | None = None, policy: Any =
         else:
             planner, _ = _load_planner(spec, env)
         filter_kwargs = spec.filter_kwargs()
+        # A PPO policy trained on the normalised view acts in [-1, 1]: it steps through
+        # NormalisedActions (outside the filter) and the roll-out reference gets m/s².
+        from agents.wrappers import NormalisedActions, PhysicalUnitsPolicy, is_normalised_policy
+
+        normalised = spec.planner != "mpc" and is_normalised_policy(planner, env.action_space)
         if spec.planner == "mpc":
             filter_kwargs["reference"] = planner
         elif spec.reference == "rollout":
-            filter_kwargs["policy"] = planner
+            filter_kwargs["policy"] = (PhysicalUnitsPolicy(planner, env.action_space)
+                                       if normalised else planner)
         try:
             wrapped = SafetyFilterWrapper(env, **filter_kwargs)
         except TypeError as exc:
             raise (_unknown_keyword(exc, "filter_options") or exc) from exc
+        if normalised:
+            wrapped = NormalisedActions(wrapped)
     except BaseException:
         env.close()
         raise

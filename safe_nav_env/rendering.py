@@ -1,9 +1,24 @@
-"""Matplotlib drawing of the environment (imported only when rendering).
+"""Matplotlib drawing of the environment (imported only when rendering), blitted.
 
-One figure is created per environment and reused between frames: the static
-artists (arena, goal) are drawn once per scenario layout, the moving ones (discs,
-trails, prediction samples) are updated in place, and whatever the render hooks
-drew in the previous frame is removed before they are called again.
+A frame costs a few ms (600 x 600 px), not the 30-60 ms of a full matplotlib
+redraw, because nothing static is drawn twice:
+
+* once per arena, a full draw of the static scene (axes, ticks, labels, arena) is
+  cached as a background (``copy_from_bbox``), and once per layout the goal is
+  drawn on it and cached too;
+* per frame: the background is restored; the prediction samples (up to thousands
+  of points) are composited straight into the Agg buffer with numpy (2 x 2 px dots
+  of opacity :data:`SAMPLE_ALPHA`; ``k`` dots of one colour on a pixel give exactly
+  what ``k`` alpha-blended scatter markers give, :math:`c + (d - c)(1 - a)^k`);
+  the moving artists (the ego's disc and trail, the obstacles' discs and trails as
+  two collections) are drawn with ``draw_artist``; then
+  the render hooks are called with the axes and whatever artists they add
+  (e.g. a filter's halfspace boundary) are drawn the same way and removed again,
+  so hooks keep the matplotlib API (``hook(ax)``) they always had;
+* the caption (time, scenario) sits above the axes and its pixels are cached per
+  string, since text is the slowest thing matplotlib draws (2-4 ms).
+
+``human`` mode shows the same frames in a pyplot window (``imshow``).
 """
 
 from __future__ import annotations
@@ -13,6 +28,7 @@ from typing import TYPE_CHECKING, Any
 import matplotlib
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.collections import EllipseCollection, LineCollection
 from matplotlib.figure import Figure
 from matplotlib.patches import Circle, Rectangle
 
@@ -23,14 +39,20 @@ EGO_COLOR = "tab:blue"
 OBSTACLE_COLORS = ("black", "tab:red", "tab:purple", "tab:brown", "tab:olive", "tab:cyan")
 """Obstacle ``i`` is drawn in ``OBSTACLE_COLORS[i % len(OBSTACLE_COLORS)]``."""
 
+SAMPLE_ALPHA = 0.15
+"""Opacity of one prediction-sample dot."""
+
+CAPTION_FONT = {"family": "DejaVu Sans Mono", "size": 9}
+"""Font of the caption (monospace: it is composed from cached glyph cells)."""
+
 
 class Renderer:
-    """Draws a :class:`~safe_nav_env.SafeNavEnv` into a reused matplotlib figure.
+    """Draws a :class:`~safe_nav_env.SafeNavEnv` into a reused, blitted matplotlib figure.
 
     Parameters
     ----------
     human
-        Show the figure in a window (pyplot) instead of drawing off-screen (Agg).
+        Also show the frames in a window (pyplot) and return ``None`` from :meth:`draw`.
     fps
         Frames per second of the window in human mode.
     size
@@ -44,55 +66,143 @@ class Renderer:
     ) -> None:
         self.human = human
         self.fps = fps
-        if human:
-            import matplotlib.pyplot as plt
-
-            self._plt = plt
-            self.fig = plt.figure(figsize=(size, size), dpi=dpi)
-        else:
-            self._plt = None
-            self.fig = Figure(figsize=(size, size), dpi=dpi)
-            FigureCanvasAgg(self.fig)
+        self.fig = Figure(figsize=(size, size), dpi=dpi)
+        self.canvas = FigureCanvasAgg(self.fig)
         self.ax = self.fig.add_axes((0.09, 0.07, 0.88, 0.88))
         self._layout: tuple | None = None
-        self._hook_artists: list[Any] = []
-        self._shown = False
+        self._background: Any = None
+        self._arena: tuple | None = None
+        self._plt: Any = None
+        self._window: Any = None
+        self._image: Any = None
 
-    # -------------------------------------------------------------- drawing
+    # -------------------------------------------------------------- set-up
 
-    def _setup(self, env: SafeNavEnv, layout: tuple) -> None:
-        """Clear the axes and create the artists for a new scenario layout."""
+    def _setup_background(self, env: SafeNavEnv) -> None:
+        """Draw and cache the static scene of an arena: axes, ticks, labels, arena box."""
         ax = self.ax
         ax.clear()
-        self._hook_artists = []
         low, high = env.position_bounds
         margin = 0.5
         self._limits = ((low[0] - margin, high[0] + margin), (low[1] - margin, high[1] + margin))
+        ax.set_xlim(*self._limits[0])
+        ax.set_ylim(*self._limits[1])
         ax.set_aspect("equal")
         ax.set_xlabel("x [m]")
         ax.set_ylabel("y [m]")
         ax.add_patch(Rectangle(tuple(low), *(high - low), fill=False, edgecolor="0.6", lw=1.5))
+        self.canvas.draw()
+        self._background = self.canvas.copy_from_bbox(self.fig.bbox)
+        self._transform = ax.transData.frozen()
+        self._affine = self._transform.get_matrix()  # data -> display pixels (affine here)
+        self._height = int(round(self.fig.bbox.height))
+        self._width = int(round(self.fig.bbox.width))
+        x0, y0, x1, y1 = ax.bbox.extents  # display pixels, origin bottom left
+        # Buffer rows/columns inside the axes (samples are clipped to them).
+        self._clip = (int(np.ceil(x0)), int(np.floor(x1)),
+                      int(np.ceil(self._height - y1)), int(np.floor(self._height - y0)))
+        self._caption = _Caption(self, top_row=int(np.floor(self._height - y1)) - 1,
+                                 left=int(round(x0)))
+        self._arena = (tuple(low), tuple(high))
+        self._layout = None
+
+    def _setup_artists(self, env: SafeNavEnv, layout: tuple) -> None:
+        """Cache the layout's background (arena + goal) and create the moving artists.
+
+        The obstacles are one ``EllipseCollection`` and their trails one
+        ``LineCollection``: a few artists to draw per frame, whatever the obstacle count.
+        """
+        ax = self.ax
+        for artist in getattr(self, "_moving", []):
+            artist.remove()
+        moving = dict(animated=True)  # never part of the arena's cached background
         goal = env.goal
-        ax.add_patch(Circle(tuple(goal), env.goal_tolerance, fill=False, ls="--",
-                            edgecolor="tab:green"))
-        ax.plot(*goal, marker="*", ms=14, color="tab:green", ls="none", zorder=5)
+        goal_ring = ax.add_patch(Circle(tuple(goal), env.goal_tolerance, fill=False, ls="--",
+                                        edgecolor="tab:green", **moving))
+        goal_star = ax.plot(*goal, marker="*", ms=14, color="tab:green", ls="none", zorder=5,
+                            **moving)[0]
+        self.canvas.restore_region(self._background)
+        ax.draw_artist(goal_ring)
+        ax.draw_artist(goal_star)
+        self._layout_background = self.canvas.copy_from_bbox(self.fig.bbox)
+        goal_ring.remove()
+        goal_star.remove()
 
         n = env.n_obstacles
         colors = [OBSTACLE_COLORS[i % len(OBSTACLE_COLORS)] for i in range(n)]
         rgba = matplotlib.colors.to_rgba_array(colors) if n else np.zeros((0, 4))
-        self._sample_colors = rgba
-        self._samples = ax.scatter(np.zeros(0), np.zeros(0), s=2, linewidths=0, zorder=2)
-        self._ego_trail = ax.plot([], [], color=EGO_COLOR, lw=1.5, zorder=3)[0]
+        self._sample_rgb = rgba[:, :3] * 255.0
+        discs, trails = rgba.copy(), rgba.copy()
+        discs[:, 3], trails[:, 3] = 0.6, 0.7
+        diameters = 2.0 * np.asarray(env.obstacle_radii, dtype=float)
+        self._obstacle_trails = ax.add_collection(
+            LineCollection([], colors=trails, linewidths=1.0, zorder=3, **moving),
+            autolim=False)
+        self._ego_trail = ax.plot([], [], color=EGO_COLOR, lw=1.5, zorder=3, **moving)[0]
+        self._obstacles = ax.add_collection(
+            EllipseCollection(diameters, diameters, np.zeros(n), units="xy",
+                              offsets=np.zeros((n, 2)), offset_transform=ax.transData,
+                              facecolors=discs, edgecolors=discs, zorder=4, **moving),
+            autolim=False)
         self._ego = ax.add_patch(Circle((0, 0), env.ego_radius, color=EGO_COLOR, alpha=0.8,
-                                        zorder=4))
-        self._obstacle_trails = [ax.plot([], [], color=c, lw=1, alpha=0.7, zorder=3)[0]
-                                 for c in colors]
-        self._obstacles = [
-            ax.add_patch(Circle((0, 0), r, color=c, alpha=0.6, zorder=4))
-            for r, c in zip(env.obstacle_radii, colors, strict=True)
-        ]
-        self._text = ax.text(0.02, 0.98, "", transform=ax.transAxes, va="top", fontsize=9)
+                                        zorder=4, **moving))
+        self._moving = [self._obstacle_trails, self._ego_trail, self._obstacles, self._ego]
         self._layout = layout
+
+    # -------------------------------------------------------------- drawing
+
+    def _composite_samples(self, buffer: np.ndarray, predictions: np.ndarray) -> None:
+        """Alpha-blend 2 x 2 px dots of each obstacle's samples into ``buffer`` (H, W, 4).
+
+        Obstacle by obstacle, in order (as a scatter plot would draw them): a pixel
+        under ``k`` dots of colour ``c`` goes from ``d`` to ``c + (d - c)(1 - a)^k``.
+        The dots are counted per pixel with ``bincount`` over the box the obstacle's
+        samples cover (clipped to the axes).
+        """
+        (m00, m01, m02), (m10, m11, m12) = self._affine[0], self._affine[1]
+        c0, c1, r0, r1 = self._clip
+        height = self._height
+        keep = 1.0 - SAMPLE_ALPHA
+        rgb = buffer.reshape(-1, 4)  # a view: the buffer is contiguous
+        for i in range(predictions.shape[0]):
+            points = predictions[i].reshape(-1, 2)
+            if not np.isfinite(points).all():
+                points = points[np.isfinite(points).all(axis=1)]
+            if points.shape[0] == 0:
+                continue
+            x = points[:, 0] * m00 + points[:, 1] * m01 + m02  # display pixels
+            y = points[:, 0] * m10 + points[:, 1] * m11 + m12
+            cols = np.floor(x - 0.5).astype(np.int64)  # dot's left column
+            rows = np.floor(height - y - 0.5).astype(np.int64)  # dot's top row
+            cmin, cmax, rmin, rmax = int(cols.min()), int(cols.max()), int(rows.min()), \
+                int(rows.max())
+            left, right = max(cmin, c0), min(cmax + 2, c1)
+            top, bottom = max(rmin, r0), min(rmax + 2, r1)
+            if left >= right or top >= bottom:
+                continue
+            width, box_height = right - left, bottom - top
+            cols -= left
+            rows -= top
+            base = rows * width + cols
+            if left == cmin and right == cmax + 2 and top == rmin and bottom == rmax + 2:
+                index = np.concatenate((base, base + 1, base + width, base + width + 1))
+            else:  # some dots leave the axes: keep the pixels inside
+                parts = []
+                for dr, dc in ((0, 0), (0, 1), (1, 0), (1, 1)):
+                    r, c = rows + dr, cols + dc
+                    inside = (r >= 0) & (r < box_height) & (c >= 0) & (c < width)
+                    parts.append((base + dr * width + dc)[inside])
+                index = np.concatenate(parts)
+            counts = np.bincount(index, minlength=width * box_height)
+            hit = np.flatnonzero(counts)
+            if hit.size == 0:
+                continue
+            row_of, col_of = np.divmod(hit, width)
+            pixels = (row_of + top) * self._width + (col_of + left)
+            colour = self._sample_rgb[i]
+            old = rgb[pixels, :3].astype(np.float64)
+            new = colour + (old - colour) * (keep ** counts[hit])[:, None]
+            rgb[pixels, :3] = np.rint(new).astype(np.uint8)
 
     def draw(
         self, env: SafeNavEnv, trail: list[tuple[np.ndarray, np.ndarray]]
@@ -109,58 +219,134 @@ class Renderer:
         Returns
         -------
         numpy.ndarray or None
-            The frame, uint8 of shape ``(H, W, 3)``, off-screen; ``None`` in human mode.
+            The frame, uint8 of shape ``(H, W, 3)``; ``None`` in human mode.
         """
-        layout = (
-            tuple(env.goal), tuple(map(tuple, env.position_bounds)), env.ego_radius,
-            tuple(env.obstacle_radii), env.goal_tolerance,
-        )
+        low, high = env.position_bounds
+        if self._background is None or self._arena != (tuple(low), tuple(high)):
+            self._setup_background(env)
+        layout = (tuple(env.goal), env.ego_radius, tuple(env.obstacle_radii),
+                  env.goal_tolerance)
         if layout != self._layout:
-            self._setup(env, layout)
-        for artist in self._hook_artists:
-            artist.remove()
-        ax = self.ax
+            self._setup_artists(env, layout)
+        ax, canvas = self.ax, self.canvas
 
-        p = env.ego_state[:2]
-        self._ego.set_center(tuple(p))
+        self._ego.set_center(tuple(env.ego_state[:2]))
         if trail:
             ego_path = np.array([t[0] for t in trail])
             self._ego_trail.set_data(ego_path[:, 0], ego_path[:, 1])
             if env.n_obstacles:
                 paths = np.array([t[1] for t in trail])  # (steps, n, 2)
-                for i, line in enumerate(self._obstacle_trails):
-                    line.set_data(paths[:, i, 0], paths[:, i, 1])
-        for circle, position in zip(self._obstacles, env.obstacle_positions, strict=True):
-            circle.set_center(tuple(position))
+                self._obstacle_trails.set_segments(list(paths.transpose(1, 0, 2)))
+        if env.n_obstacles:
+            self._obstacles.set_offsets(np.asarray(env.obstacle_positions, dtype=float))
 
-        predictions = env.predictions  # (n, S, T, 2)
-        n, s, t = predictions.shape[:3]
-        self._samples.set_offsets(predictions.reshape(-1, 2))
-        colors = np.repeat(self._sample_colors, s * t, axis=0)
-        colors[:, 3] = 0.15
-        self._samples.set_facecolors(colors)
-        self._text.set_text(f"t = {env.time:.1f} s   {env.scenario.name}")
-        ax.set_xlim(*self._limits[0])
-        ax.set_ylim(*self._limits[1])
+        canvas.restore_region(self._layout_background)
+        buffer = np.asarray(canvas.buffer_rgba())  # a view of the Agg buffer
+        self._composite_samples(buffer, np.asarray(env.predictions))
+        for artist in self._moving:
+            ax.draw_artist(artist)
 
         before = set(ax.get_children())
-        for hook in env.render_hooks:
-            hook(ax)
-        self._hook_artists = [a for a in ax.get_children() if a not in before]
+        try:
+            for hook in env.render_hooks:
+                hook(ax)
+            if ax.get_xlim() != self._limits[0] or ax.get_ylim() != self._limits[1]:
+                ax.set_xlim(*self._limits[0])  # a hook moved the view: put it back
+                ax.set_ylim(*self._limits[1])
+            added = [a for a in ax.get_children() if a not in before]
+            for artist in sorted(added, key=lambda a: a.get_zorder()):
+                ax.draw_artist(artist)
+        finally:
+            for artist in [a for a in ax.get_children() if a not in before]:
+                artist.remove()
+        self._caption.draw(buffer, f"t = {env.time:.1f} s   {env.scenario.name}")
 
+        frame = np.empty((*buffer.shape[:2], 3), dtype=np.uint8)
+        for k in range(3):  # per channel: faster than copying the strided [..., :3] view
+            frame[..., k] = buffer[..., k]
         if self.human:
-            plt = self._plt
-            if not self._shown:
-                plt.show(block=False)
-                self._shown = True
-            self.fig.canvas.draw_idle()
-            plt.pause(1.0 / self.fps)
+            self._show(frame)
             return None
-        self.fig.canvas.draw()
-        return np.asarray(self.fig.canvas.buffer_rgba())[..., :3].copy()
+        return frame
+
+    def _show(self, frame: np.ndarray) -> None:
+        if self._plt is None:
+            import matplotlib.pyplot as plt
+
+            self._plt = plt
+            self._window = plt.figure(figsize=self.fig.get_size_inches(), dpi=self.fig.dpi)
+            axes = self._window.add_axes((0, 0, 1, 1))
+            axes.set_axis_off()
+            self._image = axes.imshow(frame, interpolation="nearest")
+            plt.show(block=False)
+        else:
+            self._image.set_data(frame)
+        self._window.canvas.draw_idle()
+        self._plt.pause(1.0 / self.fps)
 
     def close(self) -> None:
-        """Release the figure."""
-        if self._plt is not None:
-            self._plt.close(self.fig)
+        """Release the window, if any, and forget the cached background."""
+        if self._plt is not None and self._window is not None:
+            self._plt.close(self._window)
+        self._plt = self._window = self._image = None
         self._layout = None
+        self._background = None
+        self._arena = None
+
+
+class _Caption:
+    """The caption above the axes, composed from cached monospace glyph cells.
+
+    Text is the slowest thing matplotlib draws (2-4 ms a string). Each character is
+    drawn by matplotlib once, into a cell of the caption strip, and its pixels are
+    kept; a caption is then the cells side by side, one advance width apart (ink
+    combined with ``min``: dark text on the white figure). Only the strip above the
+    axes is touched, where nothing else is drawn.
+    """
+
+    def __init__(self, renderer: Renderer, *, top_row: int, left: int) -> None:
+        from matplotlib.font_manager import FontProperties
+
+        self._renderer = renderer
+        self._rows = slice(max(0, top_row - 22), max(1, top_row))  # 22 px tall strip
+        self._left = left
+        fig = renderer.fig
+        self._prop = FontProperties(**CAPTION_FONT)
+        agg = renderer.canvas.get_renderer()
+        width = agg.get_text_width_height_descent("0" * 20, self._prop, ismath=False)[0]
+        self.advance = width / 20.0
+        self._cell = int(np.ceil(self.advance)) + 2
+        height = renderer.fig.bbox.height
+        self._text = fig.text(left / fig.bbox.width, (height - self._rows.stop + 6) / height,
+                              "", fontproperties=self._prop, animated=True)
+        self._glyphs: dict[str, np.ndarray] = {}
+        self._last = ""
+
+    def _glyph(self, buffer: np.ndarray, char: str) -> np.ndarray:
+        cell = self._glyphs.get(char)
+        if cell is None:
+            renderer = self._renderer
+            columns = slice(self._left, self._left + self._cell)
+            saved = buffer[self._rows, columns, :3].copy()
+            buffer[self._rows, columns, :3] = 255
+            self._text.set_text(char)
+            renderer.ax.draw_artist(self._text)
+            cell = buffer[self._rows, columns, :3].copy()
+            buffer[self._rows, columns, :3] = saved
+            self._glyphs[char] = cell
+        return cell
+
+    def draw(self, buffer: np.ndarray, caption: str) -> None:
+        """Write ``caption`` into the strip of ``buffer`` (H, W, 4), over white."""
+        strip = buffer[self._rows, :, :3]
+        strip[...] = 255
+        width = strip.shape[1]
+        for i, char in enumerate(caption):
+            if char == " ":
+                continue
+            cell = self._glyph(buffer, char)
+            x = self._left + int(round(i * self.advance))
+            if x + cell.shape[1] > width:
+                break
+            target = strip[:, x : x + cell.shape[1]]
+            np.minimum(target, cell, out=target)

@@ -60,3 +60,121 @@ def test_render_without_mode_warns():
     env.reset(seed=0)
     with pytest.warns(UserWarning, match="render_mode"):
         assert env.unwrapped.render() is None
+
+
+def _background_and_transform(renderer):
+    """The cached background as an array, and the data -> pixel map of the renderer."""
+    renderer.canvas.restore_region(renderer._background)
+    return np.asarray(renderer.canvas.buffer_rgba()).copy(), renderer._transform
+
+
+def test_sample_dots_blend_like_a_slow_reference():
+    from safe_nav_env.rendering import SAMPLE_ALPHA
+
+    env = gym.make("SafeNav/MultiObstacle-v0", render_mode="rgb_array")
+    env.reset(seed=0)
+    env.render()
+    renderer = env.unwrapped._renderer
+    background, transform = _background_and_transform(renderer)
+    rng = np.random.default_rng(3)
+    # Three obstacles, repeated and overlapping points, some outside the axes, one inf.
+    predictions = rng.normal(scale=0.4, size=(3, 30, 4, 2))
+    predictions[1] = predictions[0] + 0.01  # obstacle 1 draws over obstacle 0
+    predictions[2, :5] = predictions[2, 0]  # five identical samples
+    predictions[2, 6, 0] = (40.0, 0.0)  # outside the axes
+    predictions[0, 7, 1] = (np.inf, np.inf)
+    fast = background.copy()
+    renderer._composite_samples(fast, predictions)
+
+    slow = background[..., :3].astype(np.float64)
+    height = background.shape[0]
+    c0, c1, r0, r1 = renderer._clip
+    for i in range(3):
+        colour = renderer._sample_rgb[i]
+        for point in predictions[i].reshape(-1, 2):
+            if not np.all(np.isfinite(point)):
+                continue
+            x, y = transform.transform(point[None])[0]
+            col, row = int(np.floor(x - 0.5)), int(np.floor(height - y - 0.5))
+            for dr in (0, 1):
+                for dc in (0, 1):
+                    r, c = row + dr, col + dc
+                    if r0 <= r < r1 and c0 <= c < c1:
+                        slow[r, c] = SAMPLE_ALPHA * colour + (1 - SAMPLE_ALPHA) * slow[r, c]
+        slow = np.rint(slow)  # the fast path stores uint8 after each obstacle
+    assert np.abs(fast[..., :3].astype(int) - slow.astype(int)).max() <= 1
+    assert (fast[..., :3] != background[..., :3]).any()
+    np.testing.assert_array_equal(fast[..., 3], background[..., 3])
+    env.close()
+
+
+def test_cached_caption_glyphs_give_the_same_frame_as_drawing_them():
+    env = gym.make("SafeNav/HeadOn-v0", render_mode="rgb_array")
+    env.reset(seed=0)
+    env.step(np.zeros(2, np.float32))
+    first = env.render()  # glyphs drawn by matplotlib and cached ...
+    caption = env.unwrapped._renderer._caption
+    assert set("t=0.2shead_on") <= set(caption._glyphs)
+    second = env.render()  # ... and composed from the cache
+    caption._glyphs.clear()
+    third = env.render()  # drawn again
+    np.testing.assert_array_equal(first, second)
+    np.testing.assert_array_equal(first, third)
+    strip = first[caption._rows]
+    assert (strip < 128).any(axis=-1).sum() > 100  # there is dark text in the strip
+    env.step(np.zeros(2, np.float32))
+    fourth = env.render()  # t = 0.4 s: the strip changes, the arena background does not
+    assert not np.array_equal(strip, fourth[caption._rows])
+    env.close()
+
+
+def test_hook_artists_are_drawn_once_and_do_not_pile_up():
+    env = gym.make("SafeNav/HeadOn-v0", render_mode="rgb_array")
+    env.reset(seed=0)
+    plain = env.render()
+    hook = lambda ax: ax.axvline(-5.2, color=(0.0, 1.0, 0.0), lw=4)  # noqa: E731
+    env.unwrapped.render_hooks.append(hook)
+    with_hook = env.render()
+    green = (with_hook[..., 1] == 255) & (with_hook[..., 0] == 0) & (with_hook[..., 2] == 0)
+    assert green.sum() > 500  # the hook's line is in the frame
+    children = len(env.unwrapped._renderer.ax.get_children())
+    env.render()
+    assert len(env.unwrapped._renderer.ax.get_children()) == children
+    env.unwrapped.render_hooks.remove(hook)
+    np.testing.assert_array_equal(env.render(), plain)  # and gone without the hook
+    env.close()
+
+
+def test_filter_halfspaces_are_drawn_through_the_hook():
+    from filters import SafetyFilterWrapper
+
+    env = SafetyFilterWrapper(gym.make("SafeNav/HeadOn-v0", render_mode="rgb_array"),
+                              risk="dr_cvar")
+    env.reset(seed=0)
+    env.step(np.zeros(2))
+    with_halfspaces = env.render()
+    env.unwrapped.render_hooks.clear()
+    without = env.render()
+    assert (with_halfspaces != without).any(axis=-1).sum() > 100
+    env.close()
+
+
+def test_blitted_frames_are_much_cheaper_than_a_full_redraw():
+    """A ratio in one run (the machine is shared); scripts/benchmark_render.py gives ms."""
+    import time
+
+    env = gym.make("SafeNav/MultiObstacle-v0", render_mode="rgb_array")
+    env.reset(seed=0)
+    env.render()
+    canvas = env.unwrapped._renderer.canvas
+    blitted, full = [], []
+    for _ in range(15):
+        env.step(np.zeros(2, np.float32))
+        start = time.perf_counter()
+        env.render()
+        blitted.append(time.perf_counter() - start)
+        start = time.perf_counter()
+        canvas.draw()  # what every frame cost before: a full redraw (here without movers)
+        full.append(time.perf_counter() - start)
+    assert np.median(blitted) < 0.5 * np.median(full)
+    env.close()
