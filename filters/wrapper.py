@@ -26,7 +26,7 @@ import numpy as np
 
 from filters._validation import scalar_in_range
 from filters.calibration import OnlineCalibration
-from filters.errors import InvalidParameterError, InvalidTypeError
+from filters.errors import InvalidArrayError, InvalidParameterError, InvalidTypeError
 from filters.geometry import Disc
 from filters.halfspaces import Halfspaces, safe_halfspaces
 from filters.intersample import intersample_rows
@@ -543,6 +543,11 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 f"{predictions.shape[2]} of the environment"
             )
         samples = predictions[:, :, : self.horizon]
+        if not np.all(np.isfinite(samples)):
+            raise InvalidArrayError(
+                "the environment's predictions hold NaN or infinite samples (at indices "
+                f"{np.argwhere(~np.isfinite(samples))[0].tolist()})"
+            )
         previous = self._previous_normals
         if previous is not None and previous.shape[0] == len(radii):
             # Last step's normals, shifted by one step to line up with this horizon.

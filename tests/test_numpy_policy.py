@@ -228,7 +228,7 @@ def test_torch_actor_keeps_evaluation_records_identical(shipped):
 
     model, _ = shipped
     actor = TorchActorPolicy.from_sb3(model)
-    timing = {"wall_time", "filter_time_median", "filter_time_max"}
+    timing = {"wall_time", "filter_time_median", "filter_time_max", "policy"}  # + its name
     for spec in (EpisodeSpec("SafeNav/MultiObstacle-v0", "dr_cvar", 0),
                  EpisodeSpec("SafeNav/HeadOn-v0", "none", 1)):
         records = [dataclasses.asdict(run_episode(spec, policy=p)[0]) for p in (model, actor)]

@@ -198,5 +198,5 @@ def test_status_shares_and_the_first_error_reason():
     assert shares == pytest.approx({"optimal": 0.5, "soft": 0.2, "recovery": 0.1,
                                     "shifted": 0.0, "brake": 0.1, "error": 0.1})
     assert summary["first_error"] == "step 8: NaN action"
-    assert summary["fallback_steps"] == 1
+    assert summary["fallback_steps"] == 5  # every step whose constraints did not all hold
     assert summary["min_swept_distance"] == pytest.approx(0.4)

@@ -114,7 +114,7 @@ def test_cached_caption_glyphs_give_the_same_frame_as_drawing_them():
     env.step(np.zeros(2, np.float32))
     first = env.render()  # glyphs drawn by matplotlib and cached ...
     caption = env.unwrapped._renderer._caption
-    assert set("t=0.2shead_on") <= set(caption._glyphs)
+    assert set("t=0.2sHeadOn") <= set(caption._glyphs)  # the canonical scenario name
     second = env.render()  # ... and composed from the cache
     caption._glyphs.clear()
     third = env.render()  # drawn again
