@@ -64,12 +64,13 @@ class FilterStepBenchmark:
     step_qp_ms: float  # our full step, median over the qp_steps
     cvxpy_qp_steps_ms: float  # CVXPY, median over the same qp_steps
     statuses: dict[str, int]
+    variant: str = "the paper's filter"
 
     def format(self) -> str:
         statuses = ", ".join(f"{k} {v}" for k, v in sorted(self.statuses.items()))
         return "\n".join([
-            f"(b) one filter step, MultiObstacle (3 obstacles, T = 10, N_s = 100), "
-            f"{self.steps} steps, medians:",
+            f"(b) one filter step, {self.variant}, MultiObstacle (3 obstacles, T = 10, "
+            f"N_s = 100), {self.steps} steps, medians:",
             f"    ours: halfspaces {self.halfspaces_ms:.3f} ms + QP {self.qp_ms:.3f} ms = "
             f"step {self.step_ms:.3f} ms (p90 {self.step_p90_ms:.3f} ms)",
             f"    CVXPY QP built once with Parameters (Clarabel): {self.cvxpy_qp_ms:.3f} ms",
@@ -83,8 +84,14 @@ class FilterStepBenchmark:
         ])
 
 
-def benchmark_filter_step(n_steps: int = 500, seed: int = 0) -> FilterStepBenchmark:
+def benchmark_filter_step(n_steps: int = 500, seed: int = 0, *,
+                          continuous: bool = False) -> FilterStepBenchmark:
     """Time the full DR-CVaR filter step along real MultiObstacle episodes.
+
+    ``continuous=False`` times the paper's filter (the halfspaces at the samples, hard
+    QP); ``continuous=True`` the wrapper's default one: the inter-sample rows of
+    :func:`filters.intersample_rows` (twice the rows), the terminal set and the soft
+    recovery, the same in both solvers.
 
     The reference is the paper's obstacle-agnostic MPC plan; the applied action is
     ours, so the episode follows the filtered trajectory, as in a real control loop.
@@ -96,7 +103,14 @@ def benchmark_filter_step(n_steps: int = 500, seed: int = 0) -> FilterStepBenchm
 
     import safe_nav_env  # noqa: F401
     from agents.planners import MPCReferencePlanner
-    from filters import CVXPYSafetyFilter, Disc, MPCSafetyFilter, safe_halfspaces
+    from filters import (
+        CVXPYSafetyFilter,
+        Disc,
+        MPCSafetyFilter,
+        intersample_rows,
+        safe_halfspaces,
+        stopping_terminal_set,
+    )
 
     env = gym.make("SafeNav/MultiObstacle-v0", n_samples=100, horizon=10)
     base = env.unwrapped
@@ -104,7 +118,10 @@ def benchmark_filter_step(n_steps: int = 500, seed: int = 0) -> FilterStepBenchm
     planner = MPCReferencePlanner.from_env(env)
     weights = dict(horizon=10, Q=4.0 * np.eye(4), Q_terminal=25.0 * np.eye(4), R=np.eye(2),
                    input_bounds=base.input_bounds, position_bounds=base.position_bounds,
-                   n_obstacles=3)
+                   n_obstacles=6 if continuous else 3)
+    if continuous:
+        weights.update(fallback="soft", terminal_set=stopping_terminal_set(
+            base.dt, base.input_bounds, base.position_bounds))
     ours = MPCSafetyFilter(A, B, C, **weights)
     halfspace_ms, qp_ms, step_ms, needed_qp = [], [], [], []
     instances = []
@@ -125,6 +142,11 @@ def benchmark_filter_step(n_steps: int = 500, seed: int = 0) -> FilterStepBenchm
             hs = safe_halfspaces(
                 ref_states[1:] @ C.T, base.predictions, ego_shape=ego_shape,
                 obstacle_shapes=obstacle_shapes, risk="dr_cvar", ego_velocity=x0[2:])
+            if continuous:
+                rows = intersample_rows(hs, base.predictions, ego_shape=ego_shape,
+                                        obstacle_shapes=obstacle_shapes,
+                                        input_bounds=base.input_bounds, dt=base.dt)
+                hs = (rows.normals, rows.offsets)
             middle = time.perf_counter()
             result = ours.solve(x0, ref_states, hs, reference_inputs=ref_inputs)
             end = time.perf_counter()
@@ -157,7 +179,9 @@ def benchmark_filter_step(n_steps: int = 500, seed: int = 0) -> FilterStepBenchm
         step_p90_ms=float(np.percentile(step_ms, 90)), cvxpy_qp_ms=float(np.median(cvxpy_ms)),
         ratio=float(np.median(cvxpy_ms)) / step, qp_steps=int(mask.sum()),
         step_qp_ms=float(np.median(steps_qp)), cvxpy_qp_steps_ms=float(np.median(cvxpy_qp)),
-        statuses=statuses)
+        statuses=statuses,
+        variant="the continuous-time filter (inter-sample rows, terminal set, recovery)"
+        if continuous else "the paper's filter")
 
 
 def run_benchmarks(filter_steps: int = 500, table_repeats: int = 100, seed: int = 0,
@@ -174,6 +198,7 @@ def run_benchmarks(filter_steps: int = 500, table_repeats: int = 100, seed: int 
     table = halfspace_timing_table((50, 500, 1500), table_repeats, seed)
     parts.append("(a) " + format_table_one(table["result"]))
     parts.append(benchmark_filter_step(filter_steps, seed).format())
+    parts.append(benchmark_filter_step(filter_steps, seed, continuous=True).format())
     parts.append("    QP alone on synthetic instances:\n" + format_filter_qp(
         benchmark_filter_qp(n_steps=filter_steps, seed=seed)))
     rates = env_benchmark(n_steps=env_steps, repeats=3, seed=seed)
