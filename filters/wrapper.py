@@ -521,16 +521,15 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         )
         return applied, report
 
-    def _normal_origins(self, x0: np.ndarray, ref_positions: np.ndarray) -> np.ndarray:
-        """Positions ``(T, d)`` the normals start from (see ``normals``)."""
+    def _normal_origins(self, y0: np.ndarray, ref_positions: np.ndarray) -> np.ndarray:
+        """Positions ``(T, d)`` the normals start from (see ``normals``); ``y0 = C x0``."""
         if self.normals == "ego":
-            return np.broadcast_to(x0[: ref_positions.shape[1]], ref_positions.shape)
+            return np.broadcast_to(y0, ref_positions.shape)
         plan = self._last_plan
         if self.normals == "previous_plan" and plan is not None:
-            C = self._base.dynamics[2]
-            positions = plan @ C.T  # (T+1, d) planned at the last step
+            positions = plan @ self._base.dynamics[2].T  # (T+1, d) planned at the last step
             shifted = np.concatenate([positions[2:], positions[-1:]], axis=0)
-            return shifted - positions[1] + x0[: positions.shape[1]]  # re-anchored at y0
+            return shifted - positions[1] + y0  # re-anchored at the current position
         return ref_positions
 
     def _halfspaces(
@@ -556,11 +555,12 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             previous = None
         ego_shape, obstacle_shapes = self._shapes(float(base.ego_radius), radii)
         C = base.dynamics[2]
-        origins = self._normal_origins(x0, ref_states[1:, :] @ C.T)
+        y0 = C @ x0
+        origins = self._normal_origins(y0, ref_states[1:, :] @ C.T)
         options = self._risk_options()
         given = None
         if self.normals == "nearside" and len(radii):
-            given = _nearside_normals(samples, origins, x0[: origins.shape[1]])
+            given = _nearside_normals(samples, origins, y0)
         halfspaces = safe_halfspaces(
             origins, samples, ego_shape=ego_shape, obstacle_shapes=obstacle_shapes,
             support=self.support, previous_normals=previous, ego_velocity=x0[2:],
