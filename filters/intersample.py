@@ -65,11 +65,9 @@ import numpy as np
 
 from filters.geometry import Shape
 from filters.halfspaces import Halfspaces, safe_halfspaces
+from filters.mpc.filter import DISABLED_OFFSET
 
 __all__ = ["IntersampleRows", "arc_margin", "intersample_rows"]
-
-#: Offset of a disabled row ``0 @ y <= 1`` (always satisfied, slack 1).
-_DISABLED_OFFSET = 1.0
 
 
 def arc_margin(
@@ -163,7 +161,7 @@ def intersample_rows(
     k, horizon, dim = normals.shape
     margins = arc_margin(normals, input_bounds, dt)
     rows_n = np.zeros((2 * k, horizon, dim))
-    rows_b = np.full((2 * k, horizon), _DISABLED_OFFSET)
+    rows_b = np.full((2 * k, horizon), DISABLED_OFFSET)  # 0 @ y <= 1: off
     rows_n[:k] = normals
     rows_b[:k] = offsets - margins
     options = dict(risk=halfspaces.risk, alpha=halfspaces.alpha, delta=halfspaces.delta,
