@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agents.records import FILTER_STATUSES, RISKS, EpisodeRecord
+from agents.records import AUTO, FILTER_STATUSES, RISKS, EpisodeRecord
 
 RISK_ORDER = {risk: i for i, risk in enumerate(RISKS)}
 """Table order of the risk settings (:data:`filters.wrapper.RISKS`)."""
@@ -75,17 +75,33 @@ class SummaryRow:
     collision_causes: tuple[tuple[str, int], ...] = ()
     first_error: str = ""
     first_failure: str = ""
+    method: str = ""
+
+
+def method_label(risk: str, epsilon: float | str) -> str:
+    """The method's name in tables: the risk, ``"dr_cvar (eps=auto)"`` for the online radius."""
+    return f"{risk} (eps=auto)" if epsilon == AUTO else risk
+
+
+def _group(record: EpisodeRecord) -> tuple[str, str, str, bool]:
+    """(scenario or stress case, planner, risk, online radius?) of a record."""
+    return (record.case or record.scenario, record.planner, record.risk, record.epsilon == AUTO)
 
 
 def summarise(records: Iterable[EpisodeRecord]) -> list[SummaryRow]:
-    """One :class:`SummaryRow` per (scenario, planner, risk), in a stable order."""
-    groups: dict[tuple[str, str, str], list[EpisodeRecord]] = defaultdict(list)
+    """One :class:`SummaryRow` per (scenario, planner, risk), in a stable order.
+
+    A stress-suite record counts under its case (``record.case``) as the scenario, and
+    ``epsilon="auto"`` is a method of its own (``method`` ``"dr_cvar (eps=auto)"``).
+    """
+    groups: dict[tuple[str, str, str, bool], list[EpisodeRecord]] = defaultdict(list)
     for record in records:
-        groups[(record.scenario, record.planner, record.risk)].append(record)
+        groups[_group(record)].append(record)
     rows = []
-    for (scenario, planner, risk), group in sorted(
+    for (scenario, planner, risk, auto), group in sorted(
         groups.items(), key=lambda item: (item[0][0], item[0][1],
-                                           RISK_ORDER.get(item[0][2], len(RISK_ORDER)))
+                                           RISK_ORDER.get(item[0][2], len(RISK_ORDER)),
+                                           item[0][3])
     ):
         ok = [r for r in group if not r.error]
         n = len(ok)
@@ -121,6 +137,7 @@ def summarise(records: Iterable[EpisodeRecord]) -> list[SummaryRow]:
             status_shares=shares, collision_causes=causes,
             first_error=errors[0] if errors else "",
             first_failure=failures[0][:200] if failures else "",
+            method=method_label(risk, AUTO if auto else 0.0),
         ))
     return rows
 
@@ -140,7 +157,8 @@ def markdown_table(rows: Sequence[SummaryRow]) -> str:
     for r in rows:
         failed = f" ({r.failed} failed)" if r.failed else ""
         lines.append(
-            f"| {short_name(r.scenario)} | {r.planner} | {r.risk} | {r.episodes}{failed} | "
+            f"| {short_name(r.scenario)} | {r.planner} | {r.method or r.risk} | "
+            f"{r.episodes}{failed} | "
             f"{r.collision_rate:.1%} [{r.collision_low:.1%}, {r.collision_high:.1%}] | "
             f"{r.sampled_collision_rate:.1%} | "
             f"{r.worst_distance:.3f} | {r.worst_swept_distance:.3f} | {r.cvar_distance:.3f} | "
@@ -163,6 +181,120 @@ def status_table(rows: Sequence[SummaryRow]) -> str:
                            for s in FILTER_STATUSES)  # "none": every step is a passthrough
         cause_cell = " / ".join(str(causes.get(c, 0)) for c in COLLISION_CAUSES)
         reason = (r.first_error or r.first_failure or "").replace("|", "/")
-        lines.append(f"| {short_name(r.scenario)} | {r.planner} | {r.risk} | {cells} | "
+        lines.append(f"| {short_name(r.scenario)} | {r.planner} | {r.method or r.risk} | {cells} | "
                      f"{cause_cell} | {reason} |")
     return "\n".join(lines) + "\n"
+
+
+# ---------------------------------------------------------------------------- guarantee audit
+@dataclass(frozen=True)
+class AuditRow:
+    """The guarantee audit of one (scenario or case, planner, method); see :mod:`agents.audit`.
+
+    Attributes
+    ----------
+    scenario, planner, risk, method
+        As in :class:`SummaryRow`.
+    promise
+        ``"mean"``, ``"cvar"`` or ``"chance"`` (:data:`agents.audit.PROMISES`).
+    active
+        The pooled losses of the active first-step halfspaces.
+    all_steps, all_violations, all_mean_loss
+        Every first-step halfspace, active or not: count, ``loss > delta`` count,
+        mean loss (m).
+    """
+
+    scenario: str
+    planner: str
+    risk: str
+    method: str
+    promise: str
+    active: object  # agents.audit.AuditResult
+    all_steps: int
+    all_violations: int
+    all_mean_loss: float
+
+
+def audit_rows(records: Iterable[EpisodeRecord]) -> list[AuditRow]:
+    """Pool the records' audit losses per (scenario or case, planner, method).
+
+    Unfiltered runs (``risk="none"``, no halfspaces) and failed episodes are left out.
+    Each group's ``alpha`` and ``delta`` are its records' (a group mixing several
+    raises :class:`~filters.errors.InvalidParameterError`).
+    """
+    from agents.audit import PROMISES, audit_losses, decode_losses
+    from filters.errors import InvalidParameterError
+
+    groups: dict[tuple[str, str, str, bool], list[EpisodeRecord]] = defaultdict(list)
+    for record in records:
+        if record.risk != "none" and not record.error:
+            groups[_group(record)].append(record)
+    rows = []
+    for (scenario, planner, risk, auto), group in sorted(
+        groups.items(), key=lambda item: (item[0][0], item[0][1],
+                                           RISK_ORDER.get(item[0][2], len(RISK_ORDER)),
+                                           item[0][3])
+    ):
+        settings = {(r.alpha, r.delta) for r in group}
+        if len(settings) > 1:
+            raise InvalidParameterError(
+                f"the audit pools one (alpha, delta) per method; {scenario} {risk} has "
+                f"{sorted(settings)}")
+        alpha, delta = settings.pop()
+        losses = np.concatenate([decode_losses(r.audit_losses) for r in group])
+        all_steps = sum(r.audit_all_steps for r in group)
+        rows.append(AuditRow(
+            scenario=scenario, planner=planner, risk=risk,
+            method=method_label(risk, AUTO if auto else 0.0), promise=PROMISES[risk],
+            active=audit_losses(losses, alpha=alpha, delta=delta),
+            all_steps=all_steps,
+            all_violations=sum(r.audit_all_violations for r in group),
+            all_mean_loss=(sum(r.audit_all_loss_sum for r in group) / all_steps
+                           if all_steps else math.nan),
+        ))
+    return rows
+
+
+_PROMISE_TEXT = {"mean": "E ℓ ≤ δ", "cvar": "CVaR_α ℓ ≤ δ", "chance": "P(ℓ > δ) ≤ α"}
+
+
+def audit_table(rows: Sequence[AuditRow]) -> str:
+    """The guarantee audit as Markdown: each method's promise against the realised losses.
+
+    The promised quantity is in bold; ``verdict`` is
+    :meth:`agents.audit.AuditResult.verdict`.
+    """
+    header = ("| scenario | planner | method | promise | active steps | mean loss (m) | "
+              "CVaR_α loss (m) | δ (m) | P(loss > δ) [95 % CI] | α | verdict | "
+              "all steps | all: P(loss > δ) | all: mean loss (m) |")
+    lines = [header, "|" + "---|" * 14]
+
+    def number(value: float, bold: bool) -> str:
+        text = "-" if math.isnan(value) else f"{value:.3f}"
+        return f"**{text}**" if bold and text != "-" else text
+
+    for r in rows:
+        a = r.active
+        rate = ("-" if a.n == 0 else
+                f"{a.violation_rate:.1%} [{a.violation_low:.1%}, {a.violation_high:.1%}]")
+        if r.promise == "chance" and a.n:
+            rate = f"**{rate}**"
+        all_rate = f"{r.all_violations / r.all_steps:.1%}" if r.all_steps else "-"
+        all_mean = "-" if math.isnan(r.all_mean_loss) else f"{r.all_mean_loss:.3f}"
+        lines.append(
+            f"| {short_name(r.scenario)} | {r.planner} | {r.method} | "
+            f"{_PROMISE_TEXT[r.promise]} | {a.n} | {number(a.mean_loss, r.promise == 'mean')} | "
+            f"{number(a.cvar_loss, r.promise == 'cvar')} | {a.delta:g} | {rate} | {a.alpha:g} | "
+            f"{a.verdict(r.promise)} | {r.all_steps} | {all_rate} | {all_mean} |")
+    return "\n".join(lines) + "\n"
+
+
+AUDIT_NOTE = (
+    "Loss ℓ = b + r − h·p of each obstacle's step-1 halfspace h·y ≤ b (r = r_A + r_O), at "
+    "the obstacle's realised position p one step later: the intrusion depth the risk bounds "
+    "(DESIGN.md section 1). *Active steps*: the applied plan's step-1 position within the "
+    "inter-sample bow margin + 1 mm of the offset, or beyond it (agents/audit.py). The "
+    "promised quantity is in bold. The Wilson interval treats the steps as independent "
+    "(successive steps of an episode are not), and the empirical CVaR has no interval. "
+    "*all*: every step-1 halfspace, active or not.\n")
+"""Explanation printed under the audit table."""
