@@ -78,8 +78,8 @@ PROMISES: dict[str, str] = {
 """What each risk promises about the loss: ``"mean"`` (E ℓ <= δ), ``"cvar"``
 (CVaR_α ℓ <= δ) or ``"chance"`` (P(ℓ > δ) <= α)."""
 
-_DIGITS = 6
-"""Significant digits of a loss in the records' ``audit_losses`` column (1 µm at 1 m)."""
+_DECIMALS = 4
+"""Decimals (m) of a loss in the records' ``audit_losses`` columns: 0.1 mm."""
 
 
 def first_step_losses(
@@ -241,8 +241,14 @@ def audit_losses(losses: Sequence[float] | np.ndarray, *, alpha: float,
 
 
 def encode_losses(losses: Iterable[float]) -> str:
-    """Losses as the records' ``audit_losses`` text: ``";"``-separated, 6 significant digits."""
-    return ";".join(f"{float(v):.{_DIGITS}g}" for v in losses)
+    """Losses as the records' ``audit_losses`` text: ``";"``-separated, rounded to 0.1 mm."""
+    return ";".join(_short(f"{float(v):.{_DECIMALS}f}") for v in losses)
+
+
+def _short(text: str) -> str:
+    """``"0.1000"`` -> ``"0.1"``, ``"-0.0000"`` -> ``"0"``."""
+    text = text.rstrip("0").rstrip(".") if "." in text else text
+    return "0" if text in ("-0", "") else text
 
 
 def decode_losses(text: str) -> np.ndarray:

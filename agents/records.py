@@ -300,12 +300,10 @@ class EpisodeRecord:
     audit_steps, audit_losses
         The guarantee audit (:mod:`agents.audit`): the number of active first-step
         halfspaces (obstacle-steps) and their realised losses, in m, as
-        ``";"``-separated numbers with 6 significant digits (exact pooling over
-        episodes needs every loss, since a CVaR is not a sum). Empty when no filter ran.
-    audit_all_steps, audit_all_violations, audit_all_loss_sum
-        The same over *every* first-step halfspace, active or not, as sums: the number
-        of obstacle-steps, how many had a realised loss above ``delta``, and the summed
-        loss (m).
+        ``";"``-separated numbers rounded to 0.1 mm (pooling over episodes needs every
+        loss, since a CVaR is not a sum). Empty when no filter ran.
+    audit_all_steps, audit_all_losses
+        The same over *every* first-step halfspace, active or not.
     error
         Why the episode failed (an exception), else ``""``.
     """
@@ -354,8 +352,7 @@ class EpisodeRecord:
     audit_steps: int = 0
     audit_losses: str = ""
     audit_all_steps: int = 0
-    audit_all_violations: int = 0
-    audit_all_loss_sum: float = 0.0
+    audit_all_losses: str = ""
     wall_time: float = 0.0
     error: str = ""
 

@@ -240,7 +240,7 @@ def run_episode(
         try:
             obs, info = env.reset(seed=int(spec.seed))
             base = env.unwrapped
-            stats.start(base, info, intersample=_intersample(env), delta=spec.delta)
+            stats.start(base, info, intersample=_intersample(env))
             recorder = TrajectoryRecorder(env, render) if record_trajectory else None
             done = False
             while not done:
@@ -355,14 +355,11 @@ class EpisodeStats:
         self._position = np.zeros(2)
         self.intersample = False
         self.audit: list[float] = []
-        self.delta = math.nan
-        self.audit_all = [0, 0, 0.0]  # every first-step halfspace: count, loss > delta, sum
+        self.audit_all: list[float] = []
 
-    def start(self, base: Any, info: dict[str, Any], *, intersample: bool = False,
-              delta: float = math.nan) -> None:
+    def start(self, base: Any, info: dict[str, Any], *, intersample: bool = False) -> None:
         self.dt = float(base.dt)
         self.intersample = intersample
-        self.delta = delta
         self._position = np.asarray(base.ego_state[:2], dtype=float).copy()
         self._distance(info)
 
@@ -425,9 +422,7 @@ class EpisodeStats:
         margins = arc_margin(h, base.input_bounds, float(base.dt)) if self.intersample else 0.0
         active, losses = first_step_losses(h, b, y1, realised, radii, margins=margins)
         self.audit.extend(float(v) for v in losses[active])
-        self.audit_all[0] += int(losses.size)
-        self.audit_all[1] += int(np.count_nonzero(losses > self.delta))
-        self.audit_all[2] += float(losses.sum())
+        self.audit_all.extend(float(v) for v in losses)
 
     def collision_cause(self) -> str:
         """Why the first continuous-time collision happened (see :class:`EpisodeRecord`)."""
@@ -473,7 +468,6 @@ class EpisodeStats:
             episode_return=self.episode_return,
             audit_steps=len(self.audit),
             audit_losses=encode_losses(self.audit),
-            audit_all_steps=self.audit_all[0],
-            audit_all_violations=self.audit_all[1],
-            audit_all_loss_sum=self.audit_all[2],
+            audit_all_steps=len(self.audit_all),
+            audit_all_losses=encode_losses(self.audit_all),
         )

@@ -130,8 +130,8 @@ def test_audit_losses_validation_and_empty():
 def test_encode_decode_round_trip():
     values = np.array([0.123456789, -1.5e-7, 3.0])
     text = encode_losses(values)
-    assert text == "0.123457;-1.5e-07;3"
-    np.testing.assert_allclose(decode_losses(text), values, rtol=1e-5)
+    assert text == "0.1235;0;3"  # rounded to 0.1 mm
+    np.testing.assert_allclose(decode_losses(text), values, atol=5e-5)
     assert decode_losses("").size == 0
     with pytest.raises(RecordsFileError, match="audit_losses"):
         decode_losses("0.1;x")
@@ -143,8 +143,8 @@ def _record(risk, seed, losses, **kw):
     return EpisodeRecord(scenario="Custom", risk=risk, seed=seed, planner="ppo",
                          reference="rollout", alpha=0.2, delta=0.1, case="biased",
                          audit_steps=len(losses), audit_losses=encode_losses(losses),
-                         audit_all_steps=10, audit_all_violations=1, audit_all_loss_sum=-1.0,
-                         **kw)
+                         audit_all_steps=len(losses) + 1,
+                         audit_all_losses=encode_losses([*losses, -1.0]), **kw)
 
 
 def test_audit_rows_pool_episodes_through_the_csv(tmp_path):
@@ -165,7 +165,47 @@ def test_audit_rows_pool_episodes_through_the_csv(tmp_path):
     assert pooled.cvar_loss == pytest.approx(float(empirical_cvar(np.array(a + b), 0.2)))
     assert pooled.cvar_loss == pytest.approx(0.3)  # alpha N = 1: the largest loss
     assert pooled.violations == 2 and pooled.verdict("cvar") == "violated"
-    assert rows[0].all_steps == 20 and rows[0].all_mean_loss == pytest.approx(-0.1)
+    every = rows[0].all  # plus one loss of -1 m per episode
+    assert every.n == 7 and every.mean_loss == pytest.approx((0.35 - 2.0) / 7)
+    assert every.cvar_loss == pytest.approx(float(empirical_cvar(np.array(a + b + [-1, -1]),
+                                                                 0.2)))
     table = audit_table(rows)
-    assert "| biased | ppo | cvar | CVaR_α ℓ ≤ δ | 5 |" in table
-    assert "**0.300**" in table and "violated" in table
+    assert "| biased | ppo | cvar | CVaR_α ℓ ≤ δ | 0.2 | 0.1 | 5 | 0.070 | **0.300** |" in table
+    assert "violated" in table
+
+
+@pytest.mark.slow
+def test_episode_audit_matches_a_step_by_step_recomputation():
+    """The runner's audit columns equal the losses recomputed by hand from info and the env."""
+    from agents.records import EpisodeSpec
+    from agents.runner import make_env, run_episode
+    from filters.intersample import arc_margin
+
+    # turning, DR-CVaR with the online radius: two active step-1 halfspaces at seed 0
+    spec = EpisodeSpec("Custom", "dr_cvar", 0, epsilon="auto", case="turning")
+    record, _ = run_episode(spec)
+    assert record.error == ""
+    env, planner = make_env(spec)
+    obs, _ = env.reset(seed=0)
+    base = env.unwrapped
+    every, active = [], []
+    done = False
+    while not done:
+        action, _ = planner.predict(obs, deterministic=True)
+        obs, _, terminated, truncated, info = env.step(action)
+        report = info["filter"]
+        done = terminated or truncated
+        for i in range(len(base.obstacle_radii)):
+            h, b = report.normals[i, 0], report.offsets[i, 0]
+            p = np.asarray(info["obstacle_positions"][i])
+            loss = b + base.ego_radius + base.obstacle_radii[i] - h @ p
+            every.append(loss)
+            y1 = report.planned_states[1, :2]
+            if b - h @ y1 <= arc_margin(h, base.input_bounds, base.dt) + AUDIT_TOLERANCE:
+                active.append(loss)
+    env.close()
+    assert record.audit_all_steps == len(every) == 2 * record.steps
+    assert len(active) >= 1
+    np.testing.assert_allclose(decode_losses(record.audit_all_losses), every, atol=5.1e-5)
+    assert record.audit_steps == len(active)
+    np.testing.assert_allclose(decode_losses(record.audit_losses), active, atol=5.1e-5)

@@ -28,6 +28,9 @@ def test_tiny_stress_suite_end_to_end(tmp_path, capsys):
     assert all(r["scenario"] == "Custom" and r["error"] == "" for r in rows)
     for r in rows:  # the audit columns agree with each other
         assert int(r["audit_steps"]) == decode_losses(r["audit_losses"]).size
+        assert int(r["audit_all_steps"]) == decode_losses(r["audit_all_losses"]).size
+        active = set(r["audit_losses"].split(";")) - {""}
+        assert active <= set(r["audit_all_losses"].split(";"))
         filtered = r["risk"] != "none"
         assert (int(r["audit_all_steps"]) > 0) == filtered
         if r["case"] == "crossing5" and filtered:  # every step, five obstacles
