@@ -36,15 +36,17 @@ tolerance). A step where the plan violates the halfspace (soft mode) counts as a
 too. The promise matters only where it binds: an inactive halfspace is far from the
 ego, whatever its loss.
 
-Steps are pooled over episodes; the losses of successive steps of one episode are
+Steps are pooled over episodes. The losses of successive steps of one episode are
 correlated, so the Wilson interval of the violation frequency (which assumes
-independent trials) is optimistic, and the empirical CVaR is a point estimate.
+independent trials) is optimistic; the mean and the CVaR get a *cluster* bootstrap
+interval instead (:func:`cluster_bootstrap`: episodes, not steps, are resampled), which
+respects that correlation.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -58,6 +60,7 @@ __all__ = [
     "PROMISES",
     "AuditResult",
     "audit_losses",
+    "cluster_bootstrap",
     "decode_losses",
     "encode_losses",
     "first_step_losses",
@@ -168,6 +171,9 @@ class AuditResult:
         Active steps with :math:`\\ell > \\delta`.
     violation_rate, violation_low, violation_high
         ``violations / n`` and its Wilson 95 % interval.
+    mean_low, mean_high, cvar_low, cvar_high
+        95 % cluster-bootstrap intervals of the mean and the CVaR (episodes resampled;
+        NaN when the losses were not given per episode).
     """
 
     n: int
@@ -179,37 +185,91 @@ class AuditResult:
     violation_rate: float
     violation_low: float
     violation_high: float
+    mean_low: float = math.nan
+    mean_high: float = math.nan
+    cvar_low: float = math.nan
+    cvar_high: float = math.nan
 
     def verdict(self, promise: str) -> str:
         """Whether the promise (see :data:`PROMISES`) held on the realised losses.
 
-        ``"held"`` if the point estimate meets the bound; for the chance constraints
-        ``"violated"`` if even the Wilson interval lies above ``alpha`` and ``"within
-        noise"`` if only the point estimate does; for mean and CVaR (no interval)
-        ``"violated"`` when the point estimate exceeds ``delta``; ``"-"`` for no data.
+        ``"held"`` if the point estimate meets the bound; ``"violated"`` if even the
+        95 % interval lies beyond it (Wilson for P(ℓ > δ), the cluster bootstrap for the
+        mean and the CVaR; without a bootstrap interval, the point estimate decides);
+        ``"within noise"`` if only the point estimate does; ``"-"`` for no data.
         """
         if self.n == 0:
             return "-"
         if promise == "chance":
-            if self.violation_rate <= self.alpha:
-                return "held"
-            return "violated" if self.violation_low > self.alpha else "within noise"
-        value = self.mean_loss if promise == "mean" else self.cvar_loss
-        return "held" if value <= self.delta else "violated"
+            value, bound, low = self.violation_rate, self.alpha, self.violation_low
+        elif promise == "mean":
+            value, bound, low = self.mean_loss, self.delta, self.mean_low
+        else:
+            value, bound, low = self.cvar_loss, self.delta, self.cvar_low
+        if value <= bound:
+            return "held"
+        return "within noise" if not math.isnan(low) and low <= bound else "violated"
+
+
+def cluster_bootstrap(
+    groups: Sequence[np.ndarray],
+    statistic: Callable[[np.ndarray], float],
+    *,
+    n_boot: int = 1000,
+    level: float = 0.95,
+    seed: int = 0,
+) -> tuple[float, float]:
+    """Percentile interval of ``statistic`` over the pooled values, resampling whole groups.
+
+    Each replicate draws ``len(groups)`` groups (episodes) with replacement from a
+    seeded ``numpy.random.Generator``, pools their values and evaluates ``statistic``;
+    the interval is the ``(1 - level)/2`` and ``(1 + level)/2`` quantiles of the
+    replicates (replicates with no values are skipped). Correlation *within* a group is
+    kept, which an interval over independent steps would ignore.
+
+    Returns
+    -------
+    (low, high)
+        NaN, NaN if no group has a value.
+    """
+    sizes = np.array([len(g) for g in groups], dtype=int)
+    if sizes.sum() == 0:
+        return (math.nan, math.nan)
+    rng = np.random.default_rng(seed)
+    values = np.concatenate([np.asarray(g, dtype=float) for g in groups])
+    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+    replicates = []
+    for _ in range(n_boot):
+        chosen = rng.integers(0, len(groups), len(groups))
+        chosen = chosen[sizes[chosen] > 0]
+        if chosen.size == 0:
+            continue
+        lengths = sizes[chosen]
+        before = np.cumsum(lengths) - lengths  # where each chosen group starts in the replicate
+        index = (np.arange(lengths.sum()) + np.repeat(starts[chosen] - before, lengths))
+        replicates.append(statistic(values[index]))
+    low, high = np.quantile(replicates, [(1 - level) / 2, (1 + level) / 2])
+    return (float(low), float(high))
 
 
 def audit_losses(losses: Sequence[float] | np.ndarray, *, alpha: float,
-                 delta: float) -> AuditResult:
+                 delta: float, groups: Sequence[np.ndarray] | None = None,
+                 n_boot: int = 1000, seed: int = 0) -> AuditResult:
     """Empirical mean, CVaR_α and violation frequency P(ℓ > δ) of realised losses.
 
     Parameters
     ----------
     losses
-        Realised losses :math:`\\ell` of the active steps, in m.
+        Realised losses :math:`\\ell` of the active steps, in m (ignored when ``groups``
+        is given).
     alpha
         Tail mass of the CVaR and the allowed violation probability, in (0, 1].
     delta
         Risk bound, in m.
+    groups
+        The losses per episode; then they are pooled, and the mean and the CVaR get
+        cluster-bootstrap intervals (:func:`cluster_bootstrap`, ``n_boot`` replicates,
+        ``seed``).
 
     Raises
     ------
@@ -220,6 +280,9 @@ def audit_losses(losses: Sequence[float] | np.ndarray, *, alpha: float,
     """
     from agents.summary import wilson_interval
 
+    if groups is not None:
+        groups = [np.asarray(g, dtype=float).reshape(-1) for g in groups]
+        losses = np.concatenate(groups) if groups else np.zeros(0)
     x = np.asarray(losses, dtype=float).reshape(-1)
     if not np.all(np.isfinite(x)):
         raise InvalidArrayError("losses must be finite")
@@ -230,13 +293,19 @@ def audit_losses(losses: Sequence[float] | np.ndarray, *, alpha: float,
     n = int(x.size)
     violations = int(np.count_nonzero(x > delta))
     low, high = wilson_interval(violations, n)
+    intervals: dict[str, float] = {}
+    if groups is not None and n:
+        intervals["mean_low"], intervals["mean_high"] = cluster_bootstrap(
+            groups, np.mean, n_boot=n_boot, seed=seed)
+        intervals["cvar_low"], intervals["cvar_high"] = cluster_bootstrap(
+            groups, lambda v: float(empirical_cvar(v, float(alpha))), n_boot=n_boot, seed=seed)
     return AuditResult(
         n=n, alpha=float(alpha), delta=float(delta),
         mean_loss=float(x.mean()) if n else math.nan,
         cvar_loss=float(empirical_cvar(x, float(alpha))) if n else math.nan,
         violations=violations,
         violation_rate=violations / n if n else math.nan,
-        violation_low=low, violation_high=high,
+        violation_low=low, violation_high=high, **intervals,
     )
 
 

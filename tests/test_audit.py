@@ -11,6 +11,7 @@ from scipy.stats import norm
 from agents.audit import (
     AUDIT_TOLERANCE,
     audit_losses,
+    cluster_bootstrap,
     decode_losses,
     encode_losses,
     first_step_losses,
@@ -164,14 +165,16 @@ def test_audit_rows_pool_episodes_through_the_csv(tmp_path):
     assert pooled.n == 5
     assert pooled.cvar_loss == pytest.approx(float(empirical_cvar(np.array(a + b), 0.2)))
     assert pooled.cvar_loss == pytest.approx(0.3)  # alpha N = 1: the largest loss
-    assert pooled.violations == 2 and pooled.verdict("cvar") == "violated"
+    assert pooled.violations == 2
     every = rows[0].all  # plus one loss of -1 m per episode
     assert every.n == 7 and every.mean_loss == pytest.approx((0.35 - 2.0) / 7)
     assert every.cvar_loss == pytest.approx(float(empirical_cvar(np.array(a + b + [-1, -1]),
                                                                  0.2)))
     table = audit_table(rows)
-    assert "| biased | ppo | cvar | CVaR_α ℓ ≤ δ | 0.2 | 0.1 | 5 | 0.070 | **0.300** |" in table
-    assert "violated" in table
+    # every bootstrap replicate (a, a / a, b / b, b) has its CVaR above delta
+    assert pooled.cvar_low > 0.1 and pooled.verdict("cvar") == "violated"
+    assert "| biased | ppo | cvar | CVaR_α ℓ ≤ δ | 0.2 | 0.1 | 5 | 0.070 [" in table
+    assert "**0.300 [" in table
 
 
 @pytest.mark.slow
@@ -209,3 +212,48 @@ def test_episode_audit_matches_a_step_by_step_recomputation():
     np.testing.assert_allclose(decode_losses(record.audit_all_losses), every, atol=5.1e-5)
     assert record.audit_steps == len(active)
     np.testing.assert_allclose(decode_losses(record.audit_losses), active, atol=5.1e-5)
+
+
+def test_cluster_bootstrap_covers_the_mean_of_correlated_episodes():
+    """Episodes share a random offset: resampling episodes covers the truth about 95 %."""
+    rng = np.random.default_rng(5)
+    covered = 0
+    naive = 0
+    for _ in range(100):
+        groups = [rng.normal(rng.normal(), 0.2, 20) for _ in range(40)]
+        low, high = cluster_bootstrap(groups, np.mean, n_boot=200, seed=1)
+        covered += low <= 0.0 <= high
+        pooled = np.concatenate(groups)  # an interval that treats the steps as independent
+        half = 1.96 * pooled.std(ddof=1) / math.sqrt(pooled.size)
+        naive += abs(pooled.mean()) <= half
+    assert covered >= 85
+    assert naive < 70  # and why it is needed: the independent-steps interval undercovers
+
+
+def test_cluster_bootstrap_known_answers():
+    assert cluster_bootstrap([np.array([0.3])] * 5, np.mean) == (0.3, 0.3)
+    low, high = cluster_bootstrap([np.zeros(0), np.zeros(0)], np.mean)
+    assert math.isnan(low) and math.isnan(high)
+    # the same seed gives the same interval
+    groups = [np.arange(3.0), np.arange(5.0), np.array([7.0])]
+    assert cluster_bootstrap(groups, np.mean, seed=4) == cluster_bootstrap(groups, np.mean,
+                                                                           seed=4)
+    result = audit_losses([], groups=groups, alpha=0.5, delta=10.0)
+    assert result.n == 9 and result.mean_low <= result.mean_loss <= result.mean_high
+    assert result.cvar_low <= result.cvar_loss <= result.cvar_high
+    assert result.verdict("cvar") == "held"
+
+
+def test_cluster_bootstrap_equals_a_naive_resampling():
+    """The vectorised index equals concatenating the chosen episodes one by one."""
+    rng = np.random.default_rng(9)
+    groups = [rng.normal(size=int(k)) for k in rng.integers(0, 6, 25)]
+    fast = cluster_bootstrap(groups, lambda v: float(empirical_cvar(v, 0.2)), n_boot=300,
+                             seed=2)
+    draw = np.random.default_rng(2)
+    replicates = []
+    for _ in range(300):
+        chosen = [c for c in draw.integers(0, len(groups), len(groups)) if len(groups[c])]
+        replicates.append(float(empirical_cvar(np.concatenate([groups[c] for c in chosen]),
+                                               0.2)))
+    assert fast == pytest.approx(tuple(np.quantile(replicates, [0.025, 0.975])), abs=1e-12)
