@@ -10,7 +10,7 @@ Output folder layout::
                         environment settings, noise, package version); a resumed run
                         must match it
     summary.md          the summary tables (Markdown), naming the policy, the settings
-                        and the code version
+                        and the code version, and the guarantee audit (agents/audit.py)
     figures/            trajectories_<scenario>.png, distance_boxplots.png,
                         collision_rates.png, safe_polytopes.png, episode.gif
 """
@@ -162,7 +162,7 @@ def run_evaluation(
         + describe_run(records, planner=planner, reference=reference, settings=settings)
         + f"\n{markdown}\n## Filter statuses (share of steps) and collision causes\n\n"
         + status_table(rows)
-        + "\n## Guarantee audit (realised loss of the active step-1 halfspaces)\n\n"
+        + "\n## Guarantee audit (realised loss at the step-1 halfspaces)\n\n"
         + audit_table(audit_rows(records)) + "\n" + AUDIT_NOTE
     )
     if plots:

@@ -399,7 +399,9 @@ class EpisodeStats:
         """The realised losses of the step's active first-step halfspaces (:mod:`agents.audit`).
 
         ``base`` has already stepped: its obstacle positions are the realised ones at the
-        step the halfspaces' ``k = 1`` predicted.
+        step the halfspaces' ``k = 1`` predicted. Steps without halfspaces or a plan
+        (pass-through, status ``"error"``) are not audited, nor are steps with
+        non-finite data (which the filter reports as ``"error"`` anyway).
         """
         names = report.keys()
         if not all(name in names for name in ("normals", "offsets", "planned_states")):

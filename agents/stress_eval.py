@@ -272,7 +272,7 @@ def run_stress(
         "CSV cost nothing)\n"
         + "- time to goal: mean over the episodes that reached the goal\n\n"
         + "## Per case\n\n" + markdown
-        + "\n## Guarantee audit (realised loss of the active step-1 halfspaces)\n\n"
+        + "\n## Guarantee audit (realised loss at the step-1 halfspaces)\n\n"
         + _relabel(audit_table(audit_rows(records)), epsilon) + "\n" + AUDIT_NOTE
         + "\n## Wall time per cell (sum of episode wall times, one worker each)\n\n"
         + _timing_table(records, epsilon=epsilon)
