@@ -1,0 +1,254 @@
+r"""DAQP back end: the condensed (inputs-only) QP of an :class:`~filters.mpc.MPCProblem`.
+
+DAQP (Arnström, Bemporad and Axehill, IEEE TAC 2022) is a dual active-set solver in C;
+on the small dense QPs of a short horizon it answers in tens of µs, and it warm-starts
+from the previous step's active set.
+
+**Condensed form.** The states are eliminated with the prediction matrices of the
+problem (:attr:`MPCProblem.rollout`), :math:`X = \Phi x_0 + \Gamma u` with :math:`X =
+[x_1; \dots; x_T]`, so the variables are the inputs :math:`u \in \mathbb{R}^{T m}` only:
+
+.. math::
+
+    \min_u \ \tfrac12 u^\top H u + f^\top u, \qquad
+    H = 2 (\bar R + \Gamma^\top \bar Q \Gamma), \quad
+    f = -2 \bar R u^r + 2 \Gamma^\top \bar Q (\Phi x_0 - X^r),
+
+(the cost (8) up to a constant; :math:`\bar R`, :math:`\bar Q` block diagonal), subject to
+
+* the input box as DAQP's simple bounds :math:`u_\text{low} \le u_t \le u_\text{high}`;
+* the arena :math:`y_\text{low} - C \Phi_t x_0 \le C \Gamma_t u \le y_\text{high} - C
+  \Phi_t x_0` (two-sided rows, one per step and finite axis);
+* the terminal rows :math:`G \Gamma_T u \le g - G \Phi_T x_0`;
+* the halfspaces :math:`a_{i,t}^\top C \Gamma_t u \le b_{i,t} - a_{i,t}^\top C \Phi_t x_0`
+  (disabled rows, ``0 @ y <= 1``, are zero rows that always hold).
+
+:math:`H`, the arena and terminal rows are built once; per step only the halfspace rows
+of the constraint matrix, the right-hand sides and ``f`` change (``daqp.Model.update``),
+and the solve starts from the previous step's active set (DAQP keeps it across
+``update``; after a failed solve it starts cold). The work per step grows like
+:math:`(T m)^2` times the number of rows (DAQP's update forms :math:`A H^{-1/2}`), so
+for long horizons the sparse Clarabel back end is faster: see ``backend="auto"`` of
+:class:`~filters.mpc.MPCSafetyFilter`.
+
+**Soft rows.** The exact L1 penalty needs slack variables with no quadratic cost, a
+singular Hessian that DAQP only handles by proximal iterations; DAQP's own soft
+constraints carry a quadratic penalty, which is not the exact penalty of the other back
+ends. So a problem with soft rows (``soft=True``, and the recovery QP) is solved by the
+Clarabel back end: :func:`daqp_or_clarabel` makes that choice. Those QPs are solved only
+when the hard QP is infeasible, or when ``soft=True`` is asked for.
+
+**Statuses.** DAQP's exit flags are reported with Clarabel's names where one exists
+(``1`` -> ``"Solved"``, ``-1`` -> ``"PrimalInfeasible"``, ``-4`` -> ``"MaxIterations"``),
+so that the filter's statuses and fallbacks read the same for both back ends; other
+flags read ``"daqp exitflag N"``.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping
+from typing import Any
+
+import daqp
+import numpy as np
+
+from filters.errors import InvalidParameterError, InvalidTypeError
+from filters.mpc._linalg import matvec_operator
+from filters.mpc.problem import MPCProblem
+from filters.mpc.result import QPSolution, StepData
+
+__all__ = ["DAQPBackend", "daqp_or_clarabel", "daqp_settings"]
+
+#: DAQP exit flags by the Clarabel status name the filter reports for them.
+_STATUS = {1: "Solved", 2: "Solved", -1: "PrimalInfeasible", -4: "MaxIterations"}
+
+
+def daqp_settings(overrides: Mapping[str, Any] | None) -> dict[str, Any]:
+    """DAQP settings of the filter's QPs: DAQP's defaults with ``overrides`` applied.
+
+    Raises
+    ------
+    InvalidTypeError
+        If ``overrides`` is not a mapping.
+    InvalidParameterError
+        On an unknown setting (the keys of ``daqp.Model().settings``).
+    """
+    known = daqp.Model().settings
+    if overrides is None:
+        return {}
+    if not isinstance(overrides, Mapping):
+        raise InvalidTypeError(
+            f"solver_settings must be a mapping of DAQP settings, got {overrides!r}"
+        )
+    for key in overrides:
+        if key not in known:
+            raise InvalidParameterError(
+                f"solver_settings: unknown DAQP setting {key!r} (known: {sorted(known)})"
+            )
+    return dict(overrides)
+
+
+class DAQPBackend:
+    """The condensed QP of one hard :class:`~filters.mpc.MPCProblem`, as a DAQP model.
+
+    Parameters
+    ----------
+    problem
+        What to build; it must have no soft rows (see :func:`daqp_or_clarabel`).
+    solver_settings
+        DAQP settings to override (see :func:`daqp_settings`).
+    warm_start
+        Start each solve from the previous step's active set (default ``True``).
+
+    Raises
+    ------
+    InvalidParameterError
+        If ``problem`` has soft rows, or a setting is unknown.
+    """
+
+    name = "daqp"
+
+    def __init__(
+        self, problem: MPCProblem, *, solver_settings: Mapping[str, Any] | None = None,
+        warm_start: bool = True,
+    ) -> None:
+        if problem.soft_rows:
+            raise InvalidParameterError(
+                "the DAQP back end solves hard QPs only; soft rows "
+                f"{sorted(problem.soft_rows)} go to the Clarabel back end"
+            )
+        self.problem = problem
+        self._settings = daqp_settings(solver_settings)
+        self._warm_start = bool(warm_start)
+        self._build()
+
+    def _build(self) -> None:
+        p = self.problem
+        T, n, m, d, K = p.horizon, p.n, p.m, p.d, p.n_obstacles
+        nu = T * m
+        phi, gamma = p.rollout  # (T n, n), (T n, T m)
+        R_bar = np.zeros((nu, nu))
+        for t, Rt in enumerate(p.input_weights):
+            R_bar[t * m : (t + 1) * m, t * m : (t + 1) * m] = Rt
+        Q_bar = np.zeros((T * n, T * n))
+        for t, Qt in enumerate(p.state_weights):
+            Q_bar[t * n : (t + 1) * n, t * n : (t + 1) * n] = Qt
+        hessian = 2.0 * (R_bar + gamma.T @ Q_bar @ gamma)
+        self._H = np.ascontiguousarray(0.5 * (hessian + hessian.T))
+        # f = -2 R u^r + 2 Gamma' Q (Phi x0 - X^r) = F [x0; X^r; u^r]
+        self._F = matvec_operator(np.hstack([2.0 * gamma.T @ Q_bar @ phi, -2.0 * gamma.T @ Q_bar,
+                             -2.0 * R_bar]))
+
+        # Positions C x_t = C Phi_t x0 + C Gamma_t u, t = 1..T.
+        C_phi = np.einsum("dn,tnk->tdk", p.C, phi.reshape(T, n, n))  # (T, d, n)
+        C_gamma = np.einsum("dn,tnk->tdk", p.C, gamma.reshape(T, n, nu))  # (T, d, nu)
+        self._C_gamma = np.ascontiguousarray(C_gamma)
+
+        rows, upper, lower = [], [], []  # constant rows, their bounds at x0 = 0
+        x0_maps = []  # the bounds shift by -(map @ x0)
+        y_low, y_high = p.position_bounds
+        axes = np.flatnonzero(np.isfinite(y_low) | np.isfinite(y_high))
+        if axes.size:
+            rows.append(C_gamma[:, axes].reshape(-1, nu))
+            upper.append(np.tile(y_high[axes], T))
+            lower.append(np.tile(y_low[axes], T))
+            x0_maps.append(C_phi[:, axes].reshape(-1, n))
+        if p.terminal_set is not None and p.terminal_set[0].shape[0]:
+            G, g = p.terminal_set
+            rows.append(G @ gamma[(T - 1) * n :])
+            upper.append(g)
+            lower.append(np.full(len(g), -np.inf))
+            x0_maps.append(G @ phi[(T - 1) * n :])
+        n_fixed = sum(len(r) for r in rows)
+        self._n_fixed = n_fixed
+        # Halfspace rows step-major: row n_fixed + (t - 1) K + i is a_it' C Gamma_t.
+        self._A = np.zeros((n_fixed + K * T, nu))
+        if n_fixed:
+            self._A[:n_fixed] = np.vstack(rows)
+        self._A_hs = self._A[n_fixed:].reshape(T, K, nu)  # a view: written in place
+        self._fixed_upper = np.concatenate(upper) if upper else np.zeros(0)
+        self._fixed_lower = np.concatenate(lower) if lower else np.zeros(0)
+        # One product S x0: the shift of the fixed rows, then the positions C Phi_t x0.
+        self._S = matvec_operator(np.vstack([*x0_maps, C_phi.reshape(T * d, n)]))
+
+        u_low, u_high = p.input_bounds
+        n_rows = nu + n_fixed + K * T
+        self._upper = np.full(n_rows, np.inf)
+        self._lower = np.full(n_rows, -np.inf)
+        self._upper[:nu] = np.tile(u_high, T)
+        self._lower[:nu] = np.tile(u_low, T)
+        self._hs0 = nu + n_fixed
+        self._nu = nu
+        self._sense = np.zeros(n_rows, dtype=np.int32)
+        self._model: daqp.Model | None = None
+        self._cold = True
+
+    def _data(self, step: StepData) -> np.ndarray:
+        """Write the step's rows and bounds into the preallocated arrays; return ``f``."""
+        p = self.problem
+        K, nu, hs0 = p.n_obstacles, self._nu, self._hs0
+        shift = self._S @ step.x0
+        n_fixed = self._n_fixed
+        if n_fixed:
+            np.subtract(self._fixed_upper, shift[:n_fixed], out=self._upper[nu:hs0])
+            np.subtract(self._fixed_lower, shift[:n_fixed], out=self._lower[nu:hs0])
+        if K:
+            normals = step.normals.transpose(1, 0, 2)  # (T, K, d)
+            np.matmul(normals, self._C_gamma, out=self._A_hs)
+            positions0 = shift[n_fixed:].reshape(p.horizon, 1, p.d, 1)
+            at_x0 = np.matmul(normals[:, :, None, :], positions0)  # (T, K, 1, 1)
+            np.subtract(step.offsets.T, at_x0.reshape(p.horizon, K),
+                        out=self._upper[hs0:].reshape(p.horizon, K))
+        v = np.concatenate(
+            (step.x0, step.ref_states.reshape(-1), step.ref_inputs.reshape(-1))
+        )
+        return self._F @ v
+
+    def solve(self, step: StepData) -> QPSolution:
+        """Write the step's data into the model and solve; never raises on a failed solve."""
+        p = self.problem
+        try:
+            f = self._data(step)
+            begin = time.perf_counter()
+            if self._model is None:
+                self._model = daqp.Model()
+                if self._settings:
+                    self._model.settings = self._settings
+                flag, _ = self._model.setup(self._H, f, self._A, self._upper, self._lower)
+                if flag < 0:
+                    self._model = None
+                    return QPSolution(False, f"daqp setup exitflag {flag}",
+                                      solve_time=time.perf_counter() - begin)
+            elif self._cold or not self._warm_start:
+                self._model.update(f=f, A=self._A, bupper=self._upper, blower=self._lower,
+                                   sense=self._sense)
+            else:
+                self._model.update(f=f, A=self._A, bupper=self._upper, blower=self._lower)
+            x, _, flag, info = self._model.solve()
+            solve_time = time.perf_counter() - begin
+        except (KeyboardInterrupt, SystemExit):
+            raise
+        except Exception as exc:
+            self._model, self._cold = None, True
+            return QPSolution(False, f"exception: {exc!r}")
+        flag = int(flag)
+        status = _STATUS.get(flag, f"daqp exitflag {flag}")
+        iterations = int(info.get("iterations", 0))
+        self._cold = flag < 1
+        if flag < 1:
+            return QPSolution(False, status, iterations=iterations, solve_time=solve_time)
+        inputs = np.array(x, dtype=float).reshape(p.horizon, p.m)
+        return QPSolution(True, status, inputs, None, None, iterations, solve_time)
+
+
+def daqp_or_clarabel(
+    problem: MPCProblem, *, daqp_settings: Mapping[str, Any] | None = None,
+    clarabel_settings: Mapping[str, Any] | None = None,
+) -> Any:
+    """The DAQP back end for a hard problem, the Clarabel one for a problem with soft rows."""
+    if problem.soft_rows:
+        from filters.mpc.backends.clarabel import ClarabelBackend
+
+        return ClarabelBackend(problem, solver_settings=clarabel_settings)
+    return DAQPBackend(problem, solver_settings=daqp_settings)
