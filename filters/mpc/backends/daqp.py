@@ -24,9 +24,10 @@ problem (:attr:`MPCProblem.rollout`), :math:`X = \Phi x_0 + \Gamma u` with :math
   (disabled rows, ``0 @ y <= 1``, are zero rows that always hold).
 
 :math:`H`, the arena and terminal rows are built once; per step only the halfspace rows
-of the constraint matrix, the right-hand sides and ``f`` change (``daqp.Model.update``),
-and the solve starts from the previous step's active set (DAQP keeps it across
-``update``; after a failed solve it starts cold). The work per step grows like
+of the constraint matrix, the right-hand sides and ``f`` change (``daqp.Model.update``).
+Each solve starts from the empty active set (``warm_start=True`` starts from the
+previous one; it saved half an iteration and no measurable time, and a cold start
+keeps every step independent of the ones before). The work per step grows like
 :math:`(T m)^2` times the number of rows (DAQP's update forms :math:`A H^{-1/2}`), so
 for long horizons the sparse Clarabel back end is faster: see ``backend="auto"`` of
 :class:`~filters.mpc.MPCSafetyFilter`.
@@ -99,7 +100,12 @@ class DAQPBackend:
     solver_settings
         DAQP settings to override (see :func:`daqp_settings`).
     warm_start
-        Start each solve from the previous step's active set (default ``True``).
+        Start each solve from the previous solve's active set (default ``False``). Off,
+        every solve starts from the empty active set, so a used model returns bit for
+        bit what a fresh one returns (episodes are reproducible whatever ran before).
+        Measured on 200 crossing steps (3 obstacles, T = 10): warm 5.5 iterations and
+        26 µs per solve call, cold 5.9 and 24-30 µs, inputs equal to 1e-13; the per-step
+        update (DAQP's transform of every row by the Hessian's factor) dominates.
 
     Raises
     ------
@@ -111,7 +117,7 @@ class DAQPBackend:
 
     def __init__(
         self, problem: MPCProblem, *, solver_settings: Mapping[str, Any] | None = None,
-        warm_start: bool = True,
+        warm_start: bool = False,
     ) -> None:
         if problem.soft_rows:
             raise InvalidParameterError(
@@ -184,6 +190,21 @@ class DAQPBackend:
         self._model: daqp.Model | None = None
         self._cold = True
 
+    def _new_model(self) -> daqp.Model | int:
+        """A DAQP model set up with placeholder data (zero halfspace rows, ``f = 0``), or
+        DAQP's negative setup flag. Every solve, the first included, then writes its data
+        by ``update``: a used model returns bit for bit what a fresh one returns (setup
+        and update differ in the last bits)."""
+        model = daqp.Model()
+        if self._settings:
+            model.settings = self._settings
+        A = self._A.copy()
+        A[self._n_fixed :] = 0.0
+        upper, lower = self._upper.copy(), self._lower.copy()
+        upper[self._nu :], lower[self._nu :] = np.inf, -np.inf
+        flag, _ = model.setup(self._H, np.zeros(self._nu), A, upper, lower)
+        return int(flag) if flag < 0 else model
+
     def _data(self, step: StepData) -> np.ndarray:
         """Write the step's rows and bounds into the preallocated arrays; return ``f``."""
         p = self.problem
@@ -212,15 +233,12 @@ class DAQPBackend:
             f = self._data(step)
             begin = time.perf_counter()
             if self._model is None:
-                self._model = daqp.Model()
-                if self._settings:
-                    self._model.settings = self._settings
-                flag, _ = self._model.setup(self._H, f, self._A, self._upper, self._lower)
-                if flag < 0:
-                    self._model = None
+                self._model = self._new_model()
+                if isinstance(self._model, int):
+                    flag, self._model = self._model, None
                     return QPSolution(False, f"daqp setup exitflag {flag}",
                                       solve_time=time.perf_counter() - begin)
-            elif self._cold or not self._warm_start:
+            if self._cold or not self._warm_start:
                 self._model.update(f=f, A=self._A, bupper=self._upper, blower=self._lower,
                                    sense=self._sense)
             else:
