@@ -169,7 +169,7 @@ class MPCSafetyFilter:
     backend
         ``"auto"`` (default: DAQP for ``T m <= 120``, else Clarabel; see
         :func:`auto_backend` for the measurements), ``"daqp"`` (the condensed QP,
-        dual active set, warm-started; QPs with soft rows go to Clarabel),
+        dual active set; QPs with soft rows go to Clarabel),
         ``"clarabel"`` (the sparse QP built once) or ``"cvxpy"`` (the readable
         reference; imports CVXPY). :attr:`backend` tells which one ``"auto"`` picked.
 

@@ -1,8 +1,8 @@
 r"""DAQP back end: the condensed (inputs-only) QP of an :class:`~filters.mpc.MPCProblem`.
 
 DAQP (Arnström, Bemporad and Axehill, IEEE TAC 2022) is a dual active-set solver in C;
-on the small dense QPs of a short horizon it answers in tens of µs, and it warm-starts
-from the previous step's active set.
+on the small dense QPs of a short horizon it answers in tens of µs (update and solve:
+~25 µs at T = 10 with 3 obstacles, measured on this project's loaded 2-core machine).
 
 **Condensed form.** The states are eliminated with the prediction matrices of the
 problem (:attr:`MPCProblem.rollout`), :math:`X = \Phi x_0 + \Gamma u` with :math:`X =
@@ -202,7 +202,9 @@ class DAQPBackend:
         A[self._n_fixed :] = 0.0
         upper, lower = self._upper.copy(), self._lower.copy()
         upper[self._nu :], lower[self._nu :] = np.inf, -np.inf
-        flag, _ = model.setup(self._H, np.zeros(self._nu), A, upper, lower)
+        f = np.zeros(self._nu)
+        flag, _ = model.setup(self._H, f, A, upper, lower)
+        self._setup_arrays = (f, A, upper, lower)  # kept alive with the model
         return int(flag) if flag < 0 else model
 
     def _data(self, step: StepData) -> np.ndarray:
