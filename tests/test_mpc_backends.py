@@ -197,6 +197,8 @@ def test_daqp_solves_soft_rows_itself_and_bad_settings_raise():
         make("daqp", 10, "trajectory", "hard", solver_settings={"no_such": 1})
     with pytest.raises(InvalidTypeError, match="solver_settings"):
         make("daqp", 10, "trajectory", "hard", solver_settings=[("iter_limit", 3)])
+    with pytest.raises(InvalidParameterError, match="iter_limit"):
+        make("daqp", 10, "trajectory", "hard", solver_settings={"iter_limit": "many"})
 
 
 def test_daqp_soft_qp_is_never_worse_than_the_reference_in_its_own_objective():

@@ -97,7 +97,7 @@ def daqp_settings(overrides: Mapping[str, Any] | None) -> dict[str, Any]:
 
 
 class DAQPBackend:
-    """The condensed QP of one hard :class:`~filters.mpc.MPCProblem`, as a DAQP model.
+    """The condensed QP of one :class:`~filters.mpc.MPCProblem`, as a DAQP model.
 
     Parameters
     ----------
@@ -116,7 +116,7 @@ class DAQPBackend:
     Raises
     ------
     InvalidParameterError
-        If a setting is unknown.
+        If a setting is unknown or has a value DAQP refuses.
     """
 
     name = "daqp"
@@ -202,6 +202,12 @@ class DAQPBackend:
         self._lo = np.isfinite(y_low[axes])
         self._model: daqp.Model | None = None
         self._cold = True
+        try:  # built here so that a bad setting raises now, not at every step
+            model = self._new_model()
+        except (TypeError, ValueError) as exc:
+            raise InvalidParameterError(
+                f"solver_settings: DAQP refused {self._settings!r}: {exc}") from exc
+        self._model = None if isinstance(model, int) else model
 
     def _new_model(self) -> daqp.Model | int:
         """A DAQP model set up with placeholder data (zero halfspace rows, ``f = 0``), or
