@@ -8,11 +8,13 @@ an evaluation makes *before* anything runs.
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import math
 import time
 import traceback
 import zipfile
-from collections import Counter
+from collections import Counter, OrderedDict
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -30,8 +32,9 @@ from agents.records import (
 from filters.errors import InvalidParameterError
 from filters.wrapper import FALLBACK_STATUSES, NOMINAL_STATUSES
 
-__all__ = ["EpisodeStats", "Trajectory", "TrajectoryRecorder", "check_policy", "load_policy",
-           "make_env", "policy_file", "run_episode", "run_spec"]
+__all__ = ["EpisodeStats", "Trajectory", "TrajectoryRecorder", "check_policy",
+           "clear_env_cache", "load_policy", "make_env", "policy_file", "run_episode",
+           "run_spec"]
 
 FALLBACK_WINDOW = 2
 """A collision is blamed on a fallback if one ran this many steps before it, or at it."""
@@ -208,6 +211,50 @@ def make_env(spec: EpisodeSpec, *, render_mode: str | None = None, policy: Any =
     return wrapped, planner
 
 
+# ---------------------------------------------------------------------------- reuse
+ENV_CACHE_SIZE = 4
+"""Filtered environments kept per process for :func:`run_episode` (one per setting)."""
+
+_ENV_CACHE: OrderedDict[EpisodeSpec, tuple[Any, Any]] = OrderedDict()
+
+
+def _reusable_env(spec: EpisodeSpec, sha: str) -> tuple[EpisodeSpec, Any, Any]:
+    """The filtered environment and planner of ``spec``'s setting, built once per process.
+
+    Building the environment and the MPC filter (``gym.make``, the QP's matrices, the
+    solver workspaces) costs more than a short episode. Episodes that differ only in
+    their seed share one environment: ``env.reset(seed=...)`` re-seeds and reloads the
+    scenario, and the wrapper's ``reset`` forgets the filter's plan, normals and
+    calibration, so the episode is the same as on a fresh environment (the test
+    ``test_reused_environment_gives_the_same_records`` checks this record by record).
+    ``sha`` is the policy file's SHA-256 now (part of the key: a changed file is
+    loaded again, and refused if ``spec.policy_sha256`` says otherwise). Returns the
+    cache key, the environment and the planner.
+    """
+    load_policy(spec.policy_path, sha256=spec.policy_sha256)  # cached; raises if changed
+    key = dataclasses.replace(spec, seed=0, policy_sha256=sha)
+    if key in _ENV_CACHE:
+        _ENV_CACHE.move_to_end(key)
+        env, planner = _ENV_CACHE[key]
+        return key, env, planner
+    env, planner = make_env(spec)
+    _ENV_CACHE[key] = (env, planner)
+    while len(_ENV_CACHE) > ENV_CACHE_SIZE:
+        _ENV_CACHE.popitem(last=False)[1][0].close()
+    return key, env, planner
+
+
+def clear_env_cache() -> None:
+    """Close and forget the environments :func:`run_episode` keeps for reuse."""
+    while _ENV_CACHE:
+        _ENV_CACHE.popitem()[1][0].close()
+
+
+@functools.cache
+def _package_version() -> str:
+    return package_version()  # reads the package metadata: once per process
+
+
 # ---------------------------------------------------------------------------- one episode
 def run_episode(
     spec: EpisodeSpec,
@@ -216,8 +263,13 @@ def run_episode(
     record_trajectory: bool = False,
     render: bool = False,
     env_kwargs: dict[str, Any] | None = None,
+    reuse_env: bool = True,
 ) -> tuple[EpisodeRecord, Trajectory | None]:
     """Run one episode and summarise it; never raises for a failure inside the episode.
+
+    With ``reuse_env`` (and no ``policy``, ``env_kwargs`` or ``render``) the filtered
+    environment of the spec's setting is built once per process and reset for each
+    seed (see :func:`clear_env_cache`); the records are the same as with a fresh one.
 
     Returns
     -------
@@ -231,11 +283,18 @@ def run_episode(
     stats = EpisodeStats()
     trajectory = None
     sha = ""
+    reuse = (reuse_env and policy is None and env_kwargs is None and not render
+             and spec.planner == "ppo")
+    cache_key = None
     try:
         if policy is None and spec.planner == "ppo":
             sha = check_policy(spec.policy_path)
-        env, planner = make_env(spec, policy=policy, env_kwargs=env_kwargs,
-                                render_mode="rgb_array" if render else None)
+        if reuse:
+            cache_key, env, planner = _reusable_env(spec, sha)
+        else:
+            env, planner = make_env(spec, policy=policy, env_kwargs=env_kwargs,
+                                    render_mode="rgb_array" if render else None)
+        failed = True
         try:
             obs, info = env.reset(seed=int(spec.seed))
             base = env.unwrapped
@@ -253,8 +312,13 @@ def run_episode(
                 done = terminated or truncated
             if recorder is not None:
                 trajectory = recorder.trajectory()
+            failed = False
         finally:
-            env.close()
+            if cache_key is None:
+                env.close()
+            elif failed:  # a half-run episode: do not reuse that environment
+                _ENV_CACHE.pop(cache_key, None)
+                env.close()
         error = ""
     except Exception as exc:  # noqa: BLE001 — a Monte Carlo run records failures
         error = f"{type(exc).__name__}: {exc}".replace("\n", " ")[:500]
@@ -265,7 +329,7 @@ def run_episode(
         reference=spec.reference, alpha=spec.alpha, delta=spec.delta, epsilon=spec.epsilon,
         noise=spec.noise, filter_options=spec.filter_options, env_options=spec.env_options,
         policy=_policy_name(spec, policy),
-        policy_sha256=spec.policy_sha256 or sha, version=package_version(),
+        policy_sha256=spec.policy_sha256 or sha, version=_package_version(),
         **stats.summary(), wall_time=time.perf_counter() - start, error=error)
     return record, trajectory
 
