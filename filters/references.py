@@ -66,8 +66,14 @@ def hold_action_reference(
     """
     A, B, _ = env.dynamics
     low, high = env.input_bounds
-    inputs = np.tile(np.clip(np.asarray(action, dtype=float), low, high), (horizon, 1))
-    return rollout(A, B, np.asarray(env.ego_state, dtype=float), inputs), inputs
+    u = np.clip(np.asarray(action, dtype=float), low, high)
+    inputs = np.tile(u, (horizon, 1))
+    states = np.empty((horizon + 1, A.shape[0]))
+    states[0] = env.ego_state
+    Bu = B @ inputs[0]  # the same input every step: one product (as rollout() would give)
+    for k in range(horizon):
+        states[k + 1] = A @ states[k] + Bu
+    return states, inputs
 
 
 class PolicyRolloutReference:

@@ -439,8 +439,9 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
                           ("obstacle_velocities", 0.0), ("distance_to_collision", np.inf),
                           ("swept_distance_to_collision", np.inf)):
             value = info[key]
-            array = np.full((rows, *value.shape[1:]), fill)
+            array = np.empty((rows, *value.shape[1:]))
             array[:n] = value
+            array[n:] = fill  # only the padding rows: no second pass over the data
             padded[key] = _read_only(array)
         present = np.zeros(rows, dtype=bool)
         present[:n] = True
