@@ -367,10 +367,14 @@ def offsets_along(
             or samples.ndim != 4 or samples.shape[0] != normals.shape[0]
             or samples.shape[2] < normals.shape[1] or samples.shape[3] != normals.shape[2]
             or samples.shape[1] == 0 or normals.shape[1] == 0 or support is not None):
-        horizon = int(np.shape(normals)[1]) if np.ndim(normals) == 3 else 0
-        points = samples[:, :, :horizon] if np.ndim(samples) == 4 else samples
+        # anything unusual: the full checks (and their messages) of safe_halfspaces
+        shape = np.shape(normals)
+        horizon, dim = (shape[1], shape[2]) if len(shape) == 3 else (1, 2)
+        points = samples
+        if isinstance(samples, np.ndarray) and samples.ndim == 4:
+            points = samples[:, :, :horizon]
         return safe_halfspaces(
-            np.zeros((max(horizon, 1), int(np.shape(normals)[-1]))), points,
+            np.zeros((max(horizon, 1), max(dim, 1))), points,
             ego_shape=ego_shape, obstacle_shapes=obstacle_shapes, risk=risk, alpha=alpha,
             delta=delta, epsilon=epsilon, support=support, normals=normals,
             conformal_margins=conformal_margins).offsets

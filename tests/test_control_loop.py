@@ -217,3 +217,23 @@ def test_intersample_rows_unchanged_by_the_fast_start_rows(monkeypatch):
     slow = intersample_rows(hs, samples, **kwargs)
     assert np.array_equal(fast.offsets, slow.offsets)
     assert np.array_equal(fast.normals, slow.normals)
+
+
+def test_offsets_along_refuses_bad_input_with_the_package_errors():
+    from filters import InvalidParameterError
+
+    rng = np.random.default_rng(3)
+    samples = rng.standard_normal((2, 10, 4, 2))
+    normals = rng.standard_normal((2, 3, 2))
+    shapes = dict(ego_shape=Disc(0.3), obstacle_shapes=[Disc(0.3)] * 2)
+    with pytest.raises(InvalidArrayError, match="samples"):
+        offsets_along(normals, samples[:, :, :2], **shapes)  # fewer steps than normals
+    with pytest.raises(InvalidArrayError):
+        offsets_along(normals[0], samples, **shapes)  # not (n, T, d)
+    with pytest.raises(InvalidArrayError):
+        offsets_along(normals, samples.tolist()[:1], **shapes)  # one obstacle, two normals
+    with pytest.raises(InvalidParameterError, match="risk"):
+        offsets_along(normals, samples, risk="worst", **shapes)
+    with pytest.raises(InvalidParameterError, match="obstacle_shapes"):
+        offsets_along(normals, samples, ego_shape=Disc(0.3), obstacle_shapes=[Disc(0.3)])
+    assert offsets_along(normals, samples, **shapes).shape == (2, 3)
