@@ -223,7 +223,7 @@ ENV_CACHE_SIZE = 4
 _ENV_CACHE: OrderedDict[EpisodeSpec, tuple[Any, Any]] = OrderedDict()
 
 
-def _reusable_env(spec: EpisodeSpec, sha: str) -> tuple[EpisodeSpec, Any, Any]:
+def _reusable_env(spec: EpisodeSpec, sha: str) -> tuple[EpisodeSpec | None, Any, Any]:
     """The filtered environment and planner of ``spec``'s setting, built once per process.
 
     Building the environment and the MPC filter (``gym.make``, the QP's matrices, the
@@ -234,7 +234,8 @@ def _reusable_env(spec: EpisodeSpec, sha: str) -> tuple[EpisodeSpec, Any, Any]:
     ``test_reused_environment_gives_the_same_records`` checks this record by record).
     ``sha`` is the policy file's SHA-256 now (part of the key: a changed file is
     loaded again, and refused if ``spec.policy_sha256`` says otherwise). Returns the
-    cache key, the environment and the planner.
+    cache key (``None`` if the environment is not reusable, see :func:`_resets_fully`),
+    the environment and the planner.
     """
     load_policy(spec.policy_path, sha256=spec.policy_sha256)  # cached; raises if changed
     key = dataclasses.replace(spec, seed=0, policy_sha256=sha)
@@ -243,10 +244,27 @@ def _reusable_env(spec: EpisodeSpec, sha: str) -> tuple[EpisodeSpec, Any, Any]:
         env, planner = _ENV_CACHE[key]
         return key, env, planner
     env, planner = make_env(spec)
+    if not _resets_fully(env):
+        return None, env, planner  # used once and closed, like a fresh environment
     _ENV_CACHE[key] = (env, planner)
     while len(_ENV_CACHE) > ENV_CACHE_SIZE:
         _ENV_CACHE.popitem(last=False)[1][0].close()
     return key, env, planner
+
+
+def _resets_fully(env: Any) -> bool:
+    """Whether ``reset`` forgets everything an episode leaves in ``env``'s wrappers.
+
+    Not so for a filter with an online calibration (``risk="conformal"``,
+    ``epsilon="auto"``): it keeps its scores across episodes by design, so a reused
+    environment would make an episode depend on the ones run before it in the process.
+    """
+    layer = env
+    while layer is not None and layer is not getattr(layer, "unwrapped", None):
+        if getattr(layer, "_calibration", None) is not None:
+            return False
+        layer = getattr(layer, "env", None)
+    return True
 
 
 def clear_env_cache() -> None:

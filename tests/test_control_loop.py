@@ -237,3 +237,17 @@ def test_offsets_along_refuses_bad_input_with_the_package_errors():
     with pytest.raises(InvalidParameterError, match="obstacle_shapes"):
         offsets_along(normals, samples, ego_shape=Disc(0.3), obstacle_shapes=[Disc(0.3)])
     assert offsets_along(normals, samples, **shapes).shape == (2, 3)
+
+
+def test_a_filter_with_online_calibration_is_never_reused():
+    """Conformal margins carry over between episodes: each episode gets a fresh one."""
+    clear_env_cache()
+    seeds = [1, 0, 1]
+    reused = [run_episode(EpisodeSpec("HeadOn", "conformal", s))[0] for s in seeds]
+    assert not _ENV_CACHE
+    fresh = [run_episode(EpisodeSpec("HeadOn", "conformal", s), reuse_env=False)[0]
+             for s in seeds]
+    for a, b in zip(reused, fresh, strict=True):
+        assert not a.error
+        _same_records(a, b)
+    _same_records(reused[0], reused[2])
