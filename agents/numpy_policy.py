@@ -30,11 +30,12 @@ torch's own float32 arithmetic differs from it by a few float32 rounding steps
 and torch's batched and single-observation calls differ from each other by as
 much). The test checks ``|a_numpy - a_torch| <= 1e-6 max(1, |a_torch|)``.
 
-Bit for bit. :class:`TorchActorPolicy` calls the model's own torch modules on the
-same float32 tensors as SB3 and skips the rest of ``predict`` (tensor conversion
-checks, distribution objects): the very same actions, bit for bit, about 6x faster
-than ``model.predict`` (measured: 0.33 ms -> 0.05 ms; numpy: 0.016 ms). It is the
-one to use where results must not change at all (per-episode evaluation records).
+Bit for bit. :class:`TorchActorPolicy` runs the torch kernels SB3's modules end up
+in (``addmm`` and the activations, on preallocated ``(1, n)`` float32 tensors) and
+skips the rest of ``predict`` (``nn.Module`` calls, tensor conversion checks,
+distribution objects): the very same actions, bit for bit, several times faster than
+``model.predict`` (:func:`benchmark_numpy_policy` times the three). It is the one to
+use where results must not change at all (per-episode evaluation records).
 
 Loading. :func:`load_numpy_policy` loads a PPO ``.zip`` with
 :func:`agents.load_ppo` (so torch and SB3 are still needed, once) and exports it;
