@@ -4,7 +4,7 @@
   ``load_ppo()`` loads the policy shipped with the package.
 * :func:`load_numpy_policy`, :class:`NumpyPolicy` — the same actor exported once to
   numpy (deterministic ``predict`` about 10x faster; for the roll-out reference);
-  :class:`TorchActorPolicy` — the same actions as SB3 bit for bit, about 6x faster.
+  :class:`TorchActorPolicy` — the same actions as SB3 bit for bit, several times faster.
 * :class:`MPCReferencePlanner` — the paper's obstacle-agnostic goal-tracking MPC.
 * :func:`evaluate` — Monte Carlo comparison of risk settings, one record per episode
   (:mod:`agents.records`: specs, records, CSV; :mod:`agents.runner`: one episode;

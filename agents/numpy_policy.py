@@ -30,11 +30,12 @@ torch's own float32 arithmetic differs from it by a few float32 rounding steps
 and torch's batched and single-observation calls differ from each other by as
 much). The test checks ``|a_numpy - a_torch| <= 1e-6 max(1, |a_torch|)``.
 
-Bit for bit. :class:`TorchActorPolicy` calls the model's own torch modules on the
-same float32 tensors as SB3 and skips the rest of ``predict`` (tensor conversion
-checks, distribution objects): the very same actions, bit for bit, about 6x faster
-than ``model.predict`` (measured: 0.33 ms -> 0.05 ms; numpy: 0.016 ms). It is the
-one to use where results must not change at all (per-episode evaluation records).
+Bit for bit. :class:`TorchActorPolicy` runs the torch kernels SB3's modules end up
+in (``addmm`` and the activations, on preallocated ``(1, n)`` float32 tensors) and
+skips the rest of ``predict`` (``nn.Module`` calls, tensor conversion checks,
+distribution objects): the very same actions, bit for bit, several times faster than
+``model.predict`` (:func:`benchmark_numpy_policy` times the three). It is the one to
+use where results must not change at all (per-episode evaluation records).
 
 Loading. :func:`load_numpy_policy` loads a PPO ``.zip`` with
 :func:`agents.load_ppo` (so torch and SB3 are still needed, once) and exports it;
@@ -379,13 +380,20 @@ class NumpyPolicy(_DeterministicActor):
 
 
 class TorchActorPolicy(_DeterministicActor):
-    """The SB3 actor's own torch modules, called without SB3's ``predict`` overhead.
+    """The SB3 actor's own torch kernels, called without SB3's ``predict`` overhead.
 
     Bit for bit the actions of ``model.predict(obs, deterministic=True)`` (the same
-    modules on the same float32 tensors of the same shapes, then SB3's clip or
+    kernels on the same float32 tensors of the same shapes, then SB3's clip or
     un-squash), at a fraction of its cost: use it where results must not change
     (evaluation records), :class:`NumpyPolicy` where the last float32 bits may.
-    The modules are shared with the model, not copied: later training changes them.
+    The parameters are shared with the model, not copied: later training changes them.
+
+    Fast path. For one observation and a ``policy_net`` of ``Linear`` layers with
+    ``Tanh``/``ReLU`` activations (the ``MlpPolicy`` default), the forward pass skips
+    ``nn.Module.__call__`` and runs the kernels ``nn.Linear`` ends up in for a
+    ``(1, n)`` batch, :math:`z_{l+1} = \\sigma_l(\\operatorname{addmm}(b_l, z_l, W_l^\\top))`,
+    on preallocated tensors (detached views of the parameters, so no autograd
+    bookkeeping). Any other network, or a batch, goes through the modules.
     """
 
     def __init__(self, policy: Any) -> None:
@@ -394,6 +402,8 @@ class TorchActorPolicy(_DeterministicActor):
         policy.set_training_mode(False)  # as SB3's predict does (dropout, batch norm)
         self._policy_net = policy.mlp_extractor.policy_net
         self._action_net = policy.action_net
+        self._kernels = _single_row_forward(self._policy_net, self._action_net,
+                                            self._n_inputs, self.squash_output)
 
     @classmethod
     def from_sb3(cls, model: Any) -> TorchActorPolicy:
@@ -410,6 +420,8 @@ class TorchActorPolicy(_DeterministicActor):
         return cls(_checked_actor_critic(model))
 
     def _actions(self, rows: np.ndarray) -> np.ndarray:
+        if self._kernels is not None and rows.shape[0] == 1:
+            return self._to_box(self._kernels(rows))  # squashed inside, as below
         import torch
 
         with torch.inference_mode():
@@ -417,6 +429,79 @@ class TorchActorPolicy(_DeterministicActor):
             if self.squash_output:
                 mean = torch.tanh(mean)
             return self._to_box(mean.numpy())
+
+
+class _SingleRowForward:
+    """``action_net(policy_net(x))`` for one float32 row, on preallocated tensors.
+
+    Each ``Linear`` runs ``torch.addmm(b, z, W.t(), out=buffer)``, the kernel that
+    ``torch.nn.functional.linear`` calls for a 2-D input with a bias; each activation
+    runs in place on that buffer (``torch.tanh(z, out=z)``, ``torch.relu_``), and a
+    final ``tanh`` squashes when the policy does. The parameters are detached views
+    (shared storage, ``requires_grad=False``), so no autograd graph is recorded and
+    training the model updates them. Returns a float32 ``(1, m)`` array that the next
+    call overwrites (the caller copies it: SB3's clip does).
+    """
+
+    def __init__(self, steps: list[tuple[Any, Any, str]], n_inputs: int, squash: bool) -> None:
+        import torch
+
+        self._torch = torch
+        self._input = torch.zeros((1, n_inputs), dtype=torch.float32)
+        self._input_np = self._input.numpy()
+        self._steps = []
+        for weight_t, bias, activation in steps:
+            out = torch.empty((1, weight_t.shape[1]), dtype=torch.float32)
+            self._steps.append((weight_t, bias, activation, out))
+        self._squash = squash
+        self._output_np = self._steps[-1][3].numpy()
+
+    def __call__(self, rows: np.ndarray) -> np.ndarray:
+        torch = self._torch
+        self._input_np[...] = rows
+        z = self._input
+        for weight_t, bias, activation, out in self._steps:
+            torch.addmm(bias, z, weight_t, out=out)
+            if activation == "tanh":
+                torch.tanh(out, out=out)
+            elif activation == "relu":
+                torch.relu_(out)
+            z = out
+        if self._squash:
+            torch.tanh(z, out=z)
+        return self._output_np  # a view of the last buffer: the next call overwrites it
+
+
+def _single_row_forward(
+    policy_net: Any, action_net: Any, n_inputs: int, squash: bool
+) -> _SingleRowForward | None:
+    """A :class:`_SingleRowForward` of the actor, or ``None`` if its layers are not plain.
+
+    Plain: ``policy_net`` an ``nn.Sequential`` of float32 ``Linear`` layers with biases,
+    each followed by at most one ``Tanh`` or ``ReLU``; ``action_net`` such a ``Linear``;
+    all on the CPU.
+    """
+    import torch
+    from torch import nn
+
+    if not isinstance(policy_net, nn.Sequential) or type(action_net) is not nn.Linear:
+        return None
+    steps: list[list[Any]] = []
+    for module in [*policy_net, action_net]:
+        if type(module) is nn.Linear:
+            if (module.bias is None or module.weight.dtype != torch.float32
+                    or module.weight.device.type != "cpu"):
+                return None
+            steps.append([module.weight.detach().t(), module.bias.detach(), ""])
+        elif type(module) in (nn.Tanh, nn.ReLU) and steps and not steps[-1][2]:
+            if type(module) is nn.ReLU and module.inplace:
+                return None
+            steps[-1][2] = "tanh" if type(module) is nn.Tanh else "relu"
+        else:
+            return None
+    if steps[-1][2] or steps[0][0].shape[0] != n_inputs:
+        return None
+    return _SingleRowForward([(w, b, act) for w, b, act in steps], n_inputs, squash)
 
 
 def load_numpy_policy(path: str | Path | None = None) -> NumpyPolicy:

@@ -8,11 +8,13 @@ an evaluation makes *before* anything runs.
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import math
 import time
 import traceback
 import zipfile
-from collections import Counter
+from collections import Counter, OrderedDict
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -31,8 +33,9 @@ from agents.records import (
 from filters.errors import InvalidParameterError
 from filters.wrapper import FALLBACK_STATUSES, NOMINAL_STATUSES
 
-__all__ = ["EpisodeStats", "Trajectory", "TrajectoryRecorder", "check_policy", "load_policy",
-           "make_env", "policy_file", "run_episode", "run_spec"]
+__all__ = ["EpisodeStats", "Trajectory", "TrajectoryRecorder", "check_policy",
+           "clear_env_cache", "load_policy", "make_env", "policy_file", "run_episode",
+           "run_spec"]
 
 FALLBACK_WINDOW = 2
 """A collision is blamed on a fallback if one ran this many steps before it, or at it."""
@@ -61,10 +64,15 @@ class Trajectory:
 def policy_file(policy_path: str | Path = "") -> Path:
     """The PPO policy file of ``policy_path`` (the shipped one if empty)."""
     if not policy_path:
-        from agents.training import pretrained_policy_path
-
-        return pretrained_policy_path()
+        return _pretrained_policy_path()
     return Path(policy_path)
+
+
+@functools.cache
+def _pretrained_policy_path() -> Path:
+    from agents.training import pretrained_policy_path
+
+    return pretrained_policy_path()  # importlib.resources: about 1 ms a call, 4 per episode
 
 
 _SHA_CACHE: dict[tuple[str, int, int], str] = {}
@@ -209,6 +217,68 @@ def make_env(spec: EpisodeSpec, *, render_mode: str | None = None, policy: Any =
     return wrapped, planner
 
 
+# ---------------------------------------------------------------------------- reuse
+ENV_CACHE_SIZE = 4
+"""Filtered environments kept per process for :func:`run_episode` (one per setting)."""
+
+_ENV_CACHE: OrderedDict[EpisodeSpec, tuple[Any, Any]] = OrderedDict()
+
+
+def _reusable_env(spec: EpisodeSpec, sha: str) -> tuple[EpisodeSpec | None, Any, Any]:
+    """The filtered environment and planner of ``spec``'s setting, built once per process.
+
+    Building the environment and the MPC filter (``gym.make``, the QP's matrices, the
+    solver workspaces) costs more than a short episode. Episodes that differ only in
+    their seed share one environment: ``env.reset(seed=...)`` re-seeds and reloads the
+    scenario, and the wrapper's ``reset`` forgets the filter's plan, normals and
+    calibration, so the episode is the same as on a fresh environment (the test
+    ``test_reused_environment_gives_the_same_records`` checks this record by record).
+    ``sha`` is the policy file's SHA-256 now (part of the key: a changed file is
+    loaded again, and refused if ``spec.policy_sha256`` says otherwise). Returns the
+    cache key (``None`` if the environment is not reusable, see :func:`_resets_fully`),
+    the environment and the planner.
+    """
+    load_policy(spec.policy_path, sha256=spec.policy_sha256)  # cached; raises if changed
+    key = dataclasses.replace(spec, seed=0, policy_sha256=sha)
+    if key in _ENV_CACHE:
+        _ENV_CACHE.move_to_end(key)
+        env, planner = _ENV_CACHE[key]
+        return key, env, planner
+    env, planner = make_env(spec)
+    if not _resets_fully(env):
+        return None, env, planner  # used once and closed, like a fresh environment
+    _ENV_CACHE[key] = (env, planner)
+    while len(_ENV_CACHE) > ENV_CACHE_SIZE:
+        _ENV_CACHE.popitem(last=False)[1][0].close()
+    return key, env, planner
+
+
+def _resets_fully(env: Any) -> bool:
+    """Whether ``reset`` forgets everything an episode leaves in ``env``'s wrappers.
+
+    Not so for a filter with an online calibration (``risk="conformal"``,
+    ``epsilon="auto"``): it keeps its scores across episodes by design, so a reused
+    environment would make an episode depend on the ones run before it in the process.
+    """
+    layer = env
+    while layer is not None and layer is not getattr(layer, "unwrapped", None):
+        if getattr(layer, "_calibration", None) is not None:
+            return False
+        layer = getattr(layer, "env", None)
+    return True
+
+
+def clear_env_cache() -> None:
+    """Close and forget the environments :func:`run_episode` keeps for reuse."""
+    while _ENV_CACHE:
+        _ENV_CACHE.popitem()[1][0].close()
+
+
+@functools.cache
+def _package_version() -> str:
+    return package_version()  # reads the package metadata: once per process
+
+
 # ---------------------------------------------------------------------------- one episode
 def run_episode(
     spec: EpisodeSpec,
@@ -217,8 +287,13 @@ def run_episode(
     record_trajectory: bool = False,
     render: bool = False,
     env_kwargs: dict[str, Any] | None = None,
+    reuse_env: bool = True,
 ) -> tuple[EpisodeRecord, Trajectory | None]:
     """Run one episode and summarise it; never raises for a failure inside the episode.
+
+    With ``reuse_env`` (and no ``policy``, ``env_kwargs`` or ``render``) the filtered
+    environment of the spec's setting is built once per process and reset for each
+    seed (see :func:`clear_env_cache`); the records are the same as with a fresh one.
 
     Returns
     -------
@@ -232,11 +307,18 @@ def run_episode(
     stats = EpisodeStats()
     trajectory = None
     sha = ""
+    reuse = (reuse_env and policy is None and env_kwargs is None and not render
+             and spec.planner == "ppo")
+    cache_key = None
     try:
         if policy is None and spec.planner == "ppo":
             sha = check_policy(spec.policy_path)
-        env, planner = make_env(spec, policy=policy, env_kwargs=env_kwargs,
-                                render_mode="rgb_array" if render else None)
+        if reuse:
+            cache_key, env, planner = _reusable_env(spec, sha)
+        else:
+            env, planner = make_env(spec, policy=policy, env_kwargs=env_kwargs,
+                                    render_mode="rgb_array" if render else None)
+        failed = True
         try:
             obs, info = env.reset(seed=int(spec.seed))
             base = env.unwrapped
@@ -254,8 +336,13 @@ def run_episode(
                 done = terminated or truncated
             if recorder is not None:
                 trajectory = recorder.trajectory()
+            failed = False
         finally:
-            env.close()
+            if cache_key is None:
+                env.close()
+            elif failed:  # a half-run episode: do not reuse that environment
+                _ENV_CACHE.pop(cache_key, None)
+                env.close()
         error = ""
     except Exception as exc:  # noqa: BLE001 — a Monte Carlo run records failures
         error = f"{type(exc).__name__}: {exc}".replace("\n", " ")[:500]
@@ -266,7 +353,7 @@ def run_episode(
         reference=spec.reference, alpha=spec.alpha, delta=spec.delta, epsilon=spec.epsilon,
         noise=spec.noise, case=spec.case, filter_options=spec.filter_options,
         env_options=spec.env_options, policy=_policy_name(spec, policy),
-        policy_sha256=spec.policy_sha256 or sha, version=package_version(),
+        policy_sha256=spec.policy_sha256 or sha, version=_package_version(),
         **stats.summary(), wall_time=time.perf_counter() - start, error=error)
     return record, trajectory
 

@@ -75,7 +75,7 @@ from filters.risk import (
     risk_of_samples,
 )
 
-__all__ = ["DEGENERATE_DISTANCE", "Halfspaces", "safe_halfspaces"]
+__all__ = ["DEGENERATE_DISTANCE", "Halfspaces", "offsets_along", "safe_halfspaces"]
 
 #: Below this distance (metres) between the sample mean and the ego reference the
 #: normal ``h`` is undefined and a fallback direction is used.
@@ -306,14 +306,94 @@ def safe_halfspaces(
         if n_obstacles == 0:
             offsets = np.zeros((0, horizon))
             return Halfspaces(normals, offsets, risk, alpha, delta, epsilon, degenerate)
-        losses = _losses(points, normals)  # (n, T, N): samples of -h . p
-        if risk == "dr_cvar" and polytope is not None:
-            value = _dr_cvar_on_polytope(losses, points, normals, polytope, alpha, epsilon)
-        else:
-            value = risk_of_samples(losses, risk, alpha, epsilon, overwrite=True, margin=margins)
-        offsets = -(value - delta + _margins(ego_shape, shapes, normals))
+        offsets = _offsets(points, normals, ego_shape, shapes, risk, alpha, delta, epsilon,
+                           margins, polytope)
     _check_finite_result(samples if polytope is None else points, normals, offsets)
     return Halfspaces(normals, offsets, risk, alpha, delta, epsilon, degenerate)
+
+
+def _offsets(
+    points: np.ndarray,
+    normals: np.ndarray,
+    ego_shape: Shape,
+    shapes: list[Shape],
+    risk: str,
+    alpha: float,
+    delta: float,
+    epsilon: float | np.ndarray,
+    margins: np.ndarray | None,
+    polytope: tuple[np.ndarray, np.ndarray] | None,
+) -> np.ndarray:
+    """Offsets :math:`b = -(R(-h \\cdot p) - \\delta + r)`, ``(n, T)``, of checked data."""
+    losses = _losses(points, normals)  # (n, T, N): samples of -h . p
+    if risk == "dr_cvar" and polytope is not None:
+        value = _dr_cvar_on_polytope(losses, points, normals, polytope, alpha, epsilon)
+    else:
+        value = risk_of_samples(losses, risk, alpha, epsilon, overwrite=True, margin=margins)
+    return -(value - delta + _margins(ego_shape, shapes, normals))
+
+
+def offsets_along(
+    normals: np.ndarray,
+    samples: np.ndarray,
+    *,
+    ego_shape: Shape,
+    obstacle_shapes: Sequence[Shape],
+    risk: str = "dr_cvar",
+    alpha: float = 0.2,
+    delta: float = 0.1,
+    epsilon: float | object = 0.05,
+    support: tuple[object, object] | None = None,
+    conformal_margins: object | None = None,
+) -> np.ndarray:
+    """``safe_halfspaces(..., normals=normals).offsets`` for the filter's hot path.
+
+    The same numbers, bit for bit, as :func:`safe_halfspaces` with given ``normals``
+    (normalised here the same way), with the checks a caller that already holds
+    checked halfspaces needs: the shapes of ``normals`` ``(n, T, d)`` and ``samples``
+    ``(n, N_s, T', d)`` with ``T' >= T`` (the first ``T`` steps are used), the risk
+    settings, and a finite result. Used for the inter-sample start rows
+    (:mod:`filters.intersample`), whose normals are the next step's.
+
+    Raises
+    ------
+    InvalidArrayError, InvalidParameterError, InvalidTypeError
+        As :func:`safe_halfspaces`.
+    """
+    risk = check_risk(risk)
+    alpha = check_alpha(alpha, risk)
+    delta = _check_delta(delta)
+    if (type(normals) is not np.ndarray or normals.ndim != 3 or type(samples) is not np.ndarray
+            or samples.ndim != 4 or samples.shape[0] != normals.shape[0]
+            or samples.shape[2] < normals.shape[1] or samples.shape[3] != normals.shape[2]
+            or samples.shape[1] == 0 or normals.shape[1] == 0 or support is not None):
+        # anything unusual: the full checks (and their messages) of safe_halfspaces
+        shape = np.shape(normals)
+        horizon, dim = (shape[1], shape[2]) if len(shape) == 3 else (1, 2)
+        points = samples
+        if isinstance(samples, np.ndarray) and samples.ndim == 4:
+            points = samples[:, :, :horizon]
+        return safe_halfspaces(
+            np.zeros((max(horizon, 1), max(dim, 1))), points,
+            ego_shape=ego_shape, obstacle_shapes=obstacle_shapes, risk=risk, alpha=alpha,
+            delta=delta, epsilon=epsilon, support=support, normals=normals,
+            conformal_margins=conformal_margins).offsets
+    n_obstacles, horizon, dim = normals.shape
+    points = samples[:, :, :horizon] if samples.shape[2] != horizon else samples
+    points = np.asarray(points, dtype=np.float64)
+    epsilon = check_epsilon_array(epsilon, horizon)
+    margins = None
+    if risk == "conformal":
+        margins = check_margins(conformal_margins, (n_obstacles, horizon))
+    shapes = _check_shapes(ego_shape, obstacle_shapes, n_obstacles, dim)
+    with np.errstate(all="ignore"):
+        unit = _unit_normals(np.asarray(normals, dtype=np.float64))
+        if n_obstacles == 0:
+            return np.zeros((0, horizon))
+        offsets = _offsets(points, unit, ego_shape, shapes, risk, alpha, delta, epsilon,
+                           margins, None)
+    _check_finite_result(points, unit, offsets)
+    return offsets
 
 
 # --------------------------------------------------------------------------- validation
@@ -413,8 +493,15 @@ def _check_shapes(
 def _check_normals(normals: object, shape: tuple[int, ...]) -> np.ndarray:
     n_obstacles, _, horizon, dim = shape
     array = finite_array("normals", normals, shape=(n_obstacles, horizon, dim))
+    return _unit_normals(array)
+
+
+def _unit_normals(array: np.ndarray) -> np.ndarray:
+    """``array / |array|`` along the last axis; raises on a zero or non-finite normal."""
     size = np.sqrt((array * array).sum(axis=-1))
-    if np.any(size < DEGENERATE_DISTANCE):
+    if not np.all(size >= DEGENERATE_DISTANCE):  # NaN fails too
+        if not np.isfinite(size).all():
+            finite_array("normals", array)  # names the first non-finite entry
         raise InvalidArrayError("normals must be non-zero vectors, got a zero normal")
     return array / size[..., None]
 

@@ -64,7 +64,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from filters.geometry import Shape
-from filters.halfspaces import Halfspaces, safe_halfspaces
+from filters.halfspaces import Halfspaces, offsets_along, safe_halfspaces
 from filters.mpc.filter import DISABLED_OFFSET
 
 __all__ = ["IntersampleRows", "arc_margin", "intersample_rows"]
@@ -168,13 +168,12 @@ def intersample_rows(
                    epsilon=halfspaces.epsilon)
     options.update(risk_options)
     if k and horizon > 1:
-        start = safe_halfspaces(
-            np.zeros((horizon - 1, dim)), samples[:, :, : horizon - 1],
-            ego_shape=ego_shape, obstacle_shapes=obstacle_shapes, support=support,
-            normals=normals[:, 1:], **_steps(options, slice(0, horizon - 1)),
+        start = offsets_along(  # safe_halfspaces(..., normals=...) without its re-checks
+            normals[:, 1:], samples, ego_shape=ego_shape, obstacle_shapes=obstacle_shapes,
+            support=support, **_steps(options, slice(0, horizon - 1)),
         )
         rows_n[k:, : horizon - 1] = normals[:, 1:]
-        rows_b[k:, : horizon - 1] = start.offsets - margins[:, 1:]
+        rows_b[k:, : horizon - 1] = start - margins[:, 1:]
     violation = None
     if k and current_position is not None and current_obstacles is not None:
         now = safe_halfspaces(

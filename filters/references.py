@@ -66,8 +66,14 @@ def hold_action_reference(
     """
     A, B, _ = env.dynamics
     low, high = env.input_bounds
-    inputs = np.tile(np.clip(np.asarray(action, dtype=float), low, high), (horizon, 1))
-    return rollout(A, B, np.asarray(env.ego_state, dtype=float), inputs), inputs
+    u = np.clip(np.asarray(action, dtype=float), low, high)
+    inputs = np.tile(u, (horizon, 1))
+    states = np.empty((horizon + 1, A.shape[0]))
+    states[0] = env.ego_state
+    Bu = B @ inputs[0]  # the same input every step: one product (as rollout() would give)
+    for k in range(horizon):
+        states[k + 1] = A @ states[k] + Bu
+    return states, inputs
 
 
 class PolicyRolloutReference:
@@ -101,10 +107,14 @@ class PolicyRolloutReference:
         inputs = np.empty((horizon, B.shape[1]))
         states[0] = env.ego_state
         inputs[0] = np.clip(action, low, high)
+        observe, predict = env.observe, self.policy.predict
+        minimum, maximum = np.minimum, np.maximum
         for k in range(horizon):
             if k > 0:
-                observation = env.observe(states[k], predicted_means[:, k - 1], velocities)
-                proposal, _ = self.policy.predict(observation, deterministic=True)
-                inputs[k] = np.clip(np.asarray(proposal, dtype=float).reshape(-1), low, high)
+                proposal, _ = predict(observe(states[k], predicted_means[:, k - 1], velocities),
+                                      deterministic=True)
+                # np.clip's result (NaN stays NaN) at a fraction of its per-call cost
+                minimum(maximum(np.asarray(proposal, dtype=float).reshape(-1), low), high,
+                        out=inputs[k])
             states[k + 1] = A @ states[k] + B @ inputs[k]
         return states, inputs

@@ -16,6 +16,7 @@ filtered and unfiltered runs are compared through the same code path.
 
 from __future__ import annotations
 
+import copy
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, fields
@@ -119,12 +120,12 @@ class FilterReport:
     error: str = ""
 
     def __getitem__(self, key: str) -> Any:
-        if key not in self.keys():
+        if key not in _REPORT_KEYS:
             raise KeyError(key)
         return getattr(self, key)
 
     def keys(self) -> tuple[str, ...]:
-        return tuple(f.name for f in fields(self))
+        return _REPORT_KEYS
 
     def as_dict(self) -> dict[str, Any]:
         """The report as a plain dict."""
@@ -145,6 +146,19 @@ class FilterReport:
         return True
 
     __hash__ = None  # type: ignore[assignment]
+
+    def __deepcopy__(self, memo: dict[int, Any]) -> FilterReport:
+        """A deep copy field by field (SB3's ``DummyVecEnv`` deep-copies every step's
+        infos; the generic ``__reduce_ex__`` route cost more than the filter's QP)."""
+        clone = object.__new__(FilterReport)
+        memo[id(self)] = clone
+        for key in _REPORT_KEYS:
+            object.__setattr__(clone, key, copy.deepcopy(getattr(self, key), memo))
+        return clone
+
+
+_REPORT_KEYS: tuple[str, ...] = tuple(f.name for f in fields(FilterReport))
+"""The field names of :class:`FilterReport`, computed once (``keys`` runs every step)."""
 
 
 class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
@@ -616,10 +630,12 @@ def _nearside_normals(samples: np.ndarray, reference: np.ndarray, ego: np.ndarra
     near = np.einsum("ktd,ktd->kt", to_reference, to_ego) > 0.0
     origin = np.where(near[..., None], reference[None], ego[None, None])
     diff = means - origin
-    size = np.linalg.norm(diff, axis=-1, keepdims=True)
-    fallback = means - ego[None, None]  # the ego is never at the obstacle's mean
-    fallback_size = np.linalg.norm(fallback, axis=-1, keepdims=True)
+    size = np.sqrt(np.add.reduce(diff * diff, axis=-1, keepdims=True))  # = np.linalg.norm
     ok = size > 1e-9
+    if ok.all():  # the usual case: the fallback below would not be picked anywhere
+        return diff / size
+    fallback = means - ego[None, None]  # the ego is never at the obstacle's mean
+    fallback_size = np.sqrt(np.add.reduce(fallback * fallback, axis=-1, keepdims=True))
     return np.where(ok, diff / np.where(ok, size, 1.0),
                     fallback / np.maximum(fallback_size, 1e-12))
 
