@@ -684,10 +684,16 @@ class OnlineCalibration:
     """A :class:`PredictionRecord` feeding a :class:`ConformalMargin` and a Wasserstein radius.
 
     The one object a filter wrapper needs for ``risk="conformal"`` and
-    ``epsilon="auto"``: call :meth:`reset` at each episode start (the calibration
-    itself carries over between episodes) and :meth:`update` with every new set of
-    predictions and realised positions (after reset and after each step), then read
-    :meth:`margins` / :meth:`radii` for the halfspaces of this step.
+    ``epsilon="auto"``: call :meth:`reset` at each episode start (it drops the pending
+    predictions only: the calibration itself carries over between episodes) and
+    :meth:`update` with every new set of predictions and realised positions (after
+    reset and after each step), then read :meth:`margins` / :meth:`radii` for the
+    halfspaces of this step.
+
+    Split-conformal practice (what :class:`filters.SafetyFilterWrapper` does with its
+    ``calibration_episodes``): feed held-out episodes first, keep a deep copy
+    (:func:`copy.deepcopy`; the bootstrap generator's state included) and start every
+    episode from a fresh copy of it, so that an episode depends on its own data only.
 
     Parameters
     ----------

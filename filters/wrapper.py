@@ -17,6 +17,7 @@ filtered and unfiltered runs are compared through the same code path.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, fields
@@ -84,6 +85,11 @@ carries over from episode to episode (the order of the episodes then matters).""
 
 _MAX_CALIBRATION_STEPS = 10_000
 """Safety cap on the steps of one held-out episode (the environment truncates earlier)."""
+
+_SNAPSHOTS: dict[tuple, OnlineCalibration] = {}
+"""Calibrated states of this process, by environment and settings (see ``_snapshot_key``)."""
+
+_MAX_SNAPSHOTS = 32
 
 _PROTOCOL_ATTRIBUTES = (*FilterableEnv.__annotations__, "observe")
 """Everything :class:`filters.protocol.FilterableEnv` asks of ``env.unwrapped``."""
@@ -528,6 +534,12 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         are restored afterwards.
         """
         begin = time.perf_counter()
+        key = self._snapshot_key() if self.calibration_episodes else None
+        if key is not None and key in _SNAPSHOTS:
+            self._calibration = copy.deepcopy(_SNAPSHOTS[key])
+            self._calibrated = copy.deepcopy(_SNAPSHOTS[key])
+            self.calibration_time = time.perf_counter() - begin
+            return
         base = self._base
         saved = {name: getattr(base, name) for name in ("_np_random", "_np_random_seed",
                                                          "render_mode") if hasattr(base, name)}
@@ -551,7 +563,34 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if self.epsilon == "auto" and self.calibration_episodes:
             self._calibration.radii()  # the bootstrap runs once here, not in every episode
         self._calibrated = copy.deepcopy(self._calibration)
+        if key is not None:
+            if len(_SNAPSHOTS) >= _MAX_SNAPSHOTS:
+                del _SNAPSHOTS[next(iter(_SNAPSHOTS))]
+            _SNAPSHOTS[key] = copy.deepcopy(self._calibration)
         self.calibration_time = time.perf_counter() - begin
+
+    def _snapshot_key(self) -> tuple | None:
+        """What determines the held-out calibration, or ``None`` if it cannot be told.
+
+        The held-out episodes depend only on the environment's construction (its
+        ``gym.make`` id and keywords: the scenario, noise, predictor, samples ...; the
+        ego's braking follows from its dynamics and bounds), the seeds, the horizon and
+        the calibration's settings. When the keywords are plain values (numbers, strings,
+        frozen dataclasses of them, as the scenarios, noise models and stress cases are),
+        the calibrated state is computed once per process and copied to every wrapper
+        of the same environment and settings (the evaluation builds one wrapper per
+        episode). Anything else (a callable predictor, an environment not made by
+        ``gym.make``) gives ``None``: no sharing.
+        """
+        base = self._base
+        spec = getattr(base, "spec", None)
+        kwargs = _plain_settings(dict(spec.kwargs)) if spec is not None else None
+        if kwargs is None:
+            return None
+        return (type(base).__module__, type(base).__qualname__, spec.id, kwargs,
+                _plain_settings(spec.max_episode_steps), self.horizon,
+                self._calibration.conformal.alpha, self.epsilon == "auto",
+                self.calibration_episodes, self.calibration_seed)
 
     def _risk_options(self) -> dict[str, Any]:
         """Risk settings of this step (the calibrated ones per look-ahead step)."""
@@ -754,6 +793,32 @@ def calibration_settings(
     episodes = CALIBRATION_EPISODES if calibration_episodes is None else calibration_episodes
     return {"calibration_episodes": episodes, "calibration_seed": calibration_seed,
             "calibration_memory": calibration_memory}
+
+
+def _plain_settings(value: object) -> tuple | None:
+    """A hashable canonical form of plain settings, or ``None`` if ``value`` holds others.
+
+    Plain: ``None``, bools, numbers, strings, and tuples, lists, string-keyed dicts and
+    frozen dataclasses of plain values (types included, so ``1`` and ``1.0`` differ).
+    """
+    if value is None or isinstance(value, bool | int | float | str):
+        return (type(value).__qualname__, value)
+    if isinstance(value, tuple | list):
+        items = tuple(_plain_settings(item) for item in value)
+        return None if any(item is None for item in items) else (type(value).__qualname__, items)
+    if isinstance(value, dict):
+        if not all(isinstance(name, str) for name in value):
+            return None
+        items = tuple((name, _plain_settings(value[name])) for name in sorted(value))
+        return None if any(item is None for _, item in items) else ("dict", items)
+    if (dataclasses.is_dataclass(value) and not isinstance(value, type)
+            and value.__dataclass_params__.frozen):
+        cls = type(value)
+        items = tuple((f.name, _plain_settings(getattr(value, f.name)))
+                      for f in dataclasses.fields(value))
+        return None if any(item is None for _, item in items) else (
+            f"{cls.__module__}.{cls.__qualname__}", items)
+    return None
 
 
 def _count(name: str, value: object) -> int:

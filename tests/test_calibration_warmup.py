@@ -204,3 +204,44 @@ def test_conformal_margin_after_warm_up_covers_a_known_law_at_its_binomial_rate(
         covered += int(np.linalg.norm(env.unwrapped.obstacle_positions[0] - mean) <= q)
     low, high = clopper_pearson(covered, trials)
     assert low <= coverage <= high
+
+
+def test_run_key_records_the_calibration_and_changes_with_it():
+    from agents.records import EpisodeSpec, run_key
+
+    def key(risk: str, **options) -> dict:
+        return run_key([EpisodeSpec("HeadOn", risk, seed, filter_options=options)
+                        for seed in range(2)])
+
+    assert "calibration" not in key("dr_cvar")
+    default = key("conformal")
+    assert default["calibration"] == [calibration_settings("conformal")]
+    assert default["calibration"][0]["calibration_episodes"] == CALIBRATION_EPISODES
+    assert key("conformal", calibration_episodes=9) != default
+    assert key("conformal", calibration_memory="persistent") != default
+    with pytest.raises(InvalidParameterError, match="epsilon"):
+        EpisodeSpec("HeadOn", "dr_cvar", 0, filter_options={"epsilon": "auto"})
+
+
+def test_the_calibrated_state_is_shared_between_wrappers_of_the_same_environment_only():
+    from filters import wrapper
+
+    wrapper._SNAPSHOTS.clear()
+
+    def make(**env_kwargs) -> SafetyFilterWrapper:
+        return SafetyFilterWrapper(gym.make("SafeNav/HeadOn-v0", **env_kwargs), risk="dr_cvar",
+                                   epsilon="auto", calibration_episodes=2)
+
+    first, second = make(), make()
+    assert len(wrapper._SNAPSHOTS) == 1
+    for a, b in ((first._calibrated, second._calibrated), (first._calibrated, _hand_fed(2))):
+        assert np.array_equal(a.radii(), b.radii())
+        assert np.array_equal(a.margins(), b.margins())
+        assert np.array_equal(a.conformal.levels, b.conformal.levels)
+    other = make(noise="authors_code")  # another law: its own held-out data
+    assert len(wrapper._SNAPSHOTS) == 2
+    assert not np.array_equal(other._calibrated.radii(), first._calibrated.radii())
+    assert np.array_equal(_episode(first, 5)[1], _episode(second, 5)[1])
+    # Settings that are not plain values are never keys (no sharing, never a wrong hit).
+    assert wrapper._plain_settings({"predictor": lambda history: history}) is None
+    assert wrapper._plain_settings({"a": (1, 2.0)}) != wrapper._plain_settings({"a": (1.0, 2)})
