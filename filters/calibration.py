@@ -40,6 +40,7 @@ bootstrap of :class:`WassersteinRadius`) comes from a seeded
 
 from __future__ import annotations
 
+import copy
 import math
 from collections import deque
 from dataclasses import dataclass
@@ -691,9 +692,9 @@ class OnlineCalibration:
     halfspaces of this step.
 
     Split-conformal practice (what :class:`filters.SafetyFilterWrapper` does with its
-    ``calibration_episodes``): feed held-out episodes first, keep a deep copy
-    (:func:`copy.deepcopy`; the bootstrap generator's state included) and start every
-    episode from a fresh copy of it, so that an episode depends on its own data only.
+    ``calibration_episodes``): feed held-out episodes first, keep a copy
+    (:meth:`copy`; the bootstrap generator's state included) and start every episode
+    from a fresh copy of it, so that an episode depends on its own data only.
 
     Parameters
     ----------
@@ -733,6 +734,24 @@ class OnlineCalibration:
     def reset(self) -> None:
         """Start a new episode: pending predictions are dropped, the calibration kept."""
         self.record.reset()
+
+    def copy(self) -> OnlineCalibration:
+        """An independent copy: equal to :func:`copy.deepcopy`, faster.
+
+        The arrays kept in the record and the radius's buffers are never written after
+        they are stored, so the copy shares them; every container, counter, level and
+        the bootstrap generator's state is copied, so updating one copy never changes
+        the other.
+        """
+        shared: dict[int, object] = {}
+        for _, samples in self.record._pending:
+            shared[id(samples)] = samples
+        for buffers in (self.record._scores, self.wasserstein._errors,
+                        self.wasserstein._predicted):
+            for buffer in buffers:
+                for array in buffer:
+                    shared[id(array)] = array
+        return copy.deepcopy(self, shared)
 
     def update(
         self, samples: object, realised_positions: object, present: object | None = None

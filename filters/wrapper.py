@@ -16,7 +16,6 @@ filtered and unfiltered runs are compared through the same code path.
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 import time
 from collections.abc import Callable
@@ -490,7 +489,7 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self._mpc.reset()
         if self._calibration is not None:
             if self.calibration_memory == "episode":
-                self._calibration = copy.deepcopy(self._calibrated)
+                self._calibration = self._calibrated.copy()
             self._calibration.reset()
             self._calibrate()
         self._previous_normals = None
@@ -536,8 +535,8 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         begin = time.perf_counter()
         key = self._snapshot_key() if self.calibration_episodes else None
         if key is not None and key in _SNAPSHOTS:
-            self._calibration = copy.deepcopy(_SNAPSHOTS[key])
-            self._calibrated = copy.deepcopy(_SNAPSHOTS[key])
+            self._calibration = _SNAPSHOTS[key].copy()
+            self._calibrated = _SNAPSHOTS[key].copy()
             self.calibration_time = time.perf_counter() - begin
             return
         base = self._base
@@ -562,11 +561,11 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._calibration.reset()
         if self.epsilon == "auto" and self.calibration_episodes:
             self._calibration.radii()  # the bootstrap runs once here, not in every episode
-        self._calibrated = copy.deepcopy(self._calibration)
+        self._calibrated = self._calibration.copy()
         if key is not None:
             if len(_SNAPSHOTS) >= _MAX_SNAPSHOTS:
                 del _SNAPSHOTS[next(iter(_SNAPSHOTS))]
-            _SNAPSHOTS[key] = copy.deepcopy(self._calibration)
+            _SNAPSHOTS[key] = self._calibration.copy()
         self.calibration_time = time.perf_counter() - begin
 
     def _snapshot_key(self) -> tuple | None:

@@ -245,3 +245,26 @@ def test_the_calibrated_state_is_shared_between_wrappers_of_the_same_environment
     # Settings that are not plain values are never keys (no sharing, never a wrong hit).
     assert wrapper._plain_settings({"predictor": lambda history: history}) is None
     assert wrapper._plain_settings({"a": (1, 2.0)}) != wrapper._plain_settings({"a": (1.0, 2)})
+
+
+def test_copy_equals_a_deep_copy_and_never_shares_state():
+    import copy
+
+    original = _hand_fed(1)
+    fast, deep = original.copy(), copy.deepcopy(original)
+    before = (original.margins(), original.radii(), original.conformal.levels.copy(),
+              original.record.scores(1), original.conformal.n_scored.copy())
+    for clone in (fast, deep):  # the same new data into both copies
+        stream = np.random.default_rng(1)
+        clone.reset()
+        for _ in range(25):
+            samples = stream.normal(size=(1, 20, 10, 2))
+            clone.update(samples, stream.normal(size=(1, 2)) + 0.5)
+    assert np.array_equal(fast.radii(), deep.radii())
+    assert np.array_equal(fast.margins(), deep.margins())
+    assert np.array_equal(fast.conformal.levels, deep.conformal.levels)
+    assert not np.array_equal(fast.radii(), before[1])  # the new data moved the copy ...
+    after = (original.margins(), original.radii(), original.conformal.levels,
+             original.record.scores(1), original.conformal.n_scored)
+    for old, new in zip(before, after, strict=True):  # ... and never the original
+        assert np.array_equal(old, new)
