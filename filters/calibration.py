@@ -40,6 +40,7 @@ bootstrap of :class:`WassersteinRadius`) comes from a seeded
 
 from __future__ import annotations
 
+import bisect
 import copy
 import math
 from collections import deque
@@ -62,6 +63,8 @@ __all__ = [
 
 
 def _count(name: str, value: object, *, low: int = 1) -> int:
+    if type(value) is int and value >= low:  # the common case, checked every step
+        return value
     if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < low:
         raise InvalidParameterError(f"{name} must be an integer >= {low}, got {value!r}")
     return int(value)
@@ -299,6 +302,8 @@ class ConformalMargin:
         self.fallback = _fallback(fallback)
         self.levels = np.full(self.horizon, self.alpha)
         self._windows: list[deque[float]] = [deque(maxlen=self.window) for _ in range(self.horizon)]
+        # The same scores kept sorted (bisect), so a margin is one lookup, not a partition.
+        self._sorted: list[list[float]] = [[] for _ in range(self.horizon)]
         self._max_seen = np.full(self.horizon, -math.inf)
         self.n_scored = np.zeros(self.horizon, dtype=np.int64)
         self.n_exceeded = np.zeros(self.horizon, dtype=np.int64)
@@ -306,13 +311,12 @@ class ConformalMargin:
     def margin(self, lookahead: int) -> float:
         """Current margin :math:`q_k` in m for look-ahead ``k`` in ``1..T`` (see the class)."""
         k = self._index(lookahead)
-        scores = self._windows[k]
-        rank = conformal_rank(len(scores), float(self.levels[k]))
+        ordered = self._sorted[k]
+        rank = conformal_rank(len(ordered), float(self.levels[k]))
         if rank <= 0:
             return 0.0
-        if rank <= len(scores):
-            values = np.fromiter(scores, dtype=np.float64, count=len(scores))
-            return float(np.partition(values, rank - 1)[rank - 1])
+        if rank <= len(ordered):
+            return ordered[rank - 1]
         if self.fallback == "max":
             return float(self._max_seen[k]) if self._max_seen[k] > -math.inf else math.inf
         return float(self.fallback)
@@ -340,7 +344,12 @@ class ConformalMargin:
         err = exceeded / values.size
         level = self.levels[k] + self.gamma * (self.alpha - err)
         self.levels[k] = min(max(level, -self.gamma), 1.0 + self.gamma)
-        self._windows[k].extend(values.tolist())
+        window, ordered = self._windows[k], self._sorted[k]
+        for value in values.tolist():
+            if len(window) == self.window:
+                del ordered[bisect.bisect_left(ordered, window.popleft())]
+            window.append(value)
+            bisect.insort(ordered, value)
         self._max_seen[k] = max(self._max_seen[k], float(values.max()))
         self.n_scored[k] += values.size
         self.n_exceeded[k] += exceeded

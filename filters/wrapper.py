@@ -67,10 +67,11 @@ FALLBACK_STATUSES = ("soft", "recovery", "shifted", "brake", "error")
 CALIBRATION_EPISODES = 5
 """Held-out episodes run at construction for ``risk="conformal"`` / ``epsilon="auto"``.
 
-Five braking episodes of the paper's 8 s scenarios give 36-41 realised positions per
-obstacle and look-ahead each, so the 200-score windows of the calibration
-(:class:`filters.calibration.OnlineCalibration`) are full, or nearly, from step 0
-(more episodes only push older scores out of the windows)."""
+A braking episode of the 8 s (40-step) scenarios gives ``41 - k`` realised positions
+per obstacle at look-ahead ``k``; five give 155-200 per look-ahead for one obstacle, so
+the 200-score windows of the calibration (:class:`filters.calibration.OnlineCalibration`)
+are full, or nearly, from step 0 (more episodes mostly push older scores out of the
+windows, at ~0.1 s each here)."""
 
 CALIBRATION_SEED = 1_000_000_000
 """First seed of the held-out calibration episodes (episode ``i`` uses it ``+ i``).
@@ -282,7 +283,7 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         First held-out seed, an integer ``>= 0`` (default :data:`CALIBRATION_SEED`;
         keep it away from the seeds you evaluate on).
     calibration_memory
-        ``"episode"`` (default): each ``reset`` restores (a deep copy of) the state
+        ``"episode"`` (default): each ``reset`` restores (a copy of) the state
         calibrated at construction; the online updates (adaptive conformal levels,
         windows, radii) then continue within the episode only, so an episode depends on
         its seed alone, not on which episodes ran before it in this wrapper.

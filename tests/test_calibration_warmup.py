@@ -268,3 +268,20 @@ def test_copy_equals_a_deep_copy_and_never_shares_state():
              original.record.scores(1), original.conformal.n_scored)
     for old, new in zip(before, after, strict=True):  # ... and never the original
         assert np.array_equal(old, new)
+
+
+def test_sorted_window_margins_equal_the_partition_of_the_window():
+    from filters.calibration import ConformalMargin, conformal_rank
+
+    rng = np.random.default_rng(5)
+    margin = ConformalMargin(0.2, horizon=2, window=30, gamma=0.05, fallback=9.0)
+    for step in range(300):
+        k = 1 + step % 2
+        margin.update_scores(k, np.round(rng.exponential(size=rng.integers(1, 4)), 1))  # ties
+        for j in (1, 2):
+            window = np.array(margin._windows[j - 1])
+            rank = conformal_rank(window.size, float(margin.levels[j - 1]))
+            expected = (0.0 if rank <= 0 else 9.0 if rank > window.size
+                        else np.partition(window, rank - 1)[rank - 1])
+            assert margin.margin(j) == expected
+            assert margin._sorted[j - 1] == sorted(window.tolist())
