@@ -229,6 +229,18 @@ def build_parser() -> argparse.ArgumentParser:
                           help="--sweep: Wasserstein radii, in m (>= 0)")
     evaluate.add_argument("--deltas", type=_metres, nargs="+", default=[0.0, 0.1, 0.2],
                           help="--sweep: risk bounds, in m (>= 0)")
+    from agents.stress_eval import STRESS_METHODS
+    from safe_nav_env.stress import STRESS_SUITE
+
+    evaluate.add_argument("--suite", choices=("scenarios", "stress"), default="scenarios",
+                          help="scenarios: --scenarios x --risks; stress: the stress suite "
+                          "(--cases x --methods, output default results/stress)")
+    evaluate.add_argument("--cases", choices=list(STRESS_SUITE), nargs="+",
+                          default=list(STRESS_SUITE), help="--suite stress: the cases")
+    evaluate.add_argument("--methods", choices=list(STRESS_METHODS), nargs="+",
+                          default=list(STRESS_METHODS),
+                          help="--suite stress: the methods (dr_cvar: fixed --epsilon; "
+                          "dr_cvar_auto: epsilon='auto')")
 
     reproduce = sub.add_parser("reproduce", help="reproduce the paper's figures and tables",
                                **_FORMAT)
@@ -385,7 +397,23 @@ def _evaluate(args: argparse.Namespace) -> int:
                   alpha=args.alpha, noise=args.noise, executor=args.executor,
                   filter_options=dict(args.filter_options), env_options=dict(args.env_options),
                   progress=not args.no_progress, overwrite=args.overwrite)
-    if args.sweep:
+    if args.suite == "stress":
+        from agents.stress_eval import run_stress
+
+        clash = [flag for flag, given in (("--sweep", args.sweep), ("--noise", args.noise),
+                                          ("--scenarios", args.scenarios != list(PAPER_SCENARIOS)),
+                                          ("--risks", args.risks != ["none", *PAPER_RISKS]))
+                 if given]
+        if clash:
+            print(f"safe-nav evaluate: error: --suite stress sets the cases, methods and noise "
+                  f"itself; drop {', '.join(clash)} (use --cases/--methods)", file=sys.stderr)
+            return EXIT_BAD_INPUT
+        output = args.output if args.output != Path("results/evaluate") else Path(
+            "results/stress")
+        common.pop("noise")
+        outputs = run_stress(output, args.cases, args.methods, delta=args.delta,
+                             epsilon=args.epsilon, plots=not args.no_plots, **common)
+    elif args.sweep:
         outputs = run_sweep(args.output, args.scenarios, epsilons=args.epsilons,
                             deltas=args.deltas, **common)
     else:
@@ -396,7 +424,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     if failed:
         first = failed[0]
         print(f"safe-nav evaluate: error: {len(failed)} of {len(outputs.records)} episodes "
-              f"failed (first: {first.scenario} {first.risk} seed {first.seed}: "
+              f"failed (first: {first.case or first.scenario} {first.risk} seed {first.seed}: "
               f"{first.error.split(' | ')[0][:200]}); see the error column of "
               f"{outputs.files['episodes']}; run the same command again to re-run them",
               file=sys.stderr)

@@ -10,7 +10,7 @@ Output folder layout::
                         environment settings, noise, package version); a resumed run
                         must match it
     summary.md          the summary tables (Markdown), naming the policy, the settings
-                        and the code version
+                        and the code version, and the guarantee audit (agents/audit.py)
     figures/            trajectories_<scenario>.png, distance_boxplots.png,
                         collision_rates.png, safe_polytopes.png, episode.gif
 """
@@ -33,7 +33,16 @@ from agents.records import (
     package_version,
 )
 from agents.runner import policy_file, run_episode
-from agents.summary import SummaryRow, markdown_table, short_name, status_table, summarise
+from agents.summary import (
+    AUDIT_NOTE,
+    SummaryRow,
+    audit_rows,
+    audit_table,
+    markdown_table,
+    short_name,
+    status_table,
+    summarise,
+)
 from filters.wrapper import RISKS
 from safe_nav_env.scenarios import scenario_name
 
@@ -153,6 +162,8 @@ def run_evaluation(
         + describe_run(records, planner=planner, reference=reference, settings=settings)
         + f"\n{markdown}\n## Filter statuses (share of steps) and collision causes\n\n"
         + status_table(rows)
+        + "\n## Guarantee audit (realised loss at the step-1 halfspaces)\n\n"
+        + audit_table(audit_rows(records)) + "\n" + AUDIT_NOTE
     )
     if plots:
         sha = next((r.policy_sha256 for r in records if r.policy_sha256), "")

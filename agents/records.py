@@ -31,7 +31,7 @@ from agents.errors import RecordsFileError, RunMismatchError
 from filters.errors import InvalidParameterError
 from filters.mpc import FilterStatus
 from filters.wrapper import RISKS, calibration_settings
-from safe_nav_env.scenarios import SCENARIO_NAMES, scenario_name
+from safe_nav_env.scenarios import CUSTOM, SCENARIO_NAMES, scenario_name
 
 __all__ = [
     "FILTER_STATUSES",
@@ -63,6 +63,9 @@ PLANNERS = ("ppo", "mpc")
 
 REFERENCES = ("rollout", "hold")
 """How the filter makes a reference trajectory from a PPO proposal."""
+
+AUTO = "auto"
+"""``epsilon`` value of the wrapper's online Wasserstein radius."""
 
 FILTER_STATUSES = tuple(status.value for status in FilterStatus)
 """Filter statuses (:class:`filters.mpc.FilterStatus`: optimal, soft, recovery, shifted,
@@ -141,7 +144,8 @@ class EpisodeSpec:
         ``"rollout"`` (roll the policy out on the predicted mean motion) or
         ``"hold"`` (hold the proposed action); the MPC planner always uses its plan.
     alpha, delta, epsilon
-        Risk parameters (tail mass, risk bound in m, Wasserstein radius in m).
+        Risk parameters (tail mass, risk bound in m, Wasserstein radius in m);
+        ``epsilon`` may be ``"auto"`` (the wrapper's radius estimated online).
     policy_path
         PPO policy file; empty for the shipped one.
     noise
@@ -157,6 +161,11 @@ class EpisodeSpec:
     policy_sha256
         SHA-256 of the policy file's content, if known (set by
         :func:`agents.evaluation.evaluate`); the runner refuses a file that differs.
+    case
+        A case of the stress suite (:data:`safe_nav_env.stress.STRESS_SUITE`, e.g.
+        ``"heavy_tail"``), or ``""``. With a case the scenario is ``"Custom"`` and the
+        environment gets the case's scenario, noise and predictor
+        (:meth:`~safe_nav_env.stress.StressCase.env_kwargs`) under ``env_options``.
     """
 
     scenario: str
@@ -166,12 +175,13 @@ class EpisodeSpec:
     reference: str = "rollout"
     alpha: float = 0.2
     delta: float = 0.1
-    epsilon: float = 0.05
+    epsilon: float | str = 0.05
     policy_path: str = ""
     noise: str = ""
     filter_options: str = ""
     env_options: str = ""
     policy_sha256: str = ""
+    case: str = ""
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -188,9 +198,26 @@ class EpisodeSpec:
         set_(self, "seed", int(self.seed))
         for name in ("alpha", "delta", "epsilon"):
             value = getattr(self, name)
+            if name == "epsilon" and value == AUTO:
+                continue
             if isinstance(value, bool) or not isinstance(value, int | float | np.number):
-                raise InvalidParameterError(f"{name} must be a number, got {value!r}")
+                extra = ' or "auto"' if name == "epsilon" else ""
+                raise InvalidParameterError(f"{name} must be a number{extra}, got {value!r}")
             set_(self, name, float(value))
+        if self.case:
+            from safe_nav_env.stress import STRESS_SUITE
+
+            if self.case not in STRESS_SUITE:
+                raise InvalidParameterError(
+                    f"case must be '' or one of {sorted(STRESS_SUITE)}, got {self.case!r}")
+            if self.noise:
+                raise InvalidParameterError(
+                    f"a stress case brings its own noise; got noise {self.noise!r} with case "
+                    f"{self.case!r}")
+            if self.scenario != CUSTOM:
+                raise InvalidParameterError(
+                    f"a stress case runs on the scenario {CUSTOM!r}, got scenario "
+                    f"{self.scenario!r} with case {self.case!r}")
         if self.noise:
             from safe_nav_env import NOISE_PRESETS
 
@@ -213,8 +240,12 @@ class EpisodeSpec:
                     delta=self.delta, epsilon=self.epsilon)
 
     def env_kwargs(self) -> dict[str, Any]:
-        """Keywords of ``gym.make`` (the noise preset included)."""
+        """Keywords of ``gym.make`` (the noise preset and the stress case included)."""
         kwargs = _options_dict(self.env_options)
+        if self.case:
+            from safe_nav_env.stress import STRESS_SUITE
+
+            kwargs = {**STRESS_SUITE[self.case].env_kwargs(), **kwargs}
         if self.noise:
             kwargs.setdefault("noise", self.noise)
         return kwargs
@@ -234,7 +265,7 @@ class EpisodeRecord:
 
     Attributes
     ----------
-    scenario, risk, seed, planner, reference, alpha, delta, epsilon, noise
+    scenario, risk, seed, planner, reference, alpha, delta, epsilon, noise, case
         The episode's :class:`EpisodeSpec`.
     filter_options, env_options
         Further filter and environment settings, as canonical JSON.
@@ -272,6 +303,13 @@ class EpisodeRecord:
         The first step's reason for braking on bad data (``"step 3: NaN action"``).
     filter_time_median, filter_time_max, wall_time
         Filter step times and the episode's wall time, in s.
+    audit_steps, audit_losses
+        The guarantee audit (:mod:`agents.audit`): the number of active first-step
+        halfspaces (obstacle-steps) and their realised losses, in m, as
+        ``";"``-separated numbers rounded to 0.1 mm (pooling over episodes needs every
+        loss, since a CVaR is not a sum). Empty when no filter ran.
+    audit_all_steps, audit_all_losses
+        The same over *every* first-step halfspace, active or not.
     error
         Why the episode failed (an exception), else ``""``.
     """
@@ -283,8 +321,9 @@ class EpisodeRecord:
     reference: str
     alpha: float
     delta: float
-    epsilon: float
+    epsilon: float | str
     noise: str = ""
+    case: str = ""
     filter_options: str = ""
     env_options: str = ""
     policy: str = ""
@@ -316,6 +355,10 @@ class EpisodeRecord:
     filter_time_median: float = 0.0
     filter_time_max: float = 0.0
     episode_return: float = 0.0
+    audit_steps: int = 0
+    audit_losses: str = ""
+    audit_all_steps: int = 0
+    audit_all_losses: str = ""
     wall_time: float = 0.0
     error: str = ""
 
@@ -343,11 +386,11 @@ RECORD_FIELDS = tuple(f.name for f in fields(EpisodeRecord))
 """CSV columns, in order."""
 
 KEY_FIELDS = ("scenario", "risk", "seed", "planner", "reference", "alpha", "delta", "epsilon",
-              "noise", "filter_options", "env_options", "policy_sha256")
+              "noise", "filter_options", "env_options", "policy_sha256", "case")
 """Fields that identify an episode; both :class:`EpisodeSpec` and :class:`EpisodeRecord`
 have them, and :func:`episode_key` is the one key function for both."""
 
-CYCLED_FIELDS = ("scenario", "risk", "seed")
+CYCLED_FIELDS = ("scenario", "risk", "seed", "case")
 """Key fields that vary within one run by design (the run key covers the others)."""
 
 _KINDS = {f.name: f.type for f in fields(EpisodeRecord)}
@@ -355,20 +398,31 @@ _KINDS = {f.name: f.type for f in fields(EpisodeRecord)}
 
 def episode_key(item: EpisodeSpec | EpisodeRecord) -> tuple:
     """The tuple of :data:`KEY_FIELDS` of a spec or a record (floats as floats)."""
-    return tuple(float(v) if _KINDS[name] in ("float", float) else v
-                 for name, v in ((name, getattr(item, name)) for name in KEY_FIELDS))
+    return tuple(float(v) if _KINDS[name] in ("float", float) or (name == "epsilon" and v != AUTO)
+                 else v for name, v in ((name, getattr(item, name)) for name in KEY_FIELDS))
 
 
 def sort_records(records: Iterable[EpisodeRecord]) -> list[EpisodeRecord]:
     """Records in a canonical order (scenario, risk, seed, ...), independent of completion order."""
     risk_order = {risk: i for i, risk in enumerate(RISKS)}
-    return sorted(records, key=lambda r: (r.scenario, risk_order.get(r.risk, len(RISKS)),
-                                          *r.key()[2:]))
+    epsilon = KEY_FIELDS.index("epsilon")
+
+    def order(record: EpisodeRecord) -> tuple:
+        key = list(record.key())
+        value = key[epsilon]  # a fixed radius sorts before "auto" (str and float do not compare)
+        key[epsilon] = (1, 0.0) if value == AUTO else (0, value)
+        return (record.case, record.scenario, risk_order.get(record.risk, len(RISKS)), *key[2:])
+
+    return sorted(records, key=order)
 
 
 # ---------------------------------------------------------------------------- CSV
 def _parse(name: str, raw: str, path: Path, line: int) -> Any:
     kind = _KINDS[name]
+    if name == "epsilon" and raw == AUTO:
+        return raw
+    if name == "epsilon":
+        kind = "float"
     try:
         if kind in ("int", int):
             return int(float(raw)) if raw else 0

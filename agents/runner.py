@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from agents.audit import encode_losses
 from agents.errors import PolicyFileError
 from agents.records import (
     FILTER_STATUSES,
@@ -239,7 +240,7 @@ def run_episode(
         try:
             obs, info = env.reset(seed=int(spec.seed))
             base = env.unwrapped
-            stats.start(base, info)
+            stats.start(base, info, intersample=_intersample(env))
             recorder = TrajectoryRecorder(env, render) if record_trajectory else None
             done = False
             while not done:
@@ -263,11 +264,21 @@ def run_episode(
     record = EpisodeRecord(
         scenario=spec.scenario, risk=spec.risk, seed=spec.seed, planner=spec.planner,
         reference=spec.reference, alpha=spec.alpha, delta=spec.delta, epsilon=spec.epsilon,
-        noise=spec.noise, filter_options=spec.filter_options, env_options=spec.env_options,
-        policy=_policy_name(spec, policy),
+        noise=spec.noise, case=spec.case, filter_options=spec.filter_options,
+        env_options=spec.env_options, policy=_policy_name(spec, policy),
         policy_sha256=spec.policy_sha256 or sha, version=package_version(),
         **stats.summary(), wall_time=time.perf_counter() - start, error=error)
     return record, trajectory
+
+
+def _intersample(env: Any) -> bool:
+    """Whether the safety filter in ``env``'s wrapper stack adds inter-sample rows."""
+    from filters.wrapper import SafetyFilterWrapper
+
+    layer = env
+    while layer is not None and not isinstance(layer, SafetyFilterWrapper):
+        layer = getattr(layer, "env", None)
+    return bool(layer is not None and layer.intersample)
 
 
 def _policy_name(spec: EpisodeSpec, policy: Any) -> str:
@@ -342,9 +353,13 @@ class EpisodeStats:
         self.episode_return = 0.0
         self.dt = 0.2
         self._position = np.zeros(2)
+        self.intersample = False
+        self.audit: list[float] = []
+        self.audit_all: list[float] = []
 
-    def start(self, base: Any, info: dict[str, Any]) -> None:
+    def start(self, base: Any, info: dict[str, Any], *, intersample: bool = False) -> None:
         self.dt = float(base.dt)
+        self.intersample = intersample
         self._position = np.asarray(base.ego_state[:2], dtype=float).copy()
         self._distance(info)
 
@@ -378,6 +393,38 @@ class EpisodeStats:
             self.first_error = f"step {self.steps}: {reason}".replace("\n", " ")[:300]
         self.interventions.append(float(report["intervention"]))
         self.filter_times.append(float(report["filter_time"]))
+        self._audit(base, report)
+
+    def _audit(self, base: Any, report: Any) -> None:
+        """The realised losses of the step's active first-step halfspaces (:mod:`agents.audit`).
+
+        ``base`` has already stepped: its obstacle positions are the realised ones at the
+        step the halfspaces' ``k = 1`` predicted. Steps without halfspaces or a plan
+        (pass-through, status ``"error"``) are not audited, nor are steps with
+        non-finite data (which the filter reports as ``"error"`` anyway).
+        """
+        names = report.keys()
+        if not all(name in names for name in ("normals", "offsets", "planned_states")):
+            return
+        normals, offsets, plan = report["normals"], report["offsets"], report["planned_states"]
+        if normals is None or offsets is None or plan is None or len(normals) == 0:
+            return
+        from agents.audit import first_step_losses
+        from filters.intersample import arc_margin
+
+        h = np.asarray(normals, dtype=float)[:, 0]
+        b = np.asarray(offsets, dtype=float)[:, 0]
+        realised = np.asarray(base.obstacle_positions, dtype=float)[: len(h)]
+        radii = float(base.ego_radius) + np.asarray(base.obstacle_radii, dtype=float)[: len(h)]
+        C = np.asarray(base.dynamics[2], dtype=float)
+        y1 = C @ np.asarray(plan, dtype=float)[1]
+        if not (np.all(np.isfinite(realised)) and np.all(np.isfinite(y1))
+                and np.all(np.isfinite(h)) and np.all(np.isfinite(b))):
+            return
+        margins = arc_margin(h, base.input_bounds, float(base.dt)) if self.intersample else 0.0
+        active, losses = first_step_losses(h, b, y1, realised, radii, margins=margins)
+        self.audit.extend(float(v) for v in losses[active])
+        self.audit_all.extend(float(v) for v in losses)
 
     def collision_cause(self) -> str:
         """Why the first continuous-time collision happened (see :class:`EpisodeRecord`)."""
@@ -421,4 +468,8 @@ class EpisodeStats:
             filter_time_median=float(np.median(times)),
             filter_time_max=float(times.max()),
             episode_return=self.episode_return,
+            audit_steps=len(self.audit),
+            audit_losses=encode_losses(self.audit),
+            audit_all_steps=len(self.audit_all),
+            audit_all_losses=encode_losses(self.audit_all),
         )

@@ -14,10 +14,11 @@ import math
 from collections import defaultdict
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
-from agents.records import FILTER_STATUSES, RISKS, EpisodeRecord
+from agents.records import AUTO, FILTER_STATUSES, RISKS, EpisodeRecord
 
 RISK_ORDER = {risk: i for i, risk in enumerate(RISKS)}
 """Table order of the risk settings (:data:`filters.wrapper.RISKS`)."""
@@ -75,17 +76,33 @@ class SummaryRow:
     collision_causes: tuple[tuple[str, int], ...] = ()
     first_error: str = ""
     first_failure: str = ""
+    method: str = ""
+
+
+def method_label(risk: str, epsilon: float | str) -> str:
+    """The method's name in tables: the risk, ``"dr_cvar (eps=auto)"`` for the online radius."""
+    return f"{risk} (eps=auto)" if epsilon == AUTO else risk
+
+
+def _group(record: EpisodeRecord) -> tuple[str, str, str, bool]:
+    """(scenario or stress case, planner, risk, online radius?) of a record."""
+    return (record.case or record.scenario, record.planner, record.risk, record.epsilon == AUTO)
 
 
 def summarise(records: Iterable[EpisodeRecord]) -> list[SummaryRow]:
-    """One :class:`SummaryRow` per (scenario, planner, risk), in a stable order."""
-    groups: dict[tuple[str, str, str], list[EpisodeRecord]] = defaultdict(list)
+    """One :class:`SummaryRow` per (scenario, planner, risk), in a stable order.
+
+    A stress-suite record counts under its case (``record.case``) as the scenario, and
+    ``epsilon="auto"`` is a method of its own (``method`` ``"dr_cvar (eps=auto)"``).
+    """
+    groups: dict[tuple[str, str, str, bool], list[EpisodeRecord]] = defaultdict(list)
     for record in records:
-        groups[(record.scenario, record.planner, record.risk)].append(record)
+        groups[_group(record)].append(record)
     rows = []
-    for (scenario, planner, risk), group in sorted(
+    for (scenario, planner, risk, auto), group in sorted(
         groups.items(), key=lambda item: (item[0][0], item[0][1],
-                                           RISK_ORDER.get(item[0][2], len(RISK_ORDER)))
+                                           RISK_ORDER.get(item[0][2], len(RISK_ORDER)),
+                                           item[0][3])
     ):
         ok = [r for r in group if not r.error]
         n = len(ok)
@@ -121,6 +138,7 @@ def summarise(records: Iterable[EpisodeRecord]) -> list[SummaryRow]:
             status_shares=shares, collision_causes=causes,
             first_error=errors[0] if errors else "",
             first_failure=failures[0][:200] if failures else "",
+            method=method_label(risk, AUTO if auto else 0.0),
         ))
     return rows
 
@@ -140,7 +158,8 @@ def markdown_table(rows: Sequence[SummaryRow]) -> str:
     for r in rows:
         failed = f" ({r.failed} failed)" if r.failed else ""
         lines.append(
-            f"| {short_name(r.scenario)} | {r.planner} | {r.risk} | {r.episodes}{failed} | "
+            f"| {short_name(r.scenario)} | {r.planner} | {r.method or r.risk} | "
+            f"{r.episodes}{failed} | "
             f"{r.collision_rate:.1%} [{r.collision_low:.1%}, {r.collision_high:.1%}] | "
             f"{r.sampled_collision_rate:.1%} | "
             f"{r.worst_distance:.3f} | {r.worst_swept_distance:.3f} | {r.cvar_distance:.3f} | "
@@ -163,6 +182,126 @@ def status_table(rows: Sequence[SummaryRow]) -> str:
                            for s in FILTER_STATUSES)  # "none": every step is a passthrough
         cause_cell = " / ".join(str(causes.get(c, 0)) for c in COLLISION_CAUSES)
         reason = (r.first_error or r.first_failure or "").replace("|", "/")
-        lines.append(f"| {short_name(r.scenario)} | {r.planner} | {r.risk} | {cells} | "
+        lines.append(f"| {short_name(r.scenario)} | {r.planner} | {r.method or r.risk} | {cells} | "
                      f"{cause_cell} | {reason} |")
     return "\n".join(lines) + "\n"
+
+
+# ---------------------------------------------------------------------------- guarantee audit
+@dataclass(frozen=True)
+class AuditRow:
+    """The guarantee audit of one (scenario or case, planner, method); see :mod:`agents.audit`.
+
+    Attributes
+    ----------
+    scenario, planner, risk, method
+        As in :class:`SummaryRow`.
+    promise
+        ``"mean"``, ``"cvar"`` or ``"chance"`` (:data:`agents.audit.PROMISES`).
+    active
+        :class:`agents.audit.AuditResult` of the pooled losses of the *active* first-step
+        halfspaces (the audit the issue asks for).
+    all
+        The same over every first-step halfspace, active or not (far more steps: the
+        offset's promise is about the obstacle's law, whatever the ego does).
+    """
+
+    scenario: str
+    planner: str
+    risk: str
+    method: str
+    promise: str
+    active: Any
+    all: Any
+
+
+def audit_rows(records: Iterable[EpisodeRecord]) -> list[AuditRow]:
+    """Pool the records' audit losses per (scenario or case, planner, method).
+
+    Unfiltered runs (``risk="none"``, no halfspaces) and failed episodes are left out.
+    Each group's ``alpha`` and ``delta`` are its records' (a group mixing several
+    raises :class:`~filters.errors.InvalidParameterError`).
+    """
+    from agents.audit import PROMISES, audit_losses, decode_losses
+    from filters.errors import InvalidParameterError
+
+    groups: dict[tuple[str, str, str, bool], list[EpisodeRecord]] = defaultdict(list)
+    for record in records:
+        if record.risk != "none" and not record.error:
+            groups[_group(record)].append(record)
+    rows = []
+    for (scenario, planner, risk, auto), group in sorted(
+        groups.items(), key=lambda item: (item[0][0], item[0][1],
+                                           RISK_ORDER.get(item[0][2], len(RISK_ORDER)),
+                                           item[0][3])
+    ):
+        settings = {(r.alpha, r.delta) for r in group}
+        if len(settings) > 1:
+            raise InvalidParameterError(
+                f"the audit pools one (alpha, delta) per method; {scenario} {risk} has "
+                f"{sorted(settings)}")
+        alpha, delta = settings.pop()
+        pooled = {column: audit_losses([], groups=[decode_losses(getattr(r, column))
+                                                   for r in group], alpha=alpha, delta=delta)
+                  for column in ("audit_losses", "audit_all_losses")}
+        rows.append(AuditRow(
+            scenario=scenario, planner=planner, risk=risk,
+            method=method_label(risk, AUTO if auto else 0.0), promise=PROMISES[risk],
+            active=pooled["audit_losses"], all=pooled["audit_all_losses"],
+        ))
+    return rows
+
+
+_PROMISE_TEXT = {"mean": "E ℓ ≤ δ", "cvar": "CVaR_α ℓ ≤ δ", "chance": "P(ℓ > δ) ≤ α"}
+
+
+def _audit_cells(result: Any, promise: str) -> list[str]:
+    """n, mean, CVaR, P(loss > delta) [CI], verdict; the promised quantity in bold."""
+    if result.n == 0:
+        return ["0", "-", "-", "-", "-"]
+
+    def bold(text: str, kind: str) -> str:
+        return f"**{text}**" if kind == promise else text
+
+    def interval(value: float, low: float, high: float) -> str:
+        return f"{value:.3f}" + ("" if math.isnan(low) else f" [{low:.3f}, {high:.3f}]")
+
+    rate = (f"{result.violation_rate:.1%} [{result.violation_low:.1%}, "
+            f"{result.violation_high:.1%}]")
+    return [str(result.n),
+            bold(interval(result.mean_loss, result.mean_low, result.mean_high), "mean"),
+            bold(interval(result.cvar_loss, result.cvar_low, result.cvar_high), "cvar"),
+            bold(rate, "chance"), result.verdict(promise)]
+
+
+def audit_table(rows: Sequence[AuditRow]) -> str:
+    """The guarantee audit as Markdown: each method's promise against the realised losses.
+
+    Two pools side by side: the active first-step halfspaces, and all of them. The
+    promised quantity is in bold; the verdict is :meth:`agents.audit.AuditResult.verdict`.
+    """
+    pool = ["n", "mean ℓ (m)", "CVaR_α ℓ (m)", "P(ℓ > δ) [95 % CI]", "verdict"]
+    header = ("| scenario | planner | method | promise | α | δ (m) | "
+              + " | ".join(f"active: {c}" for c in pool) + " | "
+              + " | ".join(f"all: {c}" for c in pool) + " |")
+    lines = [header, "|" + "---|" * (6 + 2 * len(pool))]
+    for r in rows:
+        cells = [short_name(r.scenario), r.planner, r.method, _PROMISE_TEXT[r.promise],
+                 f"{r.active.alpha:g}", f"{r.active.delta:g}",
+                 *_audit_cells(r.active, r.promise), *_audit_cells(r.all, r.promise)]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+AUDIT_NOTE = (
+    "Loss ℓ = b + r − h·p of each obstacle's step-1 halfspace h·y ≤ b (r = r_A + r_O), at "
+    "the obstacle's realised position p one step later: the intrusion depth the risk bounds "
+    "(DESIGN.md section 1). *active*: the steps where the applied plan's step-1 position lay "
+    "within the inter-sample bow margin + 1 mm of the offset, or beyond it "
+    "(agents/audit.py); *all*: every step-1 halfspace, active or not. The promised quantity "
+    "is in bold. Intervals (95 %): Wilson for P(ℓ > δ), which treats the steps as "
+    "independent (successive steps of an episode are not, so it is optimistic); a cluster "
+    "bootstrap over episodes (1000 replicates, seed 0) for the mean and the CVaR. Verdict: "
+    "held if the point estimate meets the bound, violated if the whole interval lies "
+    "beyond it, else within noise.\n")
+"""Explanation printed under the audit table."""

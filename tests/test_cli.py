@@ -39,6 +39,8 @@ def test_evaluate_writes_csv_summary_and_figures(tmp_path, capsys):
     assert "obstacle-agnostic MPC" in summary and "safe-nav 0." in summary
     assert "| HeadOn | mpc | dr_cvar | 2 |" in summary
     assert "| MultiObstacle | mpc | none | 2 |" in summary
+    assert "## Guarantee audit" in summary and "| MultiObstacle | mpc | dr_cvar | CVaR_α ℓ ≤ δ |" \
+        in summary
     for name in ("trajectories_HeadOn.png", "trajectories_MultiObstacle.png",
                  "distance_boxplots.png", "collision_rates.png", "safe_polytopes.png",
                  "episode.gif"):
