@@ -7,7 +7,9 @@ is a ratio against a reference measured in the same run:
     call) at N_s = 50, 500, 1500, against our closed form for all 3 x 10 halfspaces;
 (b) one full filter step (halfspaces + QP) on the multi-obstacle scenario
     (3 obstacles, T = 10, N_s = 100) against the same QP in CVXPY built once with
-    Parameters, and the QP alone on synthetic instances;
+    Parameters, and the QP alone on synthetic instances; ours is the default
+    ``backend="auto"``, and each explicit back end (DAQP, Clarabel) is timed on the
+    same steps too;
 (c) the unfiltered environment's steps per second.
 
 ``safe-nav bench --scaling`` (:func:`run_scaling`) times the filter step on the grid
@@ -65,6 +67,10 @@ class FilterStepBenchmark:
     cvxpy_qp_steps_ms: float  # CVXPY, median over the same qp_steps
     statuses: dict[str, int]
     variant: str = "the paper's filter"
+    backend: str = ""  # what backend="auto" (ours) picked
+    backend_qp_ms: dict[str, float] | None = None  # explicit back ends, same steps
+    backend_step_ms: dict[str, float] | None = None  # halfspaces + that QP, per step
+    backend_difference: dict[str, float] | None = None  # max |u - u_clarabel|, both solved
 
     def format(self) -> str:
         statuses = ", ".join(f"{k} {v}" for k, v in sorted(self.statuses.items()))
@@ -81,7 +87,21 @@ class FilterStepBenchmark:
             f"{self.cvxpy_qp_steps_ms:.3f} ms, ratio "
             f"{self.cvxpy_qp_steps_ms / self.step_qp_ms:.1f}x",
             f"    statuses: {statuses}",
+            *self._backend_lines(),
         ])
+
+    def _backend_lines(self) -> list[str]:
+        if not self.backend_qp_ms:
+            return []
+        lines = [f"    backend=\"auto\" picked {self.backend!r}; each back end on the same "
+                 "steps (QP = the solve call; step = halfspaces + QP):"]
+        for name, qp in self.backend_qp_ms.items():
+            step = self.backend_step_ms[name]
+            lines.append(
+                f"      {name:<9} QP {qp:.3f} ms, step {step:.3f} ms, CVXPY QP / step "
+                f"{self.cvxpy_qp_ms / step:.1f}x, max |u - u_clarabel| "
+                f"{self.backend_difference[name]:.1e} m/s^2")
+        return lines
 
 
 def benchmark_filter_step(n_steps: int = 500, seed: int = 0, *,
@@ -122,7 +142,7 @@ def benchmark_filter_step(n_steps: int = 500, seed: int = 0, *,
     if continuous:
         weights.update(fallback="soft", terminal_set=stopping_terminal_set(
             base.dt, base.input_bounds, base.position_bounds))
-    ours = MPCSafetyFilter(A, B, C, **weights)
+    ours = MPCSafetyFilter(A, B, C, **weights)  # backend="auto"
     halfspace_ms, qp_ms, step_ms, needed_qp = [], [], [], []
     instances = []
     statuses: dict[str, int] = {}
@@ -158,6 +178,27 @@ def benchmark_filter_step(n_steps: int = 500, seed: int = 0, *,
             statuses[result.status.value] = statuses.get(result.status.value, 0) + 1
             _, _, terminated, truncated, _ = env.step(result.inputs[0].astype(np.float32))
             done = terminated or truncated
+    backend_qp: dict[str, list[float]] = {}
+    backend_inputs: dict[str, list] = {}
+    for name in ("daqp", "clarabel"):
+        explicit = MPCSafetyFilter(A, B, C, backend=name, **weights)
+        backend_qp[name], backend_inputs[name] = [], []
+        for instance in instances:
+            if instance is None:
+                explicit.reset()
+                continue
+            x0, ref_states, hs, ref_inputs = instance
+            begin = time.perf_counter()
+            answer = explicit.solve(x0, ref_states, hs, reference_inputs=ref_inputs)
+            backend_qp[name].append(1e3 * (time.perf_counter() - begin))
+            backend_inputs[name].append(answer.inputs if answer.solved else None)
+    difference = {}
+    for name in backend_inputs:
+        gaps = [float(np.max(np.abs(a - b))) for a, b in zip(
+            backend_inputs[name], backend_inputs["clarabel"], strict=True)
+            if a is not None and b is not None]
+        difference[name] = max(gaps) if gaps else float("nan")
+    halfspaces_each = np.asarray(halfspace_ms)
     reference = CVXPYSafetyFilter(A, B, C, **weights)
     cvxpy_ms = []
     for instance in instances:
@@ -179,7 +220,11 @@ def benchmark_filter_step(n_steps: int = 500, seed: int = 0, *,
         step_p90_ms=float(np.percentile(step_ms, 90)), cvxpy_qp_ms=float(np.median(cvxpy_ms)),
         ratio=float(np.median(cvxpy_ms)) / step, qp_steps=int(mask.sum()),
         step_qp_ms=float(np.median(steps_qp)), cvxpy_qp_steps_ms=float(np.median(cvxpy_qp)),
-        statuses=statuses,
+        statuses=statuses, backend=ours.backend,
+        backend_qp_ms={name: float(np.median(v)) for name, v in backend_qp.items()},
+        backend_step_ms={name: float(np.median(halfspaces_each + np.asarray(v)))
+                         for name, v in backend_qp.items()},
+        backend_difference=difference,
         variant="the continuous-time filter (inter-sample rows, terminal set, recovery)"
         if continuous else "the paper's filter")
 

@@ -41,7 +41,8 @@ from tests.builders import (
 
 pytest.importorskip("cvxpy")
 
-BACKENDS = ["clarabel", "cvxpy"]
+BACKENDS = ["clarabel", "daqp", "cvxpy"]
+FAST = ["clarabel", "daqp"]
 OBJECTIVES = ["trajectory", "first_input"]
 MODES = ["hard", "soft", "recovery"]
 NO_QP = "unconstrained optimum feasible (no QP needed)"
@@ -75,8 +76,9 @@ def filter_for(backend: str, objective: str, mode: str, terminal: bool, **extra)
 @pytest.mark.parametrize("terminal", [False, True])
 @pytest.mark.parametrize("mode", MODES)
 @pytest.mark.parametrize("objective", OBJECTIVES)
-def test_clarabel_equals_the_cvxpy_reference(objective, mode, terminal):
-    fast = filter_for("clarabel", objective, mode, terminal, skip_feasible_reference=False)
+@pytest.mark.parametrize("backend", FAST)
+def test_fast_backends_equal_the_cvxpy_reference(backend, objective, mode, terminal):
+    fast = filter_for(backend, objective, mode, terminal, skip_feasible_reference=False)
     reference = filter_for("cvxpy", objective, mode, terminal)
     statuses = set()
     for instance in mode_instances(mode, 1 + MODES.index(mode), 8):

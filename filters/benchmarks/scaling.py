@@ -21,9 +21,13 @@ the occasional infeasible step and the fallbacks that follow; an episode ends at
 the far side, after 40 steps, on a collision, or when the filter had to brake (as
 an environment episode would end). The statuses are reported with the times.
 
-The two filters are timed in separate passes over the same instances (interleaved,
-each evicts the other's data from the caches). Every number is a median over the
-steps of one run; the ratios compare numbers of the same run.
+Ours is the default ``backend="auto"`` (DAQP for ``T m <= 120``, else Clarabel; the
+point reports which); each explicit back end (``"daqp"``, ``"clarabel"``) then solves
+the same recorded halfspaces in a pass of its own, so that the table shows all three
+and how far their inputs are apart. The filters are timed in separate passes over the
+same instances (interleaved, each evicts the other's data from the caches). Every
+number is a median over the steps of one run; the ratios compare numbers of the same
+run.
 """
 
 from __future__ import annotations
@@ -210,6 +214,10 @@ class ScalingPoint:
     agreement: float  # share of steps with the same status
     max_input_difference: float  # m/s^2, over the steps where both were optimal
     statuses: dict[str, int] = field(default_factory=dict)  # ours
+    backend: str = ""  # what backend="auto" picked
+    daqp_qp_ms: float = float("nan")  # backend="daqp", QP (solve call) median
+    clarabel_qp_ms: float = float("nan")  # backend="clarabel", QP median
+    daqp_clarabel_difference: float = float("nan")  # max |u_daqp - u_clarabel|, both optimal
 
     def as_row(self) -> dict:
         """Flat ``dict`` for CSV (statuses as ``name:count`` pairs)."""
@@ -238,7 +246,7 @@ def benchmark_point(
     kwargs = filter_kwargs(horizon, n_obstacles)
     ego_shape, shapes = Disc(RADIUS), [Disc(RADIUS)] * n_obstacles
 
-    ours = MPCSafetyFilter(A, B, C, **kwargs)
+    ours = MPCSafetyFilter(A, B, C, **kwargs)  # backend="auto"
     for instance in instances[: min(20, len(instances))]:  # build the lazily made QPs
         if instance.new_episode:
             ours.reset()
@@ -281,6 +289,23 @@ def benchmark_point(
         if fast.status == slow.status == FilterStatus.OPTIMAL:
             difference = max(difference, float(np.max(np.abs(fast.inputs - slow.inputs))))
 
+    backend_ms: dict[str, list[float]] = {}
+    backend_inputs: dict[str, list] = {}
+    for name in ("daqp", "clarabel"):
+        explicit = MPCSafetyFilter(A, B, C, backend=name, **kwargs)
+        backend_ms[name], backend_inputs[name] = [], []
+        for instance, hs in zip(instances, recorded, strict=True):
+            if instance.new_episode:
+                explicit.reset()
+            begin = time.perf_counter()
+            answer = explicit.solve(instance.x0, instance.reference_states, hs)
+            backend_ms[name].append(1e3 * (time.perf_counter() - begin))
+            backend_inputs[name].append(
+                answer.inputs if answer.status == FilterStatus.OPTIMAL else None)
+    between = [float(np.max(np.abs(a - b))) for a, b in zip(
+        backend_inputs["daqp"], backend_inputs["clarabel"], strict=True)
+        if a is not None and b is not None]
+
     step, qp, cvxpy_median = (float(np.median(v)) for v in (step_ms, qp_ms, cvxpy_ms))
     return ScalingPoint(
         n_obstacles=n_obstacles, horizon=horizon, n_samples=n_samples, steps=len(instances),
@@ -288,7 +313,10 @@ def benchmark_point(
         step_p90_ms=float(np.percentile(step_ms, 90)), cvxpy_ms=cvxpy_median,
         cvxpy_compile_ms=compile_ms, ratio=cvxpy_median / step, qp_ratio=cvxpy_median / qp,
         agreement=same / len(instances), max_input_difference=difference,
-        statuses=dict(statuses),
+        statuses=dict(statuses), backend=ours.backend,
+        daqp_qp_ms=float(np.median(backend_ms["daqp"])),
+        clarabel_qp_ms=float(np.median(backend_ms["clarabel"])),
+        daqp_clarabel_difference=max(between) if between else float("nan"),
     )
 
 
@@ -311,15 +339,17 @@ def format_scaling_table(points: Sequence[ScalingPoint]) -> str:
     """The ratio table in markdown (medians in ms; ratios of the same run)."""
     lines = [
         "| obstacles | T | N_s | halfspaces | QP | step | CVXPY QP | CVXPY / step | "
-        "CVXPY / QP | statuses (ours) | same status |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "CVXPY / QP | auto picks | QP daqp | QP clarabel | max abs u_daqp - u_clarabel | "
+        "statuses (ours) | same status |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for p in points:
         statuses = ", ".join(f"{k} {v}" for k, v in sorted(p.statuses.items()))
         lines.append(
             f"| {p.n_obstacles} | {p.horizon} | {p.n_samples} | {p.halfspaces_ms:.3f} | "
             f"{p.qp_ms:.3f} | {p.step_ms:.3f} | {p.cvxpy_ms:.2f} | {p.ratio:.1f}x | "
-            f"{p.qp_ratio:.1f}x | {statuses} | {100 * p.agreement:.0f}% |"
+            f"{p.qp_ratio:.1f}x | {p.backend} | {p.daqp_qp_ms:.3f} | {p.clarabel_qp_ms:.3f} | "
+            f"{p.daqp_clarabel_difference:.1e} | {statuses} | {100 * p.agreement:.0f}% |"
         )
     return "\n".join(lines)
 

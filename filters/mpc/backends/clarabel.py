@@ -35,6 +35,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from filters.errors import InvalidParameterError, InvalidTypeError
+from filters.mpc._linalg import matvec_operator
 from filters.mpc.problem import MPCProblem
 from filters.mpc.result import QPSolution, StepData
 
@@ -270,7 +271,7 @@ class ClarabelBackend:
         # Reference positions C x^r_t for the halfspace rows, from the same v.
         self._positions_map = np.zeros((T * d, width))
         self._positions_map[:, n + nu : n + nu + nx] = np.kron(np.eye(T), C)
-        self._W_full = np.vstack([self._W, self._positions_map])
+        self._W_full = matvec_operator(np.vstack([self._W, self._positions_map]))
         self._hs_row0 = hs_row0
         self._hs_positions = position[hs_first:hs_last].tolist() if K else []
         self._hs_index = np.concatenate(hs_index) if hs_index else np.zeros(0, dtype=np.int64)
