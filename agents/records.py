@@ -30,7 +30,7 @@ import numpy as np
 from agents.errors import RecordsFileError, RunMismatchError
 from filters.errors import InvalidParameterError
 from filters.mpc import FilterStatus
-from filters.wrapper import RISKS
+from filters.wrapper import RISKS, calibration_settings
 from safe_nav_env.scenarios import CUSTOM, SCENARIO_NAMES, scenario_name
 
 __all__ = [
@@ -226,6 +226,12 @@ class EpisodeSpec:
                     f"noise must be '' or one of {sorted(NOISE_PRESETS)}, got {self.noise!r}")
         set_(self, "policy_path", str(self.policy_path or ""))
         set_(self, "filter_options", options_json(self.filter_options, "filter_options"))
+        clash = sorted({"risk", "alpha", "delta", "epsilon"} & set(_options_dict(
+            self.filter_options)))
+        if clash:  # filter_kwargs() would silently replace them by the fields
+            raise InvalidParameterError(
+                f"filter_options must not set {clash} (fields of the episode), got "
+                f"filter_options {self.filter_options}")
         set_(self, "env_options", options_json(self.env_options, "env_options"))
 
     def filter_kwargs(self) -> dict[str, Any]:
@@ -566,6 +572,11 @@ def run_key(specs: Sequence[EpisodeSpec], *, vary: Sequence[str] = ()) -> dict[s
             raise InvalidParameterError(
                 f"the episodes of one run must share {name!r}, got {sorted(values, key=str)}")
         key[name] = values.pop() if values else None
+    # The held-out calibration of conformal / epsilon="auto" (its defaults included).
+    calibrations = {json.dumps(settings, sort_keys=True) for spec in specs
+                    if (settings := calibration_settings(**spec.filter_kwargs())) is not None}
+    if calibrations:
+        key["calibration"] = [json.loads(text) for text in sorted(calibrations)]
     key["version"] = package_version()
     return key
 

@@ -40,6 +40,8 @@ bootstrap of :class:`WassersteinRadius`) comes from a seeded
 
 from __future__ import annotations
 
+import bisect
+import copy
 import math
 from collections import deque
 from dataclasses import dataclass
@@ -61,6 +63,8 @@ __all__ = [
 
 
 def _count(name: str, value: object, *, low: int = 1) -> int:
+    if type(value) is int and value >= low:  # the common case, checked every step
+        return value
     if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < low:
         raise InvalidParameterError(f"{name} must be an integer >= {low}, got {value!r}")
     return int(value)
@@ -298,6 +302,8 @@ class ConformalMargin:
         self.fallback = _fallback(fallback)
         self.levels = np.full(self.horizon, self.alpha)
         self._windows: list[deque[float]] = [deque(maxlen=self.window) for _ in range(self.horizon)]
+        # The same scores kept sorted (bisect), so a margin is one lookup, not a partition.
+        self._sorted: list[list[float]] = [[] for _ in range(self.horizon)]
         self._max_seen = np.full(self.horizon, -math.inf)
         self.n_scored = np.zeros(self.horizon, dtype=np.int64)
         self.n_exceeded = np.zeros(self.horizon, dtype=np.int64)
@@ -305,13 +311,12 @@ class ConformalMargin:
     def margin(self, lookahead: int) -> float:
         """Current margin :math:`q_k` in m for look-ahead ``k`` in ``1..T`` (see the class)."""
         k = self._index(lookahead)
-        scores = self._windows[k]
-        rank = conformal_rank(len(scores), float(self.levels[k]))
+        ordered = self._sorted[k]
+        rank = conformal_rank(len(ordered), float(self.levels[k]))
         if rank <= 0:
             return 0.0
-        if rank <= len(scores):
-            values = np.fromiter(scores, dtype=np.float64, count=len(scores))
-            return float(np.partition(values, rank - 1)[rank - 1])
+        if rank <= len(ordered):
+            return ordered[rank - 1]
         if self.fallback == "max":
             return float(self._max_seen[k]) if self._max_seen[k] > -math.inf else math.inf
         return float(self.fallback)
@@ -339,7 +344,12 @@ class ConformalMargin:
         err = exceeded / values.size
         level = self.levels[k] + self.gamma * (self.alpha - err)
         self.levels[k] = min(max(level, -self.gamma), 1.0 + self.gamma)
-        self._windows[k].extend(values.tolist())
+        window, ordered = self._windows[k], self._sorted[k]
+        for value in values.tolist():
+            if len(window) == self.window:
+                del ordered[bisect.bisect_left(ordered, window.popleft())]
+            window.append(value)
+            bisect.insort(ordered, value)
         self._max_seen[k] = max(self._max_seen[k], float(values.max()))
         self.n_scored[k] += values.size
         self.n_exceeded[k] += exceeded
@@ -684,10 +694,16 @@ class OnlineCalibration:
     """A :class:`PredictionRecord` feeding a :class:`ConformalMargin` and a Wasserstein radius.
 
     The one object a filter wrapper needs for ``risk="conformal"`` and
-    ``epsilon="auto"``: call :meth:`reset` at each episode start (the calibration
-    itself carries over between episodes) and :meth:`update` with every new set of
-    predictions and realised positions (after reset and after each step), then read
-    :meth:`margins` / :meth:`radii` for the halfspaces of this step.
+    ``epsilon="auto"``: call :meth:`reset` at each episode start (it drops the pending
+    predictions only: the calibration itself carries over between episodes) and
+    :meth:`update` with every new set of predictions and realised positions (after
+    reset and after each step), then read :meth:`margins` / :meth:`radii` for the
+    halfspaces of this step.
+
+    Split-conformal practice (what :class:`filters.SafetyFilterWrapper` does with its
+    ``calibration_episodes``): feed held-out episodes first, keep a copy
+    (:meth:`copy`; the bootstrap generator's state included) and start every episode
+    from a fresh copy of it, so that an episode depends on its own data only.
 
     Parameters
     ----------
@@ -727,6 +743,24 @@ class OnlineCalibration:
     def reset(self) -> None:
         """Start a new episode: pending predictions are dropped, the calibration kept."""
         self.record.reset()
+
+    def copy(self) -> OnlineCalibration:
+        """An independent copy: equal to :func:`copy.deepcopy`, faster.
+
+        The arrays kept in the record and the radius's buffers are never written after
+        they are stored, so the copy shares them; every container, counter, level and
+        the bootstrap generator's state is copied, so updating one copy never changes
+        the other.
+        """
+        shared: dict[int, object] = {}
+        for _, samples in self.record._pending:
+            shared[id(samples)] = samples
+        for buffers in (self.record._scores, self.wasserstein._errors,
+                        self.wasserstein._predicted):
+            for buffer in buffers:
+                for array in buffer:
+                    shared[id(array)] = array
+        return copy.deepcopy(self, shared)
 
     def update(
         self, samples: object, realised_positions: object, present: object | None = None

@@ -17,6 +17,7 @@ filtered and unfiltered runs are compared through the same code path.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, fields
@@ -63,6 +64,33 @@ NOMINAL_STATUSES = ("optimal", PASSTHROUGH)
 
 FALLBACK_STATUSES = ("soft", "recovery", "shifted", "brake", "error")
 """Statuses of a step where some constraint could not be met: slack, a fallback, bad data."""
+
+CALIBRATION_EPISODES = 5
+"""Held-out episodes run at construction for ``risk="conformal"`` / ``epsilon="auto"``.
+
+A braking episode of the 8 s (40-step) scenarios gives ``41 - k`` realised positions
+per obstacle at look-ahead ``k``; five give 155-200 per look-ahead for one obstacle, so
+the 200-score windows of the calibration (:class:`filters.calibration.OnlineCalibration`)
+are full, or nearly, from step 0 (more episodes mostly push older scores out of the
+windows, at ~0.1 s each here)."""
+
+CALIBRATION_SEED = 1_000_000_000
+"""First seed of the held-out calibration episodes (episode ``i`` uses it ``+ i``).
+
+Far above the evaluation seeds (``--seed`` + episode index), so that the data the
+filter is calibrated on is never the data it is evaluated on."""
+
+CALIBRATION_MEMORIES = ("episode", "persistent")
+"""``"episode"``: every ``reset`` restores the calibrated state; ``"persistent"``: it
+carries over from episode to episode (the order of the episodes then matters)."""
+
+_MAX_CALIBRATION_STEPS = 10_000
+"""Safety cap on the steps of one held-out episode (the environment truncates earlier)."""
+
+_SNAPSHOTS: dict[tuple, OnlineCalibration] = {}
+"""Calibrated states of this process, by environment and settings (see ``_snapshot_key``)."""
+
+_MAX_SNAPSHOTS = 32
 
 _PROTOCOL_ATTRIBUTES = (*FilterableEnv.__annotations__, "observe")
 """Everything :class:`filters.protocol.FilterableEnv` asks of ``env.unwrapped``."""
@@ -187,7 +215,7 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         Radius of the Wasserstein ball, in m, finite and >= 0 (DR-CVaR only), or
         ``"auto"``: a radius per look-ahead step estimated online from the realised
         against the predicted positions (:class:`filters.calibration.WassersteinRadius`,
-        0.05 m until enough data; the calibration carries over between episodes).
+        0.05 m until enough data; see ``calibration_episodes``).
     horizon
         Filter horizon T in steps; at most the environment's prediction horizon.
         ``None`` uses the prediction horizon.
@@ -250,6 +278,31 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         the filter in the loop); 0 leaves the reward untouched.
     support
         Optional polytope ``(V, v)`` bounding the obstacle positions (Proposition 1).
+    calibration_episodes
+        Held-out episodes run at construction to calibrate ``risk="conformal"`` and
+        ``epsilon="auto"`` (split conformal: calibrate on held-out data, then run), so
+        that the margins and radii come from data from step 0 instead of their
+        fallbacks (1 m, 0.05 m). The wrapped environment is reset with the seeds
+        ``calibration_seed + i``, ``i = 0..calibration_episodes-1``, and the ego brakes
+        (the obstacles' motion and the predictions do not depend on the ego's actions;
+        an episode that ends early is followed by the next seed); every step's
+        predictions and realised positions are fed to the calibration, as in the loop.
+        ``None`` (default): :data:`CALIBRATION_EPISODES` when the wrapper calibrates
+        (``risk="conformal"``, or ``epsilon="auto"`` with a filtering risk), else 0;
+        ``0``: no held-out data. The environment's seed state is restored afterwards
+        (an unseeded ``reset`` stays unseeded); with ``options={"scenario": ...}`` at a
+        later reset, the calibration still describes the constructor's scenario.
+        :attr:`calibration_time` is the wall time spent, in s.
+    calibration_seed
+        First held-out seed, an integer ``>= 0`` (default :data:`CALIBRATION_SEED`;
+        keep it away from the seeds you evaluate on).
+    calibration_memory
+        ``"episode"`` (default): each ``reset`` restores (a copy of) the state
+        calibrated at construction; the online updates (adaptive conformal levels,
+        windows, radii) then continue within the episode only, so an episode depends on
+        its seed alone, not on which episodes ran before it in this wrapper.
+        ``"persistent"``: the calibration carries over between episodes (the behaviour
+        before ``calibration_memory`` existed, with ``calibration_episodes=0``).
 
     Raises
     ------
@@ -300,6 +353,9 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         intervention_penalty: float = 0.0,
         support: tuple[np.ndarray, np.ndarray] | None = None,
         draw_halfspaces: bool = True,
+        calibration_episodes: int | None = None,
+        calibration_seed: int = CALIBRATION_SEED,
+        calibration_memory: str = "episode",
     ) -> None:
         # No deep copy: policies and planners hold solver and torch state.
         gym.utils.RecordConstructorArgs.__init__(
@@ -309,7 +365,8 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             fallback=fallback, terminal=terminal, stop_time=stop_time, Q=Q,
             Q_terminal=Q_terminal, R=R, policy=policy, reference=reference, soft=soft,
             intervention_penalty=intervention_penalty, support=support,
-            draw_halfspaces=draw_halfspaces,
+            draw_halfspaces=draw_halfspaces, calibration_episodes=calibration_episodes,
+            calibration_seed=calibration_seed, calibration_memory=calibration_memory,
         )
         gym.Wrapper.__init__(self, env)
         missing = [a for a in _PROTOCOL_ATTRIBUTES if not hasattr(env.unwrapped, a)]
@@ -385,12 +442,22 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             25.0 * np.eye(n) if Q_terminal is None else np.asarray(Q_terminal, dtype=float),
             np.eye(m) if R is None else np.asarray(R, dtype=float),
         )
+        self.calibration_memory = _choice("calibration_memory", calibration_memory,
+                                          CALIBRATION_MEMORIES)
+        self.calibration_seed = _count("calibration_seed", calibration_seed)
+        episodes = None if calibration_episodes is None else _count(
+            "calibration_episodes", calibration_episodes)
         self._calibration: OnlineCalibration | None = None
+        self._calibrated: OnlineCalibration | None = None  # the state each episode starts from
+        self.calibration_episodes = 0
+        self.calibration_time = 0.0
         if self.risk == "conformal" or self.epsilon == "auto":
             # alpha is the conformal miscoverage; with epsilon="auto" alone it is unused
             self._calibration = OnlineCalibration(
                 self.horizon, self.alpha if self.risk == "conformal" else 0.2
             )
+            if self.risk != "none":
+                self.calibration_episodes = CALIBRATION_EPISODES if episodes is None else episodes
         self._mpc: MPCSafetyFilter | None = None
         self._previous_normals: np.ndarray | None = None
         self._last_halfspaces: Halfspaces | None = None
@@ -399,6 +466,8 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._shape_cache: tuple[tuple, Disc, list[Disc]] | None = None
         if self.risk != "none":  # builds (and so validates) the weights and bounds now
             self._mpc = self._build_filter(max(1, len(np.asarray(base.obstacle_radii))))
+        if self._calibration is not None:
+            self._warm_up_calibration()
 
     @property
     def _base(self) -> FilterableEnv:
@@ -434,6 +503,8 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if self._mpc is not None:
             self._mpc.reset()
         if self._calibration is not None:
+            if self.calibration_memory == "episode":
+                self._calibration = self._calibrated.copy()
             self._calibration.reset()
             self._calibrate()
         self._previous_normals = None
@@ -467,6 +538,73 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         predictions = np.asarray(base.predictions, dtype=float)[:, :, : self.horizon]
         if np.all(np.isfinite(predictions)):
             self._calibration.update(predictions, np.asarray(base.obstacle_positions))
+
+    def _warm_up_calibration(self) -> None:
+        """Feed ``calibration_episodes`` held-out braking episodes to the calibration.
+
+        Sets the state every episode starts from (``calibration_memory="episode"``) and
+        :attr:`calibration_time`. The base environment is driven directly (the wrappers
+        in between keep no record of these episodes); its seed state and render mode
+        are restored afterwards.
+        """
+        begin = time.perf_counter()
+        key = self._snapshot_key() if self.calibration_episodes else None
+        if key is not None and key in _SNAPSHOTS:
+            self._calibration = _SNAPSHOTS[key].copy()
+            self._calibrated = _SNAPSHOTS[key].copy()
+            self.calibration_time = time.perf_counter() - begin
+            return
+        base = self._base
+        saved = {name: getattr(base, name) for name in ("_np_random", "_np_random_seed",
+                                                         "render_mode") if hasattr(base, name)}
+        try:
+            if "render_mode" in saved:
+                base.render_mode = None  # no window or trail for held-out episodes
+            for episode in range(self.calibration_episodes):
+                base.reset(seed=self.calibration_seed + episode)
+                self._calibration.reset()
+                self._calibrate()
+                for _ in range(_MAX_CALIBRATION_STEPS):
+                    brake = self._mpc.braking_input(np.asarray(base.ego_state, dtype=float))
+                    _, _, terminated, truncated, _ = base.step(brake.astype(np.float32))
+                    self._calibrate()
+                    if terminated or truncated:
+                        break
+        finally:
+            for name, value in saved.items():
+                setattr(base, name, value)
+        self._calibration.reset()
+        if self.epsilon == "auto" and self.calibration_episodes:
+            self._calibration.radii()  # the bootstrap runs once here, not in every episode
+        self._calibrated = self._calibration.copy()
+        if key is not None:
+            if len(_SNAPSHOTS) >= _MAX_SNAPSHOTS:
+                del _SNAPSHOTS[next(iter(_SNAPSHOTS))]
+            _SNAPSHOTS[key] = self._calibration.copy()
+        self.calibration_time = time.perf_counter() - begin
+
+    def _snapshot_key(self) -> tuple | None:
+        """What determines the held-out calibration, or ``None`` if it cannot be told.
+
+        The held-out episodes depend only on the environment's construction (its
+        ``gym.make`` id and keywords: the scenario, noise, predictor, samples ...; the
+        ego's braking follows from its dynamics and bounds), the seeds, the horizon and
+        the calibration's settings. When the keywords are plain values (numbers, strings,
+        frozen dataclasses of them, as the scenarios, noise models and stress cases are),
+        the calibrated state is computed once per process and copied to every wrapper
+        of the same environment and settings (the evaluation builds one wrapper per
+        episode). Anything else (a callable predictor, an environment not made by
+        ``gym.make``) gives ``None``: no sharing.
+        """
+        base = self._base
+        spec = getattr(base, "spec", None)
+        kwargs = _plain_settings(dict(spec.kwargs)) if spec is not None else None
+        if kwargs is None:
+            return None
+        return (type(base).__module__, type(base).__qualname__, spec.id, kwargs,
+                _plain_settings(spec.max_episode_steps), self.horizon,
+                self._calibration.conformal.alpha, self.epsilon == "auto",
+                self.calibration_episodes, self.calibration_seed)
 
     def _risk_options(self) -> dict[str, Any]:
         """Risk settings of this step (the calibrated ones per look-ahead step)."""
@@ -647,6 +785,63 @@ def _choice(name: str, value: object, choices: tuple[str, ...]) -> str:
     if value not in choices:
         raise InvalidParameterError(f"{name} must be one of {choices}, got {value!r}")
     return value
+
+
+def calibration_settings(
+    risk: str,
+    epsilon: float | str = 0.05,
+    *,
+    calibration_episodes: int | None = None,
+    calibration_seed: int = CALIBRATION_SEED,
+    calibration_memory: str = "episode",
+    **_other: Any,
+) -> dict[str, Any] | None:
+    """The held-out calibration a :class:`SafetyFilterWrapper` with these keywords runs.
+
+    ``None`` if it runs none (no conformal margin, no ``epsilon="auto"``, or
+    ``risk="none"``); else the resolved ``calibration_episodes``, ``calibration_seed``
+    and ``calibration_memory`` (defaults filled in), for run keys and records. Other
+    wrapper keywords are accepted and ignored, so ``calibration_settings(**kwargs)``
+    works on a wrapper's keyword dict. Values are not validated here (the wrapper does).
+    """
+    if risk == "none" or not (risk == "conformal" or epsilon == "auto"):
+        return None
+    episodes = CALIBRATION_EPISODES if calibration_episodes is None else calibration_episodes
+    return {"calibration_episodes": episodes, "calibration_seed": calibration_seed,
+            "calibration_memory": calibration_memory}
+
+
+def _plain_settings(value: object) -> tuple | None:
+    """A hashable canonical form of plain settings, or ``None`` if ``value`` holds others.
+
+    Plain: ``None``, bools, numbers, strings, and tuples, lists, string-keyed dicts and
+    frozen dataclasses of plain values (types included, so ``1`` and ``1.0`` differ).
+    """
+    if value is None or isinstance(value, bool | int | float | str):
+        return (type(value).__qualname__, value)
+    if isinstance(value, tuple | list):
+        items = tuple(_plain_settings(item) for item in value)
+        return None if any(item is None for item in items) else (type(value).__qualname__, items)
+    if isinstance(value, dict):
+        if not all(isinstance(name, str) for name in value):
+            return None
+        items = tuple((name, _plain_settings(value[name])) for name in sorted(value))
+        return None if any(item is None for _, item in items) else ("dict", items)
+    if (dataclasses.is_dataclass(value) and not isinstance(value, type)
+            and value.__dataclass_params__.frozen):
+        cls = type(value)
+        items = tuple((f.name, _plain_settings(getattr(value, f.name)))
+                      for f in dataclasses.fields(value))
+        return None if any(item is None for _, item in items) else (
+            f"{cls.__module__}.{cls.__qualname__}", items)
+    return None
+
+
+def _count(name: str, value: object) -> int:
+    """``value`` as an int if it is an integer ``>= 0`` (not a bool), else a clear error."""
+    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 0:
+        raise InvalidParameterError(f"{name} must be an integer >= 0, got {value!r}")
+    return int(value)
 
 
 def _check_no_action_wrapper(env: gym.Env) -> None:
