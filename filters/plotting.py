@@ -66,6 +66,57 @@ def safe_polygon(
     return polygon
 
 
+def halfspace_segments(
+    normals: np.ndarray, offsets: np.ndarray, xlim: tuple[float, float],
+    ylim: tuple[float, float],
+) -> np.ndarray:
+    """End points ``(k, 2, 2)`` of the boundaries ``normals[i] @ y = offsets[i]`` across a view.
+
+    Each segment runs along the boundary through its foot point ``offset * n / |n|^2``,
+    twice the view's larger side in each direction, so it crosses the whole view. Rows
+    with a zero normal (switched off) are left out.
+    """
+    normals = np.asarray(normals, dtype=float).reshape(-1, 2)
+    offsets = np.asarray(offsets, dtype=float).reshape(-1)
+    norms = np.hypot(normals[:, 0], normals[:, 1])
+    keep = norms > 0
+    unit = normals[keep] / norms[keep, None]
+    foot = unit * (offsets[keep] / norms[keep])[:, None]
+    tangent = np.stack([-unit[:, 1], unit[:, 0]], axis=1)
+    span = 2.0 * max(xlim[1] - xlim[0], ylim[1] - ylim[0])
+    return np.stack([foot - span * tangent, foot + span * tangent], axis=1)
+
+
+def draw_halfspaces(
+    ax: Any, normals: np.ndarray, offsets: np.ndarray, *, color: str = "tab:green",
+    alpha: float = 0.6, reuse: Any = None,
+) -> Any:
+    """Draw the boundaries ``normals[i] @ y = offsets[i]`` as one line collection.
+
+    The vectorised :func:`draw_halfspace`, for the render hook: one artist for all
+    obstacles. Pass the collection returned by the previous call as ``reuse`` to update
+    it instead of building a new one (building it is most of the hook's cost per
+    frame). The view's limits are kept.
+
+    Returns
+    -------
+    matplotlib.collections.LineCollection or None
+        The collection drawn (``None`` if every row was switched off).
+    """
+    from matplotlib.collections import LineCollection
+
+    xlim, ylim = ax.get_xlim(), ax.get_ylim()
+    segments = halfspace_segments(normals, offsets, xlim, ylim)
+    if not len(segments):
+        return None
+    if reuse is None:
+        reuse = LineCollection(segments, colors=color, alpha=alpha, linewidths=1.2)
+    else:
+        reuse.set_segments(segments)
+    ax.add_collection(reuse, autolim=False)
+    return reuse
+
+
 def draw_halfspace(
     ax: Any, normal: np.ndarray, offset: float, *, color: str = "tab:green",
     alpha: float = 0.6, label: str | None = None,

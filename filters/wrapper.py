@@ -463,6 +463,7 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._last_halfspaces: Halfspaces | None = None
         self._last_plan: np.ndarray | None = None
         self._hook: Callable[[Any], None] | None = None
+        self._halfspace_lines: Any = None  # the hook's line collection, reused per frame
         self._shape_cache: tuple[tuple, Disc, list[Disc]] | None = None
         if self.risk != "none":  # builds (and so validates) the weights and bounds now
             self._mpc = self._build_filter(max(1, len(np.asarray(base.obstacle_radii))))
@@ -744,14 +745,16 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             hooks.append(self._hook)
 
     def _draw_halfspaces(self, ax: Any) -> None:
-        """Draw the first-step halfspace of every obstacle as a line, safe side shaded."""
+        """Draw the first-step halfspace boundary of every obstacle (one line collection)."""
         halfspaces = self._last_halfspaces
         if halfspaces is None or halfspaces.normals.shape[0] == 0:
             return
-        from filters.plotting import draw_halfspace
+        from filters.plotting import draw_halfspaces
 
-        for normal, offset in zip(halfspaces.normals[:, 0], halfspaces.offsets[:, 0], strict=True):
-            draw_halfspace(ax, normal, offset)
+        drawn = draw_halfspaces(ax, halfspaces.normals[:, 0], halfspaces.offsets[:, 0],
+                                reuse=self._halfspace_lines)
+        if drawn is not None:
+            self._halfspace_lines = drawn
 
 
 def _nearside_normals(samples: np.ndarray, reference: np.ndarray, ego: np.ndarray) -> np.ndarray:

@@ -178,3 +178,18 @@ def test_blitted_frames_are_much_cheaper_than_a_full_redraw():
         full.append(time.perf_counter() - start)
     assert np.median(blitted) < 0.5 * np.median(full)
     env.close()
+
+
+def test_halfspace_segments_lie_on_the_boundaries_and_cross_the_view():
+    from filters.plotting import halfspace_segments
+
+    rng = np.random.default_rng(3)
+    normals = rng.normal(size=(6, 2))
+    normals[2] = 0.0  # switched off: left out
+    offsets = rng.normal(size=6)
+    segments = halfspace_segments(normals, offsets, (-5.0, 5.0), (-4.0, 6.0))
+    kept = np.delete(np.arange(6), 2)
+    assert segments.shape == (5, 2, 2)
+    for seg, i in zip(segments, kept, strict=True):
+        np.testing.assert_allclose(seg @ normals[i], offsets[i], atol=1e-9)
+        assert np.linalg.norm(seg[1] - seg[0]) >= 2 * np.hypot(10.0, 10.0)
