@@ -146,6 +146,16 @@ def parse_halfspaces(
             "halfspaces must be None, a pair (normals, offsets) or an object with "
             f".normals and .offsets, got {type(halfspaces).__name__}"
         )
+    if (  # fast path: valid float64 arrays pass with one reduction each (same answer)
+        type(raw_normals) is np.ndarray and type(raw_offsets) is np.ndarray
+        and raw_normals.dtype == np.float64 and raw_offsets.dtype == np.float64
+        and raw_normals.ndim == 3 and raw_normals.shape[1:] == (horizon, dim)
+        and raw_offsets.shape == (raw_normals.shape[0], horizon)
+        and raw_normals.shape[0] <= n_obstacles
+        and math.isfinite(np.add.reduce(raw_normals, axis=None))
+        and math.isfinite(np.add.reduce(raw_offsets, axis=None))
+    ):
+        return raw_normals, raw_offsets
     try:
         normals = np.asarray(raw_normals, dtype=np.float64)
     except (TypeError, ValueError):
