@@ -475,7 +475,7 @@ class MPCSafetyFilter:
             if self._has_state_cost:
                 residual = ref_states.reshape(-1) - self._phi @ x0 - self._gamma @ u
                 u = u + self._gain @ residual
-            if np.all(u >= self._u_low_all) and np.all(u <= self._u_high_all):
+            if (u >= self._u_low_all).all() and (u <= self._u_high_all).all():
                 states, halfspace, bounds = self._evaluate(x0, u, normals, offsets)
                 if np.maximum.reduce(bounds, initial=-np.inf) <= 0.0 and (
                     not k or np.maximum.reduce(halfspace, axis=None) <= 0.0
