@@ -397,7 +397,8 @@ class MPCSafetyFilter:
             return "rejected: non-finite solution"
         # An interior-point answer may sit ~1e-9 outside the box: clip it.
         inputs = np.minimum(np.maximum(raw, self._u_low), self._u_high)
-        clipped = float(np.maximum.reduce(np.abs(inputs - raw), axis=None))
+        clipped = 0.0 if (inputs == raw).all() else float(
+            np.maximum.reduce(np.abs(inputs - raw), axis=None))
         if not clipped <= FEASIBILITY_TOLERANCE:
             return f"rejected: input bound violated by {clipped:.3g}"
         states, halfspace, bounds = self._evaluate(x0, inputs, normals, offsets)
