@@ -205,7 +205,15 @@ class DAQPBackend:
         self._any_soft = bool(soft.any())
         self._upper_fixed, self._lower_fixed = self._upper[nu:hs0_], self._lower[nu:hs0_]
         self._upper_hs = self._upper[hs0_:].reshape(T, K)  # a view: written in place
+        # Dense S (small problems): S x0 is written into a buffer whose views are
+        # precomputed; a CSR S (large ones) returns a new array per product.
+        self._shift = np.empty(self._S.shape[0]) if isinstance(self._S, np.ndarray) else None
+        if self._shift is not None:
+            self._shift_fixed = self._shift[:n_fixed]
+            self._positions0 = self._shift[n_fixed:].reshape(T, 1, d, 1)
         self._positions0_shape = (T, 1, d, 1)
+        self._at_x0 = np.empty((T, K, 1, 1))  # a_it . C Phi_t x0
+        self._at_x0_flat = self._at_x0.reshape(T, K)  # a view
         self._v = np.empty(n + T * n + nu)  # [x0; X^r; u^r]
         self._model: daqp.Model | None = None
         self._cold = True
@@ -241,18 +249,22 @@ class DAQPBackend:
 
     def _data(self, step: StepData) -> np.ndarray:
         """Write the step's rows and bounds into the preallocated arrays; return ``f``."""
-        shift = self._S @ step.x0
         n_fixed = self._n_fixed
+        if self._shift is not None:
+            np.matmul(self._S, step.x0, out=self._shift)
+            shift_fixed, positions0 = self._shift_fixed, self._positions0
+        else:
+            shift = self._S @ step.x0
+            shift_fixed = shift[:n_fixed]
+            positions0 = shift[n_fixed:].reshape(self._positions0_shape)
         if n_fixed:
-            np.subtract(self._fixed_upper, shift[:n_fixed], out=self._upper_fixed)
-            np.subtract(self._fixed_lower, shift[:n_fixed], out=self._lower_fixed)
+            np.subtract(self._fixed_upper, shift_fixed, out=self._upper_fixed)
+            np.subtract(self._fixed_lower, shift_fixed, out=self._lower_fixed)
         if self._K:
             normals = step.normals.transpose(1, 0, 2)  # (T, K, d)
             np.matmul(normals, self._C_gamma, out=self._A_hs)
-            positions0 = shift[n_fixed:].reshape(self._positions0_shape)
-            at_x0 = np.matmul(normals[:, :, None, :], positions0)  # (T, K, 1, 1)
-            np.subtract(step.offsets.T, at_x0.reshape(self._upper_hs.shape),
-                        out=self._upper_hs)
+            np.matmul(normals[:, :, None, :], positions0, out=self._at_x0)  # (T, K, 1, 1)
+            np.subtract(step.offsets.T, self._at_x0_flat, out=self._upper_hs)
         v = np.concatenate(
             (step.x0, step.ref_states.reshape(-1), step.ref_inputs.reshape(-1)), out=self._v
         )
