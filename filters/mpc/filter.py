@@ -553,7 +553,9 @@ class MPCSafetyFilter:
     def _cost(self, inputs: np.ndarray, states: np.ndarray, ref_states: np.ndarray,
               ref_inputs: np.ndarray) -> float:
         """:meth:`MPCProblem.cost` with the block-diagonal weights (two products)."""
-        du = (inputs - ref_inputs).reshape(-1)
+        # No reference inputs: u - 0.0 is u bit for bit, so no subtraction.
+        du = inputs.reshape(-1) if ref_inputs is self._zero_inputs else (
+            inputs - ref_inputs).reshape(-1)
         total = du @ (self._R_block @ du)
         if self._has_state_cost:
             dx = (states[1:] - ref_states).reshape(-1)
