@@ -472,10 +472,12 @@ class MPCSafetyFilter:
             ref_states = (self._phi @ x0 + self._gamma @ ref_inputs.reshape(-1)).reshape(T, n)
 
         if self._skip and reference_inputs is not None:
-            u = np.array(ref_inputs).reshape(-1)  # a copy: it may become the stored plan
+            u = ref_inputs.reshape(-1)
             if self._has_state_cost:
                 residual = ref_states.reshape(-1) - self._phi @ x0 - self._gamma @ u
-                u = u + self._gain @ residual
+                u = u + self._gain @ residual  # a new array
+            else:
+                u = np.array(u)  # a copy: it may become the stored plan
             if (u >= self._u_low_all).all() and (u <= self._u_high_all).all():
                 states, halfspace, bounds = self._evaluate(x0, u, normals, offsets)
                 if np.maximum.reduce(bounds, initial=-np.inf) <= 0.0 and (
