@@ -19,6 +19,8 @@ from filters.errors import InvalidArrayError, InvalidParameterError, InvalidType
 
 __all__ = ["all_finite", "box", "finite_step_array", "integer", "parse_halfspaces", "weight"]
 
+_FLOAT64 = np.dtype(np.float64)  # a singleton: ``dtype is _FLOAT64`` is the cheap test
+
 
 def finite_step_array(name: str, value: object, shape: tuple[int, ...]) -> np.ndarray:
     """Fast path of :func:`finite_array` for the per-step arrays (same errors).
@@ -27,7 +29,7 @@ def finite_step_array(name: str, value: object, shape: tuple[int, ...]) -> np.nd
     reduction instead of two passes and a temporary). A sum that overflows, or any
     NaN/inf, takes the full check, which raises only if an entry is really not finite.
     """
-    if type(value) is np.ndarray and value.dtype == np.float64 and value.shape == shape:
+    if type(value) is np.ndarray and value.dtype is _FLOAT64 and value.shape == shape:
         if math.isfinite(np.add.reduce(value, axis=None)):
             return value
         array = value
@@ -137,7 +139,9 @@ def parse_halfspaces(
     """
     if halfspaces is None:
         return np.zeros((0, horizon, dim)), np.zeros((0, horizon))
-    if hasattr(halfspaces, "normals") and hasattr(halfspaces, "offsets"):
+    if type(halfspaces) is tuple and len(halfspaces) == 2:  # no .normals: the pair
+        raw_normals, raw_offsets = halfspaces
+    elif hasattr(halfspaces, "normals") and hasattr(halfspaces, "offsets"):
         raw_normals, raw_offsets = halfspaces.normals, halfspaces.offsets
     elif isinstance(halfspaces, (tuple, list)) and len(halfspaces) == 2:
         raw_normals, raw_offsets = halfspaces
@@ -146,6 +150,16 @@ def parse_halfspaces(
             "halfspaces must be None, a pair (normals, offsets) or an object with "
             f".normals and .offsets, got {type(halfspaces).__name__}"
         )
+    if (  # fast path: valid float64 arrays pass with one reduction each (same answer)
+        type(raw_normals) is np.ndarray and type(raw_offsets) is np.ndarray
+        and raw_normals.dtype is _FLOAT64 and raw_offsets.dtype is _FLOAT64
+        and raw_normals.ndim == 3 and raw_normals.shape[1:] == (horizon, dim)
+        and raw_offsets.shape == (raw_normals.shape[0], horizon)
+        and raw_normals.shape[0] <= n_obstacles
+        and math.isfinite(np.add.reduce(raw_normals, axis=None))
+        and math.isfinite(np.add.reduce(raw_offsets, axis=None))
+    ):
+        return raw_normals, raw_offsets
     try:
         normals = np.asarray(raw_normals, dtype=np.float64)
     except (TypeError, ValueError):

@@ -281,6 +281,15 @@ class MPCSafetyFilter:
         self._u_low_all, self._u_high_all = np.tile(u_low, T), np.tile(u_high, T)
         self._zero_inputs = np.zeros((T, m))
         self._zero_inputs.setflags(write=False)
+        # Hot-path constants (property lookups and shape tuples cost per step).
+        self._T, self._n, self._m, self._d, self._K = T, n, m, problem.d, problem.n_obstacles
+        self._u_low, self._u_high = u_low, u_high
+        self._has_state_cost = problem.has_state_cost
+        self._primary_soft_rows = problem.soft_rows
+        self._recovery_soft_rows = (
+            None if self._recovery is None else self._recovery.problem.soft_rows)
+        self._states_shape, self._positions_shape = (T + 1, n), (T, problem.d)
+        self._z = np.empty(n + T * m)  # [x0; u] of the evaluation map
         self._plan: np.ndarray | None = None
         self._failures = 0
         self._qp_solves = 0
@@ -362,11 +371,11 @@ class MPCSafetyFilter:
         Excess is ``lhs - rhs`` (<= 0: the row holds). Bound rows are ordered as in the
         back ends: upper arena faces (by step, then axis), lower faces, terminal rows.
         """
-        p = self.problem
-        out = self._eval @ np.concatenate((x0, inputs.reshape(-1))) - self._eval_offset
+        z = np.concatenate((x0, inputs.reshape(-1)), out=self._z)
+        out = self._eval @ z - self._eval_offset
         split, end = self._split
-        states = out[:split].reshape(p.horizon + 1, p.n)
-        halfspace = _vecdot(normals, out[split:end].reshape(p.horizon, p.d)) - offsets
+        states = out[:split].reshape(self._states_shape)
+        halfspace = _vecdot(normals, out[split:end].reshape(self._positions_shape)) - offsets
         return states, halfspace, out[end:]
 
     def _call(self, backend: Any, step: StepData) -> QPSolution:
@@ -386,22 +395,23 @@ class MPCSafetyFilter:
         raw = solution.inputs
         if not all_finite(raw):
             return "rejected: non-finite solution"
-        inputs = np.minimum(np.maximum(raw, self.problem.input_bounds[0]),
-                            self.problem.input_bounds[1])  # interior point: ~1e-9 outside
-        clipped = float(np.maximum.reduce(np.abs(inputs - raw), axis=None))
+        # An interior-point answer may sit ~1e-9 outside the box: clip it.
+        inputs = np.minimum(np.maximum(raw, self._u_low), self._u_high)
+        clipped = 0.0 if (inputs == raw).all() else float(
+            np.maximum.reduce(np.abs(inputs - raw), axis=None))
         if not clipped <= FEASIBILITY_TOLERANCE:
             return f"rejected: input bound violated by {clipped:.3g}"
         states, halfspace, bounds = self._evaluate(x0, inputs, normals, offsets)
         k = normals.shape[0]
-        allowed_h = 0.0
+        # Without a slack the allowance is 0 and x - 0.0 is x bit for bit: no subtraction.
+        excess_h, excess_b = halfspace, bounds
         if "halfspaces" in soft_rows and solution.halfspace_slack is not None:
-            allowed_h = np.maximum(solution.halfspace_slack[:k], 0.0)
-        allowed_b = 0.0
+            excess_h = halfspace - np.maximum(solution.halfspace_slack[:k], 0.0)
         if "bounds" in soft_rows and solution.bound_slack is not None:
-            allowed_b = np.maximum(solution.bound_slack, 0.0)
-        worst = float(np.maximum.reduce(bounds - allowed_b, initial=-np.inf))
+            excess_b = bounds - np.maximum(solution.bound_slack, 0.0)
+        worst = float(np.maximum.reduce(excess_b, initial=-np.inf))
         if k:
-            worst = max(worst, float(np.maximum.reduce(halfspace - allowed_h, axis=None)))
+            worst = max(worst, float(np.maximum.reduce(excess_h, axis=None)))
         if not worst <= FEASIBILITY_TOLERANCE:  # False for NaN too
             return f"rejected: constraint violation {worst:.3g} > {FEASIBILITY_TOLERANCE:g}"
         return inputs, states, halfspace, bounds
@@ -448,25 +458,27 @@ class MPCSafetyFilter:
         """
         start = time.perf_counter()
         p = self.problem
-        T, n, m = p.horizon, p.n, p.m
+        T, n, m = self._T, self._n, self._m
         x0 = finite_step_array("x0", x0, (n,))
         ref_states = finite_step_array("reference_states", reference_states, (T + 1, n))[1:]
         if reference_inputs is None:
             ref_inputs = self._zero_inputs
         else:
             ref_inputs = finite_step_array("reference_inputs", reference_inputs, (T, m))
-        normals, offsets = parse_halfspaces(halfspaces, T, p.d, p.n_obstacles)
+        normals, offsets = parse_halfspaces(halfspaces, T, self._d, self._K)
         k = normals.shape[0]
         self._qp_solves = 0
-        if not p.has_state_cost:  # first_input: x^r is the roll-out of u^r (keeps b small)
+        if not self._has_state_cost:  # first_input: x^r is the roll-out of u^r (keeps b small)
             ref_states = (self._phi @ x0 + self._gamma @ ref_inputs.reshape(-1)).reshape(T, n)
 
         if self._skip and reference_inputs is not None:
-            u = np.array(ref_inputs).reshape(-1)  # a copy: it may become the stored plan
-            if p.has_state_cost:
+            u = ref_inputs.reshape(-1)
+            if self._has_state_cost:
                 residual = ref_states.reshape(-1) - self._phi @ x0 - self._gamma @ u
-                u = u + self._gain @ residual
-            if np.all(u >= self._u_low_all) and np.all(u <= self._u_high_all):
+                u = u + self._gain @ residual  # a new array
+            else:
+                u = np.array(u)  # a copy: it may become the stored plan
+            if (u >= self._u_low_all).all() and (u <= self._u_high_all).all():
                 states, halfspace, bounds = self._evaluate(x0, u, normals, offsets)
                 if np.maximum.reduce(bounds, initial=-np.inf) <= 0.0 and (
                     not k or np.maximum.reduce(halfspace, axis=None) <= 0.0
@@ -479,11 +491,11 @@ class MPCSafetyFilter:
                         ref_states, ref_inputs, start,
                     )
 
-        K = p.n_obstacles
+        K = self._K
         if k == K:
             padded_normals, padded_offsets = normals, offsets
         else:  # unused rows read 0 @ y <= DISABLED_OFFSET
-            padded_normals = np.zeros((K, T, p.d))
+            padded_normals = np.zeros((K, T, self._d))
             padded_offsets = np.full((K, T), DISABLED_OFFSET)
             padded_normals[:k] = normals
             padded_offsets[:k] = offsets
@@ -491,7 +503,7 @@ class MPCSafetyFilter:
         self._last_step = step  # for inspection and tests
 
         primary = self._call(self._primary, step)
-        answer = self._accept(primary, p.soft_rows, x0, normals, offsets)
+        answer = self._accept(primary, self._primary_soft_rows, x0, normals, offsets)
         iterations, solve_time = primary.iterations, primary.solve_time
         status_text = primary.status if isinstance(answer, tuple) or not answer else (
             f"{primary.status} ({answer})"
@@ -510,8 +522,7 @@ class MPCSafetyFilter:
 
         if self._recovery is not None:  # fallback="soft": the recovery QP
             recovery = self._call(self._recovery, step)
-            answer = self._accept(recovery, self._recovery.problem.soft_rows, x0, normals,
-                                  offsets)
+            answer = self._accept(recovery, self._recovery_soft_rows, x0, normals, offsets)
             iterations += recovery.iterations
             solve_time += recovery.solve_time
             reason = "" if isinstance(answer, tuple) or not answer else f" ({answer})"
@@ -544,9 +555,11 @@ class MPCSafetyFilter:
     def _cost(self, inputs: np.ndarray, states: np.ndarray, ref_states: np.ndarray,
               ref_inputs: np.ndarray) -> float:
         """:meth:`MPCProblem.cost` with the block-diagonal weights (two products)."""
-        du = (inputs - ref_inputs).reshape(-1)
+        # No reference inputs: u - 0.0 is u bit for bit, so no subtraction.
+        du = inputs.reshape(-1) if ref_inputs is self._zero_inputs else (
+            inputs - ref_inputs).reshape(-1)
         total = du @ (self._R_block @ du)
-        if self.problem.has_state_cost:
+        if self._has_state_cost:
             dx = (states[1:] - ref_states).reshape(-1)
             total += dx @ (self._Q_block @ dx)
         return float(total)

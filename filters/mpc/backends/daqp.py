@@ -200,6 +200,21 @@ class DAQPBackend:
         self._arena_axes = axes
         self._hi = np.isfinite(y_high[axes])
         self._lo = np.isfinite(y_low[axes])
+        # Hot-path constants and views (attribute and property lookups cost per step).
+        self._T, self._m, self._K = T, m, K
+        self._any_soft = bool(soft.any())
+        self._upper_fixed, self._lower_fixed = self._upper[nu:hs0_], self._lower[nu:hs0_]
+        self._upper_hs = self._upper[hs0_:].reshape(T, K)  # a view: written in place
+        # Dense S (small problems): S x0 is written into a buffer whose views are
+        # precomputed; a CSR S (large ones) returns a new array per product.
+        self._shift = np.empty(self._S.shape[0]) if isinstance(self._S, np.ndarray) else None
+        if self._shift is not None:
+            self._shift_fixed = self._shift[:n_fixed]
+            self._positions0 = self._shift[n_fixed:].reshape(T, 1, d, 1)
+        self._positions0_shape = (T, 1, d, 1)
+        self._at_x0 = np.empty((T, K, 1, 1))  # a_it . C Phi_t x0
+        self._at_x0_flat = self._at_x0.reshape(T, K)  # a view
+        self._v = np.empty(n + T * n + nu)  # [x0; X^r; u^r]
         self._model: daqp.Model | None = None
         self._cold = True
         try:  # built here so that a bad setting raises now, not at every step
@@ -234,28 +249,29 @@ class DAQPBackend:
 
     def _data(self, step: StepData) -> np.ndarray:
         """Write the step's rows and bounds into the preallocated arrays; return ``f``."""
-        p = self.problem
-        K, nu, hs0 = p.n_obstacles, self._nu, self._hs0
-        shift = self._S @ step.x0
         n_fixed = self._n_fixed
+        if self._shift is not None:
+            np.matmul(self._S, step.x0, out=self._shift)
+            shift_fixed, positions0 = self._shift_fixed, self._positions0
+        else:
+            shift = self._S @ step.x0
+            shift_fixed = shift[:n_fixed]
+            positions0 = shift[n_fixed:].reshape(self._positions0_shape)
         if n_fixed:
-            np.subtract(self._fixed_upper, shift[:n_fixed], out=self._upper[nu:hs0])
-            np.subtract(self._fixed_lower, shift[:n_fixed], out=self._lower[nu:hs0])
-        if K:
+            np.subtract(self._fixed_upper, shift_fixed, out=self._upper_fixed)
+            np.subtract(self._fixed_lower, shift_fixed, out=self._lower_fixed)
+        if self._K:
             normals = step.normals.transpose(1, 0, 2)  # (T, K, d)
             np.matmul(normals, self._C_gamma, out=self._A_hs)
-            positions0 = shift[n_fixed:].reshape(p.horizon, 1, p.d, 1)
-            at_x0 = np.matmul(normals[:, :, None, :], positions0)  # (T, K, 1, 1)
-            np.subtract(step.offsets.T, at_x0.reshape(p.horizon, K),
-                        out=self._upper[hs0:].reshape(p.horizon, K))
+            np.matmul(normals[:, :, None, :], positions0, out=self._at_x0)  # (T, K, 1, 1)
+            np.subtract(step.offsets.T, self._at_x0_flat, out=self._upper_hs)
         v = np.concatenate(
-            (step.x0, step.ref_states.reshape(-1), step.ref_inputs.reshape(-1))
+            (step.x0, step.ref_states.reshape(-1), step.ref_inputs.reshape(-1)), out=self._v
         )
         return self._F @ v
 
     def solve(self, step: StepData) -> QPSolution:
         """Write the step's data into the model and solve; never raises on a failed solve."""
-        p = self.problem
         try:
             f = self._data(step)
             begin = time.perf_counter()
@@ -283,21 +299,23 @@ class DAQPBackend:
         self._cold = flag < 1
         if flag < 1:
             return QPSolution(False, status, iterations=iterations, solve_time=solve_time)
-        inputs = np.array(x, dtype=float).reshape(p.horizon, p.m)
+        inputs = np.array(x, dtype=float).reshape(self._T, self._m)
+        if not self._any_soft:
+            return QPSolution(True, status, inputs, None, None, iterations, solve_time)
+        p = self.problem
         hs_slack = bound_slack = None
-        if self._soft.any():
-            values = self._A @ inputs.reshape(-1)
-            nu = self._nu
-            excess_up = values - self._upper[nu:]
-            excess_low = self._lower[nu:] - values
-            if p.soft_halfspaces:
-                T, K = p.horizon, p.n_obstacles
-                hs_slack = np.maximum(excess_up[self._n_fixed :], 0.0).reshape(T, K).T
-            if p.soft_bounds:
-                T, n_axes = p.horizon, len(self._arena_axes)
-                up = excess_up[: self._n_arena].reshape(T, n_axes)[:, self._hi]
-                low = excess_low[: self._n_arena].reshape(T, n_axes)[:, self._lo]
-                terminal = excess_up[self._n_arena : self._n_fixed]
-                bound_slack = np.maximum(
-                    np.concatenate([up.reshape(-1), low.reshape(-1), terminal]), 0.0)
+        values = self._A @ inputs.reshape(-1)
+        nu = self._nu
+        excess_up = values - self._upper[nu:]
+        excess_low = self._lower[nu:] - values
+        if p.soft_halfspaces:
+            hs_slack = np.maximum(excess_up[self._n_fixed :], 0.0).reshape(
+                self._T, self._K).T
+        if p.soft_bounds:
+            T, n_axes = self._T, len(self._arena_axes)
+            up = excess_up[: self._n_arena].reshape(T, n_axes)[:, self._hi]
+            low = excess_low[: self._n_arena].reshape(T, n_axes)[:, self._lo]
+            terminal = excess_up[self._n_arena : self._n_fixed]
+            bound_slack = np.maximum(
+                np.concatenate([up.reshape(-1), low.reshape(-1), terminal]), 0.0)
         return QPSolution(True, status, inputs, hs_slack, bound_slack, iterations, solve_time)
