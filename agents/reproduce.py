@@ -913,7 +913,7 @@ def compare_with_paper(rows: Sequence[WindowRow]) -> list[str]:
         m = multi[0]
         lines.append(f"- Multi-obstacle filter time: paper {PAPER_FILTER_TIME_MS:g} ms mean "
                      f"(CVXPY + ECOS); here median {m.filter_time_ms:.2f} ms per step "
-                     "(halfspaces + QP, Clarabel direct).")
+                     "(halfspaces + QP, no CVXPY; the default back end, DAQP at this size).")
         lines.append(f"- Multi-obstacle infeasible steps: paper one step in its one run; here "
                      f"{m.fallback_share:.2%} of the steps, in {m.fallback_episodes} of {m.ok} "
                      "episodes, were infeasible (the paper's fallback).")
