@@ -818,7 +818,9 @@ def _plain_settings(value: object) -> tuple | None:
     """A hashable canonical form of plain settings, or ``None`` if ``value`` holds others.
 
     Plain: ``None``, bools, numbers, strings, and tuples, lists, string-keyed dicts and
-    frozen dataclasses of plain values (types included, so ``1`` and ``1.0`` differ).
+    frozen dataclasses of plain values (types included, so ``1`` and ``1.0`` differ). A
+    dataclass is read through the fields that define its equality (``compare=True``):
+    derived caches such as the noise laws' scaled mean array are left out.
     """
     if value is None or isinstance(value, bool | int | float | str):
         return (type(value).__qualname__, value)
@@ -834,7 +836,7 @@ def _plain_settings(value: object) -> tuple | None:
             and value.__dataclass_params__.frozen):
         cls = type(value)
         items = tuple((f.name, _plain_settings(getattr(value, f.name)))
-                      for f in dataclasses.fields(value))
+                      for f in dataclasses.fields(value) if f.compare)
         return None if any(item is None for _, item in items) else (
             f"{cls.__module__}.{cls.__qualname__}", items)
     return None

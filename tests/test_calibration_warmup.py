@@ -285,3 +285,18 @@ def test_sorted_window_margins_equal_the_partition_of_the_window():
                         else np.partition(window, rank - 1)[rank - 1])
             assert margin.margin(j) == expected
             assert margin._sorted[j - 1] == sorted(window.tolist())
+
+
+def test_noise_models_with_a_bias_are_plain_settings_and_keys_tell_them_apart():
+    """A drifting law (the stress suite's "biased") is shared too, and never confused."""
+    from filters import wrapper
+    from safe_nav_env.noise import Gaussian, Laplace, NoiseModel
+
+    def key(mean):
+        noise = NoiseModel(Gaussian(0.01), Laplace(0.01, mean=mean), n_samples=100)
+        return wrapper._plain_settings({"noise": noise})
+
+    assert key((-0.03, 0.03)) is not None
+    assert key((-0.03, 0.03)) == key((-0.03, 0.03))
+    assert key((-0.03, 0.03)) != key((-0.03, 0.04))
+    assert key((-0.03, 0.03)) != key(0.0)
