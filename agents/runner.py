@@ -256,13 +256,16 @@ def _reusable_env(spec: EpisodeSpec, sha: str) -> tuple[EpisodeSpec | None, Any,
 def _resets_fully(env: Any) -> bool:
     """Whether ``reset`` forgets everything an episode leaves in ``env``'s wrappers.
 
-    Not so for a filter with an online calibration (``risk="conformal"``,
-    ``epsilon="auto"``): it keeps its scores across episodes by design, so a reused
-    environment would make an episode depend on the ones run before it in the process.
+    Not so for a filter whose online calibration (``risk="conformal"``,
+    ``epsilon="auto"``) carries over between episodes (``calibration_memory=
+    "persistent"``): a reused environment would make an episode depend on the ones run
+    before it in the process. With ``"episode"`` (the default) ``reset`` restores the
+    held-out calibrated state, as a fresh wrapper starts from.
     """
     layer = env
     while layer is not None and layer is not getattr(layer, "unwrapped", None):
-        if getattr(layer, "_calibration", None) is not None:
+        if (getattr(layer, "_calibration", None) is not None
+                and getattr(layer, "calibration_memory", "persistent") != "episode"):
             return False
         layer = getattr(layer, "env", None)
     return True

@@ -239,15 +239,32 @@ def test_offsets_along_refuses_bad_input_with_the_package_errors():
     assert offsets_along(normals, samples, **shapes).shape == (2, 3)
 
 
-def test_a_filter_with_online_calibration_is_never_reused():
-    """Conformal margins carry over between episodes: each episode gets a fresh one."""
+def test_a_filter_with_a_persistent_calibration_is_never_reused():
+    """Persistent conformal margins carry over between episodes: each gets a fresh filter."""
+    clear_env_cache()
+    seeds = [1, 0, 1]
+    options = {"calibration_memory": "persistent"}
+    reused = [run_episode(EpisodeSpec("HeadOn", "conformal", s, filter_options=options))[0]
+              for s in seeds]
+    assert not _ENV_CACHE
+    fresh = [run_episode(EpisodeSpec("HeadOn", "conformal", s, filter_options=options),
+                         reuse_env=False)[0] for s in seeds]
+    for a, b in zip(reused, fresh, strict=True):
+        assert not a.error
+        _same_records(a, b)
+    _same_records(reused[0], reused[2])
+
+
+def test_a_filter_with_a_per_episode_calibration_is_reused_with_the_same_records():
+    """calibration_memory="episode" (the default): reset restores the calibrated state."""
     clear_env_cache()
     seeds = [1, 0, 1]
     reused = [run_episode(EpisodeSpec("HeadOn", "conformal", s))[0] for s in seeds]
-    assert not _ENV_CACHE
+    assert len(_ENV_CACHE) == 1
     fresh = [run_episode(EpisodeSpec("HeadOn", "conformal", s), reuse_env=False)[0]
              for s in seeds]
     for a, b in zip(reused, fresh, strict=True):
         assert not a.error
         _same_records(a, b)
     _same_records(reused[0], reused[2])
+    clear_env_cache()
