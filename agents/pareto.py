@@ -17,7 +17,7 @@ from pathlib import Path
 
 from filters.errors import InvalidParameterError
 
-__all__ = ["TIME_LABEL", "ParetoPoint", "dominated", "plot_pareto"]
+__all__ = ["TIME_LABEL", "ParetoPoint", "dominated", "plot_pareto", "point_from_summary"]
 
 TIME_LABEL = "mean time to goal (s), over the episodes that reached it"
 """Default x-axis label: the time to goal is averaged over the successful episodes only."""
@@ -65,6 +65,18 @@ class ParetoPoint:
     def rate(self) -> float:
         """Collision rate ``collisions / n``."""
         return self.collisions / self.n
+
+
+def point_from_summary(row: object, label: str) -> ParetoPoint | None:
+    """The point of a :class:`~agents.summary.SummaryRow` (``None`` if no episode ran).
+
+    The summary keeps the collision *rate* over the episodes that did not fail; the
+    count is recovered as ``round(rate * n)`` with ``n = episodes - failed``.
+    """
+    n = row.episodes - row.failed
+    if n < 1:
+        return None
+    return ParetoPoint(label, round(row.collision_rate * n), n, float(row.time_to_goal))
 
 
 def dominated(points: Sequence[ParetoPoint]) -> list[bool]:

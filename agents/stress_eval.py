@@ -170,16 +170,14 @@ def stress_table(rows: Sequence[SummaryRow], *, epsilon: float) -> str:
 
 
 def _pareto_panels(rows: Sequence[SummaryRow], *, epsilon: float) -> dict[str, list]:
-    from agents.pareto import ParetoPoint
+    from agents.pareto import point_from_summary
 
     panels: dict[str, list] = defaultdict(list)
     for case in STRESS_SUITE:
         for r in (row for row in rows if row.scenario == case):
-            n = r.episodes - r.failed
-            if n < 1:
-                continue
-            panels[case].append(ParetoPoint(_label(r, epsilon), round(r.collision_rate * n), n,
-                                            float(r.time_to_goal)))
+            point = point_from_summary(r, _label(r, epsilon))
+            if point is not None:
+                panels[case].append(point)
     return dict(panels)
 
 

@@ -125,17 +125,11 @@ def draw_halfspace(
 
     The safe side is where ``normal @ y <= offset``, away from the obstacle.
     """
-    normal = np.asarray(normal, dtype=float)
-    norm = np.linalg.norm(normal)
-    if norm == 0:
-        return
-    normal = normal / norm
-    offset = float(offset) / norm
     (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
-    span = 2.0 * max(x1 - x0, y1 - y0)
-    foot = normal * offset
-    tangent = np.array([-normal[1], normal[0]])
-    ends = np.stack([foot - span * tangent, foot + span * tangent])
+    segments = halfspace_segments(normal, offset, (x0, x1), (y0, y1))
+    if not len(segments):  # a zero normal: no boundary
+        return
+    ends = segments[0]
     from matplotlib.lines import Line2D
 
     # add_artist, not plot: a third of the cost per frame in the blitted renderer (no

@@ -27,7 +27,7 @@ import sys
 from collections import defaultdict
 from pathlib import Path
 
-from agents.pareto import ParetoPoint, plot_pareto
+from agents.pareto import ParetoPoint, plot_pareto, point_from_summary
 from agents.records import read_records
 from agents.summary import summarise
 
@@ -51,12 +51,9 @@ def panels(runs: list[tuple[str, Path]]) -> dict[str, list[ParetoPoint]]:
         for row in summarise(read_records(csv)):
             if row.risk not in _FILTERS or row.method != row.risk:
                 continue
-            n = row.episodes - row.failed
-            if n < 1:
-                continue
-            out[row.scenario].append(ParetoPoint(
-                label + _FILTERS[row.risk], round(row.collision_rate * n), n,
-                float(row.time_to_goal)))
+            point = point_from_summary(row, label + _FILTERS[row.risk])
+            if point is not None:
+                out[row.scenario].append(point)
     return dict(out)
 
 
