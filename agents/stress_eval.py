@@ -154,17 +154,14 @@ def stress_table(rows: Sequence[SummaryRow], *, epsilon: float) -> str:
             shares = dict(r.status_shares)
             filtered = r.risk != "none"
             failed = f" ({r.failed} failed)" if r.failed else ""
+            filter_cells = (f"{r.mean_intervention:.3f} | {shares.get('soft', 0.0):.1%} | "
+                            f"{shares.get('recovery', 0.0):.1%} |" if filtered
+                            else "0.000 | - | - |")
             out.append(
                 f"| {_label(r, epsilon)} | {r.episodes}{failed} | {r.collision_rate:.1%} "
                 f"[{r.collision_low:.1%}, {r.collision_high:.1%}] | "
                 f"{r.sampled_collision_rate:.1%} | {r.goal_rate:.1%} | {r.time_to_goal:.2f} | "
-                f"{r.mean_intervention:.3f} | "
-                f"{shares.get('soft', 0.0):.1%} | {shares.get('recovery', 0.0):.1%} |"
-                if filtered else
-                f"| {_label(r, epsilon)} | {r.episodes}{failed} | {r.collision_rate:.1%} "
-                f"[{r.collision_low:.1%}, {r.collision_high:.1%}] | "
-                f"{r.sampled_collision_rate:.1%} | {r.goal_rate:.1%} | {r.time_to_goal:.2f} | "
-                f"0.000 | - | - |")
+                + filter_cells)
         out.append("")
     return "\n".join(out)
 
