@@ -156,6 +156,7 @@ class DAQPBackend:
         self._soft_hs = p.soft_halfspaces
         self._any_soft = bool(self._soft_fixed.any() or (self._soft_hs and K))
         self._guess: tuple | None = None  # previous answer and active set (lazy), until reset()
+        self._conflict: tuple | None = None  # rows of the previous infeasible QP (lazy)
         self.rounds = 0  # relaxed QPs solved by the last lazy solve
         self._z_of_u = matvec_operator(qp.z_of_u)
         if self.lazy:
@@ -208,8 +209,9 @@ class DAQPBackend:
         return int(flag) if flag < 0 else model
 
     def reset(self) -> None:
-        """Forget the previous answer (the lazy path's second screening point)."""
+        """Forget the previous step (the lazy path's warm start)."""
         self._guess = None
+        self._conflict = None
 
     # ------------------------------------------------------------------ solve
     def solve(self, step: StepData) -> QPSolution:
@@ -266,6 +268,10 @@ class DAQPBackend:
             dual_fixed, dual_hs = self._shift_fixed(active_fixed), _shift_steps(active_hs)
             keep_fixed |= dual_fixed != 0.0
             keep_hs |= dual_hs != 0.0
+        if self._conflict is not None:  # the rows of the previous infeasible QP, shifted
+            keep_fixed |= self._shift_fixed(self._conflict[0])
+            keep_hs |= _shift_steps(self._conflict[1])
+        self._conflict = None
         begin = time.perf_counter()
         iterations, flag = 0, 1
         self.rounds = 0
@@ -275,6 +281,9 @@ class DAQPBackend:
                 rows, keep_fixed, keep_hs, dual_fixed, dual_hs)
             iterations += its
             if flag < 1:
+                # An infeasible QP's rows hold its conflict; in a closed loop the next
+                # step's QP usually has the same one, found in one round with them.
+                self._conflict = (keep_fixed, keep_hs) if flag == -1 else None
                 return self._solution(None, flag, iterations, time.perf_counter() - begin, rows)
             fixed, halfspace, values = qp.excess(z, rows)
             add_fixed = (fixed > ADD_TOLERANCE) & ~keep_fixed
