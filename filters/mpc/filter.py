@@ -50,9 +50,9 @@ __all__ = [
 
 #: Back ends by name (the CVXPY one imports CVXPY when built); ``"auto"`` picks DAQP or
 #: Clarabel per QP (see :func:`auto_backend`).
-BACKENDS = ("auto", "clarabel", "daqp", "cvxpy")
+BACKENDS = ("auto", "clarabel", "daqp", "piqp", "cvxpy")
 #: ``backend="auto"`` solves QPs with soft rows with DAQP while the condensed QP has at
-#: most this many inputs ``T m`` (hard QPs always; see :func:`auto_backend`).
+#: most this many inputs ``T m``, else with PIQP (hard QPs: DAQP; see :func:`auto_backend`).
 AUTO_DAQP_MAX_INPUTS = 120
 #: What to do when the hard QP fails.
 FALLBACKS = ("soft", "paper")
@@ -73,22 +73,24 @@ def auto_backend(problem: MPCProblem) -> str:
     * A QP without soft rows (the hard QP): ``"daqp"`` at every size. DAQP solves the
       whitened condensed QP (identity Hessian), and above
       :data:`~filters.mpc.backends.daqp.LAZY_MIN_INPUTS` inputs with lazy (screened)
-      rows warm-started from the previous step's active set, so its work grows with the
-      rows that matter, not with all of them; an infeasible hard QP is detected in a
-      few iterations.
+      rows warm-started from the previous step, so its work grows with the rows that
+      matter, not with all of them; an infeasible hard QP is detected in a few
+      iterations.
     * A QP with soft rows (``soft=True``, and the recovery QP): ``"daqp"`` while
-      :math:`T m \le 120` (:data:`AUTO_DAQP_MAX_INPUTS`), else ``"clarabel"``. Every
-      violated soft row enters an active-set method's working set, one per iteration;
-      strongly infeasible long-horizon steps violate hundreds of rows (measured on the
-      scaling grid's T = 80 steps: DAQP took thousands of iterations and up to 100x
-      Clarabel's time there), while the interior-point method's iterations do not
-      depend on how many rows end up violated.
+      :math:`T m \le 120` (:data:`AUTO_DAQP_MAX_INPUTS`), else ``"piqp"`` (a sparse
+      interior-point method). Every violated soft row enters an active-set method's
+      working set, one per iteration; strongly infeasible long-horizon steps violate
+      hundreds of rows (the scaling grid's T = 80 steps: DAQP took thousands of
+      iterations, up to 100x an interior-point method's time), while an interior-point
+      method's iterations do not depend on how many rows end up violated. On those
+      recovery QPs PIQP took 0.6-0.7x Clarabel's time (T = 40 and 80, 1 to 20
+      obstacles, the same answers to the solvers' tolerances).
 
     The measurements behind both rules are printed by ``safe-nav bench --scaling``
     (columns for each explicit back end).
     """
     if problem.soft_rows and problem.horizon * problem.m > AUTO_DAQP_MAX_INPUTS:
-        return "clarabel"
+        return "piqp"
     return "daqp"
 
 
@@ -101,6 +103,10 @@ def _make_backend(name: str, problem: MPCProblem, settings: Mapping[str, Any] | 
         from filters.mpc.backends.daqp import DAQPBackend
 
         return DAQPBackend(problem, solver_settings=settings)
+    if name == "piqp":
+        from filters.mpc.backends.piqp import PIQPBackend
+
+        return PIQPBackend(problem, solver_settings=settings)
     from filters.mpc.backends.cvxpy import CVXPYBackend  # imports cvxpy
 
     return CVXPYBackend(problem, solver_settings=settings)
@@ -167,10 +173,11 @@ class MPCSafetyFilter:
         last plan, then brake).
     backend
         ``"auto"`` (default: DAQP for the hard QP; for QPs with soft rows DAQP while
-        ``T m <= 120``, else Clarabel; see :func:`auto_backend`), ``"daqp"`` (the
+        ``T m <= 120``, else PIQP; see :func:`auto_backend`), ``"daqp"`` (the
         whitened condensed QP, dual active set, lazy rows for long horizons; soft rows as
-        DAQP soft constraints), ``"clarabel"`` (the sparse QP built once) or
-        ``"cvxpy"`` (the readable reference; imports CVXPY). :attr:`backend` and
+        DAQP soft constraints), ``"clarabel"`` (the sparse QP built once), ``"piqp"``
+        (the same sparse QP in PIQP) or ``"cvxpy"`` (the readable reference; imports
+        CVXPY). :attr:`backend` and
         :attr:`recovery_backend` tell which ones ``"auto"`` picked.
 
     Raises

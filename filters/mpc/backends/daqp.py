@@ -39,7 +39,7 @@ Soft QPs with many violated rows are where an active-set method is slow: each vi
 row enters the active set, one per iteration, and DAQP's dual has them bounded by
 :math:`\rho`. With hundreds of violated rows (long horizons, strongly infeasible
 steps) an interior-point method is faster, which is why ``backend="auto"`` solves the
-recovery QP of long horizons with Clarabel (see :func:`filters.mpc.filter.auto_backend`).
+recovery QP of long horizons with PIQP (see :func:`filters.mpc.filter.auto_backend`).
 
 **Statuses.** DAQP's exit flags are reported with Clarabel's names where one exists
 (``1``, ``2`` -> ``"Solved"``, ``-1`` -> ``"PrimalInfeasible"``, ``-4`` ->
