@@ -254,23 +254,26 @@ def run_benchmarks(filter_steps: int = 500, table_repeats: int = 100, seed: int 
 
 # --------------------------------------------------------------------------- --scaling
 def _sparse_growth(points: list) -> str:
-    """How Clarabel's time per QP grows from the shortest horizon >= 20 to the longest."""
+    """How the sparse back ends' time per QP grows from the shortest horizon >= 20 to the
+    longest, per obstacle count and N_s (medians of the ratios)."""
     horizons = sorted({p.horizon for p in points if p.horizon >= 20})
     if len(horizons) < 2:
-        return "sparse back end (Clarabel) growth: needs two horizons >= 20"
+        return "sparse back ends' growth: needs two horizons >= 20"
     short, long = horizons[0], horizons[-1]
-    growth = []
-    for p in points:
-        if p.horizon != long:
-            continue
-        base = [q for q in points if q.horizon == short and q.n_obstacles == p.n_obstacles
-                and q.n_samples == p.n_samples]
-        if base:
-            growth.append(p.clarabel_per_qp_ms / base[0].clarabel_per_qp_ms)
-    growth_array = np.array(growth)
-    return (f"sparse back end (Clarabel), time per QP solved, T = {long} over T = {short} "
-            f"(horizon ratio {long / short:.0f}): median {np.median(growth_array):.2f}x, "
-            f"range {growth_array.min():.2f}x to {growth_array.max():.2f}x")
+    parts = []
+    for name in ("clarabel", "piqp"):
+        growth = []
+        for p in points:
+            base = [q for q in points if q.horizon == short and q.n_obstacles == p.n_obstacles
+                    and q.n_samples == p.n_samples]
+            if p.horizon == long and base:
+                growth.append(getattr(p, f"{name}_per_qp_ms") / getattr(
+                    base[0], f"{name}_per_qp_ms"))
+        array = np.array(growth)
+        parts.append(f"{name} median {np.median(array):.2f}x (range {array.min():.2f}x to "
+                     f"{array.max():.2f}x)")
+    return (f"sparse back ends, time per QP solved, T = {long} over T = {short} (horizon "
+            f"ratio {long / short:.0f}): " + "; ".join(parts))
 
 
 def benchmark_rollout_reference(

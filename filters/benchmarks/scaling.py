@@ -31,14 +31,15 @@ Two instance families (``family=``):
 * ``"goal"``: the same episodes, but the reference stops at a goal inside the arena
   (x = 4.5 m on the ego's lane): the long-horizon QPs a real planner would send.
 
-Ours is the default ``backend="auto"`` (DAQP for ``T m <= 120``, else Clarabel; the
-point reports which); each explicit back end (``"daqp"``, ``"clarabel"``) then solves
-the same recorded halfspaces in a pass of its own, so that the table shows all three
-and how far their inputs are apart, and the Clarabel pass gives its time per QP solved
-(the sparse back end's growth with T). The filters are timed in separate passes over the
-same instances (interleaved, each evicts the other's data from the caches). Every
-number is a median over the steps of one run; the ratios compare numbers of the same
-run.
+Ours is the default ``backend="auto"`` (DAQP for the hard QP; DAQP or PIQP for the
+recovery QP, by size; the point reports which); each explicit back end (``"daqp"``,
+``"clarabel"``, ``"piqp"``) then solves
+the same recorded halfspaces in a pass of its own, so that the table shows them all
+and how far their inputs are apart, and the sparse passes (Clarabel, PIQP) give their
+time per QP solved (the sparse back ends' growth with T). The filters are timed in
+separate passes over the same instances (interleaved, each evicts the other's data from
+the caches). Every number is a median over the steps of one run; the ratios compare
+numbers of the same run.
 """
 
 from __future__ import annotations
@@ -250,6 +251,8 @@ class ScalingPoint:
     clarabel_qp_ms: float = float("nan")  # backend="clarabel", QP median
     daqp_clarabel_difference: float = float("nan")  # max |u_daqp - u_clarabel|, both optimal
     clarabel_per_qp_ms: float = float("nan")  # backend="clarabel": step time / QPs solved
+    piqp_qp_ms: float = float("nan")  # backend="piqp", QP median
+    piqp_per_qp_ms: float = float("nan")  # backend="piqp": step time / QPs solved
     family: str = "straight"  # instance family (FAMILIES)
 
     def as_row(self) -> dict:
@@ -328,8 +331,8 @@ def benchmark_point(
 
     backend_ms: dict[str, list[float]] = {}
     backend_inputs: dict[str, list] = {}
-    per_qp_ms: list[float] = []
-    for name in ("daqp", "clarabel"):
+    per_qp_ms: dict[str, list[float]] = {"clarabel": [], "piqp": []}
+    for name in ("daqp", "clarabel", "piqp"):
         explicit = MPCSafetyFilter(A, B, C, backend=name, **kwargs)
         backend_ms[name], backend_inputs[name] = [], []
         for instance, hs in zip(instances, recorded, strict=True):
@@ -340,8 +343,8 @@ def benchmark_point(
             backend_ms[name].append(1e3 * (time.perf_counter() - begin))
             backend_inputs[name].append(
                 answer.inputs if answer.status == FilterStatus.OPTIMAL else None)
-            if name == "clarabel" and explicit.last_qp_solves:
-                per_qp_ms.append(backend_ms[name][-1] / explicit.last_qp_solves)
+            if name in per_qp_ms and explicit.last_qp_solves:
+                per_qp_ms[name].append(backend_ms[name][-1] / explicit.last_qp_solves)
     between = [float(np.max(np.abs(a - b))) for a, b in zip(
         backend_inputs["daqp"], backend_inputs["clarabel"], strict=True)
         if a is not None and b is not None]
@@ -357,9 +360,15 @@ def benchmark_point(
         daqp_qp_ms=float(np.median(backend_ms["daqp"])),
         clarabel_qp_ms=float(np.median(backend_ms["clarabel"])),
         daqp_clarabel_difference=max(between) if between else float("nan"),
-        clarabel_per_qp_ms=float(np.median(per_qp_ms)) if per_qp_ms else float("nan"),
+        clarabel_per_qp_ms=_median(per_qp_ms["clarabel"]),
+        piqp_qp_ms=float(np.median(backend_ms["piqp"])),
+        piqp_per_qp_ms=_median(per_qp_ms["piqp"]),
         family=family,
     )
+
+
+def _median(values: list[float]) -> float:
+    return float(np.median(values)) if values else float("nan")
 
 
 def _backend_label(mpc: MPCSafetyFilter) -> str:
@@ -389,9 +398,9 @@ def format_scaling_table(points: Sequence[ScalingPoint]) -> str:
     """The ratio table in markdown (medians in ms; ratios of the same run)."""
     lines = [
         "| obstacles | T | N_s | halfspaces | QP | step | CVXPY QP | CVXPY / step | "
-        "CVXPY / QP | auto picks | QP daqp | QP clarabel | clarabel per QP | "
-        "max abs u_daqp - u_clarabel | statuses (ours) | same status |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "CVXPY / QP | auto picks | QP daqp | QP clarabel | QP piqp | per QP clarabel | "
+        "per QP piqp | max abs u_daqp - u_clarabel | statuses (ours) | same status |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for p in points:
         statuses = ", ".join(f"{k} {v}" for k, v in sorted(p.statuses.items()))
@@ -399,7 +408,8 @@ def format_scaling_table(points: Sequence[ScalingPoint]) -> str:
             f"| {p.n_obstacles} | {p.horizon} | {p.n_samples} | {p.halfspaces_ms:.3f} | "
             f"{p.qp_ms:.3f} | {p.step_ms:.3f} | {p.cvxpy_ms:.2f} | {p.ratio:.1f}x | "
             f"{p.qp_ratio:.1f}x | {p.backend} | {p.daqp_qp_ms:.3f} | {p.clarabel_qp_ms:.3f} | "
-            f"{p.clarabel_per_qp_ms:.3f} | {p.daqp_clarabel_difference:.1e} | {statuses} | "
+            f"{p.piqp_qp_ms:.3f} | {p.clarabel_per_qp_ms:.3f} | {p.piqp_per_qp_ms:.3f} | "
+            f"{p.daqp_clarabel_difference:.1e} | {statuses} | "
             f"{100 * p.agreement:.0f}% |"
         )
     return "\n".join(lines)
