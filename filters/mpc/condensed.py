@@ -89,12 +89,20 @@ class CondensedQP:
 
     Attributes
     ----------
+    hessian
+        :math:`H`, ``(T m, T m)``.
     u_of_z
         :math:`U^{-\\top}`, ``(T m, T m)``, lower triangular: ``u = u_of_z @ z``.
     z_of_u
         :math:`U^\\top`, ``(T m, T m)``: ``z = z_of_u @ u``.
     fixed_rows
         The fixed rows in :math:`z`, ``(n_fixed, T m)``.
+    n_fixed
+        Number of fixed rows.
+    row_slices
+        ``(inputs, arena, terminal)``: where each kind of fixed row sits (the input rows
+        step-major over the axes with a finite side, the arena rows step-major over the
+        arena's finite axes, each two-sided).
     fixed_soft
         Which fixed rows are soft in this problem (the arena and terminal rows when
         ``"bounds"`` is in its ``soft_rows``).
@@ -149,7 +157,7 @@ class CondensedQP:
         if p.soft_bounds:
             self.fixed_soft[n_inputs:] = True
         self.row_slices = (slice(0, n_inputs), slice(n_inputs, n_inputs + n_arena),
-                        slice(n_inputs + n_arena, self.n_fixed))
+                           slice(n_inputs + n_arena, self.n_fixed))
         # Shift of the fixed bounds by x0: inputs none, arena C Phi_t x0, terminal G Phi_T x0.
         shift = np.vstack([np.zeros((n_inputs, n)), C_phi[:, arena_axes].reshape(-1, n),
                            G @ phi[(T - 1) * n :]])

@@ -49,7 +49,7 @@ __all__ = [
 ]
 
 #: Back ends by name (the CVXPY one imports CVXPY when built); ``"auto"`` picks DAQP or
-#: Clarabel per QP (see :func:`auto_backend`).
+#: PIQP per QP (see :func:`auto_backend`).
 BACKENDS = ("auto", "clarabel", "daqp", "piqp", "cvxpy")
 #: ``backend="auto"`` solves QPs with soft rows with DAQP while the condensed QP has at
 #: most this many inputs ``T m``, else with PIQP (hard QPs: DAQP; see :func:`auto_backend`).
@@ -153,8 +153,8 @@ class MPCSafetyFilter:
     solver_settings
         Back-end settings: Clarabel settings to override for ``backend="clarabel"``
         (and for ``"auto"``, which then always picks Clarabel: the settings are
-        Clarabel's); DAQP settings for ``"daqp"``; for ``backend="cvxpy"``,
-        keywords of ``problem.solve``).
+        Clarabel's); DAQP settings for ``"daqp"``; PIQP settings for ``"piqp"``; for
+        ``backend="cvxpy"``, keywords of ``problem.solve``).
     skip_feasible_reference
         With ``reference_inputs``, return the unconstrained optimum without a QP when it
         meets every row exactly (``iterations`` 0, ``solve_time`` 0).
@@ -177,8 +177,8 @@ class MPCSafetyFilter:
         whitened condensed QP, dual active set, lazy rows for long horizons; soft rows as
         DAQP soft constraints), ``"clarabel"`` (the sparse QP built once), ``"piqp"``
         (the same sparse QP in PIQP) or ``"cvxpy"`` (the readable reference; imports
-        CVXPY). :attr:`backend` and
-        :attr:`recovery_backend` tell which ones ``"auto"`` picked.
+        CVXPY). :attr:`backend` and :attr:`recovery_backend` tell which ones ``"auto"``
+        picked.
 
     Raises
     ------
@@ -339,7 +339,8 @@ class MPCSafetyFilter:
 
     @property
     def backend(self) -> str:
-        """The back end: ``"daqp"``, ``"clarabel"`` or ``"cvxpy"`` (``"auto"`` resolved)."""
+        """The hard QP's back end: ``"daqp"``, ``"clarabel"``, ``"piqp"`` or ``"cvxpy"``
+        (``"auto"`` resolved)."""
         return self._backend_name
 
     @property

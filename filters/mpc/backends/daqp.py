@@ -26,6 +26,18 @@ relaxed hard QP is infeasible, so is the full one. For soft rows (the recovery Q
 ``soft=True``) the same holds: a dropped soft row that the answer meets costs no
 penalty. Every round adds at least one row, so the loop ends.
 
+**Warm start** (until :meth:`DAQPBackend.reset`, which the filter calls at episode
+start). In a closed loop the next step's QP is the last one shifted by one step, so
+the lazy path keeps (a) the previous answer, shifted, as a second screening point;
+(b) its active set, shifted (the rows of step :math:`t+1` become those of step
+:math:`t`, the last step keeps its own), which enters the first relaxed QP and starts
+DAQP there (``dual_start``); (c) after an infeasible QP, its rows, shifted, which
+usually contain the next step's conflict, so a run of infeasible steps is detected
+in one round. Each round starts from the previous round's active set. None of this
+changes the answer (the optimum of a strictly convex QP), only the work: on the
+scaling grid's T = 80 steps a warm start halved DAQP's iterations, and (c) cut an
+infeasible step's from hundreds to a median of 4-25.
+
 **Soft rows** (``soft=True``, and the recovery QP) are DAQP's soft constraints
 (sense 8) with the linear weight :math:`w = \rho` (``slack_penalty``) on each side and
 the reciprocal quadratic weight ``SOFT_RHO``: a violation :math:`s \ge 0` of a soft row
