@@ -251,3 +251,18 @@ def test_daqp_iteration_limit_is_a_failure_not_an_exception():
             assert result.fallback
             return
     pytest.fail("no step hit DAQP's iteration limit of 1")
+
+
+@pytest.mark.parametrize("mode", ["hard", "soft", "recovery"])
+def test_piqp_update_equals_rebuild(mode):
+    """A PIQP solver updated step after step answers as one set up for that step alone."""
+    persistent = make("piqp", 20, "trajectory", mode, skip_feasible_reference=False)
+    rng = np.random.default_rng([9, MODES.index(mode)])
+    for _ in range(6):
+        case = instance(rng, 20, mode)
+        persistent.reset()
+        updated = solve(persistent, case)
+        rebuilt = solve(make("piqp", 20, "trajectory", mode, skip_feasible_reference=False),
+                        case)
+        assert updated.status == rebuilt.status
+        np.testing.assert_allclose(updated.inputs, rebuilt.inputs, rtol=0, atol=1e-9)
