@@ -8,7 +8,7 @@ is a ratio against a reference measured in the same run:
 (b) one full filter step (halfspaces + QP) on the multi-obstacle scenario
     (3 obstacles, T = 10, N_s = 100) against the same QP in CVXPY built once with
     Parameters, and the QP alone on synthetic instances; ours is the default
-    ``backend="auto"``, and each explicit back end (DAQP, Clarabel) is timed on the
+    ``backend="auto"``, and each explicit back end (DAQP, Clarabel, PIQP) is timed on the
     same steps too;
 (c) the unfiltered environment's steps per second.
 
@@ -180,7 +180,7 @@ def benchmark_filter_step(n_steps: int = 500, seed: int = 0, *,
             done = terminated or truncated
     backend_qp: dict[str, list[float]] = {}
     backend_inputs: dict[str, list] = {}
-    for name in ("daqp", "clarabel"):
+    for name in ("daqp", "clarabel", "piqp"):
         explicit = MPCSafetyFilter(A, B, C, backend=name, **weights)
         backend_qp[name], backend_inputs[name] = [], []
         for instance in instances:
