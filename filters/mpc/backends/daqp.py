@@ -338,7 +338,9 @@ class DAQPBackend:
         lower = np.concatenate((rows.lower[fixed], np.full(len(steps), -np.inf)))
         soft = np.concatenate((self._soft_fixed[fixed], np.full(len(steps), self._soft_hs)))
         sense = np.where(soft, 8, 0).astype(np.intc)
-        if dual_fixed is not None:
+        if dual_fixed is not None and not soft.any():
+            # Hard rows only: DAQP activates the start set in setup, before soft weights
+            # could be set, so soft QPs start cold (a warm start gained them nothing).
             start = np.concatenate((dual_fixed[fixed], dual_hs[steps, obstacles]))
             flag, _ = self._model.setup(self._identity, rows.f, A, upper, lower, sense,
                                         dual_start=start)
