@@ -254,7 +254,7 @@ def run_benchmarks(filter_steps: int = 500, table_repeats: int = 100, seed: int 
 
 # --------------------------------------------------------------------------- --scaling
 def _sparse_growth(points: list) -> str:
-    """How the sparse back ends' time per QP grows from the shortest horizon >= 20 to the
+    """How the sparse back ends' hard-QP time grows from the shortest horizon >= 20 to the
     longest, per obstacle count and N_s (medians of the ratios)."""
     horizons = sorted({p.horizon for p in points if p.horizon >= 20})
     if len(horizons) < 2:
@@ -272,7 +272,7 @@ def _sparse_growth(points: list) -> str:
         array = np.array(growth)
         parts.append(f"{name} median {np.median(array):.2f}x (range {array.min():.2f}x to "
                      f"{array.max():.2f}x)")
-    return (f"sparse back ends, time per QP solved, T = {long} over T = {short} (horizon "
+    return (f"sparse back ends, hard QP alone, T = {long} over T = {short} (horizon "
             f"ratio {long / short:.0f}): " + "; ".join(parts))
 
 
