@@ -185,7 +185,7 @@ def test_piqp_settings_are_checked():
         make("piqp", 10, "trajectory", "hard", solver_settings=[("max_iter", 3)])
 
 
-def test_auto_picks_daqp_for_hard_qps_and_clarabel_for_long_soft_ones():
+def test_auto_picks_daqp_for_hard_qps_and_piqp_for_long_soft_ones():
     for horizon in (10, 40, 60, 61, 80):
         for mode in ("hard", "soft", "recovery"):
             mpc = make("auto", horizon, "trajectory", mode)
