@@ -274,6 +274,9 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--output", type=Path, default=None,
                        help="--scaling: folder for scaling.csv, scaling.md, scaling.png")
     bench.add_argument("--no-plot", action="store_true", help="--scaling: no figure")
+    bench.add_argument("--family", choices=("straight", "goal"), default="straight",
+                       help="--scaling: instances whose reference runs straight on (the "
+                            "issue's grid) or stops at a goal inside the arena")
     bench.add_argument("--no-policy", action="store_true",
                        help="--scaling: skip the policy (SB3 vs numpy) timings")
     return parser
@@ -446,7 +449,7 @@ def _bench_scaling(args: argparse.Namespace) -> int:
         overrides["steps"] = max(2, args.steps)
     grid = replace(grid, **overrides)
     print(run_scaling(grid, seed=args.seed, output=args.output, plot=not args.no_plot,
-                      policy=not args.no_policy))
+                      policy=not args.no_policy, family=args.family))
     return 0
 
 

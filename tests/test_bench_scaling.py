@@ -65,3 +65,15 @@ def test_grids_and_the_reference_class():
         ScalingGrid(horizons=(10, 0))
     with pytest.raises(InvalidParameterError, match="steps"):
         ScalingGrid(steps=1)
+
+
+def test_the_goal_family_keeps_the_reference_inside_the_arena():
+    straight = make_scaling_instances(30, 3, 80, 20, np.random.default_rng(4))
+    goal = make_scaling_instances(30, 3, 80, 20, np.random.default_rng(4), family="goal")
+    assert max(i.reference_states[:, 0].max() for i in straight) > 20.0  # runs far out
+    assert max(i.reference_states[1:, 0].max() for i in goal) <= 4.5 + 1e-12
+    # the same draws: the first step of each family starts from the same state
+    assert np.array_equal(straight[0].x0, goal[0].x0)
+    assert np.array_equal(straight[0].samples, goal[0].samples)
+    with pytest.raises(InvalidParameterError, match="family"):
+        make_scaling_instances(2, 1, 10, 5, np.random.default_rng(0), family="curvy")

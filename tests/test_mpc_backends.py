@@ -1,4 +1,4 @@
-"""Every fast back end (Clarabel sparse, DAQP condensed, ``"auto"``) equals the CVXPY
+"""Every fast back end (Clarabel and PIQP sparse, DAQP condensed, ``"auto"``) equals the CVXPY
 reference at T = 10, 20, 40 and 80, for every objective and mode; DAQP's warm-started
 model returns what a fresh one returns; infeasible QPs give Clarabel's statuses.
 
@@ -18,11 +18,12 @@ from filters.mpc.filter import AUTO_DAQP_MAX_INPUTS, auto_backend
 
 pytest.importorskip("cvxpy")
 pytest.importorskip("daqp")
+pytest.importorskip("piqp")
 
 TS = 0.2
 A, B, C = double_integrator(TS)
 ARENA = 5.0
-FAST = ["clarabel", "daqp", "auto"]
+FAST = ["clarabel", "daqp", "piqp", "auto"]
 OBJECTIVES = ["trajectory", "first_input"]
 MODES = ["hard", "soft", "recovery", "paper"]
 HORIZONS = [10, 20, pytest.param(40, marks=pytest.mark.slow),
@@ -116,7 +117,9 @@ def test_every_backend_equals_the_cvxpy_reference(horizon, objective, mode):
                                            err_msg=name)
             if ours.slack is not None and theirs.slack is not None:
                 np.testing.assert_allclose(ours.slack, theirs.slack, atol=1e-4, err_msg=name)
-            assert ours.bound_slack == pytest.approx(theirs.bound_slack, abs=1e-4)
+            # a sum of up to 2 T arena violations (tens of m for a braking plan outside
+            # the arena at T = 80): 1e-5 relative on top of the 1e-4 m absolute
+            assert ours.bound_slack == pytest.approx(theirs.bound_slack, rel=1e-5, abs=1e-4)
     assert statuses  # something was compared
     if mode == "hard":
         assert FilterStatus.OPTIMAL in statuses
@@ -143,7 +146,7 @@ def test_daqp_update_equals_rebuild(horizon, objective, mode, warm):
         assert updated.status == rebuilt.status
         assert updated.solver_status == rebuilt.solver_status
         np.testing.assert_allclose(updated.inputs, rebuilt.inputs, rtol=0,
-                                   atol=1e-8 if warm else 0.0)
+                                   atol=1e-7 if warm else 0.0)
         if not warm:
             assert updated.iterations == rebuilt.iterations
 
@@ -151,7 +154,7 @@ def test_daqp_update_equals_rebuild(horizon, objective, mode, warm):
 @pytest.mark.parametrize("fallback", ["soft", "paper"])
 def test_infeasible_qp_gives_clarabels_status(fallback):
     statuses = {}
-    for name in ("clarabel", "daqp"):
+    for name in ("clarabel", "daqp", "piqp"):
         mpc = make(name, 10, "trajectory", "paper" if fallback == "paper" else "hard")
         rng = np.random.default_rng(3)
         case = instance(rng, 10, "hard")
@@ -166,19 +169,38 @@ def test_infeasible_qp_gives_clarabels_status(fallback):
             assert second.status is FilterStatus.SHIFTED
         else:
             assert second.status in (FilterStatus.SOFT, FilterStatus.RECOVERY)
-    assert statuses["daqp"] == statuses["clarabel"]
+    assert statuses["daqp"] == statuses["clarabel"] == statuses["piqp"]
 
 
-def test_auto_picks_daqp_for_short_horizons_and_clarabel_for_long_ones():
-    for horizon in (10, 40, 60):
-        assert make("auto", horizon, "trajectory", "hard").backend == "daqp"
-    assert make("auto", 61, "trajectory", "hard").backend == "clarabel"
+def test_piqp_settings_are_checked():
+    from filters.errors import InvalidParameterError, InvalidTypeError
+
+    tuned = make("piqp", 10, "trajectory", "hard", solver_settings={"max_iter": 100})
+    assert tuned._primary.solver.settings.max_iter == 100
+    with pytest.raises(InvalidParameterError, match="no_such"):
+        make("piqp", 10, "trajectory", "hard", solver_settings={"no_such": 1})
+    with pytest.raises(InvalidParameterError, match="max_iter"):
+        make("piqp", 10, "trajectory", "hard", solver_settings={"max_iter": "many"})
+    with pytest.raises(InvalidTypeError, match="solver_settings"):
+        make("piqp", 10, "trajectory", "hard", solver_settings=[("max_iter", 3)])
+
+
+def test_auto_picks_daqp_for_hard_qps_and_piqp_for_long_soft_ones():
+    for horizon in (10, 40, 60, 61, 80):
+        for mode in ("hard", "soft", "recovery"):
+            mpc = make("auto", horizon, "trajectory", mode)
+            long = horizon * 2 > AUTO_DAQP_MAX_INPUTS
+            assert mpc.backend == ("piqp" if mode == "soft" and long else "daqp")
+            assert mpc.recovery_backend == ("piqp" if long else "daqp")
+            assert auto_backend(mpc.problem) == mpc.backend
     assert AUTO_DAQP_MAX_INPUTS == 120
-    problem = make("auto", 80, "trajectory", "hard").problem
-    assert auto_backend(problem) == "clarabel"
+    assert make("auto", 80, "trajectory", "paper").recovery_backend is None
+    # the lazy rows start above LAZY_MIN_INPUTS inputs
+    assert not make("auto", 20, "trajectory", "hard")._primary.lazy
+    assert make("auto", 21, "trajectory", "hard")._primary.lazy
     # Clarabel settings with "auto" mean Clarabel.
-    assert make("auto", 10, "trajectory", "hard",
-                solver_settings={"max_iter": 50}).backend == "clarabel"
+    tuned = make("auto", 10, "trajectory", "hard", solver_settings={"max_iter": 50})
+    assert tuned.backend == tuned.recovery_backend == "clarabel"
     # The default is "auto".
     kwargs = filter_kwargs(10, 1)
     assert MPCSafetyFilter(A, B, C, **kwargs).backend == "daqp"
@@ -229,3 +251,18 @@ def test_daqp_iteration_limit_is_a_failure_not_an_exception():
             assert result.fallback
             return
     pytest.fail("no step hit DAQP's iteration limit of 1")
+
+
+@pytest.mark.parametrize("mode", ["hard", "soft", "recovery"])
+def test_piqp_update_equals_rebuild(mode):
+    """A PIQP solver updated step after step answers as one set up for that step alone."""
+    persistent = make("piqp", 20, "trajectory", mode, skip_feasible_reference=False)
+    rng = np.random.default_rng([9, MODES.index(mode)])
+    for _ in range(6):
+        case = instance(rng, 20, mode)
+        persistent.reset()
+        updated = solve(persistent, case)
+        rebuilt = solve(make("piqp", 20, "trajectory", mode, skip_feasible_reference=False),
+                        case)
+        assert updated.status == rebuilt.status
+        np.testing.assert_allclose(updated.inputs, rebuilt.inputs, rtol=0, atol=1e-9)

@@ -105,8 +105,12 @@ def test_results_share_no_memory_with_the_buffers_reused_by_later_steps(instance
 
 
 def test_daqp_step_data_equals_its_formulas(instances):
+    """The whitened condensed QP (filters.mpc.condensed) against its formulas: H = U U'
+    with U upper triangular, f_z = U^{-1} f, every row a' u written as a' U^{-T} z, the
+    bounds shifted by the current state."""
     mpc = _filter(soft=False, terminal=True)
     p, backend = mpc.problem, mpc._primary
+    qp = backend.qp
     phi, gamma = p.rollout
     n, m, nu = p.n, p.m, T * p.m
     R_bar = np.zeros((nu, nu))
@@ -115,26 +119,40 @@ def test_daqp_step_data_equals_its_formulas(instances):
     Q_bar = np.zeros((T * n, T * n))
     for t, Qt in enumerate(p.state_weights):
         Q_bar[t * n:(t + 1) * n, t * n:(t + 1) * n] = Qt
+    H = 2 * (R_bar + gamma.T @ Q_bar @ gamma)
+    U = qp.z_of_u.T
+    np.testing.assert_allclose(U @ U.T, H, rtol=1e-12, atol=1e-10)
+    assert np.array_equal(np.triu(U), U) and np.array_equal(np.tril(qp.u_of_z), qp.u_of_z)
+    np.testing.assert_allclose(qp.u_of_z @ U.T, np.eye(nu), atol=1e-12)
+    G, g = p.terminal_set
     for case in instances[:15]:
         mpc.solve(case.x0, case.reference_states, (case.normals, case.offsets))
         step = mpc._last_step
-        f = backend._data(step)
+        rows = qp.step_rows(step.x0, step.ref_states, step.ref_inputs, step.normals,
+                            step.offsets)
         x_ref = case.reference_states[1:].reshape(-1)
-        expected_f = 2 * gamma.T @ Q_bar @ (phi @ case.x0 - x_ref)
-        np.testing.assert_allclose(f, expected_f, rtol=1e-12, atol=1e-10)
-        hs0, n_fixed = backend._hs0, backend._n_fixed
+        f = 2 * gamma.T @ Q_bar @ (phi @ case.x0 - x_ref)
+        np.testing.assert_allclose(U @ rows.f, f, rtol=1e-12, atol=1e-10)
         for t in range(T):
             C_gamma_t = p.C @ gamma[t * n:(t + 1) * n]
             C_phi_t = p.C @ phi[t * n:(t + 1) * n]
             for i in range(K):
                 a = case.normals[i, t]
-                row = n_fixed + t * K + i
-                np.testing.assert_allclose(backend._A[row], a @ C_gamma_t, atol=1e-13)
-                assert backend._upper[nu + row] == pytest.approx(
+                row = qp.halfspace_rows(rows, np.array([t]), np.array([i]))[0]
+                np.testing.assert_allclose(row @ U.T, a @ C_gamma_t, atol=1e-12)
+                assert rows.hs_upper[t, i] == pytest.approx(
                     case.offsets[i, t] - a @ C_phi_t @ case.x0, abs=1e-12)
-        arena_upper = backend._upper[nu:hs0][:2 * T]
+        # fixed rows: the input box, the arena per step and axis, the terminal rows
+        inputs, arena, terminal = qp.row_slices
+        np.testing.assert_allclose(qp.fixed_rows[inputs] @ U.T, np.eye(nu), atol=1e-12)
+        np.testing.assert_allclose(rows.upper[inputs], 5.0)
         positions0 = (phi @ case.x0).reshape(T, n)[:, :2]
-        np.testing.assert_allclose(arena_upper, (5.0 - positions0).ravel(), atol=1e-12)
+        np.testing.assert_allclose(rows.upper[arena], (5.0 - positions0).ravel(), atol=1e-12)
+        np.testing.assert_allclose(rows.lower[arena], (-5.0 - positions0).ravel(), atol=1e-12)
+        np.testing.assert_allclose(qp.fixed_rows[terminal] @ U.T, G @ gamma[(T - 1) * n:],
+                                   atol=1e-12)
+        np.testing.assert_allclose(rows.upper[terminal], g - G @ phi[(T - 1) * n:] @ case.x0,
+                                   atol=1e-12)
 
 
 def test_parse_halfspaces_fast_path_agrees_with_the_full_check():

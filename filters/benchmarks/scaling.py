@@ -21,13 +21,26 @@ the occasional infeasible step and the fallbacks that follow; an episode ends at
 the far side, after 40 steps, on a collision, or when the filter had to brake (as
 an environment episode would end). The statuses are reported with the times.
 
-Ours is the default ``backend="auto"`` (DAQP for ``T m <= 120``, else Clarabel; the
-point reports which); each explicit back end (``"daqp"``, ``"clarabel"``) then solves
-the same recorded halfspaces in a pass of its own, so that the table shows all three
-and how far their inputs are apart. The filters are timed in separate passes over the
-same instances (interleaved, each evicts the other's data from the caches). Every
-number is a median over the steps of one run; the ratios compare numbers of the same
-run.
+Two instance families (``family=``):
+
+* ``"straight"`` (the default, the grid issue 12 measured): the reference runs on at
+  1.5 m/s for the whole horizon, 24 m at T = 80, far outside the [-5, 5] m arena, and
+  the constant-velocity obstacle predictions leave it too; most long-horizon QPs are
+  then infeasible (the recovery QP is solved too), and their recovery QPs violate
+  hundreds of rows;
+* ``"goal"``: the same episodes, but the reference stops at a goal inside the arena
+  (x = 4.5 m on the ego's lane): the long-horizon QPs a real planner would send.
+
+Ours is the default ``backend="auto"`` (DAQP for the hard QP; DAQP or PIQP for the
+recovery QP, by size; the point reports which); each explicit back end (``"daqp"``,
+``"clarabel"``, ``"piqp"``) then solves
+the same recorded halfspaces in a pass of its own, so that the table shows them all
+and how far their inputs are apart; the sparse passes (Clarabel, PIQP) also time their
+hard QP alone at every step ("per QP": one kind of QP at every size, so that its growth
+with T is the back end's, not that of the share of recovery QPs). The filters are timed in
+separate passes over the same instances (interleaved, each evicts the other's data from
+the caches). Every number is a median over the steps of one run; the ratios compare
+numbers of the same run.
 """
 
 from __future__ import annotations
@@ -45,8 +58,10 @@ import numpy as np
 from filters import Disc, FilterStatus, MPCSafetyFilter, safe_halfspaces
 from filters.benchmarks.filter_qp import RADIUS, SPEED, TS, double_integrator, filter_kwargs
 from filters.errors import InvalidParameterError
+from filters.mpc.result import StepData
 
 __all__ = [
+    "FAMILIES",
     "FULL_GRID",
     "QUICK_GRID",
     "ScalingGrid",
@@ -62,6 +77,9 @@ __all__ = [
 ]
 
 PREDICTION_STD = 0.1  # m per axis, the paper's N(0, 0.01 I) prediction noise
+GOAL_X = 4.5  # m, where the "goal" reference stops
+#: Instance families of :func:`make_scaling_instances` (module docstring).
+FAMILIES = ("straight", "goal")
 EPISODE_STEPS = 40  # steps per crossing episode (8 s)
 
 
@@ -128,12 +146,19 @@ class Instance:
     new_episode: bool
 
 
-def _reference(x: np.ndarray, lane: float, horizon: int) -> np.ndarray:
-    """Straight-line reference at :data:`SPEED` along +x on the ego's lane; row 0 is ``x``."""
+def _reference(x: np.ndarray, lane: float, horizon: int, kind: str = "straight") -> np.ndarray:
+    """Straight-line reference at :data:`SPEED` along +x on the ego's lane; row 0 is ``x``.
+
+    ``kind="goal"``: it stops at ``x =`` :data:`GOAL_X` (zero velocity from there on).
+    """
     reference = np.empty((horizon + 1, 4))
     reference[:, 0] = x[0] + SPEED * TS * np.arange(horizon + 1)
     reference[:, 1] = lane
     reference[:, 2:] = (SPEED, 0.0)
+    if kind == "goal":
+        stopped = reference[:, 0] >= GOAL_X
+        reference[stopped, 0] = max(GOAL_X, x[0])
+        reference[stopped, 2] = 0.0
     reference[0] = x
     return reference
 
@@ -149,14 +174,23 @@ def obstacle_area(n_obstacles: int) -> tuple[float, float, float]:
 
 
 def make_scaling_instances(
-    n_steps: int, n_obstacles: int, horizon: int, n_samples: int, rng: np.random.Generator
+    n_steps: int, n_obstacles: int, horizon: int, n_samples: int, rng: np.random.Generator,
+    *, family: str = "straight",
 ) -> list[Instance]:
     """Crossing episodes with the fast DR-CVaR filter in the loop; record each step's data.
 
     The episode set-up is :func:`filters.benchmarks.filter_qp.make_instances`'s, with
     real prediction samples instead of its fixed risk margins, and an obstacle area
-    that widens with the number of obstacles (see the module docstring).
+    that widens with the number of obstacles (see the module docstring). ``family`` is
+    one of :data:`FAMILIES`; both draw the same random numbers.
+
+    Raises
+    ------
+    InvalidParameterError
+        If ``family`` is not one of :data:`FAMILIES`.
     """
+    if family not in FAMILIES:
+        raise InvalidParameterError(f"family must be one of {FAMILIES}, got {family!r}")
     A, B, C = double_integrator()
     mpc = MPCSafetyFilter(A, B, C, **filter_kwargs(horizon, n_obstacles))
     ego_shape, shapes = Disc(RADIUS), [Disc(RADIUS)] * n_obstacles
@@ -176,14 +210,14 @@ def make_scaling_instances(
             heading = rng.uniform(0.0, 2.0 * np.pi, n_obstacles)
             velocities = speed[:, None] * np.column_stack([np.cos(heading), np.sin(heading)])
             step_in_episode = 0
-        reference = _reference(x, lane, horizon)
+        reference_states = _reference(x, lane, horizon, family)
         nominal = obstacles[:, None, :] + velocities[:, None, :] * steps[None]  # (n, T, 2)
         samples = nominal[:, None] + PREDICTION_STD * rng.standard_normal(
             (n_obstacles, n_samples, horizon, 2))
-        instances.append(Instance(x.copy(), reference, samples, new_episode))
-        hs = safe_halfspaces(reference[1:, :2], samples, ego_shape=ego_shape,
+        instances.append(Instance(x.copy(), reference_states, samples, new_episode))
+        hs = safe_halfspaces(reference_states[1:, :2], samples, ego_shape=ego_shape,
                              obstacle_shapes=shapes, risk="dr_cvar", ego_velocity=x[2:])
-        result = mpc.solve(x, reference, hs)
+        result = mpc.solve(x, reference_states, hs)
         x = A @ x + B @ result.inputs[0]
         obstacles = obstacles + TS * velocities
         step_in_episode += 1
@@ -214,10 +248,14 @@ class ScalingPoint:
     agreement: float  # share of steps with the same status
     max_input_difference: float  # m/s^2, over the steps where both were optimal
     statuses: dict[str, int] = field(default_factory=dict)  # ours
-    backend: str = ""  # what backend="auto" picked
+    backend: str = ""  # what backend="auto" picked (hard QP, and recovery QP if other)
     daqp_qp_ms: float = float("nan")  # backend="daqp", QP (solve call) median
     clarabel_qp_ms: float = float("nan")  # backend="clarabel", QP median
     daqp_clarabel_difference: float = float("nan")  # max |u_daqp - u_clarabel|, both optimal
+    clarabel_per_qp_ms: float = float("nan")  # backend="clarabel": its hard QP alone
+    piqp_qp_ms: float = float("nan")  # backend="piqp", QP median
+    piqp_per_qp_ms: float = float("nan")  # backend="piqp": its hard QP alone
+    family: str = "straight"  # instance family (FAMILIES)
 
     def as_row(self) -> dict:
         """Flat ``dict`` for CSV (statuses as ``name:count`` pairs)."""
@@ -227,7 +265,8 @@ class ScalingPoint:
 
 
 def benchmark_point(
-    n_obstacles: int, horizon: int, n_samples: int, *, steps: int = 100, seed: int = 0
+    n_obstacles: int, horizon: int, n_samples: int, *, steps: int = 100, seed: int = 0,
+    family: str = "straight",
 ) -> ScalingPoint:
     """Time halfspaces, QP, step and the CVXPY reference at one grid point.
 
@@ -239,9 +278,12 @@ def benchmark_point(
         Filter steps (recorded instances) timed.
     seed
         Seed of the ``numpy.random.Generator`` that draws the episodes and samples.
+    family
+        Instance family, one of :data:`FAMILIES`.
     """
     rng = np.random.default_rng([seed, n_obstacles, horizon, n_samples])
-    instances = make_scaling_instances(steps, n_obstacles, horizon, n_samples, rng)
+    instances = make_scaling_instances(steps, n_obstacles, horizon, n_samples, rng,
+                                       family=family)
     A, B, C = double_integrator()
     kwargs = filter_kwargs(horizon, n_obstacles)
     ego_shape, shapes = Disc(RADIUS), [Disc(RADIUS)] * n_obstacles
@@ -291,7 +333,9 @@ def benchmark_point(
 
     backend_ms: dict[str, list[float]] = {}
     backend_inputs: dict[str, list] = {}
-    for name in ("daqp", "clarabel"):
+    per_qp_ms: dict[str, list[float]] = {"clarabel": [], "piqp": []}
+    zero_inputs = np.zeros((horizon, B.shape[1]))
+    for name in ("daqp", "clarabel", "piqp"):
         explicit = MPCSafetyFilter(A, B, C, backend=name, **kwargs)
         backend_ms[name], backend_inputs[name] = [], []
         for instance, hs in zip(instances, recorded, strict=True):
@@ -302,6 +346,12 @@ def benchmark_point(
             backend_ms[name].append(1e3 * (time.perf_counter() - begin))
             backend_inputs[name].append(
                 answer.inputs if answer.status == FilterStatus.OPTIMAL else None)
+            if name in per_qp_ms:  # the hard QP alone, the same QP at every step
+                step = StepData(instance.x0, instance.reference_states[1:], zero_inputs,
+                                np.asarray(hs.normals), np.asarray(hs.offsets))
+                begin = time.perf_counter()
+                explicit._primary.solve(step)
+                per_qp_ms[name].append(1e3 * (time.perf_counter() - begin))
     between = [float(np.max(np.abs(a - b))) for a, b in zip(
         backend_inputs["daqp"], backend_inputs["clarabel"], strict=True)
         if a is not None and b is not None]
@@ -313,20 +363,36 @@ def benchmark_point(
         step_p90_ms=float(np.percentile(step_ms, 90)), cvxpy_ms=cvxpy_median,
         cvxpy_compile_ms=compile_ms, ratio=cvxpy_median / step, qp_ratio=cvxpy_median / qp,
         agreement=same / len(instances), max_input_difference=difference,
-        statuses=dict(statuses), backend=ours.backend,
+        statuses=dict(statuses), backend=_backend_label(ours),
         daqp_qp_ms=float(np.median(backend_ms["daqp"])),
         clarabel_qp_ms=float(np.median(backend_ms["clarabel"])),
         daqp_clarabel_difference=max(between) if between else float("nan"),
+        clarabel_per_qp_ms=_median(per_qp_ms["clarabel"]),
+        piqp_qp_ms=float(np.median(backend_ms["piqp"])),
+        piqp_per_qp_ms=_median(per_qp_ms["piqp"]),
+        family=family,
     )
 
 
+def _median(values: list[float]) -> float:
+    return float(np.median(values)) if values else float("nan")
+
+
+def _backend_label(mpc: MPCSafetyFilter) -> str:
+    """``"daqp"``, or ``"daqp/clarabel"`` when the recovery QP has another back end."""
+    recovery = mpc.recovery_backend
+    return mpc.backend if recovery in (None, mpc.backend) else f"{mpc.backend}/{recovery}"
+
+
 def benchmark_scaling(
-    grid: ScalingGrid = FULL_GRID, *, seed: int = 0, progress: bool = False
+    grid: ScalingGrid = FULL_GRID, *, seed: int = 0, progress: bool = False,
+    family: str = "straight",
 ) -> list[ScalingPoint]:
     """Run :func:`benchmark_point` at every point of ``grid`` (see the module docstring)."""
     points = []
     for n_obstacles, horizon, n_samples in grid.points:
-        point = benchmark_point(n_obstacles, horizon, n_samples, steps=grid.steps, seed=seed)
+        point = benchmark_point(n_obstacles, horizon, n_samples, steps=grid.steps, seed=seed,
+                                family=family)
         if progress:
             print(f"  obstacles {n_obstacles:>2}, T {horizon:>2}, N_s {n_samples:>4}: step "
                   f"{point.step_ms:.3f} ms, CVXPY {point.cvxpy_ms:.3f} ms ({point.ratio:.1f}x)",
@@ -339,9 +405,9 @@ def format_scaling_table(points: Sequence[ScalingPoint]) -> str:
     """The ratio table in markdown (medians in ms; ratios of the same run)."""
     lines = [
         "| obstacles | T | N_s | halfspaces | QP | step | CVXPY QP | CVXPY / step | "
-        "CVXPY / QP | auto picks | QP daqp | QP clarabel | max abs u_daqp - u_clarabel | "
-        "statuses (ours) | same status |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "CVXPY / QP | auto picks | QP daqp | QP clarabel | QP piqp | per QP clarabel | "
+        "per QP piqp | max abs u_daqp - u_clarabel | statuses (ours) | same status |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for p in points:
         statuses = ", ".join(f"{k} {v}" for k, v in sorted(p.statuses.items()))
@@ -349,7 +415,9 @@ def format_scaling_table(points: Sequence[ScalingPoint]) -> str:
             f"| {p.n_obstacles} | {p.horizon} | {p.n_samples} | {p.halfspaces_ms:.3f} | "
             f"{p.qp_ms:.3f} | {p.step_ms:.3f} | {p.cvxpy_ms:.2f} | {p.ratio:.1f}x | "
             f"{p.qp_ratio:.1f}x | {p.backend} | {p.daqp_qp_ms:.3f} | {p.clarabel_qp_ms:.3f} | "
-            f"{p.daqp_clarabel_difference:.1e} | {statuses} | {100 * p.agreement:.0f}% |"
+            f"{p.piqp_qp_ms:.3f} | {p.clarabel_per_qp_ms:.3f} | {p.piqp_per_qp_ms:.3f} | "
+            f"{p.daqp_clarabel_difference:.1e} | {statuses} | "
+            f"{100 * p.agreement:.0f}% |"
         )
     return "\n".join(lines)
 

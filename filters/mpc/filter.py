@@ -49,9 +49,10 @@ __all__ = [
 ]
 
 #: Back ends by name (the CVXPY one imports CVXPY when built); ``"auto"`` picks DAQP or
-#: Clarabel by problem size (see :func:`auto_backend`).
-BACKENDS = ("auto", "clarabel", "daqp", "cvxpy")
-#: ``backend="auto"`` uses DAQP while the condensed QP has at most this many inputs ``T m``.
+#: PIQP per QP (see :func:`auto_backend`).
+BACKENDS = ("auto", "clarabel", "daqp", "piqp", "cvxpy")
+#: ``backend="auto"`` solves QPs with soft rows with DAQP while the condensed QP has at
+#: most this many inputs ``T m``, else with PIQP (hard QPs: DAQP; see :func:`auto_backend`).
 AUTO_DAQP_MAX_INPUTS = 120
 #: What to do when the hard QP fails.
 FALLBACKS = ("soft", "paper")
@@ -67,30 +68,30 @@ _vecdot = getattr(np, "vecdot", None) or (lambda a, b: np.einsum("...d,...d->...
 
 
 def auto_backend(problem: MPCProblem) -> str:
-    r"""The back end ``backend="auto"`` picks: ``"daqp"`` if ``T m <= 120``, else ``"clarabel"``.
+    r"""The back end ``backend="auto"`` picks for one QP of the filter.
 
-    The condensed QP that DAQP solves has :math:`T m` variables and its per-step work
-    grows like :math:`(T m)^2` times the rows (dense), while the sparse Clarabel QP
-    grows about linearly in :math:`T`. Measured on :mod:`filters.benchmarks.filter_qp`'s
-    crossing instances (CPU ms of one ``solve``, hard steps, DAQP / Clarabel, on the
-    2-core machine of this project, under load):
+    * A QP without soft rows (the hard QP): ``"daqp"`` at every size. DAQP solves the
+      whitened condensed QP (identity Hessian), and above
+      :data:`~filters.mpc.backends.daqp.LAZY_MIN_INPUTS` inputs with lazy (screened)
+      rows warm-started from the previous step, so its work grows with the rows that
+      matter, not with all of them; an infeasible hard QP is detected in a few
+      iterations.
+    * A QP with soft rows (``soft=True``, and the recovery QP): ``"daqp"`` while
+      :math:`T m \le 120` (:data:`AUTO_DAQP_MAX_INPUTS`), else ``"piqp"`` (a sparse
+      interior-point method). Every violated soft row enters an active-set method's
+      working set, one per iteration; strongly infeasible long-horizon steps violate
+      hundreds of rows (the scaling grid's T = 80 steps: DAQP took thousands of
+      iterations, up to 100x an interior-point method's time), while an interior-point
+      method's iterations do not depend on how many rows end up violated. On those
+      recovery QPs PIQP took 0.6-0.7x Clarabel's time (T = 40 and 80, 1 to 20
+      obstacles, the same answers to the solvers' tolerances).
 
-    ========  ===========  ===========  ===========  ===========
-    obst.     T = 10       T = 20       T = 40       T = 80
-    ========  ===========  ===========  ===========  ===========
-    1         0.17 / 0.46  0.44 / 1.01  0.71 / 1.91  3.0 / 3.8
-    3         0.18 / 0.50  0.51 / 1.06  1.18 / 2.48  (soft steps)
-    10        0.26 / 0.76  0.67 / 1.76  2.2 / 3.4    (soft steps)
-    ========  ===========  ===========  ===========  ===========
-
-    DAQP wins up to T = 40 at every obstacle count; at T = 80 (160 inputs) they are
-    close with one obstacle and Clarabel wins with more rows, so the switch sits
-    between, at ``T m = 120`` (:data:`AUTO_DAQP_MAX_INPUTS`; T = 60 for the planar ego).
-    The recovery QP (soft rows) follows the same choice; with DAQP it is solved as DAQP
-    soft constraints, 3-4x faster than Clarabel's at T = 10 (see
-    :mod:`filters.mpc.backends.daqp`).
+    The measurements behind both rules are printed by ``safe-nav bench --scaling``
+    (columns for each explicit back end).
     """
-    return "daqp" if problem.horizon * problem.m <= AUTO_DAQP_MAX_INPUTS else "clarabel"
+    if problem.soft_rows and problem.horizon * problem.m > AUTO_DAQP_MAX_INPUTS:
+        return "piqp"
+    return "daqp"
 
 
 def _make_backend(name: str, problem: MPCProblem, settings: Mapping[str, Any] | None) -> Any:
@@ -102,6 +103,10 @@ def _make_backend(name: str, problem: MPCProblem, settings: Mapping[str, Any] | 
         from filters.mpc.backends.daqp import DAQPBackend
 
         return DAQPBackend(problem, solver_settings=settings)
+    if name == "piqp":
+        from filters.mpc.backends.piqp import PIQPBackend
+
+        return PIQPBackend(problem, solver_settings=settings)
     from filters.mpc.backends.cvxpy import CVXPYBackend  # imports cvxpy
 
     return CVXPYBackend(problem, solver_settings=settings)
@@ -148,8 +153,8 @@ class MPCSafetyFilter:
     solver_settings
         Back-end settings: Clarabel settings to override for ``backend="clarabel"``
         (and for ``"auto"``, which then always picks Clarabel: the settings are
-        Clarabel's); DAQP settings for ``"daqp"``; for ``backend="cvxpy"``,
-        keywords of ``problem.solve``).
+        Clarabel's); DAQP settings for ``"daqp"``; PIQP settings for ``"piqp"``; for
+        ``backend="cvxpy"``, keywords of ``problem.solve``).
     skip_feasible_reference
         With ``reference_inputs``, return the unconstrained optimum without a QP when it
         meets every row exactly (``iterations`` 0, ``solve_time`` 0).
@@ -167,11 +172,13 @@ class MPCSafetyFilter:
         ``"soft"`` (default: the recovery QP, then braking) or ``"paper"`` (shift the
         last plan, then brake).
     backend
-        ``"auto"`` (default: DAQP for ``T m <= 120``, else Clarabel; see
-        :func:`auto_backend` for the measurements), ``"daqp"`` (the condensed QP,
-        dual active set; soft rows as DAQP soft constraints),
-        ``"clarabel"`` (the sparse QP built once) or ``"cvxpy"`` (the readable
-        reference; imports CVXPY). :attr:`backend` tells which one ``"auto"`` picked.
+        ``"auto"`` (default: DAQP for the hard QP; for QPs with soft rows DAQP while
+        ``T m <= 120``, else PIQP; see :func:`auto_backend`), ``"daqp"`` (the
+        whitened condensed QP, dual active set, lazy rows for long horizons; soft rows as
+        DAQP soft constraints), ``"clarabel"`` (the sparse QP built once), ``"piqp"``
+        (the same sparse QP in PIQP) or ``"cvxpy"`` (the readable reference; imports
+        CVXPY). :attr:`backend` and :attr:`recovery_backend` tell which ones ``"auto"``
+        picked.
 
     Raises
     ------
@@ -238,8 +245,14 @@ class MPCSafetyFilter:
         self._soft = bool(soft)
         self._skip = bool(skip_feasible_reference)
         self._fallback = fallback
+        recovery_problem = problem.with_soft_rows({"halfspaces", "bounds"})
+        recovery_backend = backend
         if backend == "auto":
-            backend = "clarabel" if solver_settings is not None else auto_backend(problem)
+            if solver_settings is not None:
+                backend = recovery_backend = "clarabel"
+            else:
+                backend = auto_backend(problem)
+                recovery_backend = auto_backend(recovery_problem)
         self._backend_name = backend
         T, n, m = problem.horizon, problem.n, problem.m
         if brake_gain is None:
@@ -249,9 +262,7 @@ class MPCSafetyFilter:
         self._primary = _make_backend(backend, problem, solver_settings)
         self._recovery = None
         if fallback == "soft":
-            self._recovery = _make_backend(
-                backend, problem.with_soft_rows({"halfspaces", "bounds"}), solver_settings
-            )
+            self._recovery = _make_backend(recovery_backend, recovery_problem, solver_settings)
         # Precomputed for the per-step checks (a few NumPy calls per step).
         phi, gamma = problem.rollout
         self._phi, self._gamma = matvec_operator(phi), matvec_operator(gamma)
@@ -328,8 +339,14 @@ class MPCSafetyFilter:
 
     @property
     def backend(self) -> str:
-        """The back end: ``"daqp"``, ``"clarabel"`` or ``"cvxpy"`` (``"auto"`` resolved)."""
+        """The hard QP's back end: ``"daqp"``, ``"clarabel"``, ``"piqp"`` or ``"cvxpy"``
+        (``"auto"`` resolved)."""
         return self._backend_name
+
+    @property
+    def recovery_backend(self) -> str | None:
+        """The recovery QP's back end (``"auto"`` resolved), ``None`` with ``fallback="paper"``."""
+        return None if self._recovery is None else self._recovery.name
 
     @property
     def input_bounds(self) -> tuple[np.ndarray, np.ndarray]:
@@ -354,9 +371,13 @@ class MPCSafetyFilter:
         return self._qp_solves
 
     def reset(self) -> None:
-        """Forget the stored plan and the failure count (call at episode start)."""
+        """Forget the stored plan, the failure count and the back ends' warm starts (call
+        at episode start: a reset filter answers as a new one does)."""
         self._plan = None
         self._failures = 0
+        for backend in (self._primary, self._recovery):
+            if hasattr(backend, "reset"):
+                backend.reset()
 
     def braking_input(self, x: np.ndarray) -> np.ndarray:
         """Braking input at state ``x``, ``clip(-K x)`` to the input box, shape ``(m,)``."""

@@ -1,52 +1,62 @@
-r"""DAQP back end: the condensed (inputs-only) QP of an :class:`~filters.mpc.MPCProblem`.
+r"""DAQP back end: the whitened condensed QP of an :class:`~filters.mpc.MPCProblem`.
 
-DAQP (Arnström, Bemporad and Axehill, IEEE TAC 2022) is a dual active-set solver in C;
-on the small dense QPs of a short horizon it answers in tens of µs (update and solve:
-~25 µs at T = 10 with 3 obstacles, measured on this project's loaded 2-core machine).
+DAQP (Arnström, Bemporad and Axehill, IEEE TAC 2022) is a dual active-set solver in
+C. It solves the condensed QP of :mod:`filters.mpc.condensed` in whitened variables
+:math:`z = U^\top u` (identity Hessian): the input box, the arena and the terminal rows
+are constant rows, the halfspace rows :math:`a_{i,t}^\top W_t z` are written per step.
+With an identity Hessian DAQP uses the rows as given, so the per-step work is linear
+in the number of rows times :math:`T m` (a dense Hessian costs :math:`(T m)^2` per row).
 
-**Condensed form.** The states are eliminated with the prediction matrices of the
-problem (:attr:`MPCProblem.rollout`), :math:`X = \Phi x_0 + \Gamma u` with :math:`X =
-[x_1; \dots; x_T]`, so the variables are the inputs :math:`u \in \mathbb{R}^{T m}` only:
+**Lazy (screened) rows, exact** (``lazy=True``; the default for ``T m >``
+:data:`LAZY_MIN_INPUTS`). A long horizon has hundreds to thousands of rows, and a dual
+active-set method scans all of them at every iteration, while only tens are active. So:
 
-.. math::
+1. screen: keep the rows whose excess ``lhs - rhs`` at the unconstrained minimiser
+   :math:`z^\circ = -f_z`, or at the previous answer shifted by one step, is above
+   ``-SCREEN_MARGIN``;
+2. solve the QP with the kept rows only (the *relaxed* QP);
+3. evaluate every row at its answer (one matrix-vector product, see
+   :meth:`~filters.mpc.condensed.CondensedQP.excess`); add the violated ones and
+   solve again, until none is violated.
 
-    \min_u \ \tfrac12 u^\top H u + f^\top u, \qquad
-    H = 2 (\bar R + \Gamma^\top \bar Q \Gamma), \quad
-    f = -2 \bar R u^r + 2 \Gamma^\top \bar Q (\Phi x_0 - X^r),
+This is exact, not a heuristic. The relaxed QP has fewer rows, so its optimal cost is
+at most the full QP's; an answer that meets every row is feasible for the full QP
+with that cost, hence optimal (the QP is strictly convex: *the* optimum). If the
+relaxed hard QP is infeasible, so is the full one. For soft rows (the recovery QP,
+``soft=True``) the same holds: a dropped soft row that the answer meets costs no
+penalty. Every round adds at least one row, so the loop ends.
 
-(the cost (8) up to a constant; :math:`\bar R`, :math:`\bar Q` block diagonal), subject to
-
-* the input box as DAQP's simple bounds :math:`u_\text{low} \le u_t \le u_\text{high}`;
-* the arena :math:`y_\text{low} - C \Phi_t x_0 \le C \Gamma_t u \le y_\text{high} - C
-  \Phi_t x_0` (two-sided rows, one per step and finite axis);
-* the terminal rows :math:`G \Gamma_T u \le g - G \Phi_T x_0`;
-* the halfspaces :math:`a_{i,t}^\top C \Gamma_t u \le b_{i,t} - a_{i,t}^\top C \Phi_t x_0`
-  (disabled rows, ``0 @ y <= 1``, are zero rows that always hold).
-
-:math:`H`, the arena and terminal rows are built once; per step only the halfspace rows
-of the constraint matrix, the right-hand sides and ``f`` change (``daqp.Model.update``).
-Each solve starts from the empty active set (``warm_start=True`` starts from the
-previous one; it saved half an iteration and no measurable time, and a cold start
-keeps every step independent of the ones before). The work per step grows like
-:math:`(T m)^2` times the number of rows (DAQP's update forms :math:`A H^{-1/2}`), so
-for long horizons the sparse Clarabel back end is faster: see ``backend="auto"`` of
-:class:`~filters.mpc.MPCSafetyFilter`.
+**Warm start** (until :meth:`DAQPBackend.reset`, which the filter calls at episode
+start). In a closed loop the next step's QP is the last one shifted by one step, so
+the lazy path keeps (a) the previous answer, shifted, as a second screening point;
+(b) its active set, shifted (the rows of step :math:`t+1` become those of step
+:math:`t`, the last step keeps its own), which enters the first relaxed QP and starts
+DAQP there (``dual_start``); (c) after an infeasible QP, its rows, shifted, which
+usually contain the next step's conflict, so a run of infeasible steps is detected
+in one round. Each round starts from the previous round's active set. None of this
+changes the answer (the optimum of a strictly convex QP), only the work: on the
+scaling grid's T = 80 steps a warm start halved DAQP's iterations, and (c) cut an
+infeasible step's from hundreds to a median of 4-25.
 
 **Soft rows** (``soft=True``, and the recovery QP) are DAQP's soft constraints
 (sense 8) with the linear weight :math:`w = \rho` (``slack_penalty``) on each side and
 the reciprocal quadratic weight ``SOFT_RHO``: a violation :math:`s \ge 0` of a soft row
 costs :math:`\rho s + s^2 / (2\,\mathrm{SOFT\_RHO})`, the exact L1 penalty of the
-other back ends up to :math:`5 \cdot 10^{-7} s^2`. No slack variables are added (the
-Hessian stays the inputs' one); the slacks reported are the violations of the returned
-inputs. Checked against the CVXPY reference on the test instances: DAQP's penalised
-objective was never above CVXPY's (``SOFT_RHO`` = 1e4 or 1e6; 1e8 and more lost up to
-2e3 in it, numerically). Measured (CPU, loaded machine, T = 10, 3 obstacles, terminal
-set): steps that needed the recovery QP 0.38 ms with DAQP, 1.43 ms with Clarabel.
+other back ends up to :math:`5 \cdot 10^{-7} s^2`. No slack variables are added; the
+slacks reported are the violations of the returned inputs. Checked against the CVXPY
+reference on the test instances: DAQP's penalised objective was never above CVXPY's
+(``SOFT_RHO`` = 1e4 or 1e6; 1e8 and more lost up to 2e3 in it, numerically).
+
+Soft QPs with many violated rows are where an active-set method is slow: each violated
+row enters the active set, one per iteration, and DAQP's dual has them bounded by
+:math:`\rho`. With hundreds of violated rows (long horizons, strongly infeasible
+steps) an interior-point method is faster, which is why ``backend="auto"`` solves the
+recovery QP of long horizons with PIQP (see :func:`filters.mpc.filter.auto_backend`).
 
 **Statuses.** DAQP's exit flags are reported with Clarabel's names where one exists
-(``1`` -> ``"Solved"``, ``-1`` -> ``"PrimalInfeasible"``, ``-4`` -> ``"MaxIterations"``),
-so that the filter's statuses and fallbacks read the same for both back ends; other
-flags read ``"daqp exitflag N"``.
+(``1``, ``2`` -> ``"Solved"``, ``-1`` -> ``"PrimalInfeasible"``, ``-4`` ->
+``"MaxIterations"``), so that the filter's statuses and fallbacks read the same for
+every back end; other flags read ``"daqp exitflag N"``.
 """
 
 from __future__ import annotations
@@ -60,15 +70,30 @@ import numpy as np
 
 from filters.errors import InvalidParameterError, InvalidTypeError
 from filters.mpc._linalg import matvec_operator
+from filters.mpc.condensed import CondensedQP, StepRows
 from filters.mpc.problem import MPCProblem
 from filters.mpc.result import QPSolution, StepData
 
-__all__ = ["SOFT_RHO", "DAQPBackend", "daqp_settings"]
+__all__ = [
+    "ADD_TOLERANCE",
+    "LAZY_MIN_INPUTS",
+    "SCREEN_MARGIN",
+    "SOFT_RHO",
+    "DAQPBackend",
+    "daqp_settings",
+]
 
 #: DAQP exit flags by the Clarabel status name the filter reports for them.
 _STATUS = {1: "Solved", 2: "Solved", -1: "PrimalInfeasible", -4: "MaxIterations"}
 #: Reciprocal quadratic weight of the soft rows (see the module docstring).
 SOFT_RHO = 1e6
+#: ``lazy=None`` screens the rows when the condensed QP has more than this many inputs.
+LAZY_MIN_INPUTS = 40
+#: Rows whose excess at the screening points is above ``-SCREEN_MARGIN`` (m, or m/s²
+#: for input rows) enter the first relaxed QP.
+SCREEN_MARGIN = 0.25
+#: A dropped row violated by more than this (same units) at a relaxed answer is added.
+ADD_TOLERANCE = 1e-9
 
 
 def daqp_settings(overrides: Mapping[str, Any] | None) -> dict[str, Any]:
@@ -97,7 +122,7 @@ def daqp_settings(overrides: Mapping[str, Any] | None) -> dict[str, Any]:
 
 
 class DAQPBackend:
-    """The condensed QP of one :class:`~filters.mpc.MPCProblem`, as a DAQP model.
+    """The whitened condensed QP of one :class:`~filters.mpc.MPCProblem`, solved by DAQP.
 
     Parameters
     ----------
@@ -106,12 +131,13 @@ class DAQPBackend:
     solver_settings
         DAQP settings to override (see :func:`daqp_settings`).
     warm_start
-        Start each solve from the previous solve's active set (default ``False``). Off,
-        every solve starts from the empty active set, so a used model returns bit for
-        bit what a fresh one returns (episodes are reproducible whatever ran before).
-        Measured on 200 crossing steps (3 obstacles, T = 10): warm 5.5 iterations and
-        26 µs per solve call, cold 5.9 and 24-30 µs, inputs equal to 1e-13; the per-step
-        update (DAQP's transform of every row by the Hessian's factor) dominates.
+        Without ``lazy``: start each solve from the previous solve's active set
+        (default ``False``: every solve starts from the empty active set, so a used model
+        returns bit for bit what a fresh one returns).
+    lazy
+        Screen the rows (module docstring); ``None`` (default): when ``T m >``
+        :data:`LAZY_MIN_INPUTS`. With ``lazy``, the previous answer, shifted by one step,
+        is a second screening point until :meth:`reset`.
 
     Raises
     ------
@@ -123,101 +149,52 @@ class DAQPBackend:
 
     def __init__(
         self, problem: MPCProblem, *, solver_settings: Mapping[str, Any] | None = None,
-        warm_start: bool = False,
+        warm_start: bool = False, lazy: bool | None = None,
     ) -> None:
         self.problem = problem
         self._settings = daqp_settings(solver_settings)
         self._warm_start = bool(warm_start)
+        self.qp = CondensedQP(problem)
+        nu = self.qp.nu
+        self.lazy = nu > LAZY_MIN_INPUTS if lazy is None else bool(lazy)
+        self._identity = np.eye(nu)
         self._build()
 
+    # ------------------------------------------------------------------ set-up
     def _build(self) -> None:
-        p = self.problem
-        T, n, m, d, K = p.horizon, p.n, p.m, p.d, p.n_obstacles
-        nu = T * m
-        phi, gamma = p.rollout  # (T n, n), (T n, T m)
-        R_bar = np.zeros((nu, nu))
-        for t, Rt in enumerate(p.input_weights):
-            R_bar[t * m : (t + 1) * m, t * m : (t + 1) * m] = Rt
-        Q_bar = np.zeros((T * n, T * n))
-        for t, Qt in enumerate(p.state_weights):
-            Q_bar[t * n : (t + 1) * n, t * n : (t + 1) * n] = Qt
-        hessian = 2.0 * (R_bar + gamma.T @ Q_bar @ gamma)
-        self._H = np.ascontiguousarray(0.5 * (hessian + hessian.T))
-        # f = -2 R u^r + 2 Gamma' Q (Phi x0 - X^r) = F [x0; X^r; u^r]
-        self._F = matvec_operator(np.hstack([2.0 * gamma.T @ Q_bar @ phi, -2.0 * gamma.T @ Q_bar,
-                             -2.0 * R_bar]))
-
-        # Positions C x_t = C Phi_t x0 + C Gamma_t u, t = 1..T.
-        C_phi = np.einsum("dn,tnk->tdk", p.C, phi.reshape(T, n, n))  # (T, d, n)
-        C_gamma = np.einsum("dn,tnk->tdk", p.C, gamma.reshape(T, n, nu))  # (T, d, nu)
-        self._C_gamma = np.ascontiguousarray(C_gamma)
-
-        rows, upper, lower = [], [], []  # constant rows, their bounds at x0 = 0
-        x0_maps = []  # the bounds shift by -(map @ x0)
-        y_low, y_high = p.position_bounds
-        axes = np.flatnonzero(np.isfinite(y_low) | np.isfinite(y_high))
-        if axes.size:
-            rows.append(C_gamma[:, axes].reshape(-1, nu))
-            upper.append(np.tile(y_high[axes], T))
-            lower.append(np.tile(y_low[axes], T))
-            x0_maps.append(C_phi[:, axes].reshape(-1, n))
-        if p.terminal_set is not None and p.terminal_set[0].shape[0]:
-            G, g = p.terminal_set
-            rows.append(G @ gamma[(T - 1) * n :])
-            upper.append(g)
-            lower.append(np.full(len(g), -np.inf))
-            x0_maps.append(G @ phi[(T - 1) * n :])
-        n_fixed = sum(len(r) for r in rows)
-        self._n_fixed = n_fixed
-        n_arena = len(rows[0]) if axes.size else 0
-        hs0_ = nu + n_fixed
-        # Halfspace rows step-major: row n_fixed + (t - 1) K + i is a_it' C Gamma_t.
+        qp, p = self.qp, self.problem
+        T, K, nu, n_fixed = qp.T, qp.K, qp.nu, qp.n_fixed
+        self._soft_fixed = qp.fixed_soft
+        self._soft_hs = p.soft_halfspaces
+        self._any_soft = bool(self._soft_fixed.any() or (self._soft_hs and K))
+        self._guess: tuple | None = None  # previous answer and active set (lazy), until reset()
+        self._conflict: tuple | None = None  # rows of the previous infeasible QP (lazy)
+        self.rounds = 0  # relaxed QPs solved by the last lazy solve
+        self._z_of_u = matvec_operator(qp.z_of_u)
+        if self.lazy:
+            self._model = daqp.Model()
+            try:  # a bad setting raises now, not at every step
+                if self._settings:
+                    self._model.settings = self._settings
+            except (TypeError, ValueError) as exc:
+                raise InvalidParameterError(
+                    f"solver_settings: DAQP refused {self._settings!r}: {exc}") from exc
+            return
+        # Every row, every step: [fixed rows; halfspace rows step-major].
         self._A = np.zeros((n_fixed + K * T, nu))
-        if n_fixed:
-            self._A[:n_fixed] = np.vstack(rows)
+        self._A[:n_fixed] = qp.fixed_rows
         self._A_hs = self._A[n_fixed:].reshape(T, K, nu)  # a view: written in place
-        self._fixed_upper = np.concatenate(upper) if upper else np.zeros(0)
-        self._fixed_lower = np.concatenate(lower) if lower else np.zeros(0)
-        # One product S x0: the shift of the fixed rows, then the positions C Phi_t x0.
-        self._S = matvec_operator(np.vstack([*x0_maps, C_phi.reshape(T * d, n)]))
-
-        u_low, u_high = p.input_bounds
-        n_rows = nu + n_fixed + K * T
-        self._upper = np.full(n_rows, np.inf)
-        self._lower = np.full(n_rows, -np.inf)
-        self._upper[:nu] = np.tile(u_high, T)
-        self._lower[:nu] = np.tile(u_low, T)
-        self._hs0 = nu + n_fixed
-        self._nu = nu
-        soft = np.zeros(n_rows, dtype=bool)
-        if p.soft_bounds:
-            soft[nu:hs0_] = True
-        if p.soft_halfspaces:
-            soft[hs0_:] = True
-        self._soft = soft
-        self._sense = np.where(soft, 8, 0).astype(np.int32)
-        self._n_arena = n_arena
-        self._arena_axes = axes
-        self._hi = np.isfinite(y_high[axes])
-        self._lo = np.isfinite(y_low[axes])
-        # Hot-path constants and views (attribute and property lookups cost per step).
-        self._T, self._m, self._K = T, m, K
-        self._any_soft = bool(soft.any())
-        self._upper_fixed, self._lower_fixed = self._upper[nu:hs0_], self._lower[nu:hs0_]
-        self._upper_hs = self._upper[hs0_:].reshape(T, K)  # a view: written in place
-        # Dense S (small problems): S x0 is written into a buffer whose views are
-        # precomputed; a CSR S (large ones) returns a new array per product.
-        self._shift = np.empty(self._S.shape[0]) if isinstance(self._S, np.ndarray) else None
-        if self._shift is not None:
-            self._shift_fixed = self._shift[:n_fixed]
-            self._positions0 = self._shift[n_fixed:].reshape(T, 1, d, 1)
-        self._positions0_shape = (T, 1, d, 1)
-        self._at_x0 = np.empty((T, K, 1, 1))  # a_it . C Phi_t x0
-        self._at_x0_flat = self._at_x0.reshape(T, K)  # a view
-        self._v = np.empty(n + T * n + nu)  # [x0; X^r; u^r]
-        self._model: daqp.Model | None = None
+        self._upper = np.full(n_fixed + K * T, np.inf)
+        self._lower = np.full(n_fixed + K * T, -np.inf)
+        self._upper_hs = self._upper[n_fixed:].reshape(T, K)
+        soft = np.concatenate([self._soft_fixed, np.full(K * T, self._soft_hs)])
+        self._sense = np.where(soft, 8, 0).astype(np.intc)
+        self._soft_weights = None
+        if soft.any():
+            self._soft_weights = (np.full(len(soft), SOFT_RHO),
+                                  np.full(len(soft), p.slack_penalty))
         self._cold = True
-        try:  # built here so that a bad setting raises now, not at every step
+        try:
             model = self._new_model()
         except (TypeError, ValueError) as exc:
             raise InvalidParameterError(
@@ -225,97 +202,186 @@ class DAQPBackend:
         self._model = None if isinstance(model, int) else model
 
     def _new_model(self) -> daqp.Model | int:
-        """A DAQP model set up with placeholder data (zero halfspace rows, ``f = 0``), or
-        DAQP's negative setup flag. Every solve, the first included, then writes its data
-        by ``update``: a used model returns bit for bit what a fresh one returns (setup
-        and update differ in the last bits)."""
+        """A DAQP model of every row set up with placeholder data (zero halfspace rows,
+        ``f = 0``), or DAQP's negative setup flag. Every solve, the first included, then
+        writes its data by ``update``: a used model returns bit for bit what a fresh one
+        returns (setup and update differ in the last bits)."""
         model = daqp.Model()
         if self._settings:
             model.settings = self._settings
         A = self._A.copy()
-        A[self._n_fixed :] = 0.0
-        upper, lower = self._upper.copy(), self._lower.copy()
-        upper[self._nu :], lower[self._nu :] = np.inf, -np.inf
-        f = np.zeros(self._nu)
-        flag, _ = model.setup(self._H, f, A, upper, lower, self._sense.copy())
+        A[self.qp.n_fixed :] = 0.0
+        upper, lower = np.full(len(self._upper), np.inf), np.full(len(self._lower), -np.inf)
+        f = np.zeros(self.qp.nu)
+        flag, _ = model.setup(self._identity, f, A, upper, lower, self._sense.copy())
         self._setup_arrays = (f, A, upper, lower)  # kept alive with the model
-        if flag >= 0 and self._soft.any():
-            n_rows = len(self._upper)
-            rho = np.full(n_rows, SOFT_RHO)
-            w = np.full(n_rows, self.problem.slack_penalty)
+        if flag >= 0 and self._soft_weights is not None:
+            rho, w = self._soft_weights
             model.soft_weights(rho_l=rho, rho_u=rho, w_l=w, w_u=w)
-            self._setup_arrays += (rho, w)
         return int(flag) if flag < 0 else model
 
-    def _data(self, step: StepData) -> np.ndarray:
-        """Write the step's rows and bounds into the preallocated arrays; return ``f``."""
-        n_fixed = self._n_fixed
-        if self._shift is not None:
-            np.matmul(self._S, step.x0, out=self._shift)
-            shift_fixed, positions0 = self._shift_fixed, self._positions0
-        else:
-            shift = self._S @ step.x0
-            shift_fixed = shift[:n_fixed]
-            positions0 = shift[n_fixed:].reshape(self._positions0_shape)
-        if n_fixed:
-            np.subtract(self._fixed_upper, shift_fixed, out=self._upper_fixed)
-            np.subtract(self._fixed_lower, shift_fixed, out=self._lower_fixed)
-        if self._K:
-            normals = step.normals.transpose(1, 0, 2)  # (T, K, d)
-            np.matmul(normals, self._C_gamma, out=self._A_hs)
-            np.matmul(normals[:, :, None, :], positions0, out=self._at_x0)  # (T, K, 1, 1)
-            np.subtract(step.offsets.T, self._at_x0_flat, out=self._upper_hs)
-        v = np.concatenate(
-            (step.x0, step.ref_states.reshape(-1), step.ref_inputs.reshape(-1)), out=self._v
-        )
-        return self._F @ v
+    def reset(self) -> None:
+        """Forget the previous step (the lazy path's warm start)."""
+        self._guess = None
+        self._conflict = None
 
+    # ------------------------------------------------------------------ solve
     def solve(self, step: StepData) -> QPSolution:
-        """Write the step's data into the model and solve; never raises on a failed solve."""
+        """Write the step's data, solve; never raises on a failed solve."""
         try:
-            f = self._data(step)
-            begin = time.perf_counter()
-            if self._model is None:
-                self._model = self._new_model()
-                if isinstance(self._model, int):
-                    flag, self._model = self._model, None
-                    return QPSolution(False, f"daqp setup exitflag {flag}",
-                                      solve_time=time.perf_counter() - begin)
-            if self._cold or not self._warm_start:
-                self._model.update(f=f, A=self._A, bupper=self._upper, blower=self._lower,
-                                   sense=self._sense)
-            else:
-                self._model.update(f=f, A=self._A, bupper=self._upper, blower=self._lower)
-            x, _, flag, info = self._model.solve()
-            solve_time = time.perf_counter() - begin
+            rows = self.qp.step_rows(step.x0, step.ref_states, step.ref_inputs,
+                                     step.normals, step.offsets)
+            if self.lazy:
+                return self._solve_lazy(rows)
+            return self._solve_full(rows)
         except (KeyboardInterrupt, SystemExit):
             raise
         except Exception as exc:
             self._model, self._cold = None, True
             return QPSolution(False, f"exception: {exc!r}")
+
+    def _solve_full(self, rows: StepRows) -> QPSolution:
+        n_fixed = self.qp.n_fixed
+        if self.qp.K:
+            np.matmul(rows.normals, self.qp.position_maps, out=self._A_hs)
+            self._upper_hs[...] = rows.hs_upper
+        self._upper[:n_fixed] = rows.upper
+        self._lower[:n_fixed] = rows.lower
+        begin = time.perf_counter()
+        if self._model is None:
+            self._model = self._new_model()
+            if isinstance(self._model, int):
+                flag, self._model = self._model, None
+                return QPSolution(False, f"daqp setup exitflag {flag}",
+                                  solve_time=time.perf_counter() - begin)
+        if self._cold or not self._warm_start:
+            self._model.update(f=rows.f, A=self._A, bupper=self._upper, blower=self._lower,
+                               sense=self._sense)
+        else:
+            self._model.update(f=rows.f, A=self._A, bupper=self._upper, blower=self._lower)
+        x, _, flag, info = self._model.solve()
+        solve_time = time.perf_counter() - begin
         flag = int(flag)
-        status = _STATUS.get(flag, f"daqp exitflag {flag}")
-        iterations = int(info.get("iterations", 0))
         self._cold = flag < 1
-        if flag < 1:
+        return self._solution(x, flag, int(info.get("iterations", 0)), solve_time, rows)
+
+    def _solve_lazy(self, rows: StepRows) -> QPSolution:
+        qp = self.qp
+        z = -rows.f
+        fixed, halfspace, values = qp.excess(z, rows)
+        keep_fixed, keep_hs = fixed > -SCREEN_MARGIN, halfspace > -SCREEN_MARGIN
+        dual_fixed = dual_hs = None
+        if self._guess is not None:  # the previous answer and active set, shifted one step
+            guess, active_fixed, active_hs = self._guess
+            shifted = np.concatenate((guess[qp.m :], guess[-qp.m :]))
+            at_guess, hs_at_guess, _ = qp.excess(self._z_of_u @ shifted, rows)
+            keep_fixed |= at_guess > -SCREEN_MARGIN
+            keep_hs |= hs_at_guess > -SCREEN_MARGIN
+            dual_fixed, dual_hs = self._shift_fixed(active_fixed), _shift_steps(active_hs)
+            keep_fixed |= dual_fixed != 0.0
+            keep_hs |= dual_hs != 0.0
+        if self._conflict is not None:  # the rows of the previous infeasible QP, shifted
+            keep_fixed |= self._shift_fixed(self._conflict[0])
+            keep_hs |= _shift_steps(self._conflict[1])
+        self._conflict = None
+        begin = time.perf_counter()
+        iterations, flag = 0, 1
+        self.rounds = 0
+        while keep_fixed.any() or keep_hs.any():
+            self.rounds += 1
+            flag, z, its, dual_fixed, dual_hs = self._solve_relaxed(
+                rows, keep_fixed, keep_hs, dual_fixed, dual_hs)
+            iterations += its
+            if flag < 1:
+                # An infeasible QP's rows hold its conflict; in a closed loop the next
+                # step's QP usually has the same one, found in one round with them.
+                self._conflict = (keep_fixed, keep_hs) if flag == -1 else None
+                return self._solution(None, flag, iterations, time.perf_counter() - begin, rows)
+            fixed, halfspace, values = qp.excess(z, rows)
+            add_fixed = (fixed > ADD_TOLERANCE) & ~keep_fixed
+            add_hs = (halfspace > ADD_TOLERANCE) & ~keep_hs
+            if not (add_fixed.any() or add_hs.any()):
+                break
+            keep_fixed |= add_fixed
+            keep_hs |= add_hs
+        else:  # nothing screened in: the unconstrained minimiser meets every row
+            dual_fixed, dual_hs = np.zeros(qp.n_fixed), np.zeros((qp.T, qp.K))
+        solution = self._solution(z, flag, iterations, time.perf_counter() - begin, rows,
+                                  (fixed, halfspace, values))
+        self._guess = (solution.inputs.reshape(-1), dual_fixed, dual_hs)
+        return solution
+
+    def _shift_fixed(self, signs: np.ndarray) -> np.ndarray:
+        """Active fixed rows of the previous step, moved one step earlier."""
+        qp = self.qp
+        inputs, arena, terminal = qp.row_slices
+        out = signs.copy()
+        for part in (inputs, arena):
+            out[part] = _shift_steps(signs[part].reshape(qp.T, -1)).reshape(-1)
+        return out
+
+    def _solve_relaxed(
+        self, rows: StepRows, keep_fixed: np.ndarray, keep_hs: np.ndarray,
+        dual_fixed: np.ndarray | None, dual_hs: np.ndarray | None,
+    ) -> tuple[int, np.ndarray, int, np.ndarray, np.ndarray]:
+        """DAQP on the kept rows, warm-started from ``dual_*`` (signs of the multipliers
+        of the rows to activate first): ``(exitflag, z, iterations, dual_fixed, dual_hs)``."""
+        qp = self.qp
+        fixed = np.flatnonzero(keep_fixed)
+        steps, obstacles = np.nonzero(keep_hs)
+        n_kept = len(fixed)
+        A = np.empty((n_kept + len(steps), qp.nu))
+        A[:n_kept] = qp.fixed_rows[fixed]
+        if len(steps):
+            qp.halfspace_rows(rows, steps, obstacles, out=A[n_kept:])
+        upper = np.concatenate((rows.upper[fixed], rows.hs_upper[steps, obstacles]))
+        lower = np.concatenate((rows.lower[fixed], np.full(len(steps), -np.inf)))
+        soft = np.concatenate((self._soft_fixed[fixed], np.full(len(steps), self._soft_hs)))
+        sense = np.where(soft, 8, 0).astype(np.intc)
+        if dual_fixed is not None and not soft.any():
+            # Hard rows only: DAQP activates the start set in setup, before soft weights
+            # could be set, so soft QPs start cold (a warm start gained them nothing).
+            start = np.concatenate((dual_fixed[fixed], dual_hs[steps, obstacles]))
+            flag, _ = self._model.setup(self._identity, rows.f, A, upper, lower, sense,
+                                        dual_start=start)
+        else:
+            flag, _ = self._model.setup(self._identity, rows.f, A, upper, lower, sense)
+        dual_fixed, dual_hs = np.zeros(qp.n_fixed), np.zeros((qp.T, qp.K))
+        if flag < 0:
+            return int(flag), rows.f, 0, dual_fixed, dual_hs
+        if soft.any():
+            rho = np.full(len(soft), SOFT_RHO)
+            w = np.full(len(soft), self.problem.slack_penalty)
+            self._model.soft_weights(rho_l=rho, rho_u=rho, w_l=w, w_u=w)
+        x, _, flag, info = self._model.solve()
+        lam = np.sign(info["lam"])
+        dual_fixed[fixed] = lam[:n_kept]
+        dual_hs[steps, obstacles] = lam[n_kept:]
+        return int(flag), np.asarray(x), int(info.get("iterations", 0)), dual_fixed, dual_hs
+
+    def _solution(self, z: np.ndarray | None, flag: int, iterations: int, solve_time: float,
+                  rows: StepRows, excess: tuple | None = None) -> QPSolution:
+        status = _STATUS.get(flag, f"daqp exitflag {flag}")
+        if flag < 1 or z is None:
+            self._guess = None
             return QPSolution(False, status, iterations=iterations, solve_time=solve_time)
-        inputs = np.array(x, dtype=float).reshape(self._T, self._m)
+        qp = self.qp
+        u = qp.u_of_z @ z
+        inputs = u.reshape(qp.T, qp.m)
         if not self._any_soft:
             return QPSolution(True, status, inputs, None, None, iterations, solve_time)
-        p = self.problem
+        fixed, halfspace, values = excess if excess is not None else qp.excess(z, rows)
         hs_slack = bound_slack = None
-        values = self._A @ inputs.reshape(-1)
-        nu = self._nu
-        excess_up = values - self._upper[nu:]
-        excess_low = self._lower[nu:] - values
-        if p.soft_halfspaces:
-            hs_slack = np.maximum(excess_up[self._n_fixed :], 0.0).reshape(
-                self._T, self._K).T
-        if p.soft_bounds:
-            T, n_axes = self._T, len(self._arena_axes)
-            up = excess_up[: self._n_arena].reshape(T, n_axes)[:, self._hi]
-            low = excess_low[: self._n_arena].reshape(T, n_axes)[:, self._lo]
-            terminal = excess_up[self._n_arena : self._n_fixed]
-            bound_slack = np.maximum(
-                np.concatenate([up.reshape(-1), low.reshape(-1), terminal]), 0.0)
+        if self._soft_hs:
+            hs_slack = np.maximum(halfspace.T, 0.0)
+        if self._soft_fixed.any():
+            bound_slack = qp.bound_slack(values, rows)
         return QPSolution(True, status, inputs, hs_slack, bound_slack, iterations, solve_time)
+
+
+def _shift_steps(signs: np.ndarray) -> np.ndarray:
+    """Rows by step (first axis), moved one step earlier; the last step keeps its own."""
+    out = np.empty_like(signs)
+    out[:-1] = signs[1:]
+    out[-1] = signs[-1]
+    return out
