@@ -213,6 +213,10 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--eval-episodes", type=_positive_int, default=20)
     train.add_argument("--tensorboard", type=str, default=None, metavar="DIR",
                        help="write TensorBoard event files to DIR (pip install 'safe-nav[train]')")
+    train.add_argument("--env-option", type=_option, action="append", default=[],
+                       metavar="KEY=VALUE", dest="env_options",
+                       help="gym.make keyword of the training environments (VALUE as JSON, else "
+                       "a string), e.g. random_start=0.5 or time_penalty=0.05; repeatable")
     train.add_argument("--physical-actions", action="store_true",
                        help="let the learner act on the ±10 m/s² box instead of [-1, 1] (as the "
                        "shipped policy was trained)")
@@ -497,8 +501,9 @@ def _train(args: argparse.Namespace) -> int:
     try:
         _, report = train_ppo(
             args.env_id, args.timesteps, args.seed, n_envs=args.n_envs,
-            filter_kwargs=filter_kwargs, intervention_penalty=args.intervention_penalty,
-            filter_reference=args.reference, lagrangian=args.lagrangian,
+            env_kwargs=dict(args.env_options), filter_kwargs=filter_kwargs,
+            intervention_penalty=args.intervention_penalty, filter_reference=args.reference,
+            lagrangian=args.lagrangian,
             cost_limit=args.cost_limit, lambda_lr=args.lambda_lr, eval_freq=args.eval_freq,
             eval_episodes=args.eval_episodes, vec_env=args.vec_env,
             tensorboard_log=args.tensorboard, print_metrics=not args.quiet,

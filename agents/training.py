@@ -256,6 +256,34 @@ def check_filter_kwargs(env_id: str, env_kwargs: dict[str, Any] | None,
         env.close()
 
 
+def check_env_kwargs(env_id: str, env_kwargs: dict[str, Any] | None) -> None:
+    """Build ``gym.make(env_id, **env_kwargs)`` once, so that bad keywords fail before training.
+
+    Raises
+    ------
+    InvalidParameterError
+        If the environment rejects a value (the message is the environment's).
+    InvalidTypeError
+        If ``env_kwargs`` is not a dict or holds a keyword the environment does not take.
+    """
+    import gymnasium as gym
+
+    import safe_nav_env  # noqa: F401
+    from safe_nav_env.errors import SafeNavEnvError
+
+    if env_kwargs is None:
+        return
+    if not isinstance(env_kwargs, dict):
+        raise InvalidTypeError(f"env_kwargs must be a dict, got {env_kwargs!r}")
+    try:
+        env = gym.make(env_id, **env_kwargs)
+    except SafeNavEnvError as exc:
+        raise InvalidParameterError(f"env_kwargs: {exc}") from exc
+    except TypeError as exc:
+        raise InvalidTypeError(f"env_kwargs {sorted(env_kwargs)}: {exc}") from exc
+    env.close()
+
+
 def _tensorboard_format(folder: str | Path, name: str):
     """TensorBoard output into ``folder/<name>_<k>`` (the next free k, as SB3 does)."""
     try:
@@ -311,7 +339,9 @@ def train_ppo(
     n_envs
         Number of environments (>= 1).
     env_kwargs
-        Passed to ``gym.make`` (e.g. ``n_samples``, ``collision_penalty``).
+        Passed to ``gym.make`` (e.g. ``n_samples``, ``collision_penalty``, or
+        ``random_start`` to start a share of the training episodes at random ego states:
+        :class:`safe_nav_env.starts.RandomStart`).
     filter_kwargs
         If given, train with :class:`filters.SafetyFilterWrapper` in the loop, e.g.
         ``{"risk": "dr_cvar", "alpha": 0.2, "delta": 0.1, "epsilon": 0.05}``; every
@@ -401,6 +431,7 @@ def train_ppo(
             f"filter_reference must be one of {FILTER_REFERENCES}, got {filter_reference!r}")
     if not lagrangian and (cost_limit != 0.0 or lambda_lr != 0.05):
         raise InvalidParameterError("cost_limit and lambda_lr need lagrangian=True")
+    check_env_kwargs(env_id, env_kwargs)
     if filter_kwargs is None:
         if intervention_penalty:
             raise InvalidParameterError(
@@ -538,6 +569,7 @@ def set_torch_threads(n: int = 1) -> None:
 
 __all__ = [
     "DEFAULT_ENV_ID", "DEFAULT_PPO_KWARGS", "EVAL_SEED_OFFSET", "FILTER_REFERENCES", "VEC_ENVS",
-    "TrainingPolicy", "TrainingReport", "check_filter_kwargs", "load_ppo", "make_training_env",
-    "metrics_path_for", "pretrained_policy_path", "set_torch_threads", "train_ppo",
+    "TrainingPolicy", "TrainingReport", "check_env_kwargs", "check_filter_kwargs", "load_ppo",
+    "make_training_env", "metrics_path_for", "pretrained_policy_path", "set_torch_threads",
+    "train_ppo",
 ]

@@ -50,7 +50,7 @@ RISKS: tuple[str, ...] = ("none", *_METRICS)
 OBJECTIVES = ("first_input", "trajectory")
 """Filter objectives: the predictive safety filter's, or the paper's Problem 2."""
 
-NORMAL_SOURCES = ("paper", "ego", "nearside", "previous_plan")
+NORMAL_SOURCES = ("paper", "ego", "nearside", "previous_plan", "clearest")
 """Where the halfspace normals start (they end at the obstacles' sample means)."""
 
 FALLBACKS = ("soft", "paper")
@@ -237,17 +237,22 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         Add the inter-sample rows of :mod:`filters.intersample` (default ``True``): the
         plan is then safe in continuous time, between the samples too, not only at them.
     normals
-        Where the halfspace normals start. ``None`` (default): ``"paper"`` with a
-        ``policy`` or ``reference``, ``"nearside"`` with the held action (whose reference
-        runs straight through obstacles, so that the paper's normals flip inside the
-        horizon and the filter brakes in front of a head-on obstacle). ``"paper"`` (the
-        reference positions, the paper's Definition 3), ``"ego"`` (the current ego
-        position for every step: they cannot flip when the reference runs through an
-        obstacle, but block overtaking), ``"nearside"`` (the reference position while it
-        is on the ego's side of the obstacle's centre, the ego's position once it has
-        passed it) or ``"previous_plan"``
-        (the last filtered plan shifted by one step, starting at the current position;
-        the reference until there is one).
+        Where the halfspace normals start (they end at the obstacles' sample means).
+        ``None`` (default): ``"paper"`` with a ``policy`` or ``reference``,
+        ``"clearest"`` with the held action (whose reference runs straight through
+        obstacles, so that the paper's normals flip inside the horizon and the filter
+        brakes in front of a head-on obstacle). ``"paper"`` (the reference positions,
+        the paper's Definition 3), ``"ego"`` (the current ego position for every step:
+        they cannot flip when the reference runs through an obstacle, but block
+        overtaking), ``"nearside"`` (the reference position while it is on the ego's
+        side of the obstacle's centre, the ego's position once it has passed it),
+        ``"previous_plan"`` (the last filtered plan shifted by one step, starting at the
+        current position; the reference until there is one) or ``"clearest"`` (the
+        first step from the ego's position; each later step from whichever of the
+        reference and the last optimal plan is farther from the obstacle, so that the
+        normals follow the plan where the reference runs through an obstacle and do not
+        flip; ``"nearside"`` while there is no optimal plan; see
+        :func:`clearest_normals`).
     fallback
         ``"soft"`` (default): when the hard QP is infeasible, the exact-penalty QP with
         halfspace and arena rows softened (it equals the hard solution whenever that is
@@ -394,7 +399,7 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             else objective, OBJECTIVES,
         )
         self.normals = _choice(
-            "normals", ("paper" if planned else "nearside") if normals is None else normals,
+            "normals", ("paper" if planned else "clearest") if normals is None else normals,
             NORMAL_SOURCES,
         )
         self.fallback = _choice("fallback", fallback, FALLBACKS)
@@ -462,6 +467,7 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._previous_normals: np.ndarray | None = None
         self._last_halfspaces: Halfspaces | None = None
         self._last_plan: np.ndarray | None = None
+        self._plan_optimal = False  # whether _last_plan met every row (status "optimal")
         self._hook: Callable[[Any], None] | None = None
         self._halfspace_lines: Any = None  # the hook's line collection, reused per frame
         self._shape_cache: tuple[tuple, Disc, list[Disc]] | None = None
@@ -511,6 +517,7 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._previous_normals = None
         self._last_halfspaces = None
         self._last_plan = None
+        self._plan_optimal = False
         self._install_render_hook()
         return obs, info
 
@@ -642,6 +649,7 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             # Bad numbers from the policy or the predictions (NaN, inf): brake, say why.
             applied = np.clip(self._mpc.braking_input(x0), *base.input_bounds)
             self._last_plan = None
+            self._plan_optimal = False
             report = FilterReport(
                 FilterStatus.ERROR.value, proposed, applied,
                 intervention=_distance(applied, proposed),
@@ -654,6 +662,7 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._previous_normals = halfspaces.normals
         self._last_halfspaces = halfspaces
         self._last_plan = np.asarray(result.states)
+        self._plan_optimal = result.status is FilterStatus.OPTIMAL
         slack = result.slack
         k = halfspaces.n_obstacles
         if slack is not None and self.intersample:
@@ -680,10 +689,25 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             return np.broadcast_to(y0, ref_positions.shape)
         plan = self._last_plan
         if self.normals == "previous_plan" and plan is not None:
-            positions = plan @ self._base.dynamics[2].T  # (T+1, d) planned at the last step
-            shifted = np.concatenate([positions[2:], positions[-1:]], axis=0)
-            return shifted - positions[1] + y0  # re-anchored at the current position
+            # (T+1, d) planned at the last step, shifted and re-anchored
+            return _shifted_positions(plan @ self._base.dynamics[2].T, y0)
         return ref_positions
+
+    def _given_normals(self, samples: np.ndarray, reference: np.ndarray,
+                       y0: np.ndarray) -> np.ndarray | None:
+        """Normals ``(k, T, d)`` chosen per obstacle and step, or ``None`` (from the origins).
+
+        ``reference`` is what :meth:`_normal_origins` returned: the reference positions
+        for the sources that choose per obstacle.
+        """
+        if self.normals == "nearside":
+            return _nearside_normals(samples, reference, y0)
+        if self.normals == "clearest":
+            plan = None
+            if self._last_plan is not None and self._plan_optimal:
+                plan = _shifted_positions(self._last_plan @ self._base.dynamics[2].T, y0)
+            return clearest_normals(samples, reference, y0, plan)
+        return None
 
     def _halfspaces(
         self, base: FilterableEnv, x0: np.ndarray, ref_states: np.ndarray, radii: np.ndarray
@@ -711,9 +735,7 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         y0 = C @ x0
         origins = self._normal_origins(y0, ref_states[1:, :] @ C.T)
         options = self._risk_options()
-        given = None
-        if self.normals == "nearside" and len(radii):
-            given = _nearside_normals(samples, origins, y0)
+        given = self._given_normals(samples, origins, y0) if len(radii) else None
         halfspaces = safe_halfspaces(
             origins, samples, ego_shape=ego_shape, obstacle_shapes=obstacle_shapes,
             support=self.support, previous_normals=previous, ego_velocity=x0[2:],
@@ -779,6 +801,91 @@ def _nearside_normals(samples: np.ndarray, reference: np.ndarray, ego: np.ndarra
     fallback_size = np.sqrt(np.add.reduce(fallback * fallback, axis=-1, keepdims=True))
     return np.where(ok, diff / np.where(ok, size, 1.0),
                     fallback / np.maximum(fallback_size, 1e-12))
+
+
+def clearest_normals(samples: np.ndarray, reference: np.ndarray, ego: np.ndarray,
+                     plan: np.ndarray | None = None) -> np.ndarray:
+    r"""Normals from the clearer of the reference and the last plan: ``normals="clearest"``.
+
+    Any unit normal :math:`h` gives a valid safe halfspace
+    :math:`h \cdot y \le b(h)` (Definitions 2-3 hold for every direction); the
+    choice decides which plans the filter can find. With :math:`\bar p_{i,t}` the
+    sample mean of obstacle :math:`i` at step :math:`t`, the normal is
+    :math:`h_{i,t} = (\bar p_{i,t} - o_{i,t}) / \|\bar p_{i,t} - o_{i,t}\|`, with the
+    origin
+
+    * :math:`o_{i,1} = y_0`, the current position, at the first step: the direction in
+      which the next position gets clear of the obstacle fastest (a plan's first
+      position lies within :math:`T_s \|v\| + T_s^2 u_{max}/2` of :math:`y_0`);
+    * for :math:`t \ge 2`, with :math:`\hat y_t` the last optimal plan shifted by one
+      step: :math:`o_{i,t} = y^r_t` (the reference, the paper's choice) if
+      :math:`\|\bar p_{i,t} - y^r_t\| \ge \|\bar p_{i,t} - \hat y_t\|`, else
+      :math:`\hat y_t`: the clearer of the two. A point :math:`z` as far from
+      :math:`\bar p` as the halfspace's margin satisfies the halfspace whose normal
+      starts at :math:`z` (:math:`h \cdot (\bar p - z) = \|\bar p - z\|`). Where the
+      plan's normal is taken, the shifted plan (which met last step's rows) meets it
+      again up to the change of the predictions, and the normal cannot flip where the
+      reference runs through the obstacle, since the plan does not; where the
+      reference's normal is taken, the reference meets its own row whenever the plan
+      met its. This makes infeasible steps rarer; it is no guarantee of recursive
+      feasibility (the first-step normal, the inter-sample rows and the reference's
+      normals may still cut the shifted plan off);
+    * without a plan (``plan=None``: the first step of an episode, or after a step
+      that was not optimal, whose plan may pass through an obstacle), the
+      ``"nearside"`` rule for :math:`t \ge 2`.
+
+    Parameters
+    ----------
+    samples
+        Prediction samples ``(k, N_s, T, d)``, in m.
+    reference
+        Reference positions :math:`y^r_1..y^r_T`, ``(T, d)``.
+    ego
+        Current position :math:`y_0`, ``(d,)``.
+    plan
+        The last optimal plan's positions shifted by one step and re-anchored at
+        :math:`y_0` (:math:`\hat y_1..\hat y_T`, ``(T, d)``), or ``None``.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(k, T, d)`` unit normals (a degenerate direction falls back to the one from
+        :math:`y_0`, as in the ``"nearside"`` rule).
+    """
+    means = samples.mean(axis=1)  # (k, T, d)
+    if plan is None:
+        normals = _nearside_normals(samples, reference, ego)
+    else:
+        to_reference = means - reference[None]
+        to_plan = means - plan[None]
+        d_reference = np.sqrt(np.add.reduce(to_reference * to_reference, axis=-1))
+        d_plan = np.sqrt(np.add.reduce(to_plan * to_plan, axis=-1))
+        use_reference = (d_reference >= d_plan)[..., None]
+        diff = np.where(use_reference, to_reference, to_plan)
+        size = np.where(use_reference, d_reference[..., None], d_plan[..., None])
+        normals = diff / np.maximum(size, 1e-12)
+        normals = np.where(size > 1e-9, normals, 0.0)
+    from_ego = means - ego[None, None]  # (k, T, d)
+    ego_size = np.sqrt(np.add.reduce(from_ego * from_ego, axis=-1, keepdims=True))
+    ego_normals = np.where(ego_size > 1e-9, from_ego / np.maximum(ego_size, 1e-12), 0.0)
+    normals[:, 0] = ego_normals[:, 0]
+    degenerate = np.sqrt(np.add.reduce(normals * normals, axis=-1, keepdims=True)) < 0.5
+    if degenerate.any():  # an origin on the mean: the direction from the ego, else an axis
+        axis = np.zeros(means.shape[-1])
+        axis[0] = 1.0
+        fallback = np.where(ego_size > 1e-9, ego_normals, axis)
+        normals = np.where(degenerate, fallback, normals)
+    return normals
+
+
+def _shifted_positions(positions: np.ndarray, y0: np.ndarray) -> np.ndarray:
+    """The last plan's positions ``(T+1, d)`` shifted one step: ``(T, d)``, starting at ``y0``.
+
+    Row ``t`` is :math:`y^{prev}_{t+1} - y^{prev}_1 + y_0` (the last row repeated at the
+    end): the plan as it continues from the current position.
+    """
+    shifted = np.concatenate([positions[2:], positions[-1:]], axis=0)
+    return shifted - positions[1] + y0
 
 
 def _choice(name: str, value: object, choices: tuple[str, ...]) -> str:

@@ -46,6 +46,7 @@ from safe_nav_env.scenarios import (
     random_crossing,
     scenario_name,
 )
+from safe_nav_env.starts import RandomStart
 from safe_nav_env.stress import STRESS_SUITE, StressCase
 
 register_envs()
@@ -69,6 +70,7 @@ __all__ = [
     "ObstacleModel",
     "ObstacleSpec",
     "Predictor",
+    "RandomStart",
     "SafeNavEnv",
     "SafeNavEnvError",
     "Scenario",

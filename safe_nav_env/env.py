@@ -17,6 +17,7 @@ from safe_nav_env.noise import NoiseModel, resolve_noise
 from safe_nav_env.obstacles import ObstacleModel, distance_to_collision
 from safe_nav_env.predictors import Predictor, check_predictions, resolve_predictor
 from safe_nav_env.scenarios import SCENARIOS, Scenario, ScenarioFactory
+from safe_nav_env.starts import RandomStart, resolve_random_start
 
 _EGO_SIZE = 6  # ego position, ego velocity, goal - ego position
 _SLOT_SIZE = 5  # relative position, relative velocity, present flag
@@ -194,6 +195,13 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         ``(history, *, dt, horizon, n_samples, rng) -> (n, N_s, T, 2)`` receiving the
         positions observed since reset, ``(n_steps, n, 2)``; see
         :mod:`safe_nav_env.predictors`.
+    random_start
+        For training only: start a share of the episodes at a random ego state (near
+        the goal or anywhere in the arena, at rest or moving, optionally with a random
+        goal; the obstacles stay the scenario's), so that a planner learns to reach its
+        goal from the states a safety filter leads it into. ``None`` (default) or ``0``:
+        the scenario's start, always; a probability in (0, 1]; a mapping of
+        :class:`~safe_nav_env.starts.RandomStart` fields; or a ``RandomStart``.
 
     Raises
     ------
@@ -224,6 +232,7 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         terminate_on_collision: bool = False,
         pad_info: bool | None = None,
         predictor: Predictor | str | None = None,
+        random_start: RandomStart | float | Mapping[str, Any] | None = None,
     ) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ConfigError(
@@ -256,6 +265,7 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
             not isinstance(self._scenario_source, Scenario) if pad_info is None else bool(pad_info)
         )
         self.predictor: Predictor | None = resolve_predictor(predictor)
+        self.random_start: RandomStart | None = resolve_random_start(random_start)
         self._history: list[np.ndarray] = []
 
         # What a safety filter reads (filters.protocol.FilterableEnv).
@@ -487,6 +497,8 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         model.reset(self.np_random)
         self.obstacle_positions = _read_only(model.positions)
         self.obstacle_velocities = _read_only(model.velocities)
+        if self.random_start is not None:
+            self._draw_start()
         self.predictions = _read_only(
             model.predict(self.np_random, self.noise.prediction, self.n_samples, self.horizon)
             if self.predictor is None else self._predict_from_history(reset=True)
@@ -501,6 +513,20 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         obs = self.observe(self.ego_state, self.obstacle_positions, self.obstacle_velocities)
         distances = _read_only(distances)
         return obs, self._info(distances, distances, self._distance_to_goal)
+
+    def _draw_start(self) -> None:
+        """Replace the scenario's ego start by a :attr:`random_start` draw (training only)."""
+        drawn = self.random_start.draw(
+            self.np_random, goal=self.goal, goal_tolerance=self.goal_tolerance,
+            arena=self._arena, ego_radius=self.ego_radius,
+            obstacle_positions=self.obstacle_positions, obstacle_radii=self.obstacle_radii,
+        )
+        if drawn is not None:
+            start, goal = drawn
+            self.ego_state = _read_only(start)
+            self.goal = _read_only(goal)
+            self._goal = (float(goal[0]), float(goal[1]))
+            self._distance_to_goal = math.hypot(start[0] - goal[0], start[1] - goal[1])
 
     def step(
         self, action: np.ndarray

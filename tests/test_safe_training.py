@@ -346,6 +346,8 @@ def test_ppo_lagrangian_validates_and_round_trips(tmp_path):
     ({"filter_reference": "rollout"}, "filter"),
     ({"filter_kwargs": {"risk": "cvar"}, "filter_reference": "rollout", "vec_env": "subproc"},
      "in-process"),
+    ({"env_kwargs": {"random_start": 1.5}}, "random_start.probability"),
+    ({"env_kwargs": {"time_penalty": -1.0}}, "time_penalty"),
 ])
 def test_train_ppo_validates_before_training(kwargs, match, monkeypatch):
     import agents.training as training
@@ -356,6 +358,27 @@ def test_train_ppo_validates_before_training(kwargs, match, monkeypatch):
     monkeypatch.setattr(training, "make_training_env", no_training)
     with pytest.raises(InvalidParameterError, match=match):
         train_ppo("SafeNav/HeadOn-v0", **{"total_timesteps": 10, **kwargs})
+
+
+def test_unknown_environment_keywords_are_rejected_before_training(monkeypatch):
+    import agents.training as training
+
+    monkeypatch.setattr(training, "make_training_env", None)  # must not be reached
+    with pytest.raises(InvalidTypeError, match="no_such_option"):
+        train_ppo("SafeNav/HeadOn-v0", total_timesteps=10, env_kwargs={"no_such_option": 1})
+    with pytest.raises(InvalidTypeError, match="env_kwargs must be a dict"):
+        train_ppo("SafeNav/HeadOn-v0", total_timesteps=10, env_kwargs=[("a", 1)])
+
+
+def test_training_environments_get_the_env_kwargs():
+    env = make_training_env("SafeNav/RandomCrossing-v0", n_envs=2, seed=0,
+                            env_kwargs={"random_start": {"probability": 1.0, "rest": 1.0,
+                                                         "near_goal": 1.0}})
+    obs = env.reset()
+    # Every copy starts at rest near its goal: velocity 0, goal offset within 2 m.
+    assert np.all(obs[:, 2:4] == 0.0)
+    assert np.all(np.hypot(obs[:, 4], obs[:, 5]) <= 2.0 + 1e-6)
+    env.close()
 
 
 def test_unknown_filter_keywords_are_rejected_by_the_wrapper_constructor():
@@ -420,7 +443,8 @@ def test_train_cli_rejects_bad_numbers(argv, capsys):
 @pytest.mark.parametrize("argv", [
     ["--alpha", "0.3"], ["--cost-limit", "1"], ["--filter", "cvar", "--filter-option", "oops"],
     ["--filter", "dr_cvar", "--alpha", "1.5"], ["--filter", "cvar", "--filter-option", "bogus=1"],
-    ["--lagrangian", "--cost-limit", "-1"],
+    ["--lagrangian", "--cost-limit", "-1"], ["--env-option", "random_start=2"],
+    ["--env-option", "bogus=1"], ["--env-option", "no_equals_sign"],
 ])
 def test_train_cli_rejects_inconsistent_options(argv, capsys):
     assert main(["train", "--timesteps", "1", *argv]) == 2

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from types import SimpleNamespace
 
 import gymnasium as gym
 import numpy as np
@@ -11,6 +12,8 @@ from gymnasium.wrappers import ClipAction, RescaleAction
 
 import safe_nav_env  # noqa: F401
 from filters import InvalidParameterError, InvalidTypeError, SafetyFilterWrapper
+from filters.references import hold_action_reference
+from filters.wrapper import _nearside_normals, clearest_normals
 from safe_nav_env import ObstacleSpec, Scenario
 
 
@@ -103,7 +106,7 @@ def test_nan_predictions_are_an_error_status():
     assert "samples" in info["filter"].error or "NaN" in info["filter"].error
 
 
-@pytest.mark.parametrize("normals", ["paper", "ego", "previous_plan"])
+@pytest.mark.parametrize("normals", ["paper", "ego", "nearside", "previous_plan", "clearest"])
 def test_every_normal_source_keeps_optimal_plans_inside_the_rows(normals):
     env = SafetyFilterWrapper(gym.make("SafeNav/MultiObstacle-v0"), normals=normals)
     obs, _ = env.reset(seed=2)
@@ -136,3 +139,88 @@ def test_calibrated_and_chance_risks_run_in_the_loop(risk, epsilon):
 def test_conformal_needs_a_probability():
     with pytest.raises(InvalidParameterError, match="alpha"):
         SafetyFilterWrapper(gym.make("SafeNav/HeadOn-v0"), risk="conformal", alpha=1.0)
+
+
+# ------------------------------------------------------------------ normals="clearest"
+def test_default_normals_are_clearest_for_the_held_action_and_paper_for_a_planner():
+    assert SafetyFilterWrapper(gym.make("SafeNav/HeadOn-v0")).normals == "clearest"
+
+    class Still:
+        def predict(self, obs, deterministic=True):
+            return np.zeros(2, dtype=np.float32), None
+
+    planned = SafetyFilterWrapper(gym.make("SafeNav/HeadOn-v0"), policy=Still())
+    assert planned.normals == "paper"
+
+
+def _instance(rng: np.random.Generator, k: int = 3, T: int = 10):
+    means = rng.uniform(-3.0, 3.0, size=(k, T, 2))
+    samples = means[:, None] + 0.1 * rng.standard_normal((k, 50, T, 2))
+    reference = rng.uniform(-3.0, 3.0, size=(T, 2))
+    plan = rng.uniform(-3.0, 3.0, size=(T, 2))
+    return samples, reference, rng.uniform(-3.0, 3.0, size=2), plan
+
+
+def test_clearest_normals_start_at_the_ego_then_at_the_clearer_origin():
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        samples, reference, ego, plan = _instance(rng)
+        normals = clearest_normals(samples, reference, ego, plan)
+        means = samples.mean(axis=1)
+        np.testing.assert_allclose(np.linalg.norm(normals, axis=-1), 1.0, atol=1e-12)
+        first = means[:, 0] - ego
+        np.testing.assert_allclose(normals[:, 0], first / np.linalg.norm(first, axis=-1,
+                                                                         keepdims=True))
+        d_reference = np.linalg.norm(means - reference, axis=-1)
+        d_plan = np.linalg.norm(means - plan, axis=-1)
+        origin = np.where((d_reference >= d_plan)[..., None], reference, plan)
+        # h . (p - o) = |p - o| = max(d_ref, d_plan): the normal starts at the clearer point
+        reach = np.einsum("ktd,ktd->kt", normals, means - origin)
+        np.testing.assert_allclose(reach[:, 1:], np.maximum(d_reference, d_plan)[:, 1:],
+                                   rtol=1e-12)
+
+
+def test_clearest_normals_without_a_plan_are_the_nearside_ones_after_the_first_step():
+    rng = np.random.default_rng(1)
+    samples, reference, ego, _ = _instance(rng)
+    np.testing.assert_allclose(clearest_normals(samples, reference, ego)[:, 1:],
+                               _nearside_normals(samples, reference, ego)[:, 1:])
+
+
+def test_clearest_normals_never_degenerate():
+    samples = np.zeros((1, 5, 4, 2))  # every sample at the origin
+    at_mean = np.zeros((4, 2))
+    normals = clearest_normals(samples, at_mean, np.array([0.0, -1.0]), at_mean)
+    np.testing.assert_allclose(normals[0], np.tile([0.0, 1.0], (4, 1)))  # from the ego
+    normals = clearest_normals(samples, at_mean, np.zeros(2), at_mean)
+    np.testing.assert_allclose(normals[0], np.tile([1.0, 0.0], (4, 1)))  # a fixed axis
+
+
+def test_the_wrapper_takes_the_plan_only_after_an_optimal_step():
+    env = SafetyFilterWrapper(gym.make("SafeNav/MultiObstacle-v0"), intersample=False)
+    obs, _ = env.reset(seed=2)
+    base = env.unwrapped
+    checked = {"optimal": 0, "other": 0}
+    for _ in range(25):
+        previous = env._last_plan, env._plan_optimal
+        samples = np.array(base.predictions)
+        x0 = np.array(base.ego_state)
+        y0 = x0[:2]
+        action = _goal_seeking(obs)
+        obs, _, terminated, truncated, info = env.step(action)
+        report = info["filter"]
+        if report.status == "error":
+            break
+        before = SimpleNamespace(dynamics=base.dynamics, input_bounds=base.input_bounds,
+                                 ego_state=x0)
+        reference, _ = hold_action_reference(before, report.proposed_action, env.horizon)
+        plan = None
+        if previous[0] is not None and previous[1]:
+            plan = np.concatenate([previous[0][2:, :2], previous[0][-1:, :2]]) \
+                - previous[0][1, :2] + y0
+        expected = clearest_normals(samples, reference[1:, :2], y0, plan)
+        np.testing.assert_allclose(report.normals, expected, atol=1e-9)
+        checked["optimal" if plan is not None else "other"] += 1
+        if terminated or truncated:
+            break
+    assert checked["optimal"] > 0 and checked["other"] > 0
