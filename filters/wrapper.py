@@ -28,10 +28,9 @@ import numpy as np
 
 from filters._validation import scalar_in_range
 from filters.calibration import OnlineCalibration
-from filters.errors import InvalidArrayError, InvalidParameterError, InvalidTypeError
+from filters.errors import InvalidParameterError, InvalidTypeError
 from filters.geometry import Disc
-from filters.halfspaces import Halfspaces, safe_halfspaces
-from filters.intersample import intersample_rows
+from filters.halfspaces import Halfspaces
 from filters.mpc import FilterResult, FilterStatus, MPCSafetyFilter
 from filters.mpc.terminal import stopping_terminal_set
 from filters.protocol import FilterableEnv
@@ -43,6 +42,7 @@ from filters.references import (
 )
 from filters.risk import CHANCE_RISKS, check_alpha, check_epsilon, check_risk
 from filters.risk import RISKS as _METRICS
+from filters.step_rows import step_rows
 
 RISKS: tuple[str, ...] = ("none", *_METRICS)
 """Risk settings accepted by :class:`SafetyFilterWrapper` (``"none"``: pass-through)."""
@@ -694,12 +694,6 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 f"the filter horizon {self.horizon} exceeds the prediction horizon "
                 f"{predictions.shape[2]} of the environment"
             )
-        samples = predictions[:, :, : self.horizon]
-        if not np.all(np.isfinite(samples)):
-            raise InvalidArrayError(
-                "the environment's predictions hold NaN or infinite samples (at indices "
-                f"{np.argwhere(~np.isfinite(samples))[0].tolist()})"
-            )
         previous = self._previous_normals
         if previous is not None and previous.shape[0] == len(radii):
             # Last step's normals, shifted by one step to line up with this horizon.
@@ -709,24 +703,15 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         ego_shape, obstacle_shapes = self._shapes(float(base.ego_radius), radii)
         C = base.dynamics[2]
         y0 = C @ x0
-        origins = self._normal_origins(y0, ref_states[1:, :] @ C.T)
-        options = self._risk_options()
-        given = None
-        if self.normals == "nearside" and len(radii):
-            given = _nearside_normals(samples, origins, y0)
-        halfspaces = safe_halfspaces(
-            origins, samples, ego_shape=ego_shape, obstacle_shapes=obstacle_shapes,
+        rows = step_rows(
+            self._normal_origins(y0, ref_states[1:, :] @ C.T), predictions,
+            horizon=self.horizon, ego_shape=ego_shape, obstacle_shapes=obstacle_shapes,
             support=self.support, previous_normals=previous, ego_velocity=x0[2:],
-            normals=given, **options,
+            nearside_from=y0 if self.normals == "nearside" else None,
+            input_bounds=base.input_bounds if self.intersample else None,
+            dt=float(base.dt), **self._risk_options(),
         )
-        if not self.intersample:
-            return halfspaces, (halfspaces.normals, halfspaces.offsets)
-        rows = intersample_rows(
-            halfspaces, samples, ego_shape=ego_shape, obstacle_shapes=obstacle_shapes,
-            input_bounds=base.input_bounds, dt=float(base.dt), support=self.support,
-            **options,
-        )
-        return halfspaces, (rows.normals, rows.offsets)
+        return rows.halfspaces, (rows.normals, rows.offsets)
 
     def _shapes(self, ego_radius: float, radii: np.ndarray) -> tuple[Disc, list[Disc]]:
         """The ego and obstacle discs, built once per set of radii (not every step)."""
@@ -755,30 +740,6 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                                 reuse=self._halfspace_lines)
         if drawn is not None:
             self._halfspace_lines = drawn
-
-
-def _nearside_normals(samples: np.ndarray, reference: np.ndarray, ego: np.ndarray) -> np.ndarray:
-    """Paper normals where the reference is on the ego's side of the obstacle, else the ego's.
-
-    For obstacle ``i`` and step ``t`` the normal starts at the reference position
-    ``y^r_t`` when ``(y^r_t - p̄_{i,t}) . (y_0 - p̄_{i,t}) > 0`` (the reference has not
-    passed the obstacle's centre as seen from the ego), else at the current position
-    ``y_0``: the normals then never flip inside the horizon.
-    """
-    means = samples.mean(axis=1)  # (k, T, d)
-    to_reference = reference[None] - means
-    to_ego = ego[None, None] - means
-    near = np.einsum("ktd,ktd->kt", to_reference, to_ego) > 0.0
-    origin = np.where(near[..., None], reference[None], ego[None, None])
-    diff = means - origin
-    size = np.sqrt(np.add.reduce(diff * diff, axis=-1, keepdims=True))  # = np.linalg.norm
-    ok = size > 1e-9
-    if ok.all():  # the usual case: the fallback below would not be picked anywhere
-        return diff / size
-    fallback = means - ego[None, None]  # the ego is never at the obstacle's mean
-    fallback_size = np.sqrt(np.add.reduce(fallback * fallback, axis=-1, keepdims=True))
-    return np.where(ok, diff / np.where(ok, size, 1.0),
-                    fallback / np.maximum(fallback_size, 1e-12))
 
 
 def _choice(name: str, value: object, choices: tuple[str, ...]) -> str:
