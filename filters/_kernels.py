@@ -1,27 +1,30 @@
-r"""Compiled (numba) kernels of the safe halfspaces: fused passes per obstacle and block of steps.
+r"""Compiled (numba) kernels of the safe halfspaces and the inter-sample start rows.
 
 Private: :mod:`filters.kernels` prepares the arguments and picks this path or the
 numpy reference of :mod:`filters.halfspaces`. Importing this module imports numba
 (and loads the kernels from numba's cache, or compiles them), so nothing imports it
 at ``import filters``.
 
-The samples arrive flattened, ``flat[i, s, t d + j] = p_{i,s,t,j}``. For obstacle
-:math:`i` and a block of consecutive steps (their samples stay in cache between the
-passes):
+The samples arrive flattened, ``flat[i, s, t d + j] = p_{i,s,t,j}``. Per obstacle
+:math:`i`:
 
-1. **moments**, one pass in memory order: the sums of the deviations
-   :math:`p_{i,s,t} - p_{i,0,t}` from the first sample (so the rounding error does not
-   grow with the size of the positions) and of their squares and, for ``d = 2``,
-   cross products; they give the sample means :math:`\bar p_{i,t}` (hence the unit
-   normals, with the documented fallbacks) and the sample covariance;
-2. **losses**, one pass per step and normal, only where the risk needs the samples:
-   :math:`x_s = -h \cdot p_{i,s,t}` along the step's normal :math:`h_{i,t}` and, for
-   the inter-sample start rows, along the next step's normal
-   :math:`h' = h_{i,t+1} / \lVert h_{i,t+1} \rVert`.
+1. its samples are read once from memory, in order, into ``rows[t d + j, s]`` (one
+   contiguous row per step and coordinate; every later pass reads these rows from
+   the cache);
+2. **moments**: per row, the sums of the deviations from the first sample,
+   :math:`\sum_s (p_{i,s,t,j} - p_{i,0,t,j})` (so the rounding error does not grow
+   with the size of the positions), which give the sample means
+   :math:`\bar p_{i,t}`;
+3. **normals** from the origins (or given, or the near-side ones) to the means, with
+   the fallbacks of :func:`filters.safe_halfspaces` for a degenerate normal;
+4. **risks** of the losses :math:`x_s = -h \cdot p_{i,s,t}` along the step's normal
+   and, for the inter-sample start rows, along the next step's normal
+   :math:`h' = h_{i,t+1} / \lVert h_{i,t+1} \rVert`; the losses are formed only where
+   the risk needs the samples.
 
-Risks (see :mod:`filters.risk`), with :math:`\bar x = -h \cdot \bar p` and
-:math:`s` the sample standard deviation of the :math:`x_s` (``ddof = 1``, from the
-losses' own deviations :math:`x_s - \bar x`, as numpy's two-pass ``std``):
+Risks (see :mod:`filters.risk`), with :math:`\bar x = -h \cdot \bar p` and :math:`s` the
+sample standard deviation of the losses (``ddof = 1``; 0 for one sample), from their
+deviations :math:`x_s - \bar x`:
 
 .. math::
 
@@ -34,19 +37,25 @@ with :math:`\tau = x_{(k+1)}` the :math:`(k+1)`-th largest loss and
 :math:`k = \lfloor \alpha N \rfloor` (``alpha N`` snapped as
 :func:`filters.risk.tail_count`; :math:`k \ge N` gives the mean). :math:`\tau` minimises
 the Rockafellar-Uryasev objective :math:`\tau + \sum_s (x_s - \tau)^+ / (\alpha N)`, and
-the value there equals the sorted formula
-:math:`(x_{(1)} + \dots + x_{(k)} + (\alpha N - k) x_{(k+1)}) / (\alpha N)` exactly; ties
-add zero. :math:`\tau` is found in O(N): while the losses are computed, the ones inside a
-band around the Gaussian guess :math:`\bar x + z s_\Sigma` (:math:`s_\Sigma` from the
-covariance) are copied aside and the ones below and above it counted, with the sum of
-the excesses above it. When the band holds rank :math:`k + 1`, quickselect runs on the
-band only; else on all the losses. The guess decides only the speed: the value is
-exact either way (also for NaN guesses, which select on all the losses).
+the value there is the sorted formula
+:math:`(x_{(1)} + \dots + x_{(k)} + (\alpha N - k) x_{(k+1)}) / (\alpha N)` exactly (ties
+add zero). :math:`\tau` is found in O(N) without data-dependent branches (a random
+order would mispredict every other one): the losses inside a band around the
+Gaussian guess :math:`\bar x + z\, s_\Sigma` are copied aside and the ones below it
+counted; if the band holds rank :math:`k + 1`, the search narrows inside it
+(Floyd-Rivest by interpolation) and ends with a quickselect; else the quickselect
+runs on all the losses. The band decides only the speed: the value is exact for any
+band (NaN included).
 
-The kernels return a status: :data:`OK`; :data:`NON_FINITE_SAMPLES` (a sample mean,
+The kernel returns a status: :data:`OK`; :data:`NON_FINITE_SAMPLES` (a sample mean,
 hence some sample, is NaN or infinite, or their sum overflowed);
 :data:`NON_FINITE_RESULT` (a normal or offset is not finite: a non-finite origin, an
 overflow); :data:`ZERO_NORMAL` (a near-side normal of zero length).
+
+Compiled with ``error_model="numpy"``: a division by zero gives ``inf``/``NaN``
+(caught by the status checks) instead of raising. Small helpers that take few
+arrays are plain calls; the per-step code lives in the per-obstacle functions, as a
+call with many array arguments costs more than a step's arithmetic.
 """
 
 from __future__ import annotations
@@ -72,71 +81,104 @@ RISK_MOMENT = 3  # gaussian_cc and moment_dr: mean + factor * std
 RISK_CONFORMAL = 4
 
 DEGENERATE_DISTANCE = 1e-9  # = filters.halfspaces.DEGENERATE_DISTANCE
-_NEARSIDE_MIN = 1e-9  # the near-side normal's threshold (filters.wrapper)
+_NEARSIDE_MIN = 1e-9  # the near-side normal's thresholds (filters.step_rows.nearside_normals)
 _NEARSIDE_FLOOR = 1e-12
 
-_SMALL = 16  # ranges this short are insertion-sorted by the selection
+_SMALL = 8  # ranges this short are finished by counting
 _BAND_MIN = 32  # fewer losses than this are selected from directly
+_NARROW_ERRORS = 2.0  # half-width of the narrowing bands, in standard errors
+
+_FLAGS = dict(cache=True, nogil=True, error_model="numpy")
+# Inlined where called: each call costs two atomic reference-count updates per array
+# argument, more than a short function's work.
+_INLINE = dict(_FLAGS, inline="always")
 
 
 # --------------------------------------------------------------------------- selection
+# The selection works in the rows 1 and 2 of a ``(3, N)`` scratch array, by index (a
+# function call or a rebinding per array costs two atomic reference-count updates).
 
 
-@njit(cache=True, nogil=True)
-def _rank_by_counting(a, start, count, kth):
-    """Branch-free: the value of ascending rank ``kth`` among ``a[start : start + count]``.
-
-    Element ``v`` has the ranks ``[#(< v), #(<= v))``; O(count^2), for short ranges.
-    """
-    result = a[start]
+@njit(**_INLINE)
+def _rank_by_counting(work, row, start, count, kth):
+    """The value of ascending rank ``kth`` among ``work[row, start : start + count]``,
+    branch-free: value ``v`` holds the ranks ``[#(< v), #(<= v))``; O(count^2)."""
+    result = work[row, start]
     for i in range(start, start + count):
-        v = a[i]
+        v = work[row, i]
         less = 0
         equal = 0
         for j in range(start, start + count):
-            less += a[j] < v
-            equal += a[j] == v
+            less += work[row, j] < v
+            equal += work[row, j] == v
         hit = (less <= kth) & (kth < less + equal)
         result = v if hit else result
     return result
 
 
-@njit(cache=True, nogil=True)
-def select(a, n, kth, scratch):
-    """The value of ascending rank ``kth`` (0-based) of ``a[:n]`` (no NaN); overwrites
-    ``a[:n]`` and ``scratch[:n]``.
+@njit(**_FLAGS)
+def _heapsort(work, row, start, count):
+    """Sort ``work[row, start : start + count]`` in place (the worst-case guard)."""
+    for first in range(count // 2 - 1, -1, -1):
+        _sift(work, row, start, first, count)
+    for end in range(count - 1, 0, -1):
+        top = work[row, start]
+        work[row, start] = work[row, start + end]
+        work[row, start + end] = top
+        _sift(work, row, start, 0, end)
+
+
+@njit(**_FLAGS)
+def _sift(work, row, start, node, count):
+    """Move ``node`` down the max-heap ``work[row, start : start + count]``."""
+    while True:
+        child = 2 * node + 1
+        if child >= count:
+            return
+        if child + 1 < count and work[row, start + child + 1] > work[row, start + child]:
+            child += 1
+        if work[row, start + node] >= work[row, start + child]:
+            return
+        v = work[row, start + node]
+        work[row, start + node] = work[row, start + child]
+        work[row, start + child] = v
+        node = child
+
+
+@njit(**_INLINE)
+def select(work, source, count, kth):
+    """The value of ascending rank ``kth`` (0-based) of ``work[source, :count]`` (no NaN);
+    ``source`` is 1 or 2, and rows 1 and 2 are overwritten.
 
     Quickselect with branch-free partitions (the data decide where each value is
     written, not which instructions run, so a random order costs no mispredicted
     branches): each round copies the values below the median-of-three pivot to the
-    front of the other buffer and the values above it to its back, and goes on in the
-    part that holds rank ``kth`` (or returns the pivot if ``kth`` falls among its
-    copies). Ranges of at most :data:`_SMALL` values are finished by counting. After
-    ``2 log2(n) + 8`` rounds the rest is sorted: O(n) expected, O(n log n) at worst.
+    front of the other row and those above it to its back, and goes on in the part
+    that holds rank ``kth`` (or returns the pivot, if ``kth`` falls among its copies).
+    At most :data:`_SMALL` values are finished by :func:`_rank_by_counting`. After
+    ``2 log2(n) + 8`` rounds the rest is heap-sorted: O(n) expected, O(n log n) at worst.
     """
-    source = a
-    target = scratch
     start = 0
-    count = n
     rounds = 0
-    limit = 2 * int(math.log2(n + 1)) + 8
+    limit = 2 * int(math.log2(count + 1)) + 8
     while count > _SMALL:
         rounds += 1
         if rounds > limit:
-            ordered = np.sort(source[start : start + count])
-            return ordered[kth]
-        x = source[start]
-        y = source[start + (count >> 1)]
-        z = source[start + count - 1]
+            _heapsort(work, source, start, count)
+            return work[source, start + kth]
+        target = 3 - source
+        x = work[source, start]
+        y = work[source, start + (count >> 1)]
+        z = work[source, start + count - 1]
         pivot = max(min(x, y), min(max(x, y), z))  # median of three
         below = 0
         above = 0
         top = count - 1
         for j in range(start, start + count):
-            v = source[j]
-            target[below] = v
+            v = work[source, j]
+            work[target, below] = v
             below += v < pivot
-            target[top - above] = v
+            work[target, top - above] = v
             above += v > pivot
         if kth < below:
             start = 0
@@ -147,404 +189,386 @@ def select(a, n, kth, scratch):
             count = above
         else:
             return pivot
-        source, target = target, source
-    return _rank_by_counting(source, start, count, kth)
+        source = target
+    return _rank_by_counting(work, source, start, count, kth)
 
 
-# --------------------------------------------------------------------------- reductions
-# Sums whose order does not matter beyond rounding: 'reassoc' lets LLVM vectorise them
-# (several partial sums). The order is fixed at compile time, so the result is the same
-# bits on every call on this machine.
+@njit(**_INLINE)
+def _narrowed(work, count, rank, low, high):
+    """The value of ascending rank ``rank`` of ``work[1, :count]``, all of whose values lie
+    in ``[low, high]``; rows 1 and 2 are overwritten.
+
+    Floyd-Rivest by interpolation: in a narrow band the values are nearly uniform, so
+    rank ``r`` lies near ``low + (r + 1/2)/m (high - low)``; a band of
+    :data:`_NARROW_ERRORS` standard errors around that guess keeps about
+    ``6 sqrt(r (m - r) / m)`` values (copied without branches, and the values below
+    it counted). Repeated while it holds the rank and shrinks the range, then
+    :func:`select`.
+    """
+    source = 1
+    while count > _SMALL:
+        level = (rank + 0.5) / count
+        centre = low + level * (high - low)
+        half = _NARROW_ERRORS * (high - low) * math.sqrt(level * (1.0 - level) / count)
+        target = 3 - source
+        kept = 0
+        for s in range(count):
+            v = work[source, s]
+            work[target, kept] = v
+            kept += abs(v - centre) <= half
+        below = 0
+        for s in range(count):
+            v = work[source, s]
+            below += (v < centre) & (abs(v - centre) > half)
+        if not (0 <= rank - below < kept and kept < count):
+            break
+        source = target
+        count = kept
+        rank -= below
+        low = centre - half
+        high = centre + half
+    return select(work, source, count, rank)
 
 
-@njit(cache=True, nogil=True, fastmath={"reassoc"})
-def _deviation_sums(rows, q, n):
-    """:math:`\\sum_s (a_s - a_0)` and :math:`\\sum_s (a_s - a_0)^2`, ``a = rows[q, :n]``."""
-    base = rows[q, 0]
-    total = 0.0
-    squares = 0.0
+@njit(**_INLINE)
+def kth_largest(work, n, k, low, high):
+    """The ``(k+1)``-th largest of ``work[0, :n]`` (``0 <= k < n``, no NaN), exactly.
+
+    Row 0 is kept; rows 1 and 2 are scratch. The values in ``[low, high]`` (as
+    ``|v - c| <= w``, ``c`` and ``w`` its centre and half-width) are copied to row 1
+    without branches, and the ones below counted: ``|v - c|`` is monotone on each side
+    of ``c`` (rounding included), so the band is an interval of values. If it holds the
+    rank sought the search narrows inside it (:func:`_narrowed`), else :func:`select`
+    runs on a copy of all the values. Any ``low``, ``high`` (NaN included) give the
+    same value; a band around the value sought makes it fast.
+    """
+    rank = n - 1 - k  # ascending rank of the (k+1)-th largest
+    if k == 0:
+        top = work[0, 0]
+        for s in range(1, n):
+            top = max(top, work[0, s])
+        return top
+    if n >= _BAND_MIN:
+        centre = 0.5 * (low + high)
+        half = 0.5 * (high - low)
+        m = 0
+        for s in range(n):
+            v = work[0, s]
+            work[1, m] = v
+            m += abs(v - centre) <= half
+        below = 0
+        for s in range(n):
+            v = work[0, s]
+            below += (v < centre) & (abs(v - centre) > half)
+        if 0 <= rank - below < m:
+            return _narrowed(work, m, rank - below, centre - half, centre + half)
     for s in range(n):
-        d = rows[q, s] - base
-        total += d
-        squares += d * d
-    return total, squares
+        work[1, s] = work[0, s]
+    return select(work, 1, n, rank)
 
 
-@njit(cache=True, nogil=True, fastmath={"reassoc"})
+# --------------------------------------------------------------------------- sums
+# Four partial sums (s mod 4), added at the end: the order is fixed by this code (the
+# same bits on every machine), and the four chains run in parallel.
+
+
+@njit(**_INLINE)
 def _deviation_sum(rows, q, n):
     """:math:`\\sum_s (a_s - a_0)`, ``a = rows[q, :n]``."""
     base = rows[q, 0]
-    total = 0.0
-    for s in range(n):
-        total += rows[q, s] - base
-    return total
+    s0 = s1 = s2 = s3 = 0.0
+    s = 0
+    while s + 4 <= n:
+        s0 += rows[q, s] - base
+        s1 += rows[q, s + 1] - base
+        s2 += rows[q, s + 2] - base
+        s3 += rows[q, s + 3] - base
+        s += 4
+    for r in range(s, n):
+        s0 += rows[q, r] - base
+    return (s0 + s1) + (s2 + s3)
 
 
-@njit(cache=True, nogil=True, fastmath={"reassoc"})
-def _cross_sum(rows, q, n):
-    """:math:`\\sum_s (a_s - a_0)(b_s - b_0)`, ``a = rows[q]``, ``b = rows[q + 1]``."""
-    a0 = rows[q, 0]
-    b0 = rows[q + 1, 0]
-    total = 0.0
-    for s in range(n):
-        total += (rows[q, s] - a0) * (rows[q + 1, s] - b0)
-    return total
-
-
-@njit(cache=True, nogil=True, fastmath={"reassoc"})
-def _centred_sums(x, n, centre):
-    """:math:`\\sum_s (x_s - c)` and :math:`\\sum_s (x_s - c)^2`."""
-    total = 0.0
-    squares = 0.0
-    for s in range(n):
-        d = x[s] - centre
-        total += d
-        squares += d * d
-    return total, squares
-
-
-@njit(cache=True, nogil=True, fastmath={"reassoc"})
-def _excess(x, n, tau):
-    """:math:`\\sum_s \\max(x_s - \\tau, 0)`."""
-    total = 0.0
-    for s in range(n):
-        d = x[s] - tau
-        total += d if d > 0.0 else 0.0
-    return total
-
-
-@njit(cache=True, nogil=True)
-def _count_below_band(x, n, centre, half):
-    """How many of ``x[:n]`` lie below the band ``|x - centre| <= half``."""
-    count = 0
-    for s in range(n):
-        v = x[s]
-        count += (v < centre) & (abs(v - centre) > half)
-    return count
-
-
-@njit(cache=True, nogil=True)
-def _largest(x, n):
-    """:math:`\\max_s x_s`."""
-    top = x[0]
-    for s in range(1, n):
-        top = x[s] if x[s] > top else top
-    return top
-
-
-# --------------------------------------------------------------------------- risks along h
-
-
-@njit(cache=True, nogil=True)
-def _losses_along(rows, first_row, h, dim, n, out):
-    """``out[s] = -h . p_s`` from the coordinate rows ``rows[first_row + j, s]``."""
+@njit(**_INLINE)
+def _losses_std(rows, first, h, dim, n, centre, work):
+    """Write the losses :math:`x_s = -h \\cdot p_s` to ``work[0, :n]`` (the coordinates of
+    :math:`p_s` in ``rows[first + j, s]``) and return their sample standard deviation
+    (``ddof = 1``; 0 for one sample), from the deviations from ``centre`` (near the
+    mean, :math:`-h \\cdot \\bar p`), corrected by their mean."""
     if dim == 2:
         h0 = h[0]
         h1 = h[1]
         for s in range(n):
-            out[s] = -(h0 * rows[first_row, s] + h1 * rows[first_row + 1, s])
-        return
-    for s in range(n):
-        out[s] = 0.0
-    for j in range(dim):
-        hj = h[j]
-        for s in range(n):
-            out[s] += hj * rows[first_row + j, s]
-    for s in range(n):
-        out[s] = -out[s]
-
-
-@njit(cache=True, nogil=True)
-def _band(x, n, centre, half, band):
-    """Copy the values of ``x[:n]`` with ``|v - centre| <= half`` to ``band`` without
-    branches; returns ``(how many, how many lie below the band)``.
-
-    ``|v - c|`` is monotone on each side of ``c`` (rounding included), so the band is
-    an interval of values: every value below it is smaller than every value in it.
-    """
-    m = 0
-    for s in range(n):
-        v = x[s]
-        band[m] = v
-        m += abs(v - centre) <= half
-    return m, _count_below_band(x, n, centre, half)
-
-
-@njit(cache=True, nogil=True)
-def _narrowed(a, m, rank, low, high, scratch):
-    """The value of ascending rank ``rank`` of ``a[:m]``, whose values lie in ``[low, high]``.
-
-    Floyd-Rivest by interpolation: inside a narrow band the values are nearly uniform,
-    so rank ``r`` lies near ``low + (r + 1/2)/m (high - low)``; a band of three
-    standard errors of that guess keeps about ``3 sqrt(m)`` values. Repeated while it
-    holds the rank and shrinks the range, then :func:`select`. Overwrites ``a`` and
-    ``scratch``.
-    """
-    while m > _SMALL:
-        level = (rank + 0.5) / m
-        centre = low + level * (high - low)
-        half = 3.0 * (high - low) * math.sqrt(level * (1.0 - level) / m)
-        kept, below = _band(a, m, centre, half, scratch)
-        if not (0 <= rank - below < kept and kept < m):
-            break
-        a, scratch = scratch, a
-        m = kept
-        rank -= below
-        low = centre - half
-        high = centre + half
-    return select(a, m, rank, scratch)
-
-
-@njit(cache=True, nogil=True)
-def kth_largest(x, n, k, low, high, band, scratch):
-    """The ``(k+1)``-th largest of ``x[:n]`` (``0 <= k < n``, no NaN), exactly; keeps ``x``.
-
-    The values in the band ``[low, high]`` are copied to ``band`` and the ones below it
-    counted (:func:`_band`); if the band holds the rank sought, the selection goes on
-    in the band (:func:`_narrowed`), else on a copy of all the values. Any ``low``,
-    ``high`` (NaN included) give the same value; a band around the value sought makes
-    it fast. ``band`` and ``scratch`` have length ``>= n``.
-    """
-    rank = n - 1 - k  # ascending rank of the (k+1)-th largest
-    if k == 0:
-        return _largest(x, n)
-    if n >= _BAND_MIN:
-        centre = 0.5 * (low + high)
-        half = 0.5 * (high - low)
-        m, below = _band(x, n, centre, half, band)
-        if 0 <= rank - below < m:
-            return _narrowed(band, m, rank - below, centre - half, centre + half, scratch)
-    for s in range(n):
-        band[s] = x[s]
-    return select(band, n, rank, scratch)
-
-
-@njit(cache=True, nogil=True)
-def _risk_along(rows, first_row, h, dim, n, mean, spread, risk, alpha, mass, k, factor,
-                z_guess, width, epsilon, margin, losses, band, scratch):
-    """:math:`R(-h \\cdot p)` of the samples in ``rows[first_row : first_row + d]``.
-
-    ``mean`` is :math:`-h \\cdot \\bar p`; ``spread`` the covariance's guess of the
-    losses' standard deviation (it places the CVaR's selection band).
-    """
-    if risk == RISK_MEAN:
-        return mean
-    if risk == RISK_CONFORMAL:
-        return mean + margin
-    if risk == RISK_MOMENT:
-        if n < 2:
-            return mean
-        _losses_along(rows, first_row, h, dim, n, losses)
-        total, squares = _centred_sums(losses, n, mean)
-        std = math.sqrt(max((squares - total * total / n) / (n - 1), 0.0))
-        return mean + factor * std
-    if k >= n:
-        value = mean
+            work[0, s] = -(h0 * rows[first, s] + h1 * rows[first + 1, s])
     else:
-        _losses_along(rows, first_row, h, dim, n, losses)
-        low = mean + (z_guess - width) * spread
-        high = mean + (z_guess + width) * spread
-        tau = kth_largest(losses, n, k, low, high, band, scratch)
-        value = tau + _excess(losses, n, tau) / mass
-    if risk == RISK_DR_CVAR:
-        value = value + epsilon / alpha
-    return value
+        for s in range(n):
+            work[0, s] = 0.0
+        for j in range(dim):
+            for s in range(n):
+                work[0, s] += h[j] * rows[first + j, s]
+        for s in range(n):
+            work[0, s] = -work[0, s]
+    if n < 2:
+        return 0.0
+    t0 = t1 = t2 = t3 = 0.0
+    q0 = q1 = q2 = q3 = 0.0
+    s = 0
+    while s + 4 <= n:
+        d0 = work[0, s] - centre
+        d1 = work[0, s + 1] - centre
+        d2 = work[0, s + 2] - centre
+        d3 = work[0, s + 3] - centre
+        t0 += d0
+        t1 += d1
+        t2 += d2
+        t3 += d3
+        q0 += d0 * d0
+        q1 += d1 * d1
+        q2 += d2 * d2
+        q3 += d3 * d3
+        s += 4
+    for r in range(s, n):
+        d0 = work[0, r] - centre
+        t0 += d0
+        q0 += d0 * d0
+    total = (t0 + t1) + (t2 + t3)
+    squares = (q0 + q1) + (q2 + q3)
+    return math.sqrt(max((squares - total * total / n) / (n - 1), 0.0))
 
 
-# --------------------------------------------------------------------------- normals
+@njit(**_INLINE)
+def _excess(work, n, tau):
+    """:math:`\\sum_s \\max(x_s - \\tau, 0)` of ``x = work[0, :n]``."""
+    s0 = s1 = s2 = s3 = 0.0
+    s = 0
+    while s + 4 <= n:
+        s0 += max(work[0, s] - tau, 0.0)
+        s1 += max(work[0, s + 1] - tau, 0.0)
+        s2 += max(work[0, s + 2] - tau, 0.0)
+        s3 += max(work[0, s + 3] - tau, 0.0)
+        s += 4
+    for r in range(s, n):
+        s0 += max(work[0, r] - tau, 0.0)
+    return (s0 + s1) + (s2 + s3)
 
 
-@njit(cache=True, nogil=True)
-def _normal(i, t, mean, origins, mode, given, ego, previous, velocity, normals):
-    """Unit normal of obstacle ``i`` at step ``t`` into ``normals[i, t]`` from the sample
-    mean ``mean[t]``; returns ``(status, degenerate)``."""
-    dim = mean.shape[1]
-    if mode == MODE_GIVEN:
-        for j in range(dim):
-            normals[i, t, j] = given[i, t, j]
-        return OK, False
-    if mode == MODE_NEARSIDE:
-        # from the reference while it is on the ego's side of the mean, else from the ego
-        side = 0.0
-        for j in range(dim):
-            side += (origins[t, j] - mean[t, j]) * (ego[j] - mean[t, j])
-        size2 = 0.0
-        for j in range(dim):
-            v = mean[t, j] - (origins[t, j] if side > 0.0 else ego[j])
-            normals[i, t, j] = v
-            size2 += v * v
-        size = math.sqrt(size2)
-        if not size > _NEARSIDE_MIN:
-            size2 = 0.0
-            for j in range(dim):
-                v = mean[t, j] - ego[j]
-                normals[i, t, j] = v
-                size2 += v * v
-            size = max(math.sqrt(size2), _NEARSIDE_FLOOR)
-        size2 = 0.0
-        for j in range(dim):
-            v = normals[i, t, j] / size
-            normals[i, t, j] = v
-            size2 += v * v
-        size = math.sqrt(size2)  # normalised again, as safe_halfspaces does to given normals
-        if not size >= DEGENERATE_DISTANCE:
-            return (ZERO_NORMAL if math.isfinite(size) else NON_FINITE_RESULT), False
-        for j in range(dim):
-            normals[i, t, j] = normals[i, t, j] / size
-        return OK, False
-    size2 = 0.0
-    for j in range(dim):
-        v = mean[t, j] - origins[t, j]
-        normals[i, t, j] = v
-        size2 += v * v
-    size = math.sqrt(size2)
-    if not size < DEGENERATE_DISTANCE:  # NaN too: a non-finite result, reported later
-        for j in range(dim):
-            normals[i, t, j] = normals[i, t, j] / size
-        return OK, False
-    # degenerate: the previous normal, else minus the ego velocity, else the first axis
-    if previous.shape[0] > 0:
-        size2 = 0.0
-        for j in range(dim):
-            size2 += previous[i, t, j] * previous[i, t, j]
-        size = math.sqrt(size2)
-        if size >= DEGENERATE_DISTANCE:
-            for j in range(dim):
-                normals[i, t, j] = previous[i, t, j] / size
-            return OK, True
-    if velocity.shape[0] > 0:
-        row = t if velocity.shape[0] > 1 else 0
-        size2 = 0.0
-        for j in range(dim):
-            size2 += velocity[row, j] * velocity[row, j]
-        size = math.sqrt(size2)
-        if size >= DEGENERATE_DISTANCE:
-            for j in range(dim):
-                normals[i, t, j] = -velocity[row, j] / size
-            return OK, True
-    for j in range(dim):
-        normals[i, t, j] = 1.0 if j == 0 else 0.0
-    return OK, True
+# --------------------------------------------------------------------------- per obstacle
 
 
-# --------------------------------------------------------------------------- kernel
-
-
-@njit(cache=True, nogil=True)
-def _transpose(flat, i, start, width, rows):
-    """``rows[q, s] = flat[i, s, start + q]`` for ``q < width``: one coordinate per row."""
+@njit(**_FLAGS)
+def _transpose(flat, i, width, rows):
+    """``rows[q, s] = flat[i, s, q]`` for ``q < width``: read obstacle ``i`` once, in order."""
     n = flat.shape[1]
     for s in range(n):
         for q in range(width):
-            rows[q, s] = flat[i, s, start + q]
+            rows[q, s] = flat[i, s, q]
 
 
-@njit(cache=True, nogil=True)
-def _spread(h, dim, n, sums, squares, cross, b):
-    """:math:`\\sqrt{h^\\top \\hat\\Sigma h}` from the shifted sums of block step ``b``."""
-    if n < 2:
-        return 0.0
-    var = 0.0
+@njit(**_FLAGS)
+def _normals_of(i, horizon, dim, n, rows, sums, mode, origins, given, ego, previous,
+                velocity, mean, normals, degenerate):
+    """Sample means ``mean[t]`` and unit normals ``normals[i, t]`` of obstacle ``i``.
+
+    The normals of :func:`filters.safe_halfspaces` (paper mode: origin to mean; a
+    degenerate one falls back to the previous normal, minus the ego velocity, the
+    first axis), given ones, or :func:`filters.step_rows.nearside_normals` normalised
+    again (as ``safe_halfspaces`` does to given normals).
+    """
+    for t in range(horizon):
+        for j in range(dim):
+            q = t * dim + j
+            mean[t, j] = rows[q, 0] + sums[q] / n
+            if not math.isfinite(mean[t, j]):
+                return NON_FINITE_SAMPLES
+        degenerate[i, t] = False
+        if mode == MODE_GIVEN:
+            for j in range(dim):
+                normals[i, t, j] = given[i, t, j]
+            continue
+        if mode == MODE_NEARSIDE:  # from the reference while on the ego's side, else the ego
+            side = 0.0
+            for j in range(dim):
+                side += (origins[t, j] - mean[t, j]) * (ego[j] - mean[t, j])
+            size2 = 0.0
+            for j in range(dim):
+                v = mean[t, j] - (origins[t, j] if side > 0.0 else ego[j])
+                normals[i, t, j] = v
+                size2 += v * v
+            size = math.sqrt(size2)
+            if not math.isfinite(size):
+                return NON_FINITE_RESULT
+            if not size > _NEARSIDE_MIN:
+                size2 = 0.0
+                for j in range(dim):
+                    v = mean[t, j] - ego[j]
+                    normals[i, t, j] = v
+                    size2 += v * v
+                size = max(math.sqrt(size2), _NEARSIDE_FLOOR)
+            size2 = 0.0
+            for j in range(dim):
+                v = normals[i, t, j] / size
+                normals[i, t, j] = v
+                size2 += v * v
+            size = math.sqrt(size2)
+            if not size >= DEGENERATE_DISTANCE:
+                return ZERO_NORMAL if math.isfinite(size) else NON_FINITE_RESULT
+            for j in range(dim):
+                normals[i, t, j] = normals[i, t, j] / size
+            continue
+        size2 = 0.0
+        for j in range(dim):
+            v = mean[t, j] - origins[t, j]
+            normals[i, t, j] = v
+            size2 += v * v
+        size = math.sqrt(size2)
+        if not math.isfinite(size):  # a non-finite origin, or an overflow
+            return NON_FINITE_RESULT
+        if size >= DEGENERATE_DISTANCE:
+            for j in range(dim):
+                normals[i, t, j] = normals[i, t, j] / size
+            continue
+        degenerate[i, t] = True
+        size = 0.0
+        if previous.shape[0] > 0:
+            size2 = 0.0
+            for j in range(dim):
+                size2 += previous[i, t, j] * previous[i, t, j]
+            size = math.sqrt(size2)
+        if size >= DEGENERATE_DISTANCE:
+            for j in range(dim):
+                normals[i, t, j] = previous[i, t, j] / size
+            continue
+        row = t if velocity.shape[0] > 1 else 0
+        size = 0.0
+        if velocity.shape[0] > 0:
+            size2 = 0.0
+            for j in range(dim):
+                size2 += velocity[row, j] * velocity[row, j]
+            size = math.sqrt(size2)
+        if size >= DEGENERATE_DISTANCE:
+            for j in range(dim):
+                normals[i, t, j] = -velocity[row, j] / size
+            continue
+        for j in range(dim):
+            normals[i, t, j] = 1.0 if j == 0 else 0.0
+    return OK
+
+
+@njit(**_FLAGS)
+def _arc_margin(normals, i, t, dim, low, high, arc):
+    """:math:`(T_s^2/8) \\sum_j \\max(-h_j u_{low,j}, -h_j u_{high,j})` of ``normals[i, t]``
+    (:func:`filters.intersample.arc_margin`)."""
+    worst = 0.0
     for j in range(dim):
-        q = b * dim + j
-        var += h[j] * h[j] * (squares[q] - sums[q] * sums[q] / n)
-    if dim == 2:
-        var += 2.0 * h[0] * h[1] * (cross[b] - sums[2 * b] * sums[2 * b + 1] / n)
-    return math.sqrt(max(var / (n - 1), 0.0))
+        worst += max(-normals[i, t, j] * low[j], -normals[i, t, j] * high[j])
+    return arc * worst
 
 
-@njit(cache=True, nogil=True)
+@njit(**_FLAGS)
+def _offsets_of(i, n_obstacles, horizon, dim, n, rows, mean, normals, risk, alpha, mass, k,
+                factor, z_guess, band_width, delta, epsilon, conformal, radii, start_rows,
+                low, high, arc, disabled, offsets, rows_normals, rows_offsets, h, work):
+    """Offsets of obstacle ``i`` and, with ``start_rows``, its rows of the QP.
+
+    Along :math:`h`: :math:`b = -((R - \\delta) + r)`. With ``start_rows``, row ``i`` of
+    ``rows_*`` is the end row (the halfspace tightened by the arc margin
+    :math:`m(h_{i,t})`), row ``n_obstacles + i`` the start row: the step-``t`` samples
+    along the next step's normal normalised again (as
+    :func:`filters.halfspaces.offsets_along`), tightened by :math:`m(h_{i,t+1})`, and
+    ``0 @ y <= disabled`` at the last step (:func:`filters.intersample_rows`' layout).
+    The losses go to ``work[0]`` (rows 1 and 2 are the selection's scratch).
+    """
+    sampled = risk == RISK_MOMENT or ((risk == RISK_CVAR or risk == RISK_DR_CVAR) and k < n)
+    margin_row = i if conformal.shape[0] > 1 else 0
+    for t in range(horizon):
+        eps_t = epsilon[t if epsilon.shape[0] > 1 else 0]
+        margin_t = conformal[margin_row, t if conformal.shape[1] > 1 else 0]
+        for row in range(2 if start_rows and t < horizon - 1 else 1):
+            # row 0: the step's normal; row 1: the next step's, normalised again
+            size = 1.0
+            if row == 1:
+                size2 = 0.0
+                for j in range(dim):
+                    size2 += normals[i, t + 1, j] * normals[i, t + 1, j]
+                size = math.sqrt(size2)
+            centre = 0.0
+            for j in range(dim):
+                h[j] = normals[i, t, j] if row == 0 else normals[i, t + 1, j] / size
+                centre -= h[j] * mean[t, j]
+            value = centre  # mean, conformal, and CVaR with alpha N >= N
+            if sampled:
+                std = _losses_std(rows, t * dim, h, dim, n, centre, work)
+                if risk == RISK_MOMENT:
+                    value = centre + factor * std
+                else:  # the band: the Gaussian guess of the threshold, +- a few errors
+                    tau = kth_largest(work, n, k, centre + (z_guess - band_width) * std,
+                                      centre + (z_guess + band_width) * std)
+                    value = tau + _excess(work, n, tau) / mass
+            if risk == RISK_CONFORMAL:
+                value = value + margin_t
+            elif risk == RISK_DR_CVAR:
+                value = value + eps_t / alpha
+            offset = -((value - delta) + radii[i])
+            if not (math.isfinite(offset) and math.isfinite(h[0])):
+                return NON_FINITE_RESULT
+            if row == 0:
+                offsets[i, t] = offset
+                if start_rows:
+                    for j in range(dim):
+                        rows_normals[i, t, j] = normals[i, t, j]
+                    rows_offsets[i, t] = offset - _arc_margin(normals, i, t, dim, low, high, arc)
+            else:
+                for j in range(dim):
+                    rows_normals[n_obstacles + i, t, j] = normals[i, t + 1, j]
+                rows_offsets[n_obstacles + i, t] = offset - _arc_margin(
+                    normals, i, t + 1, dim, low, high, arc)
+        if start_rows and t == horizon - 1:  # no next step: the row is off
+            for j in range(dim):
+                rows_normals[n_obstacles + i, t, j] = 0.0
+            rows_offsets[n_obstacles + i, t] = disabled
+    return OK
+
+
+@njit(**_FLAGS)
 def halfspace_kernel(flat, horizon, dim, origins, mode, given, ego, previous, velocity,
-                     risk, alpha, mass, k, factor, z_guess, width, delta, epsilon, conformal,
-                     radii, start_rows, low, high, arc,
-                     normals, degenerate, offsets, start_offsets, margins):
+                     risk, alpha, mass, k, factor, z_guess, band_width, delta, epsilon,
+                     conformal, radii, start_rows, low, high, arc, disabled,
+                     normals, degenerate, offsets, rows_normals, rows_offsets):
     """Normals, offsets and (``start_rows``) inter-sample start offsets and arc margins.
 
     Parameters (checked by :func:`filters.kernels.compiled_rows`): ``flat``
     ``(k, N, T' d)``; ``horizon`` ``T <= T'``; ``dim`` ``d``; ``origins`` ``(T, d)``
-    (paper and near-side modes); ``mode`` one of the ``MODE_*``; ``given``
-    ``(k, T, d)`` unit normals (given mode); ``ego`` ``(d,)`` (near-side mode);
-    ``previous`` ``(k, T, d)`` or empty; ``velocity`` ``(1 | T, d)`` or empty; the risk
-    constants of :func:`filters.kernels._risk_constants`; ``delta``; ``epsilon``
-    ``(1 | T,)``; ``conformal`` ``(1 | k, 1 | T)``; ``radii`` ``(k,)`` (ego plus
-    obstacle radius); ``low``, ``high`` ``(d,)`` and ``arc = dt^2 / 8`` for the arc
-    margins. Outputs: ``normals`` ``(k, T, d)``, ``degenerate`` and ``offsets``
-    ``(k, T)``; with ``start_rows`` also ``start_offsets`` ``(k, T - 1)`` and
-    ``margins`` ``(k, T)``. Returns the first non-OK status (the outputs are then
-    incomplete).
-
-    Each obstacle's samples are read once from memory, in order, into ``rows`` (one
-    row per step and coordinate, ``T d`` rows of ``N``, linear in the input); every
-    later pass reads those contiguous rows from the cache.
+    (paper and near-side modes); ``mode`` one of the ``MODE_*``; ``given`` ``(k, T, d)``
+    unit normals (given mode); ``ego`` ``(d,)`` (near-side mode); ``previous``
+    ``(k, T, d)`` or empty; ``velocity`` ``(1 | T, d)`` or empty; the risk constants of
+    :func:`filters.kernels._risk_constants`; ``delta``; ``epsilon`` ``(1 | T,)``;
+    ``conformal`` ``(1 | k, 1 | T)``; ``radii`` ``(k,)`` (ego plus obstacle radius);
+    ``low``, ``high`` ``(d,)``, ``arc = dt^2 / 8`` and ``disabled`` (the offset of an
+    unused row) for the inter-sample rows. Outputs: ``normals`` ``(k, T, d)``,
+    ``degenerate`` and ``offsets`` ``(k, T)``; with ``start_rows`` also the QP's rows
+    ``rows_normals`` ``(2 k, T, d)`` and ``rows_offsets`` ``(2 k, T)``.
+    Returns the first non-OK status (the outputs are then incomplete). Scratch space
+    is linear in the input: one obstacle's samples, and a few ``(N,)`` buffers.
     """
     n_obstacles, n = flat.shape[0], flat.shape[1]
-    cvar = (risk == RISK_CVAR or risk == RISK_DR_CVAR) and 0 < k < n
-    rows = np.empty((horizon * dim, n))
-    sums = np.empty(horizon * dim)
-    squares = np.zeros(horizon * dim)
-    cross = np.zeros(horizon)
+    n_rows = horizon * dim
+    rows = np.empty((n_rows, n))
+    sums = np.empty(n_rows)
     mean = np.empty((horizon, dim))
     h = np.empty(dim)
-    h_next = np.empty(dim)
-    losses = np.empty(n)
-    band = np.empty(n)
-    scratch = np.empty(n)
-    n_start = horizon - 1 if start_rows else 0
+    work = np.empty((3, n))
     for i in range(n_obstacles):
-        margin_row = i if conformal.shape[0] > 1 else 0
-        _transpose(flat, i, 0, horizon * dim, rows)
-        for t in range(horizon):  # means, normals
-            for j in range(dim):
-                q = t * dim + j
-                if cvar:
-                    sums[q], squares[q] = _deviation_sums(rows, q, n)
-                else:
-                    sums[q] = _deviation_sum(rows, q, n)
-                mean[t, j] = rows[q, 0] + sums[q] / n
-                if not math.isfinite(mean[t, j]):
-                    return NON_FINITE_SAMPLES
-            if cvar and dim == 2:
-                cross[t] = _cross_sum(rows, 2 * t, n)
-            status, flag = _normal(i, t, mean, origins, mode, given, ego, previous,
-                                   velocity, normals)
-            if status != OK:
-                return status
-            degenerate[i, t] = flag
-        for t in range(horizon):  # risks
-            centre = 0.0
-            for j in range(dim):
-                h[j] = normals[i, t, j]
-                centre -= h[j] * mean[t, j]
-            eps_t = epsilon[t if epsilon.shape[0] > 1 else 0]
-            margin_t = conformal[margin_row, t if conformal.shape[1] > 1 else 0]
-            spread = _spread(h, dim, n, sums, squares, cross, t) if cvar else 0.0
-            value = _risk_along(rows, t * dim, h, dim, n, centre, spread, risk, alpha, mass,
-                                k, factor, z_guess, width, eps_t, margin_t, losses, band,
-                                scratch)
-            offsets[i, t] = -((value - delta) + radii[i])
-            if not (math.isfinite(offsets[i, t]) and math.isfinite(h[0])):
-                return NON_FINITE_RESULT
-            if not start_rows:
-                continue
-            worst = 0.0  # arc margin (dt^2 / 8) max_u (-h . u), filters.intersample
-            for j in range(dim):
-                worst += max(-h[j] * low[j], -h[j] * high[j])
-            margins[i, t] = arc * worst
-            if t >= n_start:
-                continue
-            size2 = 0.0  # the next step's normal, normalised again (as offsets_along)
-            for j in range(dim):
-                size2 += normals[i, t + 1, j] * normals[i, t + 1, j]
-            size = math.sqrt(size2)
-            centre = 0.0
-            for j in range(dim):
-                h_next[j] = normals[i, t + 1, j] / size
-                centre -= h_next[j] * mean[t, j]
-            spread = _spread(h_next, dim, n, sums, squares, cross, t) if cvar else 0.0
-            value = _risk_along(rows, t * dim, h_next, dim, n, centre, spread, risk, alpha,
-                                mass, k, factor, z_guess, width, eps_t, margin_t, losses,
-                                band, scratch)
-            start_offsets[i, t] = -((value - delta) + radii[i])
-            if not math.isfinite(start_offsets[i, t]):
-                return NON_FINITE_RESULT
+        _transpose(flat, i, n_rows, rows)
+        for q in range(n_rows):
+            sums[q] = _deviation_sum(rows, q, n)
+        status = _normals_of(i, horizon, dim, n, rows, sums, mode, origins, given, ego,
+                             previous, velocity, mean, normals, degenerate)
+        if status != OK:
+            return status
+        status = _offsets_of(i, n_obstacles, horizon, dim, n, rows, mean, normals, risk,
+                             alpha, mass, k, factor, z_guess, band_width, delta, epsilon,
+                             conformal, radii, start_rows, low, high, arc, disabled, offsets,
+                             rows_normals, rows_offsets, h, work)
+        if status != OK:
+            return status
     return OK

@@ -620,6 +620,8 @@ def _normals(
     n_obstacles, horizon, dim = mean.shape
     diff = mean - y_ref
     dist = np.sqrt((diff * diff).sum(axis=-1))
+    if not np.isfinite(dist).all():  # overflowed: NaN, so that the result check names it
+        dist = np.where(np.isfinite(dist), dist, np.nan)
     degenerate = dist < DEGENERATE_DISTANCE
     if not degenerate.any():
         return diff / dist[..., None], degenerate

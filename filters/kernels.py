@@ -36,6 +36,7 @@ from scipy.special import ndtri
 
 from filters.errors import InvalidParameterError, InvalidTypeError
 from filters.geometry import Disc
+from filters.mpc.filter import DISABLED_OFFSET
 from filters.risk import CHANCE_RISKS, cantelli_factor, gaussian_factor, tail_count
 
 __all__ = [
@@ -55,8 +56,8 @@ _RISK_CODES = {"mean": 0, "cvar": 1, "dr_cvar": 2, "gaussian_cc": 3, "moment_dr"
 _MODES = {"paper": 0, "given": 1, "nearside": 2}
 #: Half-width of the selection band around the Gaussian guess of the CVaR's threshold,
 #: in standard errors of the sample quantile (plus a floor, in standard deviations).
-_BAND_ERRORS = 3.0
-_BAND_FLOOR = 0.02
+_BAND_ERRORS = 2.0
+_BAND_FLOOR = 0.01
 
 _EMPTY_3 = np.empty((0, 0, 0))
 _EMPTY_2 = np.empty((0, 0))
@@ -148,28 +149,27 @@ def _risk_constants(risk: str, alpha: float, n_samples: int) -> tuple[int, float
 
 @dataclass(frozen=True, eq=False)
 class KernelRows:
-    """Raw output of :func:`compiled_rows` (arrays of the obstacles ``k`` and steps ``T``).
+    """Raw output of :func:`compiled_rows` (``k`` obstacles, ``T`` steps).
 
     Attributes
     ----------
     normals, degenerate, offsets
         ``(k, T, d)`` unit normals, ``(k, T)`` fallback flags, ``(k, T)`` offsets in m.
-    start_offsets
-        ``(k, T - 1)``: offsets of the step-``t`` samples along the unit normal of step
-        ``t + 1`` (the inter-sample start rows before the arc margin), or ``None``.
-    margins
-        ``(k, T)`` arc margins :math:`m(h_{i,t})` in m, or ``None``.
+    rows_normals, rows_offsets
+        With the inter-sample rows: the QP's ``(2 k, T, d)`` and ``(2 k, T)`` rows as
+        :func:`filters.intersample_rows` lays them out (end rows, then start rows; the
+        last start row ``0 @ y <= 1``), else ``None``.
     status
         One of :mod:`filters._kernels`' codes: 0 (OK), 1 (a non-finite sample), 2 (a
-        non-finite normal or offset), 3 (a zero given normal). The arrays are only
+        non-finite normal or offset), 3 (a zero near-side normal). The arrays are only
         meaningful with status 0.
     """
 
     normals: np.ndarray
     degenerate: np.ndarray
     offsets: np.ndarray
-    start_offsets: np.ndarray | None
-    margins: np.ndarray | None
+    rows_normals: np.ndarray | None
+    rows_offsets: np.ndarray | None
     status: int
 
 
@@ -179,6 +179,14 @@ def _floats(value: object, ndim: int) -> np.ndarray:
     while array.ndim < ndim:
         array = array[None]
     return array
+
+
+def _bound(value: object, dim: int) -> np.ndarray:
+    """An input bound as a ``(d,)`` float array (a scalar applies to every axis)."""
+    array = np.ascontiguousarray(value, dtype=np.float64)
+    if array.shape == (dim,):
+        return array
+    return np.full(dim, float(array.reshape(-1)[0])) if array.size == 1 else array.reshape(dim)
 
 
 def compiled_rows(
@@ -199,11 +207,11 @@ def compiled_rows(
     input_bounds: tuple[np.ndarray, np.ndarray] | None = None,
     dt: float = 0.0,
 ) -> KernelRows:
-    """Normals, offsets and (with ``input_bounds``) the inter-sample start rows, compiled.
+    """Normals, offsets and (with ``input_bounds``) the inter-sample rows, compiled.
 
     The arguments must already be checked (shapes, finiteness of everything but the
-    samples, the risk settings); the kernel itself reports non-finite samples and
-    results through :attr:`KernelRows.status`.
+    samples and positions, the risk settings); the kernel itself reports non-finite
+    samples and results through :attr:`KernelRows.status`.
 
     Parameters
     ----------
@@ -227,8 +235,9 @@ def compiled_rows(
         The degenerate-normal fallbacks (``"paper"`` only): ``(k, T, d)``, and ``(d,)``
         or ``(T, d)``.
     input_bounds, dt
-        With ``input_bounds`` (``(low, high)``, m/s²), the start rows and the arc
-        margins :math:`(T_s^2/8) \\max_u (-h \\cdot u)` are computed in the same pass.
+        With ``input_bounds`` (``(low, high)``, m/s², scalars or ``(d,)``) and the
+        sampling time in s, also the inter-sample rows of :func:`filters.intersample_rows`
+        (end and start rows, arc margins), in the same pass over the samples.
     """
     kernels = _load()
     n_obstacles, n_samples, _, dim = samples.shape
@@ -242,23 +251,25 @@ def compiled_rows(
     previous = _EMPTY_3 if previous_normals is None else _floats(previous_normals, 3)
     velocity = _EMPTY_2 if ego_velocity is None else _floats(ego_velocity, 2)
     eps = _floats(epsilon, 1) if code == 2 else _ZERO
-    margins_in = _floats(conformal_margins, 2) if code == 4 else _ZERO_2
-    start = input_bounds is not None
-    if start:
-        low, high = (_floats(np.broadcast_to(b, (dim,)), 1) for b in input_bounds)
-        arc = dt * dt / 8.0
-    else:
-        low = high = _EMPTY_1
-        arc = 0.0
+    margins = _floats(conformal_margins, 2) if code == 4 else _ZERO_2
     out_normals = np.empty((n_obstacles, horizon, dim))
     out_degenerate = np.empty((n_obstacles, horizon), dtype=np.bool_)
     out_offsets = np.empty((n_obstacles, horizon))
-    out_start = np.empty((n_obstacles, max(horizon - 1, 0)) if start else (0, 0))
-    out_margins = np.empty((n_obstacles, horizon) if start else (0, 0))
+    start = input_bounds is not None
+    if start:
+        low, high = _bound(input_bounds[0], dim), _bound(input_bounds[1], dim)
+        arc = dt * dt / 8.0
+        rows_normals = np.empty((2 * n_obstacles, horizon, dim))
+        rows_offsets = np.empty((2 * n_obstacles, horizon))
+    else:
+        low = high = _EMPTY_1
+        arc = 0.0
+        rows_normals, rows_offsets = _EMPTY_3, _EMPTY_2
     origins = _EMPTY_2 if origins is None else _floats(origins, 2)
     status = kernels.halfspace_kernel(
         flat, horizon, dim, origins, mode, given, ego, previous, velocity, code, alpha, mass, k,
-        factor, z_guess, width, delta, eps, margins_in, _floats(radii, 1), start, low, high,
-        arc, out_normals, out_degenerate, out_offsets, out_start, out_margins)
-    return KernelRows(out_normals, out_degenerate, out_offsets, out_start if start else None,
-                      out_margins if start else None, int(status))
+        factor, z_guess, width, delta, eps, margins, _floats(radii, 1), start, low, high, arc,
+        DISABLED_OFFSET, out_normals, out_degenerate, out_offsets, rows_normals, rows_offsets)
+    return KernelRows(out_normals, out_degenerate, out_offsets,
+                      rows_normals if start else None, rows_offsets if start else None,
+                      int(status))

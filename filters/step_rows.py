@@ -21,6 +21,7 @@ numpy path runs instead and raises its named error.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -31,7 +32,6 @@ from filters.geometry import Shape
 from filters.halfspaces import Halfspaces, safe_halfspaces
 from filters.intersample import intersample_rows
 from filters.kernels import check_backend, compiled_rows, kernel_applies, use_kernel
-from filters.mpc.filter import DISABLED_OFFSET
 from filters.risk import check_epsilon_array, check_margins
 
 __all__ = ["StepRows", "nearside_normals", "step_rows"]
@@ -201,12 +201,13 @@ def _compiled(origins, samples, horizon, ego_shape, obstacle_shapes, risk, alpha
               input_bounds, dt) -> StepRows | None:
     """The kernel path; ``None`` when the kernel reports a problem (the numpy path then
     runs and names it)."""
-    k = samples.shape[0]
-    epsilon = check_epsilon_array(epsilon, horizon)
+    if type(epsilon) is not float or not 0.0 <= epsilon < math.inf:
+        epsilon = check_epsilon_array(epsilon, horizon)
     margins = None
     if risk == "conformal":
-        margins = check_margins(conformal_margins, (k, horizon))
-    radii = np.array([shape.radius for shape in obstacle_shapes]) + ego_shape.radius
+        margins = check_margins(conformal_margins, (samples.shape[0], horizon))
+    radii = np.array([shape.radius for shape in obstacle_shapes], dtype=np.float64)
+    radii += ego_shape.radius
     out = compiled_rows(
         samples, horizon, origins, radii=radii, risk=risk, alpha=alpha, delta=delta,
         epsilon=epsilon, conformal_margins=margins,
@@ -219,11 +220,4 @@ def _compiled(origins, samples, horizon, ego_shape, obstacle_shapes, risk, alpha
                             out.degenerate)
     if input_bounds is None:
         return StepRows(halfspaces, out.normals, out.offsets)
-    dim = samples.shape[3]
-    normals = np.zeros((2 * k, horizon, dim))
-    offsets = np.full((2 * k, horizon), DISABLED_OFFSET)  # 0 @ y <= 1: off
-    normals[:k] = out.normals
-    normals[k:, : horizon - 1] = out.normals[:, 1:]
-    offsets[:k] = out.offsets - out.margins
-    offsets[k:, : horizon - 1] = out.start_offsets - out.margins[:, 1:]
-    return StepRows(halfspaces, normals, offsets)
+    return StepRows(halfspaces, out.rows_normals, out.rows_offsets)
