@@ -41,8 +41,9 @@ the value there is the sorted formula
 :math:`(x_{(1)} + \dots + x_{(k)} + (\alpha N - k) x_{(k+1)}) / (\alpha N)` exactly (ties
 add zero). :math:`\tau` is found in O(N) without data-dependent branches (a random
 order would mispredict every other one): the losses inside a band around the
-Gaussian guess :math:`\bar x + z\, s_\Sigma` are copied aside and the ones below it
-counted; if the band holds rank :math:`k + 1`, the search narrows inside it
+Gaussian guess :math:`\bar x + z s` (:math:`z` the normal quantile of the rank sought,
+a band of two standard errors of that quantile) are copied aside and the ones below
+it counted; if the band holds rank :math:`k + 1`, the search narrows inside it
 (Floyd-Rivest by interpolation) and ends with a quickselect; else the quickselect
 runs on all the losses. The band decides only the speed: the value is exact for any
 band (NaN included).
@@ -53,9 +54,11 @@ hence some sample, is NaN or infinite, or their sum overflowed);
 overflow); :data:`ZERO_NORMAL` (a near-side normal of zero length).
 
 Compiled with ``error_model="numpy"``: a division by zero gives ``inf``/``NaN``
-(caught by the status checks) instead of raising. Small helpers that take few
-arrays are plain calls; the per-step code lives in the per-obstacle functions, as a
-call with many array arguments costs more than a step's arithmetic.
+(caught by the status checks) instead of raising. The per-step helpers are inlined
+(a call costs two atomic reference-count updates per array argument) and the
+selection works by row index in one scratch array for the same reason. Sums use four
+fixed partial sums, so their order, and the result's bits, are the same on every
+machine.
 """
 
 from __future__ import annotations

@@ -257,9 +257,10 @@ def safe_halfspaces(
         metres, a scalar, shape ``(T,)`` (one per look-ahead step) or ``(n_obstacles, T)``,
         e.g. :meth:`filters.calibration.ConformalMargin.margins`.
     backend
-        ``"auto"`` (default): the compiled kernels of :mod:`filters.kernels` for disc
-        shapes without ``support``, else numpy; ``"numba"`` (those kernels, or an
-        error); ``"numpy"``: the vectorised reference. Equal to rounding.
+        ``"auto"`` (default): the compiled kernel of :mod:`filters.kernels` where it
+        applies (disc shapes; with a polytope ``support``, every risk but
+        ``"dr_cvar"``), else numpy; ``"numba"``: that kernel, or an error where it does
+        not apply; ``"numpy"``: the vectorised reference. They agree to rounding.
 
     Returns
     -------

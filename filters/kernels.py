@@ -6,23 +6,26 @@ take ``backend=``:
 
 * ``"numpy"``: the vectorised numpy implementation of :mod:`filters.halfspaces`, the
   reference every test compares against;
-* ``"numba"``: the fused kernels of :mod:`filters._kernels` (one pass for the sample
-  means, one for the losses of both row sets, an O(N) selection for the CVaR);
+* ``"numba"``: the compiled kernel of :mod:`filters._kernels`: per obstacle, one read
+  of its samples from memory, the sample means and normals, then per step and normal
+  one pass for the losses (and their standard deviation) and an O(N) branch-free
+  selection for the CVaR; the wrapper's step computes both row sets of the
+  inter-sample constraints in the same call;
 * ``"auto"`` (the default): ``"numba"`` wherever it applies, else ``"numpy"``.
 
-The kernels cover every risk of :data:`filters.risk.RISKS`, scalar and per-step
-:math:`\epsilon`, conformal margins, given normals and the degenerate-normal fallbacks,
-for disc-shaped ego and obstacles in any dimension, with the unbounded support
-:math:`\Xi = \mathbb{R}^d`. Polytope supports (Proposition 1) and polygon shapes stay on
-the numpy path. Their results equal the numpy path's to rounding (about 1e-15 of the
-positions' scale; the tests hold them to 1e-12): both evaluate the same closed forms,
-in a different order of summation.
+The kernel covers every risk of :data:`filters.risk.RISKS`, scalar and per-step
+:math:`\epsilon`, conformal margins, given normals, the near-side normals and the
+degenerate-normal fallbacks, for disc-shaped ego and obstacles in any dimension, with
+the unbounded support :math:`\Xi = \mathbb{R}^d` (a polytope support changes only
+DR-CVaR, Proposition 1: that case, and polygon shapes, stay on the numpy path). Its
+results equal the numpy path's to rounding (about 1e-15 of the positions' scale; the
+tests hold them to 1e-12 of it): both evaluate the same closed forms in another order
+of summation. Both are deterministic: the same data give the same bits.
 
-numba is imported, and the kernels loaded from numba's on-disk cache (compiled on the
-very first use, a few seconds), only when a compiled path first runs:
-``import filters`` stays light.
+numba is imported, and the kernel loaded from numba's on-disk cache, only when a
+compiled path first runs (``import filters`` stays light). The very first run on a
+machine compiles it (about 20 s here) and caches it next to the module.
 """
-
 from __future__ import annotations
 
 import functools
