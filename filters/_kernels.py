@@ -56,9 +56,10 @@ overflow); :data:`ZERO_NORMAL` (a near-side normal of zero length).
 Compiled with ``error_model="numpy"``: a division by zero gives ``inf``/``NaN``
 (caught by the status checks) instead of raising. The per-step helpers are inlined
 (a call costs two atomic reference-count updates per array argument) and the
-selection works by row index in one scratch array for the same reason. Sums use four
-fixed partial sums, so their order, and the result's bits, are the same on every
-machine.
+selection works by row index in one scratch array for the same reason. The sums (of
+the deviations, squares and excesses) are vectorised with partial sums per vector lane
+(``fastmath={"reassoc"}`` on those functions only): a machine gives the same bits on
+every call; another CPU may differ in the last bit, as numpy's BLAS products do.
 """
 
 from __future__ import annotations
@@ -95,6 +96,10 @@ _FLAGS = dict(cache=True, nogil=True, error_model="numpy")
 # Inlined where called: each call costs two atomic reference-count updates per array
 # argument, more than a short function's work.
 _INLINE = dict(_FLAGS, inline="always")
+# Sums whose order only changes the rounding: 'reassoc' lets LLVM vectorise them (partial
+# sums per vector lane). The order is fixed when the kernel is compiled for this CPU, so
+# a machine gives the same bits on every call; another CPU may differ in the last bit.
+_SUMS = dict(_FLAGS, fastmath={"reassoc"})
 
 
 # --------------------------------------------------------------------------- selection
@@ -271,33 +276,24 @@ def kth_largest(work, n, k, low, high):
 
 
 # --------------------------------------------------------------------------- sums
-# Four partial sums (s mod 4), added at the end: the order is fixed by this code (the
-# same bits on every machine), and the four chains run in parallel.
 
 
-@njit(**_INLINE)
-def _deviation_sum(rows, q, n):
-    """:math:`\\sum_s (a_s - a_0)`, ``a = rows[q, :n]``."""
-    base = rows[q, 0]
-    s0 = s1 = s2 = s3 = 0.0
-    s = 0
-    while s + 4 <= n:
-        s0 += rows[q, s] - base
-        s1 += rows[q, s + 1] - base
-        s2 += rows[q, s + 2] - base
-        s3 += rows[q, s + 3] - base
-        s += 4
-    for r in range(s, n):
-        s0 += rows[q, r] - base
-    return (s0 + s1) + (s2 + s3)
+@njit(**_SUMS)
+def _row_sums(rows, n_rows, n, sums):
+    """:math:`\\sum_s (a_s - a_0)` of every row ``a = rows[q, :n]``, ``q < n_rows``."""
+    for q in range(n_rows):
+        base = rows[q, 0]
+        total = 0.0
+        for s in range(n):
+            total += rows[q, s] - base
+        sums[q] = total
 
 
 @njit(**_INLINE)
 def _losses_std(rows, first, h, dim, n, centre, work):
     """Write the losses :math:`x_s = -h \\cdot p_s` to ``work[0, :n]`` (the coordinates of
     :math:`p_s` in ``rows[first + j, s]``) and return their sample standard deviation
-    (``ddof = 1``; 0 for one sample), from the deviations from ``centre`` (near the
-    mean, :math:`-h \\cdot \\bar p`), corrected by their mean."""
+    (``ddof = 1``; 0 for one sample)."""
     if dim == 2:
         h0 = h[0]
         h1 = h[1]
@@ -313,46 +309,31 @@ def _losses_std(rows, first, h, dim, n, centre, work):
             work[0, s] = -work[0, s]
     if n < 2:
         return 0.0
-    t0 = t1 = t2 = t3 = 0.0
-    q0 = q1 = q2 = q3 = 0.0
-    s = 0
-    while s + 4 <= n:
-        d0 = work[0, s] - centre
-        d1 = work[0, s + 1] - centre
-        d2 = work[0, s + 2] - centre
-        d3 = work[0, s + 3] - centre
-        t0 += d0
-        t1 += d1
-        t2 += d2
-        t3 += d3
-        q0 += d0 * d0
-        q1 += d1 * d1
-        q2 += d2 * d2
-        q3 += d3 * d3
-        s += 4
-    for r in range(s, n):
-        d0 = work[0, r] - centre
-        t0 += d0
-        q0 += d0 * d0
-    total = (t0 + t1) + (t2 + t3)
-    squares = (q0 + q1) + (q2 + q3)
+    return _centred_std(work, n, centre)
+
+
+@njit(**_SUMS)
+def _centred_std(work, n, centre):
+    """Sample standard deviation (``ddof = 1``, ``n >= 2``) of ``work[0, :n]``, from the
+    deviations from ``centre`` (near the mean, :math:`-h \\cdot \\bar p`), corrected by
+    their mean."""
+    total = 0.0
+    squares = 0.0
+    for s in range(n):
+        d = work[0, s] - centre
+        total += d
+        squares += d * d
     return math.sqrt(max((squares - total * total / n) / (n - 1), 0.0))
 
 
-@njit(**_INLINE)
+@njit(**_SUMS)
 def _excess(work, n, tau):
     """:math:`\\sum_s \\max(x_s - \\tau, 0)` of ``x = work[0, :n]``."""
-    s0 = s1 = s2 = s3 = 0.0
-    s = 0
-    while s + 4 <= n:
-        s0 += max(work[0, s] - tau, 0.0)
-        s1 += max(work[0, s + 1] - tau, 0.0)
-        s2 += max(work[0, s + 2] - tau, 0.0)
-        s3 += max(work[0, s + 3] - tau, 0.0)
-        s += 4
-    for r in range(s, n):
-        s0 += max(work[0, r] - tau, 0.0)
-    return (s0 + s1) + (s2 + s3)
+    total = 0.0
+    for s in range(n):
+        d = work[0, s] - tau
+        total += d if d > 0.0 else 0.0
+    return total
 
 
 # --------------------------------------------------------------------------- per obstacle
@@ -562,8 +543,7 @@ def halfspace_kernel(flat, horizon, dim, origins, mode, given, ego, previous, ve
     work = np.empty((3, n))
     for i in range(n_obstacles):
         _transpose(flat, i, n_rows, rows)
-        for q in range(n_rows):
-            sums[q] = _deviation_sum(rows, q, n)
+        _row_sums(rows, n_rows, n, sums)
         status = _normals_of(i, horizon, dim, n, rows, sums, mode, origins, given, ego,
                              previous, velocity, mean, normals, degenerate)
         if status != OK:

@@ -250,17 +250,24 @@ def test_auto_uses_the_kernel_only_where_it_applies(monkeypatch):
 
 
 def test_zero_obstacles_and_results_are_deterministic():
+    """The same data give the same bits, wherever the arrays and the scratch space lie."""
     empty = safe_halfspaces(np.zeros((4, 2)), np.zeros((0, 10, 4, 2)), ego_shape=Disc(0.3),
                             obstacle_shapes=[], backend="numba")
     assert empty.offsets.shape == (0, 4) and empty.normals.shape == (0, 4, 2)
     rng = np.random.default_rng(8)
-    reference, samples = instance(rng, 3, 500, 12)
-    first = safe_halfspaces(reference, samples, ego_shape=Disc(0.3),
-                            obstacle_shapes=[Disc(0.3)] * 3, backend="numba")
-    again = safe_halfspaces(reference, samples.copy(), ego_shape=Disc(0.3),
-                            obstacle_shapes=[Disc(0.3)] * 3, backend="numba")
-    assert np.array_equal(first.offsets, again.offsets)
-    assert np.array_equal(first.normals, again.normals)
+    reference, samples = instance(rng, 3, 503, 12)
+    kwargs = dict(horizon=12, ego_shape=Disc(0.3), obstacle_shapes=[Disc(0.3)] * 3,
+                  risk="dr_cvar", alpha=0.2, delta=0.1, epsilon=0.05,
+                  input_bounds=(LOW, HIGH), dt=0.2, backend="numba")
+    first = step_rows(reference, samples, **kwargs)
+    keep = []
+    for size in rng.integers(1, 5000, 20):
+        keep.append(np.ones(size))  # shift where the next allocations land
+        copy = np.empty(samples.size + size)[size:].reshape(samples.shape)  # other alignment
+        copy[...] = samples
+        again = step_rows(reference, copy, **kwargs)
+        assert np.array_equal(first.offsets, again.offsets)
+        assert np.array_equal(first.normals, again.normals)
 
 
 # ----------------------------------------------------------------------------- start rows
