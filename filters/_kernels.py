@@ -349,96 +349,6 @@ def _transpose(flat, i, width, rows):
 
 
 @njit(**_FLAGS)
-def _normals_of(i, horizon, dim, n, rows, sums, mode, origins, given, ego, previous,
-                velocity, mean, normals, degenerate):
-    """Sample means ``mean[t]`` and unit normals ``normals[i, t]`` of obstacle ``i``.
-
-    The normals of :func:`filters.safe_halfspaces` (paper mode: origin to mean; a
-    degenerate one falls back to the previous normal, minus the ego velocity, the
-    first axis), given ones, or :func:`filters.step_rows.nearside_normals` normalised
-    again (as ``safe_halfspaces`` does to given normals).
-    """
-    for t in range(horizon):
-        for j in range(dim):
-            q = t * dim + j
-            mean[t, j] = rows[q, 0] + sums[q] / n
-            if not math.isfinite(mean[t, j]):
-                return NON_FINITE_SAMPLES
-        degenerate[i, t] = False
-        if mode == MODE_GIVEN:
-            for j in range(dim):
-                normals[i, t, j] = given[i, t, j]
-            continue
-        if mode == MODE_NEARSIDE:  # from the reference while on the ego's side, else the ego
-            side = 0.0
-            for j in range(dim):
-                side += (origins[t, j] - mean[t, j]) * (ego[j] - mean[t, j])
-            size2 = 0.0
-            for j in range(dim):
-                v = mean[t, j] - (origins[t, j] if side > 0.0 else ego[j])
-                normals[i, t, j] = v
-                size2 += v * v
-            size = math.sqrt(size2)
-            if not math.isfinite(size):
-                return NON_FINITE_RESULT
-            if not size > _NEARSIDE_MIN:
-                size2 = 0.0
-                for j in range(dim):
-                    v = mean[t, j] - ego[j]
-                    normals[i, t, j] = v
-                    size2 += v * v
-                size = max(math.sqrt(size2), _NEARSIDE_FLOOR)
-            size2 = 0.0
-            for j in range(dim):
-                v = normals[i, t, j] / size
-                normals[i, t, j] = v
-                size2 += v * v
-            size = math.sqrt(size2)
-            if not size >= DEGENERATE_DISTANCE:
-                return ZERO_NORMAL if math.isfinite(size) else NON_FINITE_RESULT
-            for j in range(dim):
-                normals[i, t, j] = normals[i, t, j] / size
-            continue
-        size2 = 0.0
-        for j in range(dim):
-            v = mean[t, j] - origins[t, j]
-            normals[i, t, j] = v
-            size2 += v * v
-        size = math.sqrt(size2)
-        if not math.isfinite(size):  # a non-finite origin, or an overflow
-            return NON_FINITE_RESULT
-        if size >= DEGENERATE_DISTANCE:
-            for j in range(dim):
-                normals[i, t, j] = normals[i, t, j] / size
-            continue
-        degenerate[i, t] = True
-        size = 0.0
-        if previous.shape[0] > 0:
-            size2 = 0.0
-            for j in range(dim):
-                size2 += previous[i, t, j] * previous[i, t, j]
-            size = math.sqrt(size2)
-        if size >= DEGENERATE_DISTANCE:
-            for j in range(dim):
-                normals[i, t, j] = previous[i, t, j] / size
-            continue
-        row = t if velocity.shape[0] > 1 else 0
-        size = 0.0
-        if velocity.shape[0] > 0:
-            size2 = 0.0
-            for j in range(dim):
-                size2 += velocity[row, j] * velocity[row, j]
-            size = math.sqrt(size2)
-        if size >= DEGENERATE_DISTANCE:
-            for j in range(dim):
-                normals[i, t, j] = -velocity[row, j] / size
-            continue
-        for j in range(dim):
-            normals[i, t, j] = 1.0 if j == 0 else 0.0
-    return OK
-
-
-@njit(**_FLAGS)
 def _arc_margin(normals, i, t, dim, low, high, arc):
     """:math:`(T_s^2/8) \\sum_j \\max(-h_j u_{low,j}, -h_j u_{high,j})` of ``normals[i, t]``
     (:func:`filters.intersample.arc_margin`)."""
@@ -449,76 +359,26 @@ def _arc_margin(normals, i, t, dim, low, high, arc):
 
 
 @njit(**_FLAGS)
-def _offsets_of(i, n_obstacles, horizon, dim, n, rows, mean, normals, risk, alpha, mass, k,
-                factor, z_guess, band_width, delta, epsilon, conformal, radii, start_rows,
-                low, high, arc, disabled, offsets, rows_normals, rows_offsets, h, work):
-    """Offsets of obstacle ``i`` and, with ``start_rows``, its rows of the QP.
-
-    Along :math:`h`: :math:`b = -((R - \\delta) + r)`. With ``start_rows``, row ``i`` of
-    ``rows_*`` is the end row (the halfspace tightened by the arc margin
-    :math:`m(h_{i,t})`), row ``n_obstacles + i`` the start row: the step-``t`` samples
-    along the next step's normal normalised again (as
-    :func:`filters.halfspaces.offsets_along`), tightened by :math:`m(h_{i,t+1})`, and
-    ``0 @ y <= disabled`` at the last step (:func:`filters.intersample_rows`' layout).
-    The losses go to ``work[0]`` (rows 1 and 2 are the selection's scratch).
-    """
-    sampled = risk == RISK_MOMENT or ((risk == RISK_CVAR or risk == RISK_DR_CVAR) and k < n)
-    margin_row = i if conformal.shape[0] > 1 else 0
-    for t in range(horizon):
-        eps_t = epsilon[t if epsilon.shape[0] > 1 else 0]
-        margin_t = conformal[margin_row, t if conformal.shape[1] > 1 else 0]
-        for row in range(2 if start_rows and t < horizon - 1 else 1):
-            # row 0: the step's normal; row 1: the next step's, normalised again
-            size = 1.0
-            if row == 1:
-                size2 = 0.0
-                for j in range(dim):
-                    size2 += normals[i, t + 1, j] * normals[i, t + 1, j]
-                size = math.sqrt(size2)
-            centre = 0.0
-            for j in range(dim):
-                h[j] = normals[i, t, j] if row == 0 else normals[i, t + 1, j] / size
-                centre -= h[j] * mean[t, j]
-            value = centre  # mean, conformal, and CVaR with alpha N >= N
-            if sampled:
-                std = _losses_std(rows, t * dim, h, dim, n, centre, work)
-                if risk == RISK_MOMENT:
-                    value = centre + factor * std
-                else:  # the band: the Gaussian guess of the threshold, +- a few errors
-                    tau = kth_largest(work, n, k, centre + (z_guess - band_width) * std,
-                                      centre + (z_guess + band_width) * std)
-                    value = tau + _excess(work, n, tau) / mass
-            if risk == RISK_CONFORMAL:
-                value = value + margin_t
-            elif risk == RISK_DR_CVAR:
-                value = value + eps_t / alpha
-            offset = -((value - delta) + radii[i])
-            if not (math.isfinite(offset) and math.isfinite(h[0])):
-                return NON_FINITE_RESULT
-            if row == 0:
-                offsets[i, t] = offset
-                if start_rows:
-                    for j in range(dim):
-                        rows_normals[i, t, j] = normals[i, t, j]
-                    rows_offsets[i, t] = offset - _arc_margin(normals, i, t, dim, low, high, arc)
-            else:
-                for j in range(dim):
-                    rows_normals[n_obstacles + i, t, j] = normals[i, t + 1, j]
-                rows_offsets[n_obstacles + i, t] = offset - _arc_margin(
-                    normals, i, t + 1, dim, low, high, arc)
-        if start_rows and t == horizon - 1:  # no next step: the row is off
-            for j in range(dim):
-                rows_normals[n_obstacles + i, t, j] = 0.0
-            rows_offsets[n_obstacles + i, t] = disabled
-    return OK
-
-
-@njit(**_FLAGS)
 def halfspace_kernel(flat, horizon, dim, origins, mode, given, ego, previous, velocity,
                      risk, alpha, mass, k, factor, z_guess, band_width, delta, epsilon,
                      conformal, radii, start_rows, low, high, arc, disabled,
                      normals, degenerate, offsets, rows_normals, rows_offsets):
-    """Normals, offsets and (``start_rows``) inter-sample start offsets and arc margins.
+    """Normals, offsets and (``start_rows``) the inter-sample rows of every obstacle.
+
+    Per obstacle ``i``: its samples into ``rows`` (:func:`_transpose`), the shifted sums
+    and the sample means; the unit normals of :func:`filters.safe_halfspaces` (paper
+    mode: origin to mean, and for a degenerate one the previous normal, minus the ego
+    velocity, the first axis), given ones, or the near-side ones of
+    :func:`filters.step_rows.nearside_normals` normalised again (as ``safe_halfspaces``
+    does to given normals); then along each normal :math:`h` the offset
+    :math:`b = -((R - \\delta) + r)`. With ``start_rows``, row ``i`` of ``rows_*`` is the
+    end row (the halfspace tightened by the arc margin :math:`m(h_{i,t})`, see
+    :func:`_arc_margin`) and row ``k + i`` the start row: the step-``t`` samples along
+    the next step's normal normalised again (as :func:`filters.halfspaces.offsets_along`),
+    tightened by :math:`m(h_{i,t+1})`, and ``0 @ y <= disabled`` at the last step
+    (:func:`filters.intersample_rows`' layout). The losses go to ``work[0]``; rows 1
+    and 2 are the selection's scratch. (One function: a call with this many array
+    arguments costs more than an obstacle's bookkeeping.)
 
     Parameters (checked by :func:`filters.kernels.compiled_rows`): ``flat``
     ``(k, N, T' d)``; ``horizon`` ``T <= T'``; ``dim`` ``d``; ``origins`` ``(T, d)``
@@ -544,14 +404,132 @@ def halfspace_kernel(flat, horizon, dim, origins, mode, given, ego, previous, ve
     for i in range(n_obstacles):
         _transpose(flat, i, n_rows, rows)
         _row_sums(rows, n_rows, n, sums)
-        status = _normals_of(i, horizon, dim, n, rows, sums, mode, origins, given, ego,
-                             previous, velocity, mean, normals, degenerate)
-        if status != OK:
-            return status
-        status = _offsets_of(i, n_obstacles, horizon, dim, n, rows, mean, normals, risk,
-                             alpha, mass, k, factor, z_guess, band_width, delta, epsilon,
-                             conformal, radii, start_rows, low, high, arc, disabled, offsets,
-                             rows_normals, rows_offsets, h, work)
-        if status != OK:
-            return status
+        # the sample means and the unit normals of obstacle i
+        for t in range(horizon):
+            for j in range(dim):
+                q = t * dim + j
+                mean[t, j] = rows[q, 0] + sums[q] / n
+                if not math.isfinite(mean[t, j]):
+                    return NON_FINITE_SAMPLES
+            degenerate[i, t] = False
+            if mode == MODE_GIVEN:
+                for j in range(dim):
+                    normals[i, t, j] = given[i, t, j]
+                continue
+            if mode == MODE_NEARSIDE:  # from the reference while on the ego's side, else ego
+                side = 0.0
+                for j in range(dim):
+                    side += (origins[t, j] - mean[t, j]) * (ego[j] - mean[t, j])
+                size2 = 0.0
+                for j in range(dim):
+                    v = mean[t, j] - (origins[t, j] if side > 0.0 else ego[j])
+                    normals[i, t, j] = v
+                    size2 += v * v
+                size = math.sqrt(size2)
+                if not math.isfinite(size):
+                    return NON_FINITE_RESULT
+                if not size > _NEARSIDE_MIN:
+                    size2 = 0.0
+                    for j in range(dim):
+                        v = mean[t, j] - ego[j]
+                        normals[i, t, j] = v
+                        size2 += v * v
+                    size = max(math.sqrt(size2), _NEARSIDE_FLOOR)
+                size2 = 0.0
+                for j in range(dim):
+                    v = normals[i, t, j] / size
+                    normals[i, t, j] = v
+                    size2 += v * v
+                size = math.sqrt(size2)
+                if not size >= DEGENERATE_DISTANCE:
+                    return ZERO_NORMAL if math.isfinite(size) else NON_FINITE_RESULT
+                for j in range(dim):
+                    normals[i, t, j] = normals[i, t, j] / size
+                continue
+            size2 = 0.0
+            for j in range(dim):
+                v = mean[t, j] - origins[t, j]
+                normals[i, t, j] = v
+                size2 += v * v
+            size = math.sqrt(size2)
+            if not math.isfinite(size):  # a non-finite origin, or an overflow
+                return NON_FINITE_RESULT
+            if size >= DEGENERATE_DISTANCE:
+                for j in range(dim):
+                    normals[i, t, j] = normals[i, t, j] / size
+                continue
+            degenerate[i, t] = True
+            size = 0.0
+            if previous.shape[0] > 0:
+                size2 = 0.0
+                for j in range(dim):
+                    size2 += previous[i, t, j] * previous[i, t, j]
+                size = math.sqrt(size2)
+            if size >= DEGENERATE_DISTANCE:
+                for j in range(dim):
+                    normals[i, t, j] = previous[i, t, j] / size
+                continue
+            row = t if velocity.shape[0] > 1 else 0
+            size = 0.0
+            if velocity.shape[0] > 0:
+                size2 = 0.0
+                for j in range(dim):
+                    size2 += velocity[row, j] * velocity[row, j]
+                size = math.sqrt(size2)
+            if size >= DEGENERATE_DISTANCE:
+                for j in range(dim):
+                    normals[i, t, j] = -velocity[row, j] / size
+                continue
+            for j in range(dim):
+                normals[i, t, j] = 1.0 if j == 0 else 0.0
+        # its offsets and, with start_rows, its rows of the QP
+        sampled = risk == RISK_MOMENT or ((risk == RISK_CVAR or risk == RISK_DR_CVAR) and k < n)
+        margin_row = i if conformal.shape[0] > 1 else 0
+        for t in range(horizon):
+            eps_t = epsilon[t if epsilon.shape[0] > 1 else 0]
+            margin_t = conformal[margin_row, t if conformal.shape[1] > 1 else 0]
+            for row in range(2 if start_rows and t < horizon - 1 else 1):
+                # row 0: the step's normal; row 1: the next step's, normalised again
+                size = 1.0
+                if row == 1:
+                    size2 = 0.0
+                    for j in range(dim):
+                        size2 += normals[i, t + 1, j] * normals[i, t + 1, j]
+                    size = math.sqrt(size2)
+                centre = 0.0
+                for j in range(dim):
+                    h[j] = normals[i, t, j] if row == 0 else normals[i, t + 1, j] / size
+                    centre -= h[j] * mean[t, j]
+                value = centre  # mean, conformal, and CVaR with alpha N >= N
+                if sampled:
+                    std = _losses_std(rows, t * dim, h, dim, n, centre, work)
+                    if risk == RISK_MOMENT:
+                        value = centre + factor * std
+                    else:  # the band: the Gaussian guess of the threshold, +- a few errors
+                        tau = kth_largest(work, n, k, centre + (z_guess - band_width) * std,
+                                          centre + (z_guess + band_width) * std)
+                        value = tau + _excess(work, n, tau) / mass
+                if risk == RISK_CONFORMAL:
+                    value = value + margin_t
+                elif risk == RISK_DR_CVAR:
+                    value = value + eps_t / alpha
+                offset = -((value - delta) + radii[i])
+                if not (math.isfinite(offset) and math.isfinite(h[0])):
+                    return NON_FINITE_RESULT
+                if row == 0:
+                    offsets[i, t] = offset
+                    if start_rows:
+                        for j in range(dim):
+                            rows_normals[i, t, j] = normals[i, t, j]
+                        rows_offsets[i, t] = offset - _arc_margin(normals, i, t, dim, low,
+                                                                  high, arc)
+                else:
+                    for j in range(dim):
+                        rows_normals[n_obstacles + i, t, j] = normals[i, t + 1, j]
+                    rows_offsets[n_obstacles + i, t] = offset - _arc_margin(
+                        normals, i, t + 1, dim, low, high, arc)
+            if start_rows and t == horizon - 1:  # no next step: the row is off
+                for j in range(dim):
+                    rows_normals[n_obstacles + i, t, j] = 0.0
+                rows_offsets[n_obstacles + i, t] = disabled
     return OK
