@@ -349,16 +349,6 @@ def _transpose(flat, i, width, rows):
 
 
 @njit(**_FLAGS)
-def _arc_margin(normals, i, t, dim, low, high, arc):
-    """:math:`(T_s^2/8) \\sum_j \\max(-h_j u_{low,j}, -h_j u_{high,j})` of ``normals[i, t]``
-    (:func:`filters.intersample.arc_margin`)."""
-    worst = 0.0
-    for j in range(dim):
-        worst += max(-normals[i, t, j] * low[j], -normals[i, t, j] * high[j])
-    return arc * worst
-
-
-@njit(**_FLAGS)
 def halfspace_kernel(flat, horizon, dim, origins, mode, given, ego, previous, velocity,
                      risk, alpha, mass, k, factor, z_guess, band_width, delta, epsilon,
                      conformal, radii, start_rows, low, high, arc, disabled,
@@ -372,10 +362,11 @@ def halfspace_kernel(flat, horizon, dim, origins, mode, given, ego, previous, ve
     :func:`filters.step_rows.nearside_normals` normalised again (as ``safe_halfspaces``
     does to given normals); then along each normal :math:`h` the offset
     :math:`b = -((R - \\delta) + r)`. With ``start_rows``, row ``i`` of ``rows_*`` is the
-    end row (the halfspace tightened by the arc margin :math:`m(h_{i,t})`, see
-    :func:`_arc_margin`) and row ``k + i`` the start row: the step-``t`` samples along
-    the next step's normal normalised again (as :func:`filters.halfspaces.offsets_along`),
-    tightened by :math:`m(h_{i,t+1})`, and ``0 @ y <= disabled`` at the last step
+    end row (the halfspace tightened by the arc margin :math:`m(h_{i,t})` of
+    :func:`filters.intersample.arc_margin`) and row ``k + i`` the start row: the
+    step-``t`` samples along the next step's normal normalised again (as
+    :func:`filters.halfspaces.offsets_along`), tightened by :math:`m(h_{i,t+1})`, and
+    ``0 @ y <= disabled`` at the last step
     (:func:`filters.intersample_rows`' layout). The losses go to ``work[0]``; rows 1
     and 2 are the selection's scratch. (One function: a call with this many array
     arguments costs more than an obstacle's bookkeeping.)
@@ -488,6 +479,16 @@ def halfspace_kernel(flat, horizon, dim, origins, mode, given, ego, previous, ve
         for t in range(horizon):
             eps_t = epsilon[t if epsilon.shape[0] > 1 else 0]
             margin_t = conformal[margin_row, t if conformal.shape[1] > 1 else 0]
+            # the arc margins (dt^2 / 8) max_u (-h . u) of this step's normal and the next
+            # one's (filters.intersample.arc_margin): arc * arc_here, arc * arc_next
+            arc_here = 0.0
+            arc_next = 0.0
+            if start_rows:
+                for j in range(dim):
+                    arc_here += max(-normals[i, t, j] * low[j], -normals[i, t, j] * high[j])
+                    if t < horizon - 1:
+                        arc_next += max(-normals[i, t + 1, j] * low[j],
+                                        -normals[i, t + 1, j] * high[j])
             for row in range(2 if start_rows and t < horizon - 1 else 1):
                 # row 0: the step's normal; row 1: the next step's, normalised again
                 size = 1.0
@@ -521,13 +522,11 @@ def halfspace_kernel(flat, horizon, dim, origins, mode, given, ego, previous, ve
                     if start_rows:
                         for j in range(dim):
                             rows_normals[i, t, j] = normals[i, t, j]
-                        rows_offsets[i, t] = offset - _arc_margin(normals, i, t, dim, low,
-                                                                  high, arc)
+                        rows_offsets[i, t] = offset - arc * arc_here
                 else:
                     for j in range(dim):
                         rows_normals[n_obstacles + i, t, j] = normals[i, t + 1, j]
-                    rows_offsets[n_obstacles + i, t] = offset - _arc_margin(
-                        normals, i, t + 1, dim, low, high, arc)
+                    rows_offsets[n_obstacles + i, t] = offset - arc * arc_next
             if start_rows and t == horizon - 1:  # no next step: the row is off
                 for j in range(dim):
                     rows_normals[n_obstacles + i, t, j] = 0.0
