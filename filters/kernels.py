@@ -20,7 +20,7 @@ the unbounded support :math:`\Xi = \mathbb{R}^d` (a polytope support changes onl
 DR-CVaR, Proposition 1: that case, and polygon shapes, stay on the numpy path). Its
 results equal the numpy path's to rounding (about 1e-15 of the positions' scale; the
 tests hold them to 1e-12 of it): both evaluate the same closed forms in another order
-of summation. Both are deterministic: the same data give the same bits.
+of summation. Both are deterministic: on a machine, the same data give the same bits.
 
 numba is imported, and the kernel loaded from numba's on-disk cache, only when a
 compiled path first runs (``import filters`` stays light). The very first run on a
@@ -39,7 +39,6 @@ from scipy.special import ndtri
 
 from filters.errors import InvalidParameterError, InvalidTypeError
 from filters.geometry import Disc
-from filters.mpc.filter import DISABLED_OFFSET
 from filters.risk import CHANCE_RISKS, cantelli_factor, gaussian_factor, tail_count
 
 __all__ = [
@@ -209,6 +208,7 @@ def compiled_rows(
     ego_velocity: np.ndarray | None = None,
     input_bounds: tuple[np.ndarray, np.ndarray] | None = None,
     dt: float = 0.0,
+    disabled_offset: float = 1.0,
 ) -> KernelRows:
     """Normals, offsets and (with ``input_bounds``) the inter-sample rows, compiled.
 
@@ -241,6 +241,8 @@ def compiled_rows(
         With ``input_bounds`` (``(low, high)``, m/s², scalars or ``(d,)``) and the
         sampling time in s, also the inter-sample rows of :func:`filters.intersample_rows`
         (end and start rows, arc margins), in the same pass over the samples.
+    disabled_offset
+        The offset of the unused last start rows (``0 @ y <= disabled_offset``).
     """
     kernels = _load()
     n_obstacles, n_samples, _, dim = samples.shape
@@ -272,7 +274,7 @@ def compiled_rows(
     status = kernels.halfspace_kernel(
         flat, horizon, dim, origins, mode, given, ego, previous, velocity, code, alpha, mass, k,
         factor, z_guess, width, delta, eps, margins, _floats(radii, 1), start, low, high, arc,
-        DISABLED_OFFSET, out_normals, out_degenerate, out_offsets, rows_normals, rows_offsets)
+        disabled_offset, out_normals, out_degenerate, out_offsets, rows_normals, rows_offsets)
     return KernelRows(out_normals, out_degenerate, out_offsets,
                       rows_normals if start else None, rows_offsets if start else None,
                       int(status))

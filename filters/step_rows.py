@@ -13,10 +13,10 @@ where the compiled kernels apply (disc shapes, no polytope support; see
 :mod:`filters.kernels`), by one kernel call that reads each obstacle's samples once
 for both row sets. The two agree to rounding.
 
-The compiled path checks what changes from step to step and is cheap to check (the
-shapes of the arrays, the per-step radii and margins); the samples and positions are
-checked for finiteness inside the kernel. Whenever the kernel reports a problem, the
-numpy path runs instead and raises its named error.
+The compiled path checks the shapes of every array and the per-step radii and margins
+(cheap); the samples and positions are checked for finiteness inside the kernel.
+Whenever a shape is unexpected or the kernel reports a problem, the numpy path runs
+instead and raises its named error.
 """
 
 from __future__ import annotations
@@ -32,6 +32,7 @@ from filters.geometry import Shape
 from filters.halfspaces import Halfspaces, safe_halfspaces
 from filters.intersample import intersample_rows
 from filters.kernels import check_backend, compiled_rows, kernel_applies, use_kernel
+from filters.mpc.filter import DISABLED_OFFSET
 from filters.risk import check_epsilon_array, check_margins
 
 __all__ = ["StepRows", "nearside_normals", "step_rows"]
@@ -199,13 +200,23 @@ def _reference(origins, samples, horizon, ego_shape, obstacle_shapes, risk, alph
 def _compiled(origins, samples, horizon, ego_shape, obstacle_shapes, risk, alpha, delta,
               epsilon, conformal_margins, previous_normals, ego_velocity, nearside_from,
               input_bounds, dt) -> StepRows | None:
-    """The kernel path; ``None`` when the kernel reports a problem (the numpy path then
-    runs and names it)."""
+    """The kernel path; ``None`` when an argument has an unexpected shape or the kernel
+    reports a problem (the numpy path then runs and names it). The kernel does not
+    check indices: every array it reads is checked here or in :func:`compiled_rows`."""
+    k, _, _, dim = samples.shape
+    if ((previous_normals is not None and np.shape(previous_normals) != (k, horizon, dim))
+            or (ego_velocity is not None
+                and np.shape(ego_velocity) not in ((dim,), (horizon, dim)))
+            or (nearside_from is not None and np.shape(nearside_from) != (dim,))
+            or (input_bounds is not None
+                and not all(np.shape(b) in ((), (1,), (dim,)) for b in input_bounds))
+            or samples.dtype.kind not in "fiu"):
+        return None
     if type(epsilon) is not float or not 0.0 <= epsilon < math.inf:
         epsilon = check_epsilon_array(epsilon, horizon)
     margins = None
     if risk == "conformal":
-        margins = check_margins(conformal_margins, (samples.shape[0], horizon))
+        margins = check_margins(conformal_margins, (k, horizon))
     radii = np.array([shape.radius for shape in obstacle_shapes], dtype=np.float64)
     radii += ego_shape.radius
     out = compiled_rows(
@@ -213,7 +224,7 @@ def _compiled(origins, samples, horizon, ego_shape, obstacle_shapes, risk, alpha
         epsilon=epsilon, conformal_margins=margins,
         normals="paper" if nearside_from is None else "nearside", ego_position=nearside_from,
         previous_normals=previous_normals, ego_velocity=ego_velocity,
-        input_bounds=input_bounds, dt=dt)
+        input_bounds=input_bounds, dt=dt, disabled_offset=DISABLED_OFFSET)
     if out.status != 0:
         return None
     halfspaces = Halfspaces(out.normals, out.offsets, risk, alpha, delta, epsilon,

@@ -375,6 +375,29 @@ def test_non_finite_reference_in_the_lean_path_is_named():
                   epsilon=0.05, backend="numba")
 
 
+def test_step_rows_checks_every_shape_before_the_kernel():
+    """The kernel does not check indices: a wrong shape goes to the numpy path's errors."""
+    rng = np.random.default_rng(16)
+    reference, samples = instance(rng, 2, 10, 4)
+    kwargs = dict(horizon=4, ego_shape=Disc(0.3), obstacle_shapes=[Disc(0.3)] * 2,
+                  risk="cvar", alpha=0.2, delta=0.1, epsilon=0.05, backend="numba")
+    with pytest.raises(InvalidArrayError, match="previous_normals"):
+        step_rows(reference, samples, previous_normals=np.ones((2, 3, 2)), **kwargs)
+    with pytest.raises(InvalidArrayError, match="ego_velocity"):
+        step_rows(reference, samples, ego_velocity=np.ones(3), **kwargs)
+    with pytest.raises(InvalidArrayError, match="epsilon"):
+        step_rows(reference, samples, **dict(kwargs, risk="dr_cvar", epsilon=np.ones(3)))
+    with pytest.raises(InvalidArrayError, match="conformal_margins"):
+        step_rows(reference, samples,
+                  **dict(kwargs, risk="conformal", conformal_margins=np.ones((3, 4))))
+    with pytest.raises(InvalidArrayError, match="samples"):
+        step_rows(reference, samples[:, :, :3], **kwargs)
+    for bad in (dict(input_bounds=(np.ones(3), np.ones(3)), dt=0.2),
+                dict(nearside_from=np.ones(3))):
+        with pytest.raises(ValueError):
+            step_rows(reference, samples, **bad, **kwargs)
+
+
 def test_backend_is_checked():
     rng = np.random.default_rng(14)
     reference, samples = instance(rng, 1, 10, 2)
