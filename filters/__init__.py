@@ -11,9 +11,13 @@
   :class:`PolicyRolloutReference` its reference makers.
 * :class:`Disc`, :class:`ConvexPolygon` — shapes with support functions.
 
-``import filters`` imports neither CVXPY (only :mod:`filters.halfspace_cvxpy` and
-:mod:`filters.mpc.backends.cvxpy`, the readable reference formulations, do; reach
-``filters.CVXPYSafetyFilter`` lazily) nor matplotlib.
+The halfspaces run on compiled (numba) kernels where they apply (``backend="auto"``,
+see :mod:`filters.kernels`), with the numpy implementation as the reference
+(``backend="numpy"``).
+
+``import filters`` imports neither numba (loaded by the first compiled call) nor CVXPY
+(only :mod:`filters.halfspace_cvxpy` and :mod:`filters.mpc.backends.cvxpy`, the readable
+reference formulations, do; reach ``filters.CVXPYSafetyFilter`` lazily) nor matplotlib.
 """
 
 from typing import Any

@@ -66,6 +66,7 @@ import numpy as np
 from filters._validation import finite_array
 from filters.errors import InvalidArrayError, InvalidParameterError, InvalidTypeError
 from filters.geometry import ConvexPolygon, Disc, Shape, collision_margin
+from filters.kernels import check_backend, compiled_rows, kernel_applies, use_kernel
 from filters.risk import (
     check_alpha,
     check_epsilon_array,
@@ -179,6 +180,7 @@ def safe_halfspaces(
     ego_velocity: object | None = None,
     normals: object | None = None,
     conformal_margins: object | None = None,
+    backend: str = "auto",
 ) -> Halfspaces:
     """Risk-based safe halfspaces for every obstacle and prediction step (Definitions 2-3).
 
@@ -254,6 +256,11 @@ def safe_halfspaces(
         Required for ``"conformal"`` (ignored otherwise): margins :math:`q_t \\ge 0` in
         metres, a scalar, shape ``(T,)`` (one per look-ahead step) or ``(n_obstacles, T)``,
         e.g. :meth:`filters.calibration.ConformalMargin.margins`.
+    backend
+        ``"auto"`` (default): the compiled kernel of :mod:`filters.kernels` where it
+        applies (disc shapes; with a polytope ``support``, every risk but
+        ``"dr_cvar"``), else numpy; ``"numba"``: that kernel, or an error where it does
+        not apply; ``"numpy"``: the vectorised reference. They agree to rounding.
 
     Returns
     -------
@@ -274,11 +281,13 @@ def safe_halfspaces(
         support.
     InvalidParameterError
         If ``risk`` is unknown, ``alpha`` is outside its domain, ``epsilon < 0``,
-        ``delta`` is not finite, the number of obstacle shapes does not match, or
-        ``conformal_margins`` is missing for ``"conformal"``.
+        ``delta`` is not finite, the number of obstacle shapes does not match,
+        ``conformal_margins`` is missing for ``"conformal"``, or ``backend`` is unknown
+        (or ``"numba"`` for a case the kernels do not cover).
     InvalidTypeError
         If a shape is not a :class:`Disc` or :class:`ConvexPolygon`.
     """
+    backend = check_backend(backend)
     risk = check_risk(risk)
     alpha = check_alpha(alpha, risk)
     delta = _check_delta(delta)
@@ -298,6 +307,15 @@ def safe_halfspaces(
     velocity = None if ego_velocity is None else _check_velocity(ego_velocity, horizon, dim)
 
     given = None if normals is None else _check_normals(normals, points.shape)
+    if n_obstacles and use_kernel(backend, kernel_applies(ego_shape, shapes, polytope, risk)):
+        rows = compiled_rows(
+            points, horizon, y_ref, radii=_disc_radii(ego_shape, shapes), risk=risk,
+            alpha=alpha, delta=delta, epsilon=epsilon, conformal_margins=margins,
+            normals="paper" if given is None else given, previous_normals=previous,
+            ego_velocity=velocity)
+        _check_status(rows.status, samples)
+        return Halfspaces(rows.normals, rows.offsets, risk, alpha, delta, epsilon,
+                          rows.degenerate)
     with np.errstate(all="ignore"):  # non-finite samples are reported below, by name
         if given is None:
             normals, degenerate = _normals(_sample_means(points), y_ref, previous, velocity)
@@ -345,6 +363,7 @@ def offsets_along(
     epsilon: float | object = 0.05,
     support: tuple[object, object] | None = None,
     conformal_margins: object | None = None,
+    backend: str = "auto",
 ) -> np.ndarray:
     """``safe_halfspaces(..., normals=normals).offsets`` for the filter's hot path.
 
@@ -360,6 +379,7 @@ def offsets_along(
     InvalidArrayError, InvalidParameterError, InvalidTypeError
         As :func:`safe_halfspaces`.
     """
+    backend = check_backend(backend)
     risk = check_risk(risk)
     alpha = check_alpha(alpha, risk)
     delta = _check_delta(delta)
@@ -377,7 +397,7 @@ def offsets_along(
             np.zeros((max(horizon, 1), max(dim, 1))), points,
             ego_shape=ego_shape, obstacle_shapes=obstacle_shapes, risk=risk, alpha=alpha,
             delta=delta, epsilon=epsilon, support=support, normals=normals,
-            conformal_margins=conformal_margins).offsets
+            conformal_margins=conformal_margins, backend=backend).offsets
     n_obstacles, horizon, dim = normals.shape
     points = samples[:, :, :horizon] if samples.shape[2] != horizon else samples
     points = np.asarray(points, dtype=np.float64)
@@ -390,6 +410,13 @@ def offsets_along(
         unit = _unit_normals(np.asarray(normals, dtype=np.float64))
         if n_obstacles == 0:
             return np.zeros((0, horizon))
+        if use_kernel(backend, kernel_applies(ego_shape, shapes, None, risk)):
+            rows = compiled_rows(
+                samples, horizon, None, radii=_disc_radii(ego_shape, shapes), risk=risk,
+                alpha=alpha, delta=delta, epsilon=epsilon, conformal_margins=margins,
+                normals=unit)
+            _check_status(rows.status, points)
+            return rows.offsets
         offsets = _offsets(points, unit, ego_shape, shapes, risk, alpha, delta, epsilon,
                            margins, None)
     _check_finite_result(points, unit, offsets)
@@ -438,6 +465,25 @@ def _check_positions(reference: object, samples: object) -> tuple[np.ndarray, np
     if points.shape[1] == 0:
         raise InvalidArrayError(f"samples must hold at least one sample, got shape {points.shape}")
     return y_ref, points
+
+
+def _disc_radii(ego_shape: Shape, shapes: list[Shape]) -> np.ndarray:
+    """Collision margins of disc pairs, ``r_A + r_O`` per obstacle (any unit normal)."""
+    return np.array([shape.radius for shape in shapes]) + ego_shape.radius
+
+
+def _check_status(status: int, samples: object) -> None:
+    """Raise the numpy path's errors for a kernel status other than OK (0).
+
+    A non-finite sample is named by :func:`filters._validation.finite_array`; finite
+    samples whose halfspaces overflowed get the numpy path's "too large" error.
+    """
+    if status == 0:
+        return
+    finite_array("samples", samples)
+    raise InvalidArrayError(
+        "samples are too large: the safe halfspaces overflowed (positions are in metres)"
+    )
 
 
 def _check_finite_result(samples: object, normals: np.ndarray, offsets: np.ndarray) -> None:
@@ -575,6 +621,8 @@ def _normals(
     n_obstacles, horizon, dim = mean.shape
     diff = mean - y_ref
     dist = np.sqrt((diff * diff).sum(axis=-1))
+    if not np.isfinite(dist).all():  # overflowed: NaN, so that the result check names it
+        dist = np.where(np.isfinite(dist), dist, np.nan)
     degenerate = dist < DEGENERATE_DISTANCE
     if not degenerate.any():
         return diff / dist[..., None], degenerate

@@ -28,10 +28,9 @@ import numpy as np
 
 from filters._validation import scalar_in_range
 from filters.calibration import OnlineCalibration
-from filters.errors import InvalidArrayError, InvalidParameterError, InvalidTypeError
+from filters.errors import InvalidParameterError, InvalidTypeError
 from filters.geometry import Disc
-from filters.halfspaces import Halfspaces, safe_halfspaces
-from filters.intersample import intersample_rows
+from filters.halfspaces import Halfspaces
 from filters.mpc import FilterResult, FilterStatus, MPCSafetyFilter
 from filters.mpc.terminal import stopping_terminal_set
 from filters.protocol import FilterableEnv
@@ -43,6 +42,7 @@ from filters.references import (
 )
 from filters.risk import CHANCE_RISKS, check_alpha, check_epsilon, check_risk
 from filters.risk import RISKS as _METRICS
+from filters.step_rows import nearside_normals, step_rows
 
 RISKS: tuple[str, ...] = ("none", *_METRICS)
 """Risk settings accepted by :class:`SafetyFilterWrapper` (``"none"``: pass-through)."""
@@ -693,21 +693,13 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             return _shifted_positions(plan @ self._base.dynamics[2].T, y0)
         return ref_positions
 
-    def _given_normals(self, samples: np.ndarray, reference: np.ndarray,
-                       y0: np.ndarray) -> np.ndarray | None:
-        """Normals ``(k, T, d)`` chosen per obstacle and step, or ``None`` (from the origins).
-
-        ``reference`` is what :meth:`_normal_origins` returned: the reference positions
-        for the sources that choose per obstacle.
-        """
-        if self.normals == "nearside":
-            return _nearside_normals(samples, reference, y0)
-        if self.normals == "clearest":
-            plan = None
-            if self._last_plan is not None and self._plan_optimal:
-                plan = _shifted_positions(self._last_plan @ self._base.dynamics[2].T, y0)
-            return clearest_normals(samples, reference, y0, plan)
-        return None
+    def _clearest_normals(self, samples: np.ndarray, reference: np.ndarray,
+                          y0: np.ndarray) -> np.ndarray:
+        """The ``normals="clearest"`` normals ``(k, T, d)`` (see :func:`clearest_normals`)."""
+        plan = None
+        if self._last_plan is not None and self._plan_optimal:
+            plan = _shifted_positions(self._last_plan @ self._base.dynamics[2].T, y0)
+        return clearest_normals(samples, reference, y0, plan)
 
     def _halfspaces(
         self, base: FilterableEnv, x0: np.ndarray, ref_states: np.ndarray, radii: np.ndarray
@@ -717,12 +709,6 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             raise InvalidParameterError(
                 f"the filter horizon {self.horizon} exceeds the prediction horizon "
                 f"{predictions.shape[2]} of the environment"
-            )
-        samples = predictions[:, :, : self.horizon]
-        if not np.all(np.isfinite(samples)):
-            raise InvalidArrayError(
-                "the environment's predictions hold NaN or infinite samples (at indices "
-                f"{np.argwhere(~np.isfinite(samples))[0].tolist()})"
             )
         previous = self._previous_normals
         if previous is not None and previous.shape[0] == len(radii):
@@ -734,21 +720,18 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         C = base.dynamics[2]
         y0 = C @ x0
         origins = self._normal_origins(y0, ref_states[1:, :] @ C.T)
-        options = self._risk_options()
-        given = self._given_normals(samples, origins, y0) if len(radii) else None
-        halfspaces = safe_halfspaces(
-            origins, samples, ego_shape=ego_shape, obstacle_shapes=obstacle_shapes,
+        given = None
+        if self.normals == "clearest" and len(radii):
+            given = self._clearest_normals(predictions[:, :, : self.horizon], origins, y0)
+        rows = step_rows(
+            origins, predictions,
+            horizon=self.horizon, ego_shape=ego_shape, obstacle_shapes=obstacle_shapes,
             support=self.support, previous_normals=previous, ego_velocity=x0[2:],
-            normals=given, **options,
+            nearside_from=y0 if self.normals == "nearside" else None, normals=given,
+            input_bounds=base.input_bounds if self.intersample else None,
+            dt=float(base.dt), **self._risk_options(),
         )
-        if not self.intersample:
-            return halfspaces, (halfspaces.normals, halfspaces.offsets)
-        rows = intersample_rows(
-            halfspaces, samples, ego_shape=ego_shape, obstacle_shapes=obstacle_shapes,
-            input_bounds=base.input_bounds, dt=float(base.dt), support=self.support,
-            **options,
-        )
-        return halfspaces, (rows.normals, rows.offsets)
+        return rows.halfspaces, (rows.normals, rows.offsets)
 
     def _shapes(self, ego_radius: float, radii: np.ndarray) -> tuple[Disc, list[Disc]]:
         """The ego and obstacle discs, built once per set of radii (not every step)."""
@@ -777,30 +760,6 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                                 reuse=self._halfspace_lines)
         if drawn is not None:
             self._halfspace_lines = drawn
-
-
-def _nearside_normals(samples: np.ndarray, reference: np.ndarray, ego: np.ndarray) -> np.ndarray:
-    """Paper normals where the reference is on the ego's side of the obstacle, else the ego's.
-
-    For obstacle ``i`` and step ``t`` the normal starts at the reference position
-    ``y^r_t`` when ``(y^r_t - p̄_{i,t}) . (y_0 - p̄_{i,t}) > 0`` (the reference has not
-    passed the obstacle's centre as seen from the ego), else at the current position
-    ``y_0``: the normals then never flip inside the horizon.
-    """
-    means = samples.mean(axis=1)  # (k, T, d)
-    to_reference = reference[None] - means
-    to_ego = ego[None, None] - means
-    near = np.einsum("ktd,ktd->kt", to_reference, to_ego) > 0.0
-    origin = np.where(near[..., None], reference[None], ego[None, None])
-    diff = means - origin
-    size = np.sqrt(np.add.reduce(diff * diff, axis=-1, keepdims=True))  # = np.linalg.norm
-    ok = size > 1e-9
-    if ok.all():  # the usual case: the fallback below would not be picked anywhere
-        return diff / size
-    fallback = means - ego[None, None]  # the ego is never at the obstacle's mean
-    fallback_size = np.sqrt(np.add.reduce(fallback * fallback, axis=-1, keepdims=True))
-    return np.where(ok, diff / np.where(ok, size, 1.0),
-                    fallback / np.maximum(fallback_size, 1e-12))
 
 
 def clearest_normals(samples: np.ndarray, reference: np.ndarray, ego: np.ndarray,
@@ -854,7 +813,7 @@ def clearest_normals(samples: np.ndarray, reference: np.ndarray, ego: np.ndarray
     """
     means = samples.mean(axis=1)  # (k, T, d)
     if plan is None:
-        normals = _nearside_normals(samples, reference, ego)
+        normals = nearside_normals(samples, reference, ego)
     else:
         to_reference = means - reference[None]
         to_plan = means - plan[None]
