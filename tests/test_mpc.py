@@ -187,6 +187,48 @@ def test_recovery_slack_is_the_minimal_l1_violation():
     assert checked >= 5
 
 
+@pytest.mark.parametrize("excess", [2e-5, 2e-3])
+def test_answers_slightly_outside_the_input_box_are_clipped_and_checked(excess):
+    """A back end answer up to INPUT_CLIP_TOLERANCE outside the input box is clipped and
+    its rows are checked on the clipped plan (a recovery answer 2e-5 outside was once
+    rejected, and the filter braked); beyond it, the answer is rejected."""
+    from filters.mpc.filter import INPUT_CLIP_TOLERANCE
+
+    mpc = make_filter("daqp", n_obstacles=3)
+    recovery = mpc._recovery
+    real = recovery.solve
+
+    def outside(step):  # the true recovery answer, pushed out of the box where it binds
+        solution = real(step)
+        if solution.inputs is None:
+            return solution
+        inputs = solution.inputs.copy()
+        inputs[inputs >= 5.0 - 1e-9] += excess
+        inputs[inputs <= -5.0 + 1e-9] -= excess
+        return dataclasses.replace(solution, inputs=inputs)
+
+    recovery.solve = outside
+    saturated = 0
+    for instance in mode_instances("recovery", 5, 10):
+        mpc.reset()
+        result = solve(mpc, instance)
+        if mpc.last_qp_solves < 2:
+            continue  # the hard QP answered
+        plan = real(mpc._last_step).inputs
+        if plan is None or not np.any(np.abs(plan) >= 5.0 - 1e-9):
+            continue
+        saturated += 1
+        if excess < 1e-4:
+            assert result.status in (FilterStatus.SOFT, FilterStatus.RECOVERY)
+            assert np.abs(result.inputs).max() <= 5.0
+            assert np.allclose(result.inputs, plan, atol=excess)
+        else:
+            assert result.status is FilterStatus.BRAKE
+            assert "input bound violated" in result.solver_status
+    assert saturated >= 3
+    assert 2e-5 < INPUT_CLIP_TOLERANCE < 2e-3
+
+
 # --------------------------------------------------------------------------- build once
 @pytest.mark.parametrize("objective", OBJECTIVES)
 @pytest.mark.parametrize("mode", MODES)

@@ -9,8 +9,11 @@ One :meth:`MPCSafetyFilter.solve` call:
    every row exactly, so no QP is solved;
 3. solves the **hard QP** (halfspace, arena and terminal rows hard; halfspace rows
    softened with ``soft=True``) with the back end;
-4. **accepts** an answer only if its roll-out from ``x0`` meets every hard row to
-   ``FEASIBILITY_TOLERANCE`` (and every soft row to its slack plus that tolerance);
+4. **accepts** an answer only if its inputs lie in the box to ``INPUT_CLIP_TOLERANCE``
+   (they are then clipped into it) and the roll-out of the clipped inputs from ``x0``
+   meets every hard row to ``FEASIBILITY_TOLERANCE`` (and every soft row to the back
+   end's slack plus that tolerance, when no clipping beyond that tolerance made the
+   back end's slacks stale; the slacks reported are always recomputed from the plan);
 5. otherwise **recovers**: ``fallback="soft"`` solves the recovery QP (every halfspace,
    arena and terminal row softened, exact L1 penalty ``slack_penalty``: it has the hard
    QP's solution whenever that one is feasible), then brakes if that fails too;
@@ -43,6 +46,7 @@ __all__ = [
     "DISABLED_OFFSET",
     "FALLBACKS",
     "FEASIBILITY_TOLERANCE",
+    "INPUT_CLIP_TOLERANCE",
     "SLACK_TOLERANCE",
     "MPCSafetyFilter",
     "auto_backend",
@@ -62,6 +66,11 @@ DISABLED_OFFSET = 1.0
 FEASIBILITY_TOLERANCE = 1e-6
 #: Slacks and violations at or below this value (m) count as zero.
 SLACK_TOLERANCE = 1e-6
+#: Largest distance (m/s², per input) from a back end's answer to the input box that is
+#: clipped away rather than rejected. Every row is checked again on the clipped inputs,
+#: so clipping never admits a plan that breaks a hard row. Active-set soft QPs in the
+#: whitened variables (where the box is a general row) were seen up to 2e-5 outside it.
+INPUT_CLIP_TOLERANCE = 1e-4
 
 _NO_QP = "unconstrained optimum feasible (no QP needed)"
 _vecdot = getattr(np, "vecdot", None) or (lambda a, b: np.einsum("...d,...d->...", a, b))
@@ -416,20 +425,26 @@ class MPCSafetyFilter:
         raw = solution.inputs
         if not all_finite(raw):
             return "rejected: non-finite solution"
-        # An interior-point answer may sit ~1e-9 outside the box: clip it.
+        # A solver's answer may sit slightly outside the box: clip it, then check the rows
+        # on the clipped inputs.
         inputs = np.minimum(np.maximum(raw, self._u_low), self._u_high)
         clipped = 0.0 if (inputs == raw).all() else float(
             np.maximum.reduce(np.abs(inputs - raw), axis=None))
-        if not clipped <= FEASIBILITY_TOLERANCE:
+        if not clipped <= INPUT_CLIP_TOLERANCE:
             return f"rejected: input bound violated by {clipped:.3g}"
         states, halfspace, bounds = self._evaluate(x0, inputs, normals, offsets)
         k = normals.shape[0]
         # Without a slack the allowance is 0 and x - 0.0 is x bit for bit: no subtraction.
+        # The back end's slacks describe its own inputs: after a clip beyond the
+        # feasibility tolerance they are stale, and a soft row is allowed the violation of
+        # the clipped plan itself (the slack reported is recomputed from the plan anyway).
+        fresh = clipped <= FEASIBILITY_TOLERANCE
         excess_h, excess_b = halfspace, bounds
         if "halfspaces" in soft_rows and solution.halfspace_slack is not None:
-            excess_h = halfspace - np.maximum(solution.halfspace_slack[:k], 0.0)
+            excess_h = halfspace - np.maximum(
+                solution.halfspace_slack[:k] if fresh else halfspace, 0.0)
         if "bounds" in soft_rows and solution.bound_slack is not None:
-            excess_b = bounds - np.maximum(solution.bound_slack, 0.0)
+            excess_b = bounds - np.maximum(solution.bound_slack if fresh else bounds, 0.0)
         worst = float(np.maximum.reduce(excess_b, initial=-np.inf))
         if k:
             worst = max(worst, float(np.maximum.reduce(excess_h, axis=None)))
