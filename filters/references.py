@@ -87,18 +87,34 @@ class PolicyRolloutReference:
     ----------
     policy
         Object with a Stable-Baselines3 style ``predict(obs, deterministic=True)``.
+    compiled
+        If true (default) and ``policy`` has a method ``rollout_reference(env, action,
+        horizon)``, ask it first: it returns the same roll-out computed its own way
+        (``agents.NumpyPolicy`` and ``agents.TorchActorPolicy`` run it in one compiled
+        kernel, equal to this loop to about 1e-6 m/s² per action), or ``None`` for an
+        environment it does not know, and then the loop below runs. ``False``: always
+        the loop, calling ``predict`` ``T - 1`` times.
     """
 
-    def __init__(self, policy: Policy) -> None:
+    def __init__(self, policy: Policy, *, compiled: bool = True) -> None:
         if not callable(getattr(policy, "predict", None)):
             raise InvalidTypeError(
                 f"policy must have a predict(observation, deterministic=...) method, got {policy!r}"
             )
+        if not isinstance(compiled, bool | np.bool_):
+            raise InvalidTypeError(f"compiled must be a bool, got {compiled!r}")
         self.policy = policy
+        self.compiled = bool(compiled)
+        fast = getattr(policy, "rollout_reference", None) if compiled else None
+        self._fast = fast if callable(fast) else None
 
     def __call__(
         self, env: FilterableEnv, action: np.ndarray, horizon: int
     ) -> tuple[np.ndarray, np.ndarray]:
+        if self._fast is not None:
+            made = self._fast(env, action, horizon)
+            if made is not None:
+                return made
         A, B, _ = env.dynamics
         low, high = env.input_bounds
         predicted_means = np.asarray(env.predictions).mean(axis=1)  # (n_obstacles, T, d)

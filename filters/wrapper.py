@@ -267,6 +267,12 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         If given, the reference is the policy rolled out over the horizon on the
         obstacles' predicted mean motion (:class:`filters.references.PolicyRolloutReference`);
         otherwise the proposed action is held over the horizon.
+    compiled_rollout
+        With ``policy``: let the policy roll itself out in one call when it can
+        (default ``True``; ``agents.NumpyPolicy`` and ``agents.TorchActorPolicy`` run the
+        whole roll-out in one compiled kernel, equal to the ``predict`` loop to about
+        1e-6 m/s² per action); ``False``: call ``policy.predict`` at every look-ahead
+        step (for ``TorchActorPolicy``, bit for bit SB3's actions).
     reference
         A custom reference maker ``(env, action, horizon) -> (states, inputs)``;
         overrides ``policy``.
@@ -356,6 +362,7 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         calibration_episodes: int | None = None,
         calibration_seed: int = CALIBRATION_SEED,
         calibration_memory: str = "episode",
+        compiled_rollout: bool = True,
     ) -> None:
         # No deep copy: policies and planners hold solver and torch state.
         gym.utils.RecordConstructorArgs.__init__(
@@ -367,8 +374,10 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             intervention_penalty=intervention_penalty, support=support,
             draw_halfspaces=draw_halfspaces, calibration_episodes=calibration_episodes,
             calibration_seed=calibration_seed, calibration_memory=calibration_memory,
+            compiled_rollout=compiled_rollout,
         )
         gym.Wrapper.__init__(self, env)
+        self._unwrapped: FilterableEnv = env.unwrapped  # type: ignore[assignment]
         missing = [a for a in _PROTOCOL_ATTRIBUTES if not hasattr(env.unwrapped, a)]
         if missing:
             raise InvalidTypeError(
@@ -403,10 +412,12 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             low_inclusive=False, high_inclusive=False,
         )
         for name, flag in (("intersample", intersample), ("terminal", terminal),
-                           ("soft", soft), ("draw_halfspaces", draw_halfspaces)):
+                           ("soft", soft), ("draw_halfspaces", draw_halfspaces),
+                           ("compiled_rollout", compiled_rollout)):
             if not isinstance(flag, (bool, np.bool_)):
                 raise InvalidTypeError(f"{name} must be a bool, got {flag!r}")
         self.intersample, self.terminal = bool(intersample), bool(terminal)
+        self._rows = 2 if self.intersample else 1  # rows_per_obstacle, read every step
         self.soft, self.draw_halfspaces = bool(soft), bool(draw_halfspaces)
         self.intervention_penalty = scalar_in_range(
             "intervention_penalty", intervention_penalty, low=0.0, high=np.inf,
@@ -432,7 +443,7 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 raise InvalidTypeError(f"reference must be callable, got {reference!r}")
             self.reference: ReferenceMaker = reference
         elif policy is not None:
-            self.reference = PolicyRolloutReference(policy)
+            self.reference = PolicyRolloutReference(policy, compiled=bool(compiled_rollout))
         else:
             self.reference = hold_action_reference
         A, B, _ = base.dynamics
