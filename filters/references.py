@@ -21,8 +21,9 @@ from collections.abc import Callable
 from typing import Any, Protocol
 
 import numpy as np
+from numba import njit
 
-from filters.errors import InvalidTypeError
+from filters.errors import InvalidArrayError, InvalidTypeError
 from filters.protocol import FilterableEnv
 
 ReferenceMaker = Callable[[FilterableEnv, np.ndarray, int], tuple[np.ndarray, np.ndarray]]
@@ -56,6 +57,45 @@ def rollout(A: np.ndarray, B: np.ndarray, x0: np.ndarray, inputs: np.ndarray) ->
     return states
 
 
+@njit(cache=True)
+def _hold(x0: np.ndarray, action: np.ndarray, low: np.ndarray, high: np.ndarray,
+          A: np.ndarray, B: np.ndarray, horizon: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`hold_action_reference`'s arrays: ``u = clip(a)`` held, ``x_{k+1} = A x_k + B u``.
+
+    Each product sums in index order, then ``A x_k`` and ``B u`` are added: for the
+    double integrator (entries 0, 1, ``T_s``, ``T_s²/2``) the bits of numpy's
+    ``A @ x + B @ u``.
+    """
+    n, m = B.shape
+    states = np.empty((horizon + 1, n))
+    inputs = np.empty((horizon, m))
+    u = np.empty(m)
+    for j in range(m):
+        v = action[j]
+        if v < low[j]:  # np.clip's result, a NaN stays NaN
+            v = low[j]
+        if v > high[j]:
+            v = high[j]
+        u[j] = v
+    bu = np.empty(n)
+    for i in range(n):
+        total = 0.0
+        for j in range(m):
+            total += B[i, j] * u[j]
+        bu[i] = total
+    for i in range(n):
+        states[0, i] = x0[i]
+    for k in range(horizon):
+        for j in range(m):
+            inputs[k, j] = u[j]
+        for i in range(n):
+            total = 0.0
+            for j in range(n):
+                total += A[i, j] * states[k, j]
+            states[k + 1, i] = total + bu[i]
+    return states, inputs
+
+
 def hold_action_reference(
     env: FilterableEnv, action: np.ndarray, horizon: int
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -63,17 +103,25 @@ def hold_action_reference(
 
     .. math:: u^r_k = \\operatorname{clip}(a, u_{min}, u_{max}),\\quad
               x^r_{k+1} = A x^r_k + B u^r_k,\\quad x^r_0 = x_t.
+
+    One compiled call (the Python loop it replaces took most of the wrapper's own time).
+
+    Raises
+    ------
+    InvalidArrayError
+        If ``action`` does not have one entry per input, or ``horizon < 0``.
     """
     A, B, _ = env.dynamics
     low, high = env.input_bounds
-    u = np.clip(np.asarray(action, dtype=float), low, high)
-    inputs = np.tile(u, (horizon, 1))
-    states = np.empty((horizon + 1, A.shape[0]))
-    states[0] = env.ego_state
-    Bu = B @ inputs[0]  # the same input every step: one product (as rollout() would give)
-    for k in range(horizon):
-        states[k + 1] = A @ states[k] + Bu
-    return states, inputs
+    u = np.asarray(action, dtype=np.float64).reshape(-1)
+    if u.shape[0] != B.shape[1] or horizon < 0:
+        raise InvalidArrayError(
+            f"action must have {B.shape[1]} entries and horizon be >= 0, got shape "
+            f"{np.shape(action)} and horizon {horizon!r}"
+        )
+    return _hold(np.asarray(env.ego_state, dtype=np.float64), u,
+                 np.asarray(low, dtype=np.float64), np.asarray(high, dtype=np.float64),
+                 np.asarray(A, dtype=np.float64), np.asarray(B, dtype=np.float64), int(horizon))
 
 
 class PolicyRolloutReference:
