@@ -10,7 +10,12 @@ is a ratio against a reference measured in the same run:
     Parameters, and the QP alone on synthetic instances; ours is the default
     ``backend="auto"``, and each explicit back end (DAQP, Clarabel) is timed on the
     same steps too;
-(c) the unfiltered environment's steps per second.
+(c) the unfiltered environment's steps per second;
+(d) ``safe-nav bench --training`` (:func:`benchmark_training`): PPO training steps per
+    second with the DR-CVaR filter in the loop against without it, interleaved runs.
+
+(b) also times the policy roll-out reference (:func:`benchmark_rollout_reference`: the
+compiled kernel against the per-step ``predict`` loops) against the QP of the same run.
 
 ``safe-nav bench --scaling`` (:func:`run_scaling`) times the filter step on the grid
 obstacles x horizon x samples against CVXPY compiled once (see
@@ -243,7 +248,13 @@ def run_benchmarks(filter_steps: int = 500, table_repeats: int = 100, seed: int 
     table = halfspace_timing_table((50, 500, 1500), table_repeats, seed)
     parts.append("(a) " + format_table_one(table["result"]))
     parts.append(benchmark_filter_step(filter_steps, seed).format())
-    parts.append(benchmark_filter_step(filter_steps, seed, continuous=True).format())
+    continuous = benchmark_filter_step(filter_steps, seed, continuous=True)
+    parts.append(continuous.format())
+    rollout = benchmark_rollout_reference(steps=filter_steps, seed=seed)
+    parts.append("    " + format_rollout_reference(rollout) + "\n"
+                 f"    roll-out reference / the continuous-time filter's QP in this run: "
+                 f"{rollout['compiled']:.3f} / {continuous.qp_ms:.3f} ms = "
+                 f"{rollout['compiled'] / continuous.qp_ms:.2f}   (target <= 1)")
     parts.append("    QP alone on synthetic instances:\n" + format_filter_qp(
         benchmark_filter_qp(n_steps=filter_steps, seed=seed)))
     rates = env_benchmark(n_steps=env_steps, repeats=3, seed=seed)
@@ -252,31 +263,208 @@ def run_benchmarks(filter_steps: int = 500, table_repeats: int = 100, seed: int 
     return "\n\n".join(parts)
 
 
+# --------------------------------------------------------------------------- --training
+PROJECTED_SPEEDUPS = {"halfspaces": 0.13 / 0.03, "qp": 0.076 / 0.05}
+"""Speed-ups of the halfspaces and of the QP that the projection of
+:class:`TrainingThroughput` assumes: the kernels' and the QP's targets at the paper's
+size (0.13 -> 0.03 ms, 0.076 -> 0.05 ms per filter step)."""
+
+
+@dataclass(frozen=True)
+class TrainingThroughput:
+    """PPO training steps per second without and with the DR-CVaR filter in the loop.
+
+    Plain and filtered runs alternate (plain, filtered, plain, ...), so both see the
+    same load on a shared machine; every rate is ``timesteps / time`` of ``learn``.
+
+    Attributes
+    ----------
+    timesteps, rounds
+        Steps per run; runs of each kind.
+    plain_wall, filtered_wall
+        Steps per wall second, one per run.
+    plain_cpu, filtered_cpu
+        Steps per CPU second of this process (``time.process_time``), one per run: what
+        the run costs, whatever else the machine is doing.
+    filter_us
+        Wall time per filtered step in µs (medians over the filtered runs of the per-run
+        means): ``"reference"``, ``"halfspaces"``, ``"qp"`` (from the filter reports)
+        and ``"step"`` (the whole filtered training step, ``1 / rate``).
+    """
+
+    timesteps: int
+    rounds: int
+    plain_wall: tuple[float, ...]
+    filtered_wall: tuple[float, ...]
+    plain_cpu: tuple[float, ...]
+    filtered_cpu: tuple[float, ...]
+    filter_us: dict[str, float]
+
+    @property
+    def ratio(self) -> float:
+        """Median filtered over median plain steps per wall second."""
+        return float(np.median(self.filtered_wall) / np.median(self.plain_wall))
+
+    @property
+    def cpu_ratio(self) -> float:
+        """Median filtered over median plain steps per CPU second."""
+        return float(np.median(self.filtered_cpu) / np.median(self.plain_cpu))
+
+    @property
+    def pair_ratios(self) -> tuple[float, ...]:
+        """Filtered over plain wall rate of each back-to-back pair (round)."""
+        return tuple(f / p for p, f in zip(self.plain_wall, self.filtered_wall, strict=True))
+
+    def projected_ratio(self, speedups: dict[str, float] | None = None) -> float:
+        """The ratio if the halfspaces and the QP were ``speedups`` times faster.
+
+        .. math:: t' = t - t_h - t_q + t_h / s_h + t_q / s_q
+
+        per filtered step (wall, the filter reports' times), against the same plain rate.
+        A projection, not a measurement: the rest of the step is taken as it was.
+        """
+        speedups = PROJECTED_SPEEDUPS if speedups is None else speedups
+        t = 1e-6 * self.filter_us["step"]
+        h, q = 1e-6 * self.filter_us["halfspaces"], 1e-6 * self.filter_us["qp"]
+        projected = t - h - q + h / speedups["halfspaces"] + q / speedups["qp"]
+        return float(1.0 / projected / np.median(self.plain_wall))
+
+    def format(self) -> str:
+        def rates(values: tuple[float, ...]) -> str:
+            return ", ".join(f"{v:.0f}" for v in values)
+
+        us = self.filter_us
+        plain_us = 1e6 / float(np.median(self.plain_wall))
+        return "\n".join([
+            f"(d) PPO training, RandomCrossing, 8 environments, {self.timesteps} steps per "
+            f"run, {self.rounds} runs each, interleaved:",
+            f"    plain        {np.median(self.plain_wall):7.0f} steps/s (runs: "
+            f"{rates(self.plain_wall)}); per CPU s {np.median(self.plain_cpu):.0f}",
+            f"    dr_cvar      {np.median(self.filtered_wall):7.0f} steps/s (runs: "
+            f"{rates(self.filtered_wall)}); per CPU s {np.median(self.filtered_cpu):.0f}",
+            f"    ratio filtered / plain: {self.ratio:.2f} (wall), {self.cpu_ratio:.2f} (CPU), "
+            f"pairs {', '.join(f'{r:.2f}' for r in self.pair_ratios)}   (target >= 0.70)",
+            f"    per step: plain {plain_us:.0f} us; filtered {us['step']:.0f} us = plain + "
+            f"{us['step'] - plain_us:.0f} us, of which reference {us['reference']:.0f}, "
+            f"halfspaces {us['halfspaces']:.0f}, QP {us['qp']:.0f}, the rest "
+            f"{us['step'] - plain_us - us['reference'] - us['halfspaces'] - us['qp']:.0f}",
+            f"    projection (not measured): halfspaces "
+            f"{PROJECTED_SPEEDUPS['halfspaces']:.1f}x and QP {PROJECTED_SPEEDUPS['qp']:.1f}x "
+            f"faster (their targets) -> ratio {self.projected_ratio():.2f}",
+        ])
+
+
+def _training_run(timesteps: int, seed: int, filter_kwargs: dict | None) -> tuple[
+        float, float, dict[str, float]]:
+    """One ``train_ppo`` run: steps per wall s and per CPU s of ``learn``, and the filter
+    reports' reference, halfspace and QP times per step (µs)."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    from agents.training import train_ppo
+
+    class Clock(BaseCallback):
+        def __init__(self) -> None:
+            super().__init__()
+            self.times = {"reference": 0.0, "halfspaces": 0.0, "qp": 0.0}
+            self.wall = self.cpu = 0.0
+
+        def _on_training_start(self) -> None:
+            self.wall, self.cpu = time.perf_counter(), time.process_time()
+
+        def _on_step(self) -> bool:
+            for info in self.locals["infos"]:
+                report = info.get("filter")
+                if report is not None:
+                    self.times["reference"] += report.reference_time
+                    self.times["halfspaces"] += report.halfspace_time
+                    self.times["qp"] += report.filter_time - report.halfspace_time
+            return True
+
+        def _on_training_end(self) -> None:
+            self.wall = time.perf_counter() - self.wall
+            self.cpu = time.process_time() - self.cpu
+
+    clock = Clock()
+    _, report = train_ppo(total_timesteps=timesteps, seed=seed, filter_kwargs=filter_kwargs,
+                          progress_bar=False, callbacks=[clock])
+    steps = report.total_timesteps
+    return (steps / clock.wall, steps / clock.cpu,
+            {key: 1e6 * value / steps for key, value in clock.times.items()})
+
+
+def benchmark_training(timesteps: int = 20_480, rounds: int = 3, seed: int = 0, *,
+                       filter_kwargs: dict | None = None,
+                       warmup_steps: int = 2048) -> TrainingThroughput:
+    """Training steps per second with and without the filter, interleaved runs.
+
+    ``safe-nav train --timesteps 20480`` against the same with ``--filter dr_cvar``
+    (:func:`agents.train_ppo` defaults: RandomCrossing, 8 in-process environments, the
+    held-action reference), ``rounds`` times each, alternating; one untimed short run of
+    each first compiles and loads what the first timed run would otherwise pay for.
+
+    Parameters
+    ----------
+    filter_kwargs
+        The filter's keywords (default ``{"risk": "dr_cvar"}``: the wrapper's defaults).
+    warmup_steps
+        Steps of the untimed first run of each kind (0: none).
+    """
+    filter_kwargs = {"risk": "dr_cvar"} if filter_kwargs is None else dict(filter_kwargs)
+    if warmup_steps:
+        for kwargs in (None, filter_kwargs):  # imports, numba caches, first allocations
+            _training_run(warmup_steps, seed, kwargs)
+    runs: dict[bool, list[tuple[float, float, dict[str, float]]]] = {False: [], True: []}
+    for _ in range(rounds):
+        for filtered in (False, True):
+            runs[filtered].append(_training_run(timesteps, seed,
+                                                filter_kwargs if filtered else None))
+    filtered_wall = tuple(r[0] for r in runs[True])
+    filter_us = {key: float(np.median([r[2][key] for r in runs[True]]))
+                 for key in ("reference", "halfspaces", "qp")}
+    filter_us["step"] = 1e6 / float(np.median(filtered_wall))
+    return TrainingThroughput(
+        timesteps=timesteps, rounds=rounds,
+        plain_wall=tuple(r[0] for r in runs[False]), filtered_wall=filtered_wall,
+        plain_cpu=tuple(r[1] for r in runs[False]), filtered_cpu=tuple(r[1] for r in runs[True]),
+        filter_us=filter_us,
+    )
+
+
 # --------------------------------------------------------------------------- --scaling
 def benchmark_rollout_reference(
     horizon: int = 10, steps: int = 200, seed: int = 0, path: str | None = None
 ) -> dict[str, float]:
     """Median wall time (ms) of one roll-out reference (``T - 1`` policy calls) per step.
 
-    The shipped PPO policy through SB3 against its :class:`agents.NumpyPolicy` export
-    and :class:`agents.TorchActorPolicy`, along unfiltered MultiObstacle episodes (the
-    same states for all).
+    Along unfiltered MultiObstacle episodes of the shipped PPO policy (the same states for
+    all), :class:`filters.references.PolicyRolloutReference` with: ``"sb3"`` the SB3
+    model's ``predict`` at each look-ahead step; ``"numpy"`` and ``"torch_actor"`` the
+    :class:`agents.NumpyPolicy` and :class:`agents.TorchActorPolicy` exports called the
+    same way (``compiled=False``); ``"compiled"`` the whole roll-out in one kernel
+    (:mod:`agents.compiled_rollout`, what ``safe-nav evaluate`` runs); ``"hold"`` the
+    held-action reference, for scale.
     """
     import gymnasium as gym
 
     import safe_nav_env  # noqa: F401
     from agents.numpy_policy import NumpyPolicy, TorchActorPolicy
     from agents.training import load_ppo, set_torch_threads
-    from filters.references import PolicyRolloutReference
+    from filters.references import PolicyRolloutReference, hold_action_reference
 
     set_torch_threads(1)
     model = load_ppo(path)
+    actor = TorchActorPolicy.from_sb3(model)
     makers = {"sb3": PolicyRolloutReference(model),
-              "numpy": PolicyRolloutReference(NumpyPolicy.from_sb3(model)),
-              "torch_actor": PolicyRolloutReference(TorchActorPolicy.from_sb3(model))}
+              "numpy": PolicyRolloutReference(NumpyPolicy.from_sb3(model), compiled=False),
+              "torch_actor": PolicyRolloutReference(actor, compiled=False),
+              "compiled": PolicyRolloutReference(actor),
+              "hold": hold_action_reference}
     times: dict[str, list[float]] = {name: [] for name in makers}
     env = gym.make("SafeNav/MultiObstacle-v0", horizon=horizon)
     episode, done = 0, True
+    for maker in makers.values():  # first calls: numba's cache, torch's kernels
+        env.reset(seed=seed)
+        maker(env.unwrapped, np.zeros(2), horizon)
     for _ in range(steps):
         if done:
             obs, _ = env.reset(seed=seed + episode)
@@ -290,6 +478,19 @@ def benchmark_rollout_reference(
         done = terminated or truncated
     env.close()
     return {name: float(np.median(values)) for name, values in times.items()}
+
+
+def format_rollout_reference(rollout: dict[str, float], horizon: int = 10) -> str:
+    """The roll-out timings of :func:`benchmark_rollout_reference` as one paragraph."""
+    compiled = rollout["compiled"]
+    return (
+        f"roll-out reference, T = {horizon} ({horizon - 1} policy calls), MultiObstacle, "
+        f"medians: SB3 predict {rollout['sb3']:.3f} ms, NumpyPolicy.predict "
+        f"{rollout['numpy']:.3f} ms, TorchActorPolicy.predict {rollout['torch_actor']:.3f} "
+        f"ms, compiled kernel {compiled:.3f} ms ({rollout['sb3'] / compiled:.0f}x SB3, "
+        f"{rollout['torch_actor'] / compiled:.1f}x TorchActorPolicy); the held action "
+        f"{rollout['hold']:.4f} ms"
+    )
 
 
 def run_scaling(
@@ -356,14 +557,7 @@ def run_scaling(
         from agents.numpy_policy import benchmark_numpy_policy
 
         parts.append(benchmark_numpy_policy(seed=seed).format())
-        horizon = 10
-        rollout = benchmark_rollout_reference(horizon=horizon, seed=seed)
-        parts.append(
-            f"roll-out reference, T = {horizon} ({horizon - 1} policy calls), MultiObstacle, "
-            f"medians: SB3 {rollout['sb3']:.3f} ms, NumpyPolicy {rollout['numpy']:.3f} ms "
-            f"({rollout['sb3'] / rollout['numpy']:.1f}x), TorchActorPolicy "
-            f"{rollout['torch_actor']:.3f} ms ({rollout['sb3'] / rollout['torch_actor']:.1f}x)"
-        )
+        parts.append(format_rollout_reference(benchmark_rollout_reference(seed=seed)))
     report = "\n\n".join(parts)
     if output is not None:
         folder = Path(output)

@@ -276,6 +276,13 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--no-plot", action="store_true", help="--scaling: no figure")
     bench.add_argument("--no-policy", action="store_true",
                        help="--scaling: skip the policy (SB3 vs numpy) timings")
+    bench.add_argument("--training", action="store_true",
+                       help="PPO training steps per second with the DR-CVaR filter in the "
+                       "loop against without it (interleaved runs, same process)")
+    bench.add_argument("--timesteps", type=_positive_int, default=20_480,
+                       help="--training: steps per run (default 20480)")
+    bench.add_argument("--rounds", type=_positive_int, default=3,
+                       help="--training: runs of each kind (default 3)")
     return parser
 
 
@@ -381,6 +388,11 @@ def _dispatch(args: argparse.Namespace) -> int:
     if args.command == "bench":
         if args.scaling:
             return _bench_scaling(args)
+        if args.training:
+            from agents.bench import benchmark_training
+
+            print(benchmark_training(args.timesteps, args.rounds, args.seed).format())
+            return 0
         from agents.bench import run_benchmarks
 
         print(run_benchmarks(filter_steps=args.steps or 500, table_repeats=args.repeats,

@@ -253,9 +253,10 @@ def test_torch_actor_keeps_evaluation_records_identical(shipped):
             assert a == b, key
 
 
-def test_rollout_reference_timing_covers_the_three_policies():
-    from agents.bench import benchmark_rollout_reference
+def test_rollout_reference_timing_covers_every_path():
+    from agents.bench import benchmark_rollout_reference, format_rollout_reference
 
     medians = benchmark_rollout_reference(horizon=5, steps=4)
-    assert set(medians) == {"sb3", "numpy", "torch_actor"}
+    assert set(medians) == {"sb3", "numpy", "torch_actor", "compiled", "hold"}
     assert all(value > 0 for value in medians.values())
+    assert "compiled kernel" in format_rollout_reference(medians, 5)
