@@ -30,7 +30,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -274,31 +274,35 @@ size (0.13 -> 0.03 ms, 0.076 -> 0.05 ms per filter step)."""
 class TrainingThroughput:
     """PPO training steps per second without and with the DR-CVaR filter in the loop.
 
-    Plain and filtered runs alternate (plain, filtered, plain, ...), so both see the
-    same load on a shared machine; every rate is ``timesteps / time`` of ``learn``.
+    Two models train side by side in one process, in alternating chunks (a plain chunk,
+    a filtered chunk, ...; a chunk is one rollout and its update with the defaults), so
+    both see the same load on a shared machine; every rate is ``chunk / time``.
 
     Attributes
     ----------
-    timesteps, rounds
-        Steps per run; runs of each kind.
+    chunk
+        Steps per chunk (summed over the environments).
     plain_wall, filtered_wall
-        Steps per wall second, one per run.
+        Steps per wall second, one per chunk.
     plain_cpu, filtered_cpu
-        Steps per CPU second of this process (``time.process_time``), one per run: what
-        the run costs, whatever else the machine is doing.
+        Steps per CPU second of this process (``time.process_time``), one per chunk.
     filter_us
-        Wall time per filtered step in µs (medians over the filtered runs of the per-run
+        Wall time per filtered step in µs (medians over the chunks of the per-chunk
         means): ``"reference"``, ``"halfspaces"``, ``"qp"`` (from the filter reports)
         and ``"step"`` (the whole filtered training step, ``1 / rate``).
     """
 
-    timesteps: int
-    rounds: int
+    chunk: int
     plain_wall: tuple[float, ...]
     filtered_wall: tuple[float, ...]
     plain_cpu: tuple[float, ...]
     filtered_cpu: tuple[float, ...]
     filter_us: dict[str, float]
+
+    @property
+    def timesteps(self) -> int:
+        """Timed steps of each kind."""
+        return self.chunk * len(self.plain_wall)
 
     @property
     def ratio(self) -> float:
@@ -311,9 +315,9 @@ class TrainingThroughput:
         return float(np.median(self.filtered_cpu) / np.median(self.plain_cpu))
 
     @property
-    def pair_ratios(self) -> tuple[float, ...]:
-        """Filtered over plain wall rate of each back-to-back pair (round)."""
-        return tuple(f / p for p, f in zip(self.plain_wall, self.filtered_wall, strict=True))
+    def pair_ratio(self) -> float:
+        """Median over the back-to-back pairs of filtered over plain wall rate."""
+        return float(np.median(np.asarray(self.filtered_wall) / np.asarray(self.plain_wall)))
 
     def projected_ratio(self, speedups: dict[str, float] | None = None) -> float:
         """The ratio if the halfspaces and the QP were ``speedups`` times faster.
@@ -330,102 +334,94 @@ class TrainingThroughput:
         return float(1.0 / projected / np.median(self.plain_wall))
 
     def format(self) -> str:
-        def rates(values: tuple[float, ...]) -> str:
-            return ", ".join(f"{v:.0f}" for v in values)
-
         us = self.filter_us
         plain_us = 1e6 / float(np.median(self.plain_wall))
+        rest = us["step"] - plain_us - us["reference"] - us["halfspaces"] - us["qp"]
         return "\n".join([
-            f"(d) PPO training, RandomCrossing, 8 environments, {self.timesteps} steps per "
-            f"run, {self.rounds} runs each, interleaved:",
-            f"    plain        {np.median(self.plain_wall):7.0f} steps/s (runs: "
-            f"{rates(self.plain_wall)}); per CPU s {np.median(self.plain_cpu):.0f}",
-            f"    dr_cvar      {np.median(self.filtered_wall):7.0f} steps/s (runs: "
-            f"{rates(self.filtered_wall)}); per CPU s {np.median(self.filtered_cpu):.0f}",
+            f"(d) PPO training, RandomCrossing, 8 environments, {self.timesteps} steps of "
+            f"each kind in {len(self.plain_wall)} alternating chunks of {self.chunk}, medians:",
+            f"    plain    {np.median(self.plain_wall):6.0f} steps/s, "
+            f"{np.median(self.plain_cpu):6.0f} per CPU s",
+            f"    dr_cvar  {np.median(self.filtered_wall):6.0f} steps/s, "
+            f"{np.median(self.filtered_cpu):6.0f} per CPU s",
             f"    ratio filtered / plain: {self.ratio:.2f} (wall), {self.cpu_ratio:.2f} (CPU), "
-            f"pairs {', '.join(f'{r:.2f}' for r in self.pair_ratios)}   (target >= 0.70)",
+            f"{self.pair_ratio:.2f} (median of the pairs)   (target >= 0.70)",
             f"    per step: plain {plain_us:.0f} us; filtered {us['step']:.0f} us = plain + "
-            f"{us['step'] - plain_us:.0f} us, of which reference {us['reference']:.0f}, "
-            f"halfspaces {us['halfspaces']:.0f}, QP {us['qp']:.0f}, the rest "
-            f"{us['step'] - plain_us - us['reference'] - us['halfspaces'] - us['qp']:.0f}",
+            f"{us['step'] - plain_us:.0f} us: reference {us['reference']:.0f}, halfspaces "
+            f"{us['halfspaces']:.0f}, QP {us['qp']:.0f}, the rest {rest:.0f}",
             f"    projection (not measured): halfspaces "
             f"{PROJECTED_SPEEDUPS['halfspaces']:.1f}x and QP {PROJECTED_SPEEDUPS['qp']:.1f}x "
             f"faster (their targets) -> ratio {self.projected_ratio():.2f}",
         ])
 
 
-def _training_run(timesteps: int, seed: int, filter_kwargs: dict | None) -> tuple[
-        float, float, dict[str, float]]:
-    """One ``train_ppo`` run: steps per wall s and per CPU s of ``learn``, and the filter
-    reports' reference, halfspace and QP times per step (µs)."""
+def _filter_clock() -> Any:
+    """An SB3 callback summing the filter reports' reference, halfspace and QP times."""
     from stable_baselines3.common.callbacks import BaseCallback
 
-    from agents.training import train_ppo
-
-    class Clock(BaseCallback):
+    class FilterClock(BaseCallback):
         def __init__(self) -> None:
             super().__init__()
             self.times = {"reference": 0.0, "halfspaces": 0.0, "qp": 0.0}
-            self.wall = self.cpu = 0.0
-
-        def _on_training_start(self) -> None:
-            self.wall, self.cpu = time.perf_counter(), time.process_time()
 
         def _on_step(self) -> bool:
+            times = self.times
             for info in self.locals["infos"]:
                 report = info.get("filter")
                 if report is not None:
-                    self.times["reference"] += report.reference_time
-                    self.times["halfspaces"] += report.halfspace_time
-                    self.times["qp"] += report.filter_time - report.halfspace_time
+                    times["reference"] += report.reference_time
+                    times["halfspaces"] += report.halfspace_time
+                    times["qp"] += report.filter_time - report.halfspace_time
             return True
 
-        def _on_training_end(self) -> None:
-            self.wall = time.perf_counter() - self.wall
-            self.cpu = time.process_time() - self.cpu
-
-    clock = Clock()
-    _, report = train_ppo(total_timesteps=timesteps, seed=seed, filter_kwargs=filter_kwargs,
-                          progress_bar=False, callbacks=[clock])
-    steps = report.total_timesteps
-    return (steps / clock.wall, steps / clock.cpu,
-            {key: 1e6 * value / steps for key, value in clock.times.items()})
+    return FilterClock()
 
 
-def benchmark_training(timesteps: int = 20_480, rounds: int = 3, seed: int = 0, *,
+def benchmark_training(timesteps: int = 20_480, chunk: int = 2048, seed: int = 0, *,
                        filter_kwargs: dict | None = None,
                        warmup_steps: int = 2048) -> TrainingThroughput:
-    """Training steps per second with and without the filter, interleaved runs.
+    """Training steps per second with and without the filter, in alternating chunks.
 
-    ``safe-nav train --timesteps 20480`` against the same with ``--filter dr_cvar``
+    What ``safe-nav train`` runs without and with ``--filter dr_cvar``
     (:func:`agents.train_ppo` defaults: RandomCrossing, 8 in-process environments, the
-    held-action reference), ``rounds`` times each, alternating; one untimed short run of
-    each first compiles and loads what the first timed run would otherwise pay for.
+    held-action reference): both models are made (and warmed up: imports, numba
+    caches, first allocations) by ``train_ppo(total_timesteps=warmup_steps)``, then
+    trained on ``chunk`` steps at a time, plain and filtered in turn, until each has
+    ``timesteps`` timed steps. A chunk of 2048 steps is one rollout and its PPO update.
 
     Parameters
     ----------
     filter_kwargs
         The filter's keywords (default ``{"risk": "dr_cvar"}``: the wrapper's defaults).
-    warmup_steps
-        Steps of the untimed first run of each kind (0: none).
     """
+    from agents.training import train_ppo
+
     filter_kwargs = {"risk": "dr_cvar"} if filter_kwargs is None else dict(filter_kwargs)
-    if warmup_steps:
-        for kwargs in (None, filter_kwargs):  # imports, numba caches, first allocations
-            _training_run(warmup_steps, seed, kwargs)
-    runs: dict[bool, list[tuple[float, float, dict[str, float]]]] = {False: [], True: []}
-    for _ in range(rounds):
-        for filtered in (False, True):
-            runs[filtered].append(_training_run(timesteps, seed,
-                                                filter_kwargs if filtered else None))
-    filtered_wall = tuple(r[0] for r in runs[True])
-    filter_us = {key: float(np.median([r[2][key] for r in runs[True]]))
+    models = {kind: train_ppo(total_timesteps=max(1, warmup_steps), seed=seed,
+                              filter_kwargs=filter_kwargs if kind else None,
+                              progress_bar=False)[0] for kind in (False, True)}
+    rates: dict[bool, list[tuple[float, float]]] = {False: [], True: []}
+    parts: list[dict[str, float]] = []
+    for _ in range(max(1, timesteps // chunk)):
+        for filtered, model in models.items():
+            clock = _filter_clock()
+            before = model.num_timesteps
+            wall, cpu = time.perf_counter(), time.process_time()
+            model.learn(chunk, reset_num_timesteps=False, callback=clock)
+            wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+            steps = model.num_timesteps - before
+            rates[filtered].append((steps / wall, steps / cpu))
+            if filtered:
+                parts.append({key: 1e6 * value / steps for key, value in clock.times.items()})
+    for model in models.values():
+        model.get_env().close()
+    filtered_wall = tuple(r[0] for r in rates[True])
+    filter_us = {key: float(np.median([p[key] for p in parts]))
                  for key in ("reference", "halfspaces", "qp")}
     filter_us["step"] = 1e6 / float(np.median(filtered_wall))
     return TrainingThroughput(
-        timesteps=timesteps, rounds=rounds,
-        plain_wall=tuple(r[0] for r in runs[False]), filtered_wall=filtered_wall,
-        plain_cpu=tuple(r[1] for r in runs[False]), filtered_cpu=tuple(r[1] for r in runs[True]),
+        chunk=chunk, plain_wall=tuple(r[0] for r in rates[False]), filtered_wall=filtered_wall,
+        plain_cpu=tuple(r[1] for r in rates[False]), filtered_cpu=tuple(r[1] for r in rates[True]),
         filter_us=filter_us,
     )
 

@@ -280,9 +280,10 @@ def build_parser() -> argparse.ArgumentParser:
                        help="PPO training steps per second with the DR-CVaR filter in the "
                        "loop against without it (interleaved runs, same process)")
     bench.add_argument("--timesteps", type=_positive_int, default=20_480,
-                       help="--training: steps per run (default 20480)")
-    bench.add_argument("--rounds", type=_positive_int, default=3,
-                       help="--training: runs of each kind (default 3)")
+                       help="--training: timed steps of each kind (default 20480)")
+    bench.add_argument("--chunk", type=_positive_int, default=2048,
+                       help="--training: steps per alternating chunk (default 2048: one "
+                       "rollout and its update)")
     return parser
 
 
@@ -391,7 +392,7 @@ def _dispatch(args: argparse.Namespace) -> int:
         if args.training:
             from agents.bench import benchmark_training
 
-            print(benchmark_training(args.timesteps, args.rounds, args.seed).format())
+            print(benchmark_training(args.timesteps, args.chunk, args.seed).format())
             return 0
         from agents.bench import run_benchmarks
 

@@ -307,7 +307,6 @@ def train_ppo(
     ppo_kwargs: dict[str, Any] | None = None,
     torch_threads: int = 1,
     verbose: int = 0,
-    callbacks: list[Any] | None = None,
 ):
     """Train a PPO reference planner (or PPO-Lagrangian) with Stable-Baselines3.
 
@@ -388,8 +387,6 @@ def train_ppo(
         ``torch.set_num_threads``; 1 is about 10x faster than torch's default here.
     verbose
         SB3 verbosity.
-    callbacks
-        Further SB3 callbacks, run after the safety metrics callback (e.g. a timer).
 
     Returns
     -------
@@ -411,8 +408,6 @@ def train_ppo(
     lambda_lr = _check_real("lambda_lr", lambda_lr, low=0.0, open_low=True)
     if vec_env not in VEC_ENVS:
         raise InvalidParameterError(f"vec_env must be one of {VEC_ENVS}, got {vec_env!r}")
-    if callbacks is not None and not isinstance(callbacks, list | tuple):
-        raise InvalidTypeError(f"callbacks must be a list of SB3 callbacks, got {callbacks!r}")
     if filter_reference not in FILTER_REFERENCES:
         raise InvalidParameterError(
             f"filter_reference must be one of {FILTER_REFERENCES}, got {filter_reference!r}")
@@ -490,8 +485,7 @@ def train_ppo(
     model.set_logger(Logger(folder=None, output_formats=formats))
 
     safety = SafetyMetricsCallback()
-    extra = list(callbacks or [])
-    callbacks = [safety]
+    callbacks: list[Any] = [safety]
     best_model_path = None
     if eval_freq:
         eval_env = make_training_env(
@@ -510,7 +504,6 @@ def train_ppo(
             eval_freq=max(1, eval_freq // n_envs), deterministic=True,
             best_model_save_path=None if best_dir is None else str(best_dir),
             log_path=None if best_dir is None else str(best_dir), verbose=verbose))
-    callbacks.extend(extra)
     start = time.perf_counter()
     try:
         model.learn(total_timesteps=total_timesteps, callback=CallbackList(callbacks),
