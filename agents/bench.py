@@ -15,7 +15,8 @@ is a ratio against a reference measured in the same run:
     second with the DR-CVaR filter in the loop against without it, interleaved runs.
 
 (b) also times the policy roll-out reference (:func:`benchmark_rollout_reference`: the
-compiled kernel against the per-step ``predict`` loops) against the QP of the same run.
+compiled kernel against the per-step ``predict`` loops) against the QP of the same run,
+and both step by step in the evaluation's control loop (:func:`benchmark_control_loop`).
 
 ``safe-nav bench --scaling`` (:func:`run_scaling`) times the filter step on the grid
 obstacles x horizon x samples against CVXPY compiled once (see
@@ -252,9 +253,10 @@ def run_benchmarks(filter_steps: int = 500, table_repeats: int = 100, seed: int 
     parts.append(continuous.format())
     rollout = benchmark_rollout_reference(steps=filter_steps, seed=seed)
     parts.append("    " + format_rollout_reference(rollout) + "\n"
-                 f"    roll-out reference / the continuous-time filter's QP in this run: "
+                 f"    compiled roll-out / the continuous-time filter's QP above: "
                  f"{rollout['compiled']:.3f} / {continuous.qp_ms:.3f} ms = "
-                 f"{rollout['compiled'] / continuous.qp_ms:.2f}   (target <= 1)")
+                 f"{rollout['compiled'] / continuous.qp_ms:.2f}   (target <= 1)\n"
+                 + benchmark_control_loop(filter_steps, seed).format())
     parts.append("    QP alone on synthetic instances:\n" + format_filter_qp(
         benchmark_filter_qp(n_steps=filter_steps, seed=seed)))
     rates = env_benchmark(n_steps=env_steps, repeats=3, seed=seed)
@@ -432,8 +434,9 @@ def benchmark_rollout_reference(
 ) -> dict[str, float]:
     """Median wall time (ms) of one roll-out reference (``T - 1`` policy calls) per step.
 
-    Along unfiltered MultiObstacle episodes of the shipped PPO policy (the same states for
-    all), :class:`filters.references.PolicyRolloutReference` with: ``"sb3"`` the SB3
+    On the states of unfiltered MultiObstacle episodes of the shipped PPO policy (recorded
+    first, then replayed to each maker in a loop of its own: the same states for all),
+    :class:`filters.references.PolicyRolloutReference` with: ``"sb3"`` the SB3
     model's ``predict`` at each look-ahead step; ``"numpy"`` and ``"torch_actor"`` the
     :class:`agents.NumpyPolicy` and :class:`agents.TorchActorPolicy` exports called the
     same way (``compiled=False``); ``"compiled"`` the whole roll-out in one kernel
@@ -455,25 +458,93 @@ def benchmark_rollout_reference(
               "torch_actor": PolicyRolloutReference(actor, compiled=False),
               "compiled": PolicyRolloutReference(actor),
               "hold": hold_action_reference}
-    times: dict[str, list[float]] = {name: [] for name in makers}
     env = gym.make("SafeNav/MultiObstacle-v0", horizon=horizon)
+    base = env.unwrapped
+    fields = ("ego_state", "predictions", "obstacle_positions", "obstacle_velocities")
+    situations = []  # what a reference maker reads, recorded along the episodes
     episode, done = 0, True
-    for maker in makers.values():  # first calls: numba's cache, torch's kernels
-        env.reset(seed=seed)
-        maker(env.unwrapped, np.zeros(2), horizon)
     for _ in range(steps):
         if done:
             obs, _ = env.reset(seed=seed + episode)
             episode += 1
         action, _ = model.predict(obs, deterministic=True)
-        for name, maker in makers.items():
-            begin = time.perf_counter()
-            maker(env.unwrapped, action, horizon)
-            times[name].append(1e3 * (time.perf_counter() - begin))
+        situations.append(({name: getattr(base, name) for name in fields}, action))
         obs, _, terminated, truncated, _ = env.step(action)
         done = terminated or truncated
+    times: dict[str, list[float]] = {}
+    for name, maker in makers.items():  # each in a loop of its own, as a control loop runs
+        maker(base, situations[0][1], horizon)  # first call: numba's cache, torch's kernels
+        times[name] = []
+        for state, action in situations:
+            for field, value in state.items():
+                setattr(base, field, value)
+            begin = time.perf_counter()
+            maker(base, action, horizon)
+            times[name].append(1e3 * (time.perf_counter() - begin))
     env.close()
     return {name: float(np.median(values)) for name, values in times.items()}
+
+
+@dataclass(frozen=True)
+class ControlLoopTiming:
+    """Per-step wall times (ms, medians) of the filter in ``safe-nav evaluate``'s loop."""
+
+    steps: int
+    reference_ms: float  # the reference maker (the compiled roll-out here)
+    halfspaces_ms: float
+    qp_ms: float
+    wrapper_ms: float  # the whole SafetyFilterWrapper.step, environment step included
+    ratio: float  # median over the steps of reference / QP time
+
+    def format(self) -> str:
+        return (
+            f"    in the control loop (MultiObstacle, the shipped PPO planner, roll-out "
+            f"reference, DR-CVaR, the wrapper's defaults), {self.steps} steps, medians: "
+            f"reference {self.reference_ms:.3f} ms, halfspaces {self.halfspaces_ms:.3f} ms, "
+            f"QP {self.qp_ms:.3f} ms, whole wrapper step {self.wrapper_ms:.3f} ms; "
+            f"reference / QP {self.ratio:.2f} (median of the per-step ratios; target <= 1)"
+        )
+
+
+def benchmark_control_loop(steps: int = 500, seed: int = 0) -> ControlLoopTiming:
+    """The roll-out reference against the QP, step by step, in the evaluation's loop.
+
+    ``SafetyFilterWrapper(env, policy=TorchActorPolicy)`` as ``safe-nav evaluate`` builds
+    it, driven by the same actor; the times are the filter reports' (reference, halfspaces,
+    QP = ``filter_time - halfspace_time``), so all are measured on the same steps.
+    """
+    import gymnasium as gym
+
+    import safe_nav_env  # noqa: F401
+    from agents.numpy_policy import TorchActorPolicy
+    from agents.training import load_ppo, set_torch_threads
+    from filters import SafetyFilterWrapper
+
+    set_torch_threads(1)
+    actor = TorchActorPolicy.from_sb3(load_ppo())
+    env = SafetyFilterWrapper(gym.make("SafeNav/MultiObstacle-v0"), policy=actor)
+    rows, wrapper = [], []
+    episode, done = 0, True
+    while len(rows) < steps:
+        if done:
+            obs, _ = env.reset(seed=seed + episode)
+            episode += 1
+        action, _ = actor.predict(obs)
+        begin = time.perf_counter()
+        obs, _, terminated, truncated, info = env.step(action)
+        wrapper.append(time.perf_counter() - begin)
+        report = info["filter"]
+        rows.append((report.reference_time, report.halfspace_time,
+                     report.filter_time - report.halfspace_time))
+        done = terminated or truncated
+    env.close()
+    times = 1e3 * np.asarray(rows)
+    return ControlLoopTiming(
+        steps=len(rows), reference_ms=float(np.median(times[:, 0])),
+        halfspaces_ms=float(np.median(times[:, 1])), qp_ms=float(np.median(times[:, 2])),
+        wrapper_ms=1e3 * float(np.median(wrapper)),
+        ratio=float(np.median(times[:, 0] / times[:, 2])),
+    )
 
 
 def format_rollout_reference(rollout: dict[str, float], horizon: int = 10) -> str:

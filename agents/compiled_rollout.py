@@ -101,11 +101,31 @@ class ActorNetwork:
 
         Activation names: ``"identity"``, ``"tanh"``, ``"relu"``, ``"leaky_relu"``,
         ``"elu"``. The arrays are copied to float64 (read-only).
+
+        Raises
+        ------
+        InvalidArrayError
+            If the layers do not chain (each layer's outputs the next one's inputs, a
+            bias per output) or the action box does not have one entry per output: the
+            kernel does not check indices, so the shapes are checked here.
+        InvalidParameterError
+            For an unknown activation name, or no layer.
         """
+        if not layers:
+            raise InvalidParameterError("an ActorNetwork needs at least one layer, got none")
         weights, biases = [], []
-        for weight, bias, _, _ in layers:
+        for index, (weight, bias, name, _) in enumerate(layers):
             w = np.array(weight, dtype=np.float64, order="C")
             b = np.array(bias, dtype=np.float64)
+            inputs = weights[-1].shape[1] if weights else None
+            if w.ndim != 2 or b.shape != (w.shape[1],) or inputs not in (None, w.shape[0]):
+                raise InvalidArrayError(
+                    f"layer {index}: W^T {w.shape} and b {b.shape} must be (inputs, outputs) "
+                    f"and (outputs,), with inputs = {inputs} (the previous layer's outputs)")
+            if name not in _ACTIVATION_CODES:
+                raise InvalidParameterError(
+                    f"layer {index}: activation must be one of {sorted(_ACTIVATION_CODES)}, "
+                    f"got {name!r}")
             w.setflags(write=False)
             b.setflags(write=False)
             weights.append(w)
@@ -114,6 +134,10 @@ class ActorNetwork:
         parameters = np.array([float(p) for _, _, _, p in layers], dtype=np.float64)
         low = np.asarray(action_low, dtype=np.float32).reshape(-1).copy()
         high = np.asarray(action_high, dtype=np.float32).reshape(-1).copy()
+        if low.shape != high.shape or low.shape != (weights[-1].shape[1],):
+            raise InvalidArrayError(
+                f"the action box ({low.shape}, {high.shape}) must have one entry per network "
+                f"output ({weights[-1].shape[1]})")
         for array in (codes, parameters, low, high):
             array.setflags(write=False)
         return cls(tuple(weights), tuple(biases), codes, parameters, bool(squash), low, high)
@@ -306,7 +330,9 @@ class CompiledRollout:
                  half_width: Any = None) -> None:
         self._network = network
         self._static = network if isinstance(network, ActorNetwork) else None
-        m = self._current().n_outputs
+        current = self._current()
+        self._n_inputs = current.n_inputs
+        m = current.n_outputs
         self.centre = _vector(0.0 if centre is None else centre, m)
         self.half_width = _vector(1.0 if half_width is None else half_width, m)
         self._env_types: dict[type, bool] = {}
@@ -321,27 +347,44 @@ class CompiledRollout:
         known = self._env_types.get(kind)
         if known is None:
             known = self._env_types[kind] = supports_env(env)
-        return known and env.observation_space.shape == (self._current().n_inputs,)
+        return known and env.observation_space.shape == (self._n_inputs,)
 
     def __call__(self, env: Any, action: Any, horizon: int) -> tuple[np.ndarray, np.ndarray]:
-        """The roll-out from ``env``'s current state; ``env`` must be supported."""
+        """The roll-out from ``env``'s current state (``env`` a supported ``SafeNavEnv``).
+
+        Raises
+        ------
+        InvalidArrayError
+            If an observation is not finite, or the shapes do not fit together (the
+            action, the network's inputs and outputs, the predictions).
+        InvalidParameterError
+            If ``horizon`` exceeds the predictions by more than one step.
+        """
         net = self._current()
         A, B, _ = env.dynamics
         low, high = env.input_bounds
         predictions = env.predictions
+        velocities = env.obstacle_velocities
         u0 = np.asarray(action, dtype=np.float64)
         if u0.shape != low.shape:
             if u0.size != low.size:
                 raise InvalidArrayError(
                     f"action must have {low.size} entries, got shape {u0.shape}")
             u0 = u0.reshape(low.shape)
+        n_obs = 6 + 5 * env.max_obstacles  # the SafeNavEnv layout the kernel writes
+        if (net.n_inputs != n_obs or net.n_outputs != low.shape[0]
+                or predictions.shape[0] != velocities.shape[0] or predictions.shape[3] != 2):
+            raise InvalidArrayError(
+                f"the network takes {net.n_inputs} inputs and gives {net.n_outputs} actions; "
+                f"the environment observes {n_obs} entries and takes {low.shape[0]} inputs, "
+                f"with predictions {predictions.shape} for {velocities.shape[0]} obstacles")
         if not 1 <= horizon <= predictions.shape[2] + 1:
             raise InvalidParameterError(
                 f"horizon must be an integer in [1, {predictions.shape[2] + 1}] (one more "
                 f"than the prediction horizon), got {horizon!r}")
         states, inputs, failed = _rollout(
-            env.ego_state, u0, predictions, env.obstacle_velocities, env.goal,
-            env.max_obstacles, net.n_inputs, A, B, low, high, int(horizon), net.weights,
+            env.ego_state, u0, predictions, velocities, env.goal,
+            env.max_obstacles, n_obs, A, B, low, high, int(horizon), net.weights,
             net.biases, net.activations, net.parameters, net.squash, net.action_low,
             net.action_high, self.centre, self.half_width,
         )
@@ -363,8 +406,9 @@ def _vector(value: Any, m: int) -> np.ndarray:
 class _TorchNetwork:
     """The :class:`ActorNetwork` of live torch parameters, rebuilt when any changes.
 
-    A parameter changes in place during training (its version counter moves) or is
-    replaced (its data pointer moves); either triggers a new export (~10 µs).
+    A parameter changes in place during training (its version counter, torch's
+    ``Tensor._version``, moves) or is replaced (its data pointer moves); either triggers
+    a new export (~10 µs). Without version counters every call exports again.
     """
 
     def __init__(self, linears: list[tuple[Any, str]], squash: bool, low: Any, high: Any):
@@ -374,12 +418,15 @@ class _TorchNetwork:
         self._key: tuple | None = None
         self._network: ActorNetwork | None = None
 
-    def _state(self) -> tuple:
-        return tuple((p._version, p.data_ptr()) for p in self._params)
+    def _state(self) -> tuple | None:
+        try:
+            return tuple((p._version, p.data_ptr()) for p in self._params)
+        except AttributeError:  # pragma: no cover - a torch without version counters
+            return None
 
     def __call__(self) -> ActorNetwork:
         key = self._state()
-        if key != self._key:
+        if key is None or key != self._key:
             layers = [(module.weight.detach().cpu().numpy().T, module.bias.detach().cpu().numpy(),
                        name, 0.0) for module, name in self._linears]
             self._network = ActorNetwork.from_layers(

@@ -313,3 +313,27 @@ def test_the_wrapper_switch_and_its_validation(model):
     with pytest.raises(InvalidTypeError, match="compiled_rollout must be a bool"):
         SafetyFilterWrapper(gym.make("SafeNav/HeadOn-v0"), policy=actor, compiled_rollout=1)
     assert isinstance(compile_rollout(actor), CompiledRollout)
+
+
+def test_shapes_are_checked_before_the_kernel_runs(model):
+    """The kernel does not check indices: every shape is checked before it runs."""
+    from agents.compiled_rollout import ActorNetwork
+
+    box = dict(squash=False, action_low=[-1.0, -1.0], action_high=[1.0, 1.0])
+    with pytest.raises(InvalidArrayError, match="layer 1"):
+        ActorNetwork.from_layers([(np.zeros((26, 8)), np.zeros(8), "tanh", 0.0),
+                                  (np.zeros((9, 2)), np.zeros(2), "identity", 0.0)], **box)
+    with pytest.raises(InvalidArrayError, match="layer 0"):
+        ActorNetwork.from_layers([(np.zeros((26, 2)), np.zeros(3), "identity", 0.0)], **box)
+    with pytest.raises(InvalidArrayError, match="action box"):
+        ActorNetwork.from_layers([(np.zeros((26, 3)), np.zeros(3), "identity", 0.0)], **box)
+    with pytest.raises(InvalidParameterError, match="activation"):
+        ActorNetwork.from_layers([(np.zeros((26, 2)), np.zeros(2), "swish", 0.0)], **box)
+    with pytest.raises(InvalidParameterError, match="at least one layer"):
+        ActorNetwork.from_layers([], **box)
+    compiled = compile_rollout(NumpyPolicy.from_sb3(model))
+    small = gym.make("SafeNav/HeadOn-v0", max_obstacles=2)  # 16 observation entries
+    small.reset(seed=0)
+    assert not compiled.supports(small.unwrapped)
+    with pytest.raises(InvalidArrayError, match="takes 26 inputs"):
+        compiled(small.unwrapped, np.zeros(2), 10)  # called directly, without supports()
