@@ -408,7 +408,7 @@ class _TorchNetwork:
 
     A parameter changes in place during training (its version counter, torch's
     ``Tensor._version``, moves) or is replaced (its data pointer moves); either triggers
-    a new export (~10 µs). Without version counters every call exports again.
+    a new export. Without version counters every call exports again.
     """
 
     def __init__(self, linears: list[tuple[Any, str]], squash: bool, low: Any, high: Any):

@@ -37,6 +37,13 @@ distribution objects): the very same actions, bit for bit, several times faster 
 ``model.predict`` (:func:`benchmark_numpy_policy` times the three). It is the one to
 use where results must not change at all (per-episode evaluation records).
 
+The roll-out. Both classes also offer ``rollout_reference(env, action, horizon)``:
+the whole roll-out in one compiled kernel (:mod:`agents.compiled_rollout`, the float64
+network as here), which :class:`~filters.references.PolicyRolloutReference` uses by
+default; with ``compiled=False`` (``SafetyFilterWrapper(compiled_rollout=False)``) it
+calls ``predict`` at every look-ahead step instead, and :class:`TorchActorPolicy` then
+gives SB3's roll-out bit for bit.
+
 Loading. :func:`load_numpy_policy` loads a PPO ``.zip`` with
 :func:`agents.load_ppo` (so torch and SB3 are still needed, once) and exports it;
 ``load_ppo`` itself keeps returning the SB3 model (training, saving and

@@ -197,8 +197,8 @@ class FilterReport:
 
     def __deepcopy__(self, memo: dict[int, Any]) -> FilterReport:
         """The report itself: it is immutable (frozen fields, read-only arrays that no one
-        else holds), so a copy could not differ from it. SB3's ``DummyVecEnv``
-        deep-copies every step's infos; copying the arrays cost more than the QP."""
+        else holds), so a copy could not differ from it (SB3's ``DummyVecEnv``
+        deep-copies every step's infos)."""
         return self
 
 
@@ -211,8 +211,8 @@ def _report(status: str, proposed: np.ndarray, applied: np.ndarray, intervention
             normals: np.ndarray | None = None, offsets: np.ndarray | None = None,
             planned_states: np.ndarray | None = None, error: str = "") -> FilterReport:
     """A :class:`FilterReport` built without the frozen ``__init__``'s per-field
-    ``object.__setattr__`` (the same object, at a third of the cost; the arrays given
-    must be read-only and the report's own)."""
+    ``object.__setattr__`` and array copies (the same object; the arrays given must be
+    read-only and the report's own)."""
     report = object.__new__(FilterReport)
     report.__dict__.update({
         "status": status, "proposed_action": proposed, "applied_action": applied,
@@ -930,8 +930,8 @@ def _distance(a: np.ndarray, b: np.ndarray) -> float:
     """Euclidean distance between two actions (the intervention size, m/s²).
 
     :math:`\\sqrt{\\sum_i (a_i - b_i)^2}`, summed in index order on floats: the value of
-    ``numpy.linalg.norm(a - b)`` (the same bits for the 2-vectors here) at a fifth of its
-    cost.
+    ``numpy.linalg.norm(a - b)`` (the same bits for the 2-vectors here) without its
+    per-call overhead.
     """
     total = 0.0
     for x, y in zip(np.asarray(a, dtype=float).tolist(), np.asarray(b, dtype=float).tolist(),
