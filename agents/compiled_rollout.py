@@ -372,12 +372,15 @@ class CompiledRollout:
                     f"action must have {low.size} entries, got shape {u0.shape}")
             u0 = u0.reshape(low.shape)
         n_obs = 6 + 5 * env.max_obstacles  # the SafeNavEnv layout the kernel writes
-        if (net.n_inputs != n_obs or net.n_outputs != low.shape[0]
+        m = low.shape[0]
+        if (net.n_inputs != n_obs or net.n_outputs != m or B.shape != (4, m)
+                or A.shape != (4, 4) or env.ego_state.shape != (4,) or high.shape != (m,)
                 or predictions.shape[0] != velocities.shape[0] or predictions.shape[3] != 2):
             raise InvalidArrayError(
                 f"the network takes {net.n_inputs} inputs and gives {net.n_outputs} actions; "
                 f"the environment observes {n_obs} entries and takes {low.shape[0]} inputs, "
-                f"with predictions {predictions.shape} for {velocities.shape[0]} obstacles")
+                f"with predictions {predictions.shape} for {velocities.shape[0]} obstacles "
+                f"and the state {env.ego_state.shape}")
         if not 1 <= horizon <= predictions.shape[2] + 1:
             raise InvalidParameterError(
                 f"horizon must be an integer in [1, {predictions.shape[2] + 1}] (one more "

@@ -104,24 +104,32 @@ def hold_action_reference(
     .. math:: u^r_k = \\operatorname{clip}(a, u_{min}, u_{max}),\\quad
               x^r_{k+1} = A x^r_k + B u^r_k,\\quad x^r_0 = x_t.
 
-    One compiled call (the Python loop it replaces took most of the wrapper's own time).
+    One compiled call; the shapes are checked first (the kernel does not check indices).
 
     Raises
     ------
     InvalidArrayError
-        If ``action`` does not have one entry per input, or ``horizon < 0``.
+        If ``action`` does not have one entry per input, ``horizon < 0``, or the
+        environment's state, dynamics and input bounds do not fit together.
     """
     A, B, _ = env.dynamics
+    A, B = np.asarray(A, dtype=np.float64), np.asarray(B, dtype=np.float64)
     low, high = env.input_bounds
+    low, high = np.asarray(low, dtype=np.float64), np.asarray(high, dtype=np.float64)
+    x0 = np.asarray(env.ego_state, dtype=np.float64)
     u = np.asarray(action, dtype=np.float64).reshape(-1)
-    if u.shape[0] != B.shape[1] or horizon < 0:
+    n, m = B.shape if B.ndim == 2 else (-1, -1)
+    if u.shape[0] != m or horizon < 0:
         raise InvalidArrayError(
-            f"action must have {B.shape[1]} entries and horizon be >= 0, got shape "
+            f"action must have {m} entries and horizon be >= 0, got shape "
             f"{np.shape(action)} and horizon {horizon!r}"
         )
-    return _hold(np.asarray(env.ego_state, dtype=np.float64), u,
-                 np.asarray(low, dtype=np.float64), np.asarray(high, dtype=np.float64),
-                 np.asarray(A, dtype=np.float64), np.asarray(B, dtype=np.float64), int(horizon))
+    if A.shape != (n, n) or x0.shape != (n,) or low.shape != (m,) or high.shape != (m,):
+        raise InvalidArrayError(
+            f"the environment's A {A.shape}, B {B.shape}, state {x0.shape} and input bounds "
+            f"{low.shape}, {high.shape} do not fit together"
+        )
+    return _hold(x0, u, low, high, A, B, int(horizon))
 
 
 class PolicyRolloutReference:

@@ -166,3 +166,14 @@ def test_a_report_built_by_hand_is_immutable_too():
     assert copy.deepcopy(report) is report
     assert report == FilterReport("optimal", [1.0, 2.0], [0.5, 2.0], intervention=0.5,
                                   normals=np.zeros((1, 3, 2)), offsets=np.ones((1, 3)))
+
+
+def test_the_hold_kernel_refuses_shapes_that_do_not_fit():
+    system = _System(np.random.default_rng(0), 4, 2)
+    system.ego_state = np.zeros(3)  # the kernel would read past its end
+    with pytest.raises(InvalidArrayError, match="do not fit together"):
+        hold_action_reference(system, np.zeros(2), 5)
+    system = _System(np.random.default_rng(0), 4, 2)
+    system.input_bounds = (-np.ones(3), np.ones(3))
+    with pytest.raises(InvalidArrayError, match="do not fit together"):
+        hold_action_reference(system, np.zeros(2), 5)
