@@ -4,7 +4,9 @@
   ``load_ppo()`` loads the policy shipped with the package.
 * :func:`load_numpy_policy`, :class:`NumpyPolicy` — the same actor exported once to
   numpy (deterministic ``predict`` about 10x faster; for the roll-out reference);
-  :class:`TorchActorPolicy` — the same actions as SB3 bit for bit, several times faster.
+  :class:`TorchActorPolicy` — the same actions as SB3 bit for bit, several times faster;
+  with either, the filter's roll-out reference runs in one compiled call
+  (:mod:`agents.compiled_rollout`).
 * :class:`MPCReferencePlanner` — the paper's obstacle-agnostic goal-tracking MPC.
 * :func:`evaluate` — Monte Carlo comparison of risk settings, one record per episode
   (:mod:`agents.records`: specs, records, CSV; :mod:`agents.runner`: one episode;

@@ -10,7 +10,13 @@ is a ratio against a reference measured in the same run:
     Parameters, and the QP alone on synthetic instances; ours is the default
     ``backend="auto"``, and each explicit back end (DAQP, Clarabel, PIQP) is timed on the
     same steps too;
-(c) the unfiltered environment's steps per second.
+(c) the unfiltered environment's steps per second;
+(d) ``safe-nav bench --training`` (:func:`benchmark_training`): PPO training steps per
+    second with the DR-CVaR filter in the loop against without it, interleaved runs.
+
+(b) also times the policy roll-out reference (:func:`benchmark_rollout_reference`: the
+compiled kernel against the per-step ``predict`` loops) against the QP of the same run,
+and both step by step in the evaluation's control loop (:func:`benchmark_control_loop`).
 
 ``safe-nav bench --scaling`` (:func:`run_scaling`) times the filter step on the grid
 obstacles x horizon x samples against CVXPY compiled once (see
@@ -25,7 +31,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -254,13 +260,183 @@ def run_benchmarks(filter_steps: int = 500, table_repeats: int = 100, seed: int 
     table = halfspace_timing_table((50, 500, 1500), table_repeats, seed)
     parts.append("(a) " + format_table_one(table["result"]))
     parts.append(benchmark_filter_step(filter_steps, seed).format())
-    parts.append(benchmark_filter_step(filter_steps, seed, continuous=True).format())
+    continuous = benchmark_filter_step(filter_steps, seed, continuous=True)
+    parts.append(continuous.format())
+    rollout = benchmark_rollout_reference(steps=filter_steps, seed=seed)
+    parts.append("    " + format_rollout_reference(rollout) + "\n"
+                 f"    compiled roll-out / the continuous-time filter's QP above: "
+                 f"{rollout['compiled']:.3f} / {continuous.qp_ms:.3f} ms = "
+                 f"{rollout['compiled'] / continuous.qp_ms:.2f}   (target <= 1)\n"
+                 + benchmark_control_loop(filter_steps, seed).format())
     parts.append("    QP alone on synthetic instances:\n" + format_filter_qp(
         benchmark_filter_qp(n_steps=filter_steps, seed=seed)))
     rates = env_benchmark(n_steps=env_steps, repeats=3, seed=seed)
     parts.append("(c) unfiltered environment, gym.make, N_s = 100, T = 10:\n" + "\n".join(
         f"    {env_id:<28} {rate:8.0f} steps/s" for env_id, rate in rates.items()))
     return "\n\n".join(parts)
+
+
+# --------------------------------------------------------------------------- --training
+PROJECTED_SPEEDUPS = {"halfspaces": 0.13 / 0.03, "qp": 0.076 / 0.05}
+"""Speed-ups of the halfspaces and of the QP that the projection of
+:class:`TrainingThroughput` assumes: the kernels' and the QP's targets at the paper's
+size (0.13 -> 0.03 ms, 0.076 -> 0.05 ms per filter step)."""
+
+
+@dataclass(frozen=True)
+class TrainingThroughput:
+    """PPO training steps per second without and with the DR-CVaR filter in the loop.
+
+    Two models train side by side in one process, in alternating chunks (a plain chunk,
+    a filtered chunk, ...; a chunk is one rollout and its update with the defaults), so
+    both see the same load on a shared machine; every rate is ``chunk / time``.
+
+    Attributes
+    ----------
+    chunk
+        Steps per chunk (summed over the environments).
+    plain_wall, filtered_wall
+        Steps per wall second, one per chunk.
+    plain_cpu, filtered_cpu
+        Steps per CPU second of this process (``time.process_time``), one per chunk.
+    filter_us
+        Wall time per filtered step in µs (medians over the chunks of the per-chunk
+        means): ``"reference"``, ``"halfspaces"``, ``"qp"`` (from the filter reports)
+        and ``"step"`` (the whole filtered training step, ``1 / rate``).
+    """
+
+    chunk: int
+    plain_wall: tuple[float, ...]
+    filtered_wall: tuple[float, ...]
+    plain_cpu: tuple[float, ...]
+    filtered_cpu: tuple[float, ...]
+    filter_us: dict[str, float]
+
+    @property
+    def timesteps(self) -> int:
+        """Timed steps of each kind."""
+        return self.chunk * len(self.plain_wall)
+
+    @property
+    def ratio(self) -> float:
+        """Median filtered over median plain steps per wall second."""
+        return float(np.median(self.filtered_wall) / np.median(self.plain_wall))
+
+    @property
+    def cpu_ratio(self) -> float:
+        """Median filtered over median plain steps per CPU second."""
+        return float(np.median(self.filtered_cpu) / np.median(self.plain_cpu))
+
+    @property
+    def pair_ratio(self) -> float:
+        """Median over the back-to-back pairs of filtered over plain wall rate."""
+        return float(np.median(np.asarray(self.filtered_wall) / np.asarray(self.plain_wall)))
+
+    def projected_ratio(self, speedups: dict[str, float] | None = None) -> float:
+        """The ratio if the halfspaces and the QP were ``speedups`` times faster.
+
+        .. math:: t' = t - t_h - t_q + t_h / s_h + t_q / s_q
+
+        per filtered step (wall, the filter reports' times), against the same plain rate.
+        A projection, not a measurement: the rest of the step is taken as it was.
+        """
+        speedups = PROJECTED_SPEEDUPS if speedups is None else speedups
+        t = 1e-6 * self.filter_us["step"]
+        h, q = 1e-6 * self.filter_us["halfspaces"], 1e-6 * self.filter_us["qp"]
+        projected = t - h - q + h / speedups["halfspaces"] + q / speedups["qp"]
+        return float(1.0 / projected / np.median(self.plain_wall))
+
+    def format(self) -> str:
+        us = self.filter_us
+        plain_us = 1e6 / float(np.median(self.plain_wall))
+        rest = us["step"] - plain_us - us["reference"] - us["halfspaces"] - us["qp"]
+        return "\n".join([
+            f"(d) PPO training, RandomCrossing, 8 environments, {self.timesteps} steps of "
+            f"each kind in {len(self.plain_wall)} alternating chunks of {self.chunk}, medians:",
+            f"    plain    {np.median(self.plain_wall):6.0f} steps/s, "
+            f"{np.median(self.plain_cpu):6.0f} per CPU s",
+            f"    dr_cvar  {np.median(self.filtered_wall):6.0f} steps/s, "
+            f"{np.median(self.filtered_cpu):6.0f} per CPU s",
+            f"    ratio filtered / plain: {self.ratio:.2f} (wall), {self.cpu_ratio:.2f} (CPU), "
+            f"{self.pair_ratio:.2f} (median of the pairs)   (target >= 0.70)",
+            f"    per step: plain {plain_us:.0f} us; filtered {us['step']:.0f} us = plain + "
+            f"{us['step'] - plain_us:.0f} us: reference {us['reference']:.0f}, halfspaces "
+            f"{us['halfspaces']:.0f}, QP {us['qp']:.0f}, the rest {rest:.0f}",
+            f"    projection (not measured): halfspaces "
+            f"{PROJECTED_SPEEDUPS['halfspaces']:.1f}x and QP {PROJECTED_SPEEDUPS['qp']:.1f}x "
+            f"faster (their targets) -> ratio {self.projected_ratio():.2f}",
+        ])
+
+
+def _filter_clock() -> Any:
+    """An SB3 callback summing the filter reports' reference, halfspace and QP times."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class FilterClock(BaseCallback):
+        def __init__(self) -> None:
+            super().__init__()
+            self.times = {"reference": 0.0, "halfspaces": 0.0, "qp": 0.0}
+
+        def _on_step(self) -> bool:
+            times = self.times
+            for info in self.locals["infos"]:
+                report = info.get("filter")
+                if report is not None:
+                    times["reference"] += report.reference_time
+                    times["halfspaces"] += report.halfspace_time
+                    times["qp"] += report.filter_time - report.halfspace_time
+            return True
+
+    return FilterClock()
+
+
+def benchmark_training(timesteps: int = 20_480, chunk: int = 2048, seed: int = 0, *,
+                       filter_kwargs: dict | None = None,
+                       warmup_steps: int = 2048) -> TrainingThroughput:
+    """Training steps per second with and without the filter, in alternating chunks.
+
+    What ``safe-nav train`` runs without and with ``--filter dr_cvar``
+    (:func:`agents.train_ppo` defaults: RandomCrossing, 8 in-process environments, the
+    held-action reference): both models are made (and warmed up: imports, numba
+    caches, first allocations) by ``train_ppo(total_timesteps=warmup_steps)``, then
+    trained on ``chunk`` steps at a time, plain and filtered in turn, until each has
+    ``timesteps`` timed steps. A chunk of 2048 steps is one rollout and its PPO update.
+
+    Parameters
+    ----------
+    filter_kwargs
+        The filter's keywords (default ``{"risk": "dr_cvar"}``: the wrapper's defaults).
+    """
+    from agents.training import train_ppo
+
+    filter_kwargs = {"risk": "dr_cvar"} if filter_kwargs is None else dict(filter_kwargs)
+    models = {kind: train_ppo(total_timesteps=max(1, warmup_steps), seed=seed,
+                              filter_kwargs=filter_kwargs if kind else None,
+                              progress_bar=False)[0] for kind in (False, True)}
+    rates: dict[bool, list[tuple[float, float]]] = {False: [], True: []}
+    parts: list[dict[str, float]] = []
+    for _ in range(max(1, timesteps // chunk)):
+        for filtered, model in models.items():
+            clock = _filter_clock()
+            before = model.num_timesteps
+            wall, cpu = time.perf_counter(), time.process_time()
+            model.learn(chunk, reset_num_timesteps=False, callback=clock)
+            wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+            steps = model.num_timesteps - before
+            rates[filtered].append((steps / wall, steps / cpu))
+            if filtered:
+                parts.append({key: 1e6 * value / steps for key, value in clock.times.items()})
+    for model in models.values():
+        model.get_env().close()
+    filtered_wall = tuple(r[0] for r in rates[True])
+    filter_us = {key: float(np.median([p[key] for p in parts]))
+                 for key in ("reference", "halfspaces", "qp")}
+    filter_us["step"] = 1e6 / float(np.median(filtered_wall))
+    return TrainingThroughput(
+        chunk=chunk, plain_wall=tuple(r[0] for r in rates[False]), filtered_wall=filtered_wall,
+        plain_cpu=tuple(r[1] for r in rates[False]), filtered_cpu=tuple(r[1] for r in rates[True]),
+        filter_us=filter_us,
+    )
 
 
 # --------------------------------------------------------------------------- --scaling
@@ -292,38 +468,130 @@ def benchmark_rollout_reference(
 ) -> dict[str, float]:
     """Median wall time (ms) of one roll-out reference (``T - 1`` policy calls) per step.
 
-    The shipped PPO policy through SB3 against its :class:`agents.NumpyPolicy` export
-    and :class:`agents.TorchActorPolicy`, along unfiltered MultiObstacle episodes (the
-    same states for all).
+    On the states of unfiltered MultiObstacle episodes of the shipped PPO policy (recorded
+    first, then replayed to each maker in a loop of its own: the same states for all),
+    :class:`filters.references.PolicyRolloutReference` with: ``"sb3"`` the SB3
+    model's ``predict`` at each look-ahead step; ``"numpy"`` and ``"torch_actor"`` the
+    :class:`agents.NumpyPolicy` and :class:`agents.TorchActorPolicy` exports called the
+    same way (``compiled=False``); ``"compiled"`` the whole roll-out in one kernel
+    (:mod:`agents.compiled_rollout`, what ``safe-nav evaluate`` runs); ``"hold"`` the
+    held-action reference, for scale.
     """
     import gymnasium as gym
 
     import safe_nav_env  # noqa: F401
     from agents.numpy_policy import NumpyPolicy, TorchActorPolicy
     from agents.training import load_ppo, set_torch_threads
-    from filters.references import PolicyRolloutReference
+    from filters.references import PolicyRolloutReference, hold_action_reference
 
     set_torch_threads(1)
     model = load_ppo(path)
+    actor = TorchActorPolicy.from_sb3(model)
     makers = {"sb3": PolicyRolloutReference(model),
-              "numpy": PolicyRolloutReference(NumpyPolicy.from_sb3(model)),
-              "torch_actor": PolicyRolloutReference(TorchActorPolicy.from_sb3(model))}
-    times: dict[str, list[float]] = {name: [] for name in makers}
+              "numpy": PolicyRolloutReference(NumpyPolicy.from_sb3(model), compiled=False),
+              "torch_actor": PolicyRolloutReference(actor, compiled=False),
+              "compiled": PolicyRolloutReference(actor),
+              "hold": hold_action_reference}
     env = gym.make("SafeNav/MultiObstacle-v0", horizon=horizon)
+    base = env.unwrapped
+    fields = ("ego_state", "predictions", "obstacle_positions", "obstacle_velocities")
+    situations = []  # what a reference maker reads, recorded along the episodes
     episode, done = 0, True
     for _ in range(steps):
         if done:
             obs, _ = env.reset(seed=seed + episode)
             episode += 1
         action, _ = model.predict(obs, deterministic=True)
-        for name, maker in makers.items():
-            begin = time.perf_counter()
-            maker(env.unwrapped, action, horizon)
-            times[name].append(1e3 * (time.perf_counter() - begin))
+        situations.append(({name: getattr(base, name) for name in fields}, action))
         obs, _, terminated, truncated, _ = env.step(action)
         done = terminated or truncated
+    times: dict[str, list[float]] = {}
+    for name, maker in makers.items():  # each in a loop of its own, as a control loop runs
+        maker(base, situations[0][1], horizon)  # first call: numba's cache, torch's kernels
+        times[name] = []
+        for state, action in situations:
+            for field, value in state.items():
+                setattr(base, field, value)
+            begin = time.perf_counter()
+            maker(base, action, horizon)
+            times[name].append(1e3 * (time.perf_counter() - begin))
     env.close()
     return {name: float(np.median(values)) for name, values in times.items()}
+
+
+@dataclass(frozen=True)
+class ControlLoopTiming:
+    """Per-step wall times (ms, medians) of the filter in ``safe-nav evaluate``'s loop."""
+
+    steps: int
+    reference_ms: float  # the reference maker (the compiled roll-out here)
+    halfspaces_ms: float
+    qp_ms: float
+    wrapper_ms: float  # the whole SafetyFilterWrapper.step, environment step included
+    ratio: float  # median over the steps of reference / QP time
+
+    def format(self) -> str:
+        return (
+            f"    in the control loop (MultiObstacle, the shipped PPO planner, roll-out "
+            f"reference, DR-CVaR, the wrapper's defaults), {self.steps} steps, medians: "
+            f"reference {self.reference_ms:.3f} ms, halfspaces {self.halfspaces_ms:.3f} ms, "
+            f"QP {self.qp_ms:.3f} ms, whole wrapper step {self.wrapper_ms:.3f} ms; "
+            f"reference / QP {self.ratio:.2f} (median of the per-step ratios; target <= 1)"
+        )
+
+
+def benchmark_control_loop(steps: int = 500, seed: int = 0) -> ControlLoopTiming:
+    """The roll-out reference against the QP, step by step, in the evaluation's loop.
+
+    ``SafetyFilterWrapper(env, policy=TorchActorPolicy)`` as ``safe-nav evaluate`` builds
+    it, driven by the same actor; the times are the filter reports' (reference, halfspaces,
+    QP = ``filter_time - halfspace_time``), so all are measured on the same steps.
+    """
+    import gymnasium as gym
+
+    import safe_nav_env  # noqa: F401
+    from agents.numpy_policy import TorchActorPolicy
+    from agents.training import load_ppo, set_torch_threads
+    from filters import SafetyFilterWrapper
+
+    set_torch_threads(1)
+    actor = TorchActorPolicy.from_sb3(load_ppo())
+    env = SafetyFilterWrapper(gym.make("SafeNav/MultiObstacle-v0"), policy=actor)
+    rows, wrapper = [], []
+    episode, done = 0, True
+    while len(rows) < steps:
+        if done:
+            obs, _ = env.reset(seed=seed + episode)
+            episode += 1
+        action, _ = actor.predict(obs)
+        begin = time.perf_counter()
+        obs, _, terminated, truncated, info = env.step(action)
+        wrapper.append(time.perf_counter() - begin)
+        report = info["filter"]
+        rows.append((report.reference_time, report.halfspace_time,
+                     report.filter_time - report.halfspace_time))
+        done = terminated or truncated
+    env.close()
+    times = 1e3 * np.asarray(rows)
+    return ControlLoopTiming(
+        steps=len(rows), reference_ms=float(np.median(times[:, 0])),
+        halfspaces_ms=float(np.median(times[:, 1])), qp_ms=float(np.median(times[:, 2])),
+        wrapper_ms=1e3 * float(np.median(wrapper)),
+        ratio=float(np.median(times[:, 0] / times[:, 2])),
+    )
+
+
+def format_rollout_reference(rollout: dict[str, float], horizon: int = 10) -> str:
+    """The roll-out timings of :func:`benchmark_rollout_reference` as one paragraph."""
+    compiled = rollout["compiled"]
+    return (
+        f"roll-out reference, T = {horizon} ({horizon - 1} policy calls), MultiObstacle, "
+        f"medians: SB3 predict {rollout['sb3']:.3f} ms, NumpyPolicy.predict "
+        f"{rollout['numpy']:.3f} ms, TorchActorPolicy.predict {rollout['torch_actor']:.3f} "
+        f"ms, compiled kernel {compiled:.3f} ms ({rollout['sb3'] / compiled:.0f}x SB3, "
+        f"{rollout['torch_actor'] / compiled:.1f}x TorchActorPolicy); the held action "
+        f"{rollout['hold']:.4f} ms"
+    )
 
 
 def run_scaling(
@@ -402,14 +670,7 @@ def run_scaling(
         from agents.numpy_policy import benchmark_numpy_policy
 
         parts.append(benchmark_numpy_policy(seed=seed).format())
-        horizon = 10
-        rollout = benchmark_rollout_reference(horizon=horizon, seed=seed)
-        parts.append(
-            f"roll-out reference, T = {horizon} ({horizon - 1} policy calls), MultiObstacle, "
-            f"medians: SB3 {rollout['sb3']:.3f} ms, NumpyPolicy {rollout['numpy']:.3f} ms "
-            f"({rollout['sb3'] / rollout['numpy']:.1f}x), TorchActorPolicy "
-            f"{rollout['torch_actor']:.3f} ms ({rollout['sb3'] / rollout['torch_actor']:.1f}x)"
-        )
+        parts.append(format_rollout_reference(benchmark_rollout_reference(seed=seed)))
     report = "\n\n".join(parts)
     if output is not None:
         folder = Path(output)

@@ -283,6 +283,14 @@ def build_parser() -> argparse.ArgumentParser:
                             "issue's grid) or stops at a goal inside the arena")
     bench.add_argument("--no-policy", action="store_true",
                        help="--scaling: skip the policy (SB3 vs numpy) timings")
+    bench.add_argument("--training", action="store_true",
+                       help="PPO training steps per second with the DR-CVaR filter in the "
+                       "loop against without it (interleaved runs, same process)")
+    bench.add_argument("--timesteps", type=_positive_int, default=20_480,
+                       help="--training: timed steps of each kind (default 20480)")
+    bench.add_argument("--chunk", type=_positive_int, default=2048,
+                       help="--training: steps per alternating chunk (default 2048: one "
+                       "rollout and its update)")
     return parser
 
 
@@ -388,6 +396,11 @@ def _dispatch(args: argparse.Namespace) -> int:
     if args.command == "bench":
         if args.scaling:
             return _bench_scaling(args)
+        if args.training:
+            from agents.bench import benchmark_training
+
+            print(benchmark_training(args.timesteps, args.chunk, args.seed).format())
+            return 0
         from agents.bench import run_benchmarks
 
         print(run_benchmarks(filter_steps=args.steps or 500, table_repeats=args.repeats,

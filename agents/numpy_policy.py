@@ -37,6 +37,13 @@ distribution objects): the very same actions, bit for bit, several times faster 
 ``model.predict`` (:func:`benchmark_numpy_policy` times the three). It is the one to
 use where results must not change at all (per-episode evaluation records).
 
+The roll-out. Both classes also offer ``rollout_reference(env, action, horizon)``:
+the whole roll-out in one compiled kernel (:mod:`agents.compiled_rollout`, the float64
+network as here), which :class:`~filters.references.PolicyRolloutReference` uses by
+default; with ``compiled=False`` (``SafetyFilterWrapper(compiled_rollout=False)``) it
+calls ``predict`` at every look-ahead step instead, and :class:`TorchActorPolicy` then
+gives SB3's roll-out bit for bit.
+
 Loading. :func:`load_numpy_policy` loads a PPO ``.zip`` with
 :func:`agents.load_ppo` (so torch and SB3 are still needed, once) and exports it;
 ``load_ppo`` itself keeps returning the SB3 model (training, saving and
@@ -73,26 +80,39 @@ class UnsupportedPolicyError(InvalidTypeError):
     """The SB3 policy has a part that :class:`NumpyPolicy` cannot export."""
 
 
-def _tanh(z: np.ndarray) -> None:
-    np.tanh(z, out=z)
+class _Activation:
+    """An in-place numpy activation ``z -> σ(z)``, with its name and parameter (the
+    leaky slope or the ELU alpha, else 0) for :mod:`agents.compiled_rollout`."""
+
+    __slots__ = ("name", "parameter")
+
+    def __init__(self, name: str, parameter: float = 0.0) -> None:
+        self.name, self.parameter = name, float(parameter)
+
+    def __call__(self, z: np.ndarray) -> None:
+        if self.name == "tanh":
+            np.tanh(z, out=z)
+        elif self.name == "relu":
+            np.maximum(z, 0.0, out=z)
+        elif self.name == "leaky_relu":
+            np.copyto(z, np.where(z >= 0.0, z, self.parameter * z))
+        else:  # elu
+            np.copyto(z, np.where(z > 0.0, z, self.parameter * np.expm1(np.minimum(z, 0.0))))
+
+    def __repr__(self) -> str:
+        return f"_Activation({self.name!r}, {self.parameter})"
 
 
-def _relu(z: np.ndarray) -> None:
-    np.maximum(z, 0.0, out=z)
+_tanh = _Activation("tanh")
+_relu = _Activation("relu")
 
 
-def _leaky_relu(slope: float) -> Callable[[np.ndarray], None]:
-    def activation(z: np.ndarray) -> None:
-        np.copyto(z, np.where(z >= 0.0, z, slope * z))
-
-    return activation
+def _leaky_relu(slope: float) -> _Activation:
+    return _Activation("leaky_relu", slope)
 
 
-def _elu(alpha: float) -> Callable[[np.ndarray], None]:
-    def activation(z: np.ndarray) -> None:
-        np.copyto(z, np.where(z > 0.0, z, alpha * np.expm1(np.minimum(z, 0.0))))
-
-    return activation
+def _elu(alpha: float) -> _Activation:
+    return _Activation("elu", alpha)
 
 
 def _activation(module: Any) -> Callable[[np.ndarray], None] | None:
@@ -180,6 +200,7 @@ class _DeterministicActor:
         self._action_shape = tuple(action_space.shape)
         self._low = np.asarray(action_space.low, dtype=np.float32).reshape(-1)
         self._high = np.asarray(action_space.high, dtype=np.float32).reshape(-1)
+        self._compiled_rollout: Any = None  # made on first use (False: none)
 
     def _actions(self, rows: np.ndarray) -> np.ndarray:  # pragma: no cover - abstract
         raise NotImplementedError
@@ -276,6 +297,27 @@ class _DeterministicActor:
                 f"got a single observation of shape {self._obs_shape}: use predict"
             )
         return self._actions(rows).reshape((-1, *self._action_shape))
+
+    def rollout_reference(
+        self, env: Any, action: Any, horizon: int
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """The policy roll-out reference in one compiled call, or ``None`` if unsupported.
+
+        What :class:`filters.references.PolicyRolloutReference` computes with this
+        policy's ``predict`` (states ``(T+1, n)``, inputs ``(T, m)``), by the kernel of
+        :mod:`agents.compiled_rollout` (float64 network: equal to this policy's roll-out
+        to about 1e-6 m/s² per action). ``None`` when ``env`` (the filter's
+        ``env.unwrapped``) or this network is not one the kernel knows; the caller
+        then rolls out with ``predict``.
+
+        Raises
+        ------
+        InvalidArrayError
+            If an observation of the roll-out is not finite, as ``predict`` would.
+        """
+        from agents.compiled_rollout import rollout_reference
+
+        return rollout_reference(self, env, action, horizon)
 
 
 class NumpyPolicy(_DeterministicActor):
@@ -400,6 +442,7 @@ class TorchActorPolicy(_DeterministicActor):
         super().__init__(policy.observation_space, policy.action_space,
                          bool(policy.squash_output))
         policy.set_training_mode(False)  # as SB3's predict does (dropout, batch norm)
+        self._policy = policy
         self._policy_net = policy.mlp_extractor.policy_net
         self._action_net = policy.action_net
         self._kernels = _single_row_forward(self._policy_net, self._action_net,

@@ -22,7 +22,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from filters.errors import InvalidTypeError
+from filters.errors import InvalidArrayError, InvalidTypeError
 from filters.protocol import FilterableEnv
 
 ReferenceMaker = Callable[[FilterableEnv, np.ndarray, int], tuple[np.ndarray, np.ndarray]]
@@ -63,17 +63,35 @@ def hold_action_reference(
 
     .. math:: u^r_k = \\operatorname{clip}(a, u_{min}, u_{max}),\\quad
               x^r_{k+1} = A x^r_k + B u^r_k,\\quad x^r_0 = x_t.
+
+    One compiled call; the shapes are checked first (the kernel does not check indices).
+
+    Raises
+    ------
+    InvalidArrayError
+        If ``action`` does not have one entry per input, ``horizon < 0``, or the
+        environment's state, dynamics and input bounds do not fit together.
     """
     A, B, _ = env.dynamics
+    A, B = np.asarray(A, dtype=np.float64), np.asarray(B, dtype=np.float64)
     low, high = env.input_bounds
-    u = np.clip(np.asarray(action, dtype=float), low, high)
-    inputs = np.tile(u, (horizon, 1))
-    states = np.empty((horizon + 1, A.shape[0]))
-    states[0] = env.ego_state
-    Bu = B @ inputs[0]  # the same input every step: one product (as rollout() would give)
-    for k in range(horizon):
-        states[k + 1] = A @ states[k] + Bu
-    return states, inputs
+    low, high = np.asarray(low, dtype=np.float64), np.asarray(high, dtype=np.float64)
+    x0 = np.asarray(env.ego_state, dtype=np.float64)
+    u = np.asarray(action, dtype=np.float64).reshape(-1)
+    n, m = B.shape if B.ndim == 2 else (-1, -1)
+    if u.shape[0] != m or horizon < 0:
+        raise InvalidArrayError(
+            f"action must have {m} entries and horizon be >= 0, got shape "
+            f"{np.shape(action)} and horizon {horizon!r}"
+        )
+    if A.shape != (n, n) or x0.shape != (n,) or low.shape != (m,) or high.shape != (m,):
+        raise InvalidArrayError(
+            f"the environment's A {A.shape}, B {B.shape}, state {x0.shape} and input bounds "
+            f"{low.shape}, {high.shape} do not fit together"
+        )
+    from filters._reference_kernels import hold  # numba is imported on first use only
+
+    return hold(x0, u, low, high, A, B, int(horizon))
 
 
 class PolicyRolloutReference:
@@ -87,18 +105,34 @@ class PolicyRolloutReference:
     ----------
     policy
         Object with a Stable-Baselines3 style ``predict(obs, deterministic=True)``.
+    compiled
+        If true (default) and ``policy`` has a method ``rollout_reference(env, action,
+        horizon)``, ask it first: it returns the same roll-out computed its own way
+        (``agents.NumpyPolicy`` and ``agents.TorchActorPolicy`` run it in one compiled
+        kernel, equal to this loop to about 1e-6 m/s² per action), or ``None`` for an
+        environment it does not know, and then the loop below runs. ``False``: always
+        the loop, calling ``predict`` ``T - 1`` times.
     """
 
-    def __init__(self, policy: Policy) -> None:
+    def __init__(self, policy: Policy, *, compiled: bool = True) -> None:
         if not callable(getattr(policy, "predict", None)):
             raise InvalidTypeError(
                 f"policy must have a predict(observation, deterministic=...) method, got {policy!r}"
             )
+        if not isinstance(compiled, bool | np.bool_):
+            raise InvalidTypeError(f"compiled must be a bool, got {compiled!r}")
         self.policy = policy
+        self.compiled = bool(compiled)
+        fast = getattr(policy, "rollout_reference", None) if compiled else None
+        self._fast = fast if callable(fast) else None
 
     def __call__(
         self, env: FilterableEnv, action: np.ndarray, horizon: int
     ) -> tuple[np.ndarray, np.ndarray]:
+        if self._fast is not None:
+            made = self._fast(env, action, horizon)
+            if made is not None:
+                return made
         A, B, _ = env.dynamics
         low, high = env.input_bounds
         predicted_means = np.asarray(env.predictions).mean(axis=1)  # (n_obstacles, T, d)

@@ -16,8 +16,8 @@ filtered and unfiltered runs are compared through the same code path.
 
 from __future__ import annotations
 
-import copy
 import dataclasses
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, fields
@@ -131,6 +131,12 @@ class FilterReport:
         The filtered plan's states (T+1, n), or ``None``.
     error
         Why the filter braked on bad numbers (a NaN action, ...), else ``""``.
+
+    Notes
+    -----
+    A report is immutable: its arrays are read-only and belong to it alone (the wrapper
+    copies what the halfspaces and the QP hand it), so a report kept from one step is
+    not changed by the next, and ``copy.deepcopy`` returns the report itself.
     """
 
     status: str
@@ -146,6 +152,17 @@ class FilterReport:
     offsets: np.ndarray | None = None
     planned_states: np.ndarray | None = None
     error: str = ""
+
+    def __post_init__(self) -> None:
+        # Built by hand (the wrapper builds its own with read-only copies already): keep
+        # the report immutable, whatever the caller does with the arrays it passed.
+        for key in ("proposed_action", "applied_action", "slack", "normals", "offsets",
+                    "planned_states"):
+            value = getattr(self, key)
+            if value is not None:
+                value = np.array(value, dtype=np.float64)
+                value.setflags(write=False)
+                object.__setattr__(self, key, value)
 
     def __getitem__(self, key: str) -> Any:
         if key not in _REPORT_KEYS:
@@ -169,24 +186,51 @@ class FilterReport:
             if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
                 if a is None or b is None or not np.array_equal(a, b, equal_nan=True):
                     return False
-            elif a != b:
+            elif a != b and not (a != a and b != b):  # NaN == NaN, as for the arrays
                 return False
         return True
 
     __hash__ = None  # type: ignore[assignment]
 
+    def __copy__(self) -> FilterReport:
+        return self
+
     def __deepcopy__(self, memo: dict[int, Any]) -> FilterReport:
-        """A deep copy field by field (SB3's ``DummyVecEnv`` deep-copies every step's
-        infos; the generic ``__reduce_ex__`` route cost more than the filter's QP)."""
-        clone = object.__new__(FilterReport)
-        memo[id(self)] = clone
-        for key in _REPORT_KEYS:
-            object.__setattr__(clone, key, copy.deepcopy(getattr(self, key), memo))
-        return clone
+        """The report itself: it is immutable (frozen fields, read-only arrays that no one
+        else holds), so a copy could not differ from it (SB3's ``DummyVecEnv``
+        deep-copies every step's infos)."""
+        return self
 
 
 _REPORT_KEYS: tuple[str, ...] = tuple(f.name for f in fields(FilterReport))
 """The field names of :class:`FilterReport`, computed once (``keys`` runs every step)."""
+
+def _report(status: str, proposed: np.ndarray, applied: np.ndarray, intervention: float,
+            solve_time: float = 0.0, halfspace_time: float = 0.0, filter_time: float = 0.0,
+            reference_time: float = 0.0, slack: np.ndarray | None = None,
+            normals: np.ndarray | None = None, offsets: np.ndarray | None = None,
+            planned_states: np.ndarray | None = None, error: str = "") -> FilterReport:
+    """A :class:`FilterReport` built without the frozen ``__init__``'s per-field
+    ``object.__setattr__`` and array copies (the same object; the arrays given must be
+    read-only and the report's own)."""
+    report = object.__new__(FilterReport)
+    report.__dict__.update({
+        "status": status, "proposed_action": proposed, "applied_action": applied,
+        "intervention": intervention, "solve_time": solve_time,
+        "halfspace_time": halfspace_time, "filter_time": filter_time,
+        "reference_time": reference_time, "slack": slack, "normals": normals,
+        "offsets": offsets, "planned_states": planned_states, "error": error,
+    })
+    return report
+
+
+def _owned(array: np.ndarray | None) -> np.ndarray | None:
+    """A read-only float64 copy of ``array`` that only the report holds (``None`` stays)."""
+    if array is None:
+        return None
+    copy = array.astype(np.float64)  # always a copy
+    copy.setflags(write=False)
+    return copy
 
 
 class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
@@ -272,6 +316,12 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         If given, the reference is the policy rolled out over the horizon on the
         obstacles' predicted mean motion (:class:`filters.references.PolicyRolloutReference`);
         otherwise the proposed action is held over the horizon.
+    compiled_rollout
+        With ``policy``: let the policy roll itself out in one call when it can
+        (default ``True``; ``agents.NumpyPolicy`` and ``agents.TorchActorPolicy`` run the
+        whole roll-out in one compiled kernel, equal to the ``predict`` loop to about
+        1e-6 m/s² per action); ``False``: call ``policy.predict`` at every look-ahead
+        step (for ``TorchActorPolicy``, bit for bit SB3's actions).
     reference
         A custom reference maker ``(env, action, horizon) -> (states, inputs)``;
         overrides ``policy``.
@@ -361,6 +411,7 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         calibration_episodes: int | None = None,
         calibration_seed: int = CALIBRATION_SEED,
         calibration_memory: str = "episode",
+        compiled_rollout: bool = True,
     ) -> None:
         # No deep copy: policies and planners hold solver and torch state.
         gym.utils.RecordConstructorArgs.__init__(
@@ -372,8 +423,10 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             intervention_penalty=intervention_penalty, support=support,
             draw_halfspaces=draw_halfspaces, calibration_episodes=calibration_episodes,
             calibration_seed=calibration_seed, calibration_memory=calibration_memory,
+            compiled_rollout=compiled_rollout,
         )
         gym.Wrapper.__init__(self, env)
+        self._unwrapped: FilterableEnv = env.unwrapped  # type: ignore[assignment]
         missing = [a for a in _PROTOCOL_ATTRIBUTES if not hasattr(env.unwrapped, a)]
         if missing:
             raise InvalidTypeError(
@@ -408,10 +461,12 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             low_inclusive=False, high_inclusive=False,
         )
         for name, flag in (("intersample", intersample), ("terminal", terminal),
-                           ("soft", soft), ("draw_halfspaces", draw_halfspaces)):
+                           ("soft", soft), ("draw_halfspaces", draw_halfspaces),
+                           ("compiled_rollout", compiled_rollout)):
             if not isinstance(flag, (bool, np.bool_)):
                 raise InvalidTypeError(f"{name} must be a bool, got {flag!r}")
         self.intersample, self.terminal = bool(intersample), bool(terminal)
+        self._rows = 2 if self.intersample else 1  # rows_per_obstacle, read every step
         self.soft, self.draw_halfspaces = bool(soft), bool(draw_halfspaces)
         self.intervention_penalty = scalar_in_range(
             "intervention_penalty", intervention_penalty, low=0.0, high=np.inf,
@@ -437,7 +492,7 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 raise InvalidTypeError(f"reference must be callable, got {reference!r}")
             self.reference: ReferenceMaker = reference
         elif policy is not None:
-            self.reference = PolicyRolloutReference(policy)
+            self.reference = PolicyRolloutReference(policy, compiled=bool(compiled_rollout))
         else:
             self.reference = hold_action_reference
         A, B, _ = base.dynamics
@@ -478,7 +533,7 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     @property
     def _base(self) -> FilterableEnv:
-        return self.env.unwrapped  # type: ignore[return-value]
+        return self._unwrapped
 
     @property
     def rows_per_obstacle(self) -> int:
@@ -522,15 +577,17 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         return obs, info
 
     def step(self, action: Any):
-        base = self._base
-        low, high = base.input_bounds
+        low, high = self._unwrapped.input_bounds
         raw = np.asarray(action, dtype=float).reshape(-1)
-        proposed = np.clip(raw, low, high)
+        # np.clip's result (NaN stays NaN) without its per-call overhead; a fresh array
+        proposed = np.minimum(np.maximum(raw, low), high)
+        proposed.setflags(write=False)
         if self.risk == "none":
             report = self._passthrough_report(proposed)
             applied = proposed
         else:
-            applied, report = self._filter(proposed, finite=bool(np.all(np.isfinite(raw))))
+            finite = all(map(math.isfinite, raw.tolist()))
+            applied, report = self._filter(proposed, finite=finite)
         obs, reward, terminated, truncated, info = self.env.step(applied.astype(np.float32))
         if self._calibration is not None:
             self._calibrate()
@@ -626,13 +683,13 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     @staticmethod
     def _passthrough_report(proposed: np.ndarray) -> FilterReport:
-        return FilterReport(PASSTHROUGH, proposed, proposed)
+        return _report(PASSTHROUGH, proposed, proposed, 0.0)
 
     def _filter(self, proposed: np.ndarray, *, finite: bool) -> tuple[np.ndarray, FilterReport]:
-        base = self._base
+        base = self._unwrapped
         x0 = np.asarray(base.ego_state, dtype=float)
         radii = np.asarray(base.obstacle_radii, dtype=float)
-        if self._mpc is None or self.rows_per_obstacle * len(radii) > self._mpc.n_obstacles:
+        if self._mpc is None or self._rows * radii.shape[0] > self._mpc.n_obstacles:
             self._mpc = self._build_filter(len(radii))
         begin = time.perf_counter()
         try:
@@ -648,9 +705,10 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         except (ValueError, TypeError, FloatingPointError) as exc:
             # Bad numbers from the policy or the predictions (NaN, inf): brake, say why.
             applied = np.clip(self._mpc.braking_input(x0), *base.input_bounds)
+            applied.setflags(write=False)
             self._last_plan = None
             self._plan_optimal = False
-            report = FilterReport(
+            report = _report(
                 FilterStatus.ERROR.value, proposed, applied,
                 intervention=_distance(applied, proposed),
                 reference_time=time.perf_counter() - begin,
@@ -658,28 +716,27 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             )
             return applied, report
         end = time.perf_counter()
-        applied = np.asarray(result.inputs[0], dtype=float)
+        applied = _owned(result.inputs[0])
         self._previous_normals = halfspaces.normals
         self._last_halfspaces = halfspaces
-        self._last_plan = np.asarray(result.states)
+        self._last_plan = result.states
         self._plan_optimal = result.status is FilterStatus.OPTIMAL
         slack = result.slack
-        k = halfspaces.n_obstacles
-        if slack is not None and self.intersample:
-            slack = np.maximum(slack[:k], slack[k : 2 * k])  # per obstacle and step
-        elif slack is not None:
-            slack = slack[:k]
-        report = FilterReport(
-            str(result.status.value), proposed, applied,
+        if slack is not None:
+            k = halfspaces.n_obstacles
+            # per obstacle and step (the larger of the two inter-sample rows)
+            slack = np.maximum(slack[:k], slack[k : 2 * k]) if self.intersample else slack[:k]
+        report = _report(
+            result.status.value, proposed, applied,
             intervention=_distance(applied, proposed),
             solve_time=float(result.solve_time),
             halfspace_time=middle - start,
             filter_time=end - start,
             reference_time=start - begin,
-            slack=slack,
-            normals=halfspaces.normals,
-            offsets=halfspaces.offsets,
-            planned_states=result.states,
+            slack=_owned(slack),
+            normals=_owned(halfspaces.normals),
+            offsets=_owned(halfspaces.offsets),
+            planned_states=_owned(result.states),
         )
         return applied, report
 
@@ -936,5 +993,15 @@ def _check_no_action_wrapper(env: gym.Env) -> None:
 
 
 def _distance(a: np.ndarray, b: np.ndarray) -> float:
-    """Euclidean distance between two actions (the intervention size, m/s²)."""
-    return float(np.linalg.norm(np.asarray(a, dtype=float) - np.asarray(b, dtype=float)))
+    """Euclidean distance between two actions (the intervention size, m/s²).
+
+    :math:`\\sqrt{\\sum_i (a_i - b_i)^2}`, summed in index order on floats: the value of
+    ``numpy.linalg.norm(a - b)`` (the same bits for the 2-vectors here) without its
+    per-call overhead.
+    """
+    total = 0.0
+    for x, y in zip(np.asarray(a, dtype=float).tolist(), np.asarray(b, dtype=float).tolist(),
+                    strict=True):
+        difference = x - y
+        total += difference * difference
+    return math.sqrt(total)

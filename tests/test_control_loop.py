@@ -44,9 +44,12 @@ def model():
 
 
 def test_filtered_episodes_equal_the_sb3_reference_path_bit_for_bit(model):
-    """Fast actor + reused environment vs SB3 predict on a fresh one: same trajectory."""
+    """Fast actor + reused environment vs SB3 predict on a fresh one: same trajectory
+    (the roll-out calling the actor at each look-ahead step, ``compiled_rollout=False``)."""
     clear_env_cache()
-    specs = [EpisodeSpec("MultiObstacle", "dr_cvar", 3), EpisodeSpec("HeadOn", "cvar", 1)]
+    loop = '{"compiled_rollout": false}'
+    specs = [EpisodeSpec("MultiObstacle", "dr_cvar", 3, filter_options=loop),
+             EpisodeSpec("HeadOn", "cvar", 1, filter_options=loop)]
     for spec in specs:
         run_episode(dataclasses.replace(spec, seed=spec.seed + 100))  # warms the cache
         fast, fast_path = run_episode(spec, record_trajectory=True)
@@ -64,6 +67,24 @@ def test_filtered_episodes_equal_the_sb3_reference_path_bit_for_bit(model):
     assert len(_ENV_CACHE) == 2  # the fast runs reused one environment per setting
     clear_env_cache()
     assert not _ENV_CACHE
+
+
+def test_compiled_rollout_episodes_follow_the_sb3_path_to_rounding(model):
+    """The default runner (compiled roll-out kernel, float64 actor) against SB3's predict
+    at every look-ahead step: the same statuses and outcomes, positions to 1e-6 m."""
+    clear_env_cache()
+    for spec in (EpisodeSpec("MultiObstacle", "dr_cvar", 3), EpisodeSpec("HeadOn", "cvar", 1),
+                 EpisodeSpec("RandomCrossing", "dr_cvar", 2)):
+        fast, fast_path = run_episode(spec, record_trajectory=True)
+        slow, slow_path = run_episode(spec, policy=model, record_trajectory=True,
+                                      reuse_env=False)
+        assert not fast.error and not slow.error and fast.steps > 5
+        assert (fast.steps, fast.collision, fast.goal_reached) == (
+            slow.steps, slow.collision, slow.goal_reached)
+        assert fast_path.statuses == slow_path.statuses
+        np.testing.assert_allclose(fast_path.ego, slow_path.ego, rtol=0, atol=1e-6)
+        assert fast.min_distance == pytest.approx(slow.min_distance, abs=1e-6)
+    clear_env_cache()
 
 
 def test_a_reused_environment_gives_the_same_records_as_a_fresh_one():

@@ -1,0 +1,536 @@
+"""The policy roll-out reference in one compiled call: observations, actor and dynamics.
+
+:class:`filters.references.PolicyRolloutReference` asks the policy for ``T - 1``
+actions at every control step, one after the other: the action at look-ahead ``k``
+depends on the state that the action at ``k - 1`` produced, so the calls cannot be
+batched. Through Python each call builds an observation, runs the network and steps
+the dynamics with a dozen small array operations. :class:`CompiledRollout` does the
+whole roll-out in one numba kernel, with the actor's weights exported once:
+
+.. math::
+
+    \\bar p_{i,k} = \\frac{1}{N_s} \\sum_{j=1}^{N_s} \\hat p^{(j)}_{i,k}, \\qquad
+    o_k = \\operatorname{observe}(x_k, \\bar p_{\\cdot,k}, v), \\qquad
+    u_k = \\operatorname{clip}\\big(c + w \\odot \\pi(o_k), u_{min}, u_{max}\\big), \\qquad
+    x_{k+1} = A x_k + B u_k,
+
+for ``k = 1 .. T-1`` (``u_0`` is the proposed action, clipped), where ``\\pi`` is the
+deterministic actor (the mean of SB3's Gaussian, clipped to its action box, or the
+un-squashed ``tanh``), ``c + w \\odot a`` the map of a policy trained on normalised
+actions back to m/s² (:class:`agents.wrappers.PhysicalUnitsPolicy`; ``c = 0, w = 1``
+otherwise) and ``observe`` the observation of :class:`safe_nav_env.SafeNavEnv` (its
+``observe`` method, nearest obstacles first).
+
+Precision. The network runs in float64 from the float32 observation and its mean is
+rounded once to float32: the arithmetic of :class:`agents.NumpyPolicy`, which is the
+exact value of the float32 network; torch's float32 arithmetic differs from it by a
+few float32 rounding steps (about 1e-6 relative). The roll-out therefore equals the
+Python roll-out with :class:`~agents.NumpyPolicy` to rounding, and the one with
+Stable-Baselines3's ``predict`` (or :class:`~agents.TorchActorPolicy`) to about 1e-6
+m/s² per action. Pass ``compiled=False`` to
+:class:`~filters.references.PolicyRolloutReference` (or ``compiled_rollout=False`` to
+the wrapper) for the policy's own ``predict`` at every step.
+
+Which policies and environments. Actors of SB3's ``MlpPolicy`` (``Linear`` layers with
+``Tanh``, ``ReLU``, ``LeakyReLU`` or ``ELU``, a ``FlattenExtractor``, a ``Box`` action
+space), exported by :class:`~agents.NumpyPolicy` or read live from the torch
+parameters (:class:`~agents.TorchActorPolicy`, an SB3 model); environments whose
+``unwrapped`` is a :class:`~safe_nav_env.SafeNavEnv` that does not override its
+observation. Anything else makes :func:`compile_rollout` return ``None`` and the
+caller falls back to the Python roll-out.
+
+Determinism. The kernel keeps no state between calls (its work arrays are allocated
+per call) and sums in a fixed order: the same inputs give the same bits, whatever ran
+before; one instance may serve several environments.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numba import njit
+
+from filters.errors import InvalidArrayError, InvalidParameterError
+
+__all__ = ["ActorNetwork", "CompiledRollout", "compile_rollout", "rollout_reference",
+           "supports_env"]
+
+IDENTITY, TANH, RELU, LEAKY_RELU, ELU = 0, 1, 2, 3, 4
+"""Activation codes of :class:`ActorNetwork` (``parameters`` holds the slope or alpha)."""
+
+_ACTIVATION_CODES = {"identity": IDENTITY, "tanh": TANH, "relu": RELU,
+                     "leaky_relu": LEAKY_RELU, "elu": ELU}
+
+
+@dataclass(frozen=True, eq=False)
+class ActorNetwork:
+    """A deterministic MLP actor in the kernel's layout.
+
+    Attributes
+    ----------
+    weights
+        Per affine layer, :math:`W_l^\\top` as float64 ``(inputs, outputs)`` C arrays.
+    biases
+        Per layer, float64 ``(outputs,)``.
+    activations, parameters
+        Per layer, the activation code (:data:`IDENTITY`, :data:`TANH`, :data:`RELU`,
+        :data:`LEAKY_RELU`, :data:`ELU`; int64) and its parameter (float64: the leaky
+        slope or the ELU alpha, else 0).
+    squash
+        Whether the mean goes through ``tanh`` and is stretched to the action box.
+    action_low, action_high
+        The policy's action box, float32 ``(m,)``.
+    """
+
+    weights: tuple[np.ndarray, ...]
+    biases: tuple[np.ndarray, ...]
+    activations: np.ndarray
+    parameters: np.ndarray
+    squash: bool
+    action_low: np.ndarray
+    action_high: np.ndarray
+
+    @classmethod
+    def from_layers(cls, layers: list[tuple[np.ndarray, np.ndarray, str, float]], *,
+                    squash: bool, action_low: Any, action_high: Any) -> ActorNetwork:
+        """Build from ``(W^T (in, out), b, activation name, parameter)`` per layer.
+
+        Activation names: ``"identity"``, ``"tanh"``, ``"relu"``, ``"leaky_relu"``,
+        ``"elu"``. The arrays are copied to float64 (read-only).
+
+        Raises
+        ------
+        InvalidArrayError
+            If the layers do not chain (each layer's outputs the next one's inputs, a
+            bias per output) or the action box does not have one entry per output: the
+            kernel does not check indices, so the shapes are checked here.
+        InvalidParameterError
+            For an unknown activation name, or no layer.
+        """
+        if not layers:
+            raise InvalidParameterError("an ActorNetwork needs at least one layer, got none")
+        weights, biases = [], []
+        for index, (weight, bias, name, _) in enumerate(layers):
+            w = np.array(weight, dtype=np.float64, order="C")
+            b = np.array(bias, dtype=np.float64)
+            inputs = weights[-1].shape[1] if weights else None
+            if w.ndim != 2 or b.shape != (w.shape[1],) or inputs not in (None, w.shape[0]):
+                raise InvalidArrayError(
+                    f"layer {index}: W^T {w.shape} and b {b.shape} must be (inputs, outputs) "
+                    f"and (outputs,), with inputs = {inputs} (the previous layer's outputs)")
+            if name not in _ACTIVATION_CODES:
+                raise InvalidParameterError(
+                    f"layer {index}: activation must be one of {sorted(_ACTIVATION_CODES)}, "
+                    f"got {name!r}")
+            w.setflags(write=False)
+            b.setflags(write=False)
+            weights.append(w)
+            biases.append(b)
+        codes = np.array([_ACTIVATION_CODES[name] for _, _, name, _ in layers], dtype=np.int64)
+        parameters = np.array([float(p) for _, _, _, p in layers], dtype=np.float64)
+        low = np.asarray(action_low, dtype=np.float32).reshape(-1).copy()
+        high = np.asarray(action_high, dtype=np.float32).reshape(-1).copy()
+        if low.shape != high.shape or low.shape != (weights[-1].shape[1],):
+            raise InvalidArrayError(
+                f"the action box ({low.shape}, {high.shape}) must have one entry per network "
+                f"output ({weights[-1].shape[1]})")
+        for array in (codes, parameters, low, high):
+            array.setflags(write=False)
+        return cls(tuple(weights), tuple(biases), codes, parameters, bool(squash), low, high)
+
+    @property
+    def n_inputs(self) -> int:
+        return int(self.weights[0].shape[0])
+
+    @property
+    def n_outputs(self) -> int:
+        return int(self.weights[-1].shape[1])
+
+
+# --------------------------------------------------------------------------- the kernel
+@njit(cache=True)
+def _mlp(obs, weights, biases, activations, parameters, squash, low, high, out):
+    """``out[:] = π(obs)``: float64 network on a float32 observation, float32 box output.
+
+    ``z_{l+1} = σ_l(z_l W_l^T + b_l)``: each output sums its products in input order
+    (as a matrix product's definition; the loop over outputs is the inner one, so it
+    vectorises without reordering a sum), then adds the bias.
+    """
+    z = np.empty(obs.shape[0])
+    for j in range(obs.shape[0]):
+        z[j] = np.float64(obs[j])
+    for layer in range(len(weights)):
+        weight = weights[layer]
+        bias = biases[layer]
+        n_in, n_out = weight.shape
+        nxt = np.zeros(n_out)
+        for j in range(n_in):
+            zj = z[j]
+            for i in range(n_out):
+                nxt[i] += zj * weight[j, i]
+        code = activations[layer]
+        parameter = parameters[layer]
+        for i in range(n_out):
+            v = nxt[i] + bias[i]
+            if code == 1:
+                v = math.tanh(v)
+            elif code == 2:
+                v = v if v > 0.0 else 0.0
+            elif code == 3:
+                v = v if v >= 0.0 else parameter * v
+            elif code == 4:
+                v = v if v > 0.0 else parameter * math.expm1(v)
+            nxt[i] = v
+        z = nxt
+    half, one = np.float32(0.5), np.float32(1.0)
+    for i in range(out.shape[0]):
+        if squash:
+            # float32(tanh(mean)), then low + 0.5 (s + 1) (high - low) in float32
+            s = np.float32(math.tanh(z[i]))
+            out[i] = low[i] + half * (s + one) * (high[i] - low[i])
+        else:
+            a = np.float32(z[i])
+            if a < low[i]:
+                a = low[i]
+            if a > high[i]:
+                a = high[i]
+            out[i] = a
+
+
+@njit(cache=True)
+def _observe(x, positions, velocities, goal, max_obstacles, obs, order, centre):
+    """:meth:`safe_nav_env.SafeNavEnv.observe` into ``obs`` (float32, zeroed here).
+
+    Layout ``[p, v, g - p]`` then, nearest obstacle first (stable order on the centre
+    distance ``hypot(p_i - p)``), ``[p_i - p, v_i - v, 1]`` per slot.
+    """
+    px, py, vx, vy = x[0], x[1], x[2], x[3]
+    obs[:] = 0.0
+    obs[0] = px
+    obs[1] = py
+    obs[2] = vx
+    obs[3] = vy
+    obs[4] = goal[0] - px
+    obs[5] = goal[1] - py
+    n = positions.shape[0]
+    if n == 0 or max_obstacles == 0:
+        return
+    for i in range(n):  # stable insertion sort of the indices by centre distance
+        centre[i] = math.hypot(positions[i, 0] - px, positions[i, 1] - py)
+        order[i] = i
+        k = i
+        while k > 0 and centre[order[k - 1]] > centre[i]:
+            order[k] = order[k - 1]
+            k -= 1
+        order[k] = i
+    for slot in range(min(n, max_obstacles)):
+        i = order[slot]
+        base = 6 + 5 * slot
+        obs[base] = positions[i, 0] - px
+        obs[base + 1] = positions[i, 1] - py
+        obs[base + 2] = velocities[i, 0] - vx
+        obs[base + 3] = velocities[i, 1] - vy
+        obs[base + 4] = 1.0
+
+
+@njit(cache=True)
+def _rollout(x0, u0, predictions, velocities, goal, max_obstacles, n_obs, A, B, low, high,
+             horizon, weights, biases, activations, parameters, squash, action_low,
+             action_high, centre, half_width):
+    """States ``(T+1, n)``, inputs ``(T, m)`` and ``0``, or ``k > 0``: the observation
+    at look-ahead ``k`` was not finite (then the arrays are partly filled)."""
+    n_state, m = B.shape
+    states = np.empty((horizon + 1, n_state))
+    inputs = np.empty((horizon, m))
+    n_obstacles, n_samples = predictions.shape[0], predictions.shape[1]
+    means = np.zeros((n_obstacles, 2))
+    obs = np.empty(n_obs, dtype=np.float32)
+    action = np.empty(m, dtype=np.float32)
+    order = np.empty(n_obstacles, dtype=np.int64)
+    distance = np.empty(n_obstacles)
+    for i in range(n_state):
+        states[0, i] = x0[i]
+    for k in range(horizon):
+        if k == 0:
+            for i in range(m):
+                u = u0[i]
+                if u < low[i]:
+                    u = low[i]
+                if u > high[i]:
+                    u = high[i]
+                inputs[0, i] = u
+        else:
+            for i in range(n_obstacles):  # the sample mean at look-ahead k (step t+k)
+                sx, sy = 0.0, 0.0
+                for j in range(n_samples):
+                    sx += predictions[i, j, k - 1, 0]
+                    sy += predictions[i, j, k - 1, 1]
+                means[i, 0] = sx / n_samples
+                means[i, 1] = sy / n_samples
+            _observe(states[k], means, velocities, goal, max_obstacles, obs, order, distance)
+            for i in range(n_obs):
+                if not math.isfinite(obs[i]):
+                    return states, inputs, k
+            _mlp(obs, weights, biases, activations, parameters, squash, action_low,
+                 action_high, action)
+            for i in range(m):
+                u = centre[i] + half_width[i] * np.float64(action[i])
+                if u < low[i]:
+                    u = low[i]
+                if u > high[i]:
+                    u = high[i]
+                inputs[k, i] = u
+        for i in range(n_state):  # x_{k+1} = A x_k + B u_k
+            ax = 0.0
+            for j in range(n_state):
+                ax += A[i, j] * states[k, j]
+            bu = 0.0
+            for j in range(m):
+                bu += B[i, j] * inputs[k, j]
+            states[k + 1, i] = ax + bu
+    return states, inputs, 0
+
+
+# --------------------------------------------------------------------------- the maker
+def supports_env(env: Any) -> bool:
+    """Whether the kernel knows ``env``'s observation: a :class:`safe_nav_env.SafeNavEnv`
+    (or a subclass that keeps its ``observe`` and ``_observe``)."""
+    from safe_nav_env.env import SafeNavEnv
+
+    kind = type(env)
+    return (issubclass(kind, SafeNavEnv) and kind.observe is SafeNavEnv.observe
+            and kind._observe is SafeNavEnv._observe)
+
+
+class CompiledRollout:
+    """A reference maker ``(env, action, horizon) -> (states, inputs)``: the policy roll-out
+    of :class:`filters.references.PolicyRolloutReference` in one compiled call.
+
+    Parameters
+    ----------
+    network
+        The actor (:class:`ActorNetwork`), or a callable returning the current one (for
+        live torch parameters that training changes).
+    centre, half_width
+        The map ``c + w * a`` of the actor's actions to physical units (m/s²), shape
+        ``(m,)``; default ``0`` and ``1`` (the actor acts in physical units).
+
+    Raises
+    ------
+    InvalidArrayError
+        From :meth:`__call__`, when an observation of the roll-out is not finite (NaN
+        predictions, say), as the policy's ``predict`` would.
+    """
+
+    def __init__(self, network: ActorNetwork | Any, *, centre: Any = None,
+                 half_width: Any = None) -> None:
+        self._network = network
+        self._static = network if isinstance(network, ActorNetwork) else None
+        current = self._current()
+        self._n_inputs = current.n_inputs
+        m = current.n_outputs
+        self.centre = _vector(0.0 if centre is None else centre, m)
+        self.half_width = _vector(1.0 if half_width is None else half_width, m)
+        self._env_types: dict[type, bool] = {}
+
+    def _current(self) -> ActorNetwork:
+        return self._static if self._static is not None else self._network()
+
+    def supports(self, env: Any) -> bool:
+        """Whether this roll-out can run on ``env`` (see :func:`supports_env`) and its
+        observation has the size the network takes."""
+        kind = type(env)
+        known = self._env_types.get(kind)
+        if known is None:
+            known = self._env_types[kind] = supports_env(env)
+        return known and env.observation_space.shape == (self._n_inputs,)
+
+    def __call__(self, env: Any, action: Any, horizon: int) -> tuple[np.ndarray, np.ndarray]:
+        """The roll-out from ``env``'s current state (``env`` a supported ``SafeNavEnv``).
+
+        Raises
+        ------
+        InvalidArrayError
+            If an observation is not finite, or the shapes do not fit together (the
+            action, the network's inputs and outputs, the predictions).
+        InvalidParameterError
+            If ``horizon`` exceeds the predictions by more than one step.
+        """
+        net = self._current()
+        A, B, _ = env.dynamics
+        low, high = env.input_bounds
+        predictions = env.predictions
+        velocities = env.obstacle_velocities
+        u0 = np.asarray(action, dtype=np.float64)
+        if u0.shape != low.shape:
+            if u0.size != low.size:
+                raise InvalidArrayError(
+                    f"action must have {low.size} entries, got shape {u0.shape}")
+            u0 = u0.reshape(low.shape)
+        n_obs = 6 + 5 * env.max_obstacles  # the SafeNavEnv layout the kernel writes
+        m = low.shape[0]
+        if (net.n_inputs != n_obs or net.n_outputs != m or B.shape != (4, m)
+                or A.shape != (4, 4) or env.ego_state.shape != (4,) or high.shape != (m,)
+                or predictions.shape[0] != velocities.shape[0] or predictions.shape[3] != 2):
+            raise InvalidArrayError(
+                f"the network takes {net.n_inputs} inputs and gives {net.n_outputs} actions; "
+                f"the environment observes {n_obs} entries and takes {low.shape[0]} inputs, "
+                f"with predictions {predictions.shape} for {velocities.shape[0]} obstacles "
+                f"and the state {env.ego_state.shape}")
+        if not 1 <= horizon <= predictions.shape[2] + 1:
+            raise InvalidParameterError(
+                f"horizon must be an integer in [1, {predictions.shape[2] + 1}] (one more "
+                f"than the prediction horizon), got {horizon!r}")
+        states, inputs, failed = _rollout(
+            env.ego_state, u0, predictions, velocities, env.goal,
+            env.max_obstacles, n_obs, A, B, low, high, int(horizon), net.weights,
+            net.biases, net.activations, net.parameters, net.squash, net.action_low,
+            net.action_high, self.centre, self.half_width,
+        )
+        if failed:
+            raise InvalidArrayError(
+                f"the policy roll-out's observation at look-ahead step {failed} is not "
+                "finite (NaN or infinite predictions or states)"
+            )
+        return states, inputs
+
+
+def _vector(value: Any, m: int) -> np.ndarray:
+    array = np.array(np.broadcast_to(np.asarray(value, dtype=np.float64), (m,)))
+    array.setflags(write=False)
+    return array
+
+
+# --------------------------------------------------------------------------- exports
+class _TorchNetwork:
+    """The :class:`ActorNetwork` of live torch parameters, rebuilt when any changes.
+
+    A parameter changes in place during training (its version counter, torch's
+    ``Tensor._version``, moves) or is replaced (its data pointer moves); either triggers
+    a new export. Without version counters every call exports again.
+    """
+
+    def __init__(self, linears: list[tuple[Any, str]], squash: bool, low: Any, high: Any):
+        self._linears = linears
+        self._params = [p for module, _ in linears for p in (module.weight, module.bias)]
+        self._squash, self._low, self._high = squash, low, high
+        self._key: tuple | None = None
+        self._network: ActorNetwork | None = None
+
+    def _state(self) -> tuple | None:
+        try:
+            return tuple((p._version, p.data_ptr()) for p in self._params)
+        except AttributeError:  # pragma: no cover - a torch without version counters
+            return None
+
+    def __call__(self) -> ActorNetwork:
+        key = self._state()
+        if key is None or key != self._key:
+            layers = [(module.weight.detach().cpu().numpy().T, module.bias.detach().cpu().numpy(),
+                       name, 0.0) for module, name in self._linears]
+            self._network = ActorNetwork.from_layers(
+                layers, squash=self._squash, action_low=self._low, action_high=self._high)
+            self._key = key
+        return self._network
+
+
+def _torch_network(policy: Any) -> _TorchNetwork | None:
+    """Live network of an SB3 ``ActorCriticPolicy`` whose actor is plain, else ``None``.
+
+    Plain: ``mlp_extractor.policy_net`` an ``nn.Sequential`` of float32 CPU ``Linear``
+    layers with biases, each followed by at most one ``Tanh`` or ``ReLU``, and an
+    ``nn.Linear`` action net.
+    """
+    import torch
+    from torch import nn
+
+    net, head = policy.mlp_extractor.policy_net, policy.action_net
+    if not isinstance(net, nn.Sequential) or type(head) is not nn.Linear:
+        return None
+    linears: list[list[Any]] = []
+    for module in [*net, head]:
+        if type(module) is nn.Linear:
+            if (module.bias is None or module.weight.dtype != torch.float32
+                    or module.weight.device.type != "cpu"):
+                return None
+            linears.append([module, "identity"])
+        elif type(module) in (nn.Tanh, nn.ReLU) and linears and linears[-1][1] == "identity":
+            linears[-1][1] = "tanh" if type(module) is nn.Tanh else "relu"
+        else:
+            return None
+    if linears[-1][1] != "identity":
+        return None
+    space = policy.action_space
+    return _TorchNetwork([(module, name) for module, name in linears],
+                         bool(policy.squash_output), space.low, space.high)
+
+
+def compile_rollout(policy: Any, *, centre: Any = None,
+                    half_width: Any = None) -> CompiledRollout | None:
+    """The :class:`CompiledRollout` of ``policy``, or ``None`` if it has no plain MLP actor.
+
+    ``policy``: a :class:`~agents.NumpyPolicy` (its exported weights), a
+    :class:`~agents.TorchActorPolicy`, an SB3 ``PPO``/``A2C`` model or its
+    ``ActorCriticPolicy`` (the live torch parameters: training updates them), a
+    :class:`~agents.wrappers.PhysicalUnitsPolicy` around one of these (its map to m/s²
+    is folded into the roll-out), or the :class:`~agents.training.TrainingPolicy` bound
+    to one. ``centre``, ``half_width``: see :class:`CompiledRollout`.
+    """
+    from agents.numpy_policy import NumpyPolicy, TorchActorPolicy
+    from agents.training import TrainingPolicy
+    from agents.wrappers import PhysicalUnitsPolicy
+
+    if isinstance(policy, TrainingPolicy):  # the model it is bound to (None before)
+        if policy._physical is None:
+            return None
+        return compile_rollout(policy._physical, centre=centre, half_width=half_width)
+    if isinstance(policy, PhysicalUnitsPolicy):
+        if centre is not None or half_width is not None:
+            return None  # two maps: not worth folding
+        return compile_rollout(policy.policy, centre=policy.centre,
+                               half_width=policy.half_width)
+    if isinstance(policy, NumpyPolicy):
+        layers = [(w, b, getattr(f, "name", "identity") if f is not None else "identity",
+                   getattr(f, "parameter", 0.0)) for w, b, f in policy.layers]
+        if any(f is not None and not hasattr(f, "name") for _, _, f in policy.layers):
+            return None
+        network: Any = ActorNetwork.from_layers(
+            layers, squash=policy.squash_output, action_low=policy._low,
+            action_high=policy._high)
+        return CompiledRollout(network, centre=centre, half_width=half_width)
+    if isinstance(policy, TorchActorPolicy):
+        sb3_policy = policy._policy
+    elif "stable_baselines3" in sys.modules:  # else it cannot be an SB3 object
+        from agents.numpy_policy import UnsupportedPolicyError, _checked_actor_critic
+
+        try:
+            sb3_policy = _checked_actor_critic(policy)
+        except UnsupportedPolicyError:
+            return None
+    else:
+        return None
+    live = _torch_network(sb3_policy)
+    if live is None:
+        return None
+    return CompiledRollout(live, centre=centre, half_width=half_width)
+
+
+def rollout_reference(
+    policy: Any, env: Any, action: Any, horizon: int
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """``policy``'s roll-out by its :class:`CompiledRollout`, or ``None`` if it has none or
+    ``env`` is not supported: the body of the policies' ``rollout_reference`` methods.
+
+    The compiled roll-out is made on first use and kept in ``policy._compiled_rollout``
+    (``False`` when the policy cannot be compiled).
+    """
+    compiled = policy._compiled_rollout
+    if compiled is None:
+        compiled = policy._compiled_rollout = compile_rollout(policy) or False
+    if compiled is False or not compiled.supports(env):
+        return None
+    return compiled(env, action, horizon)
