@@ -42,7 +42,8 @@ from filters.references import (
 )
 from filters.risk import CHANCE_RISKS, check_alpha, check_epsilon, check_risk
 from filters.risk import RISKS as _METRICS
-from filters.step_rows import clearest_normals, step_rows
+from filters.step_rows import clearest_normals as clearest_normals  # re-exported
+from filters.step_rows import step_rows
 
 RISKS: tuple[str, ...] = ("none", *_METRICS)
 """Risk settings accepted by :class:`SafetyFilterWrapper` (``"none"``: pass-through)."""
@@ -693,13 +694,12 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             return _shifted_positions(plan @ self._base.dynamics[2].T, y0)
         return ref_positions
 
-    def _clearest_normals(self, samples: np.ndarray, reference: np.ndarray,
-                          y0: np.ndarray) -> np.ndarray:
-        """The ``normals="clearest"`` normals ``(k, T, d)`` (see :func:`clearest_normals`)."""
-        plan = None
-        if self._last_plan is not None and self._plan_optimal:
-            plan = _shifted_positions(self._last_plan @ self._base.dynamics[2].T, y0)
-        return clearest_normals(samples, reference, y0, plan)
+    def _clearest_plan(self, y0: np.ndarray) -> np.ndarray | None:
+        """The last plan's positions shifted to start at ``y0`` ``(T, d)``, if that step
+        was optimal, else ``None`` (the plan of ``normals="clearest"``)."""
+        if self._last_plan is None or not self._plan_optimal:
+            return None
+        return _shifted_positions(self._last_plan @ self._base.dynamics[2].T, y0)
 
     def _halfspaces(
         self, base: FilterableEnv, x0: np.ndarray, ref_states: np.ndarray, radii: np.ndarray
@@ -720,14 +720,14 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         C = base.dynamics[2]
         y0 = C @ x0
         origins = self._normal_origins(y0, ref_states[1:, :] @ C.T)
-        given = None
-        if self.normals == "clearest" and len(radii):
-            given = self._clearest_normals(predictions[:, :, : self.horizon], origins, y0)
+        clearest = self.normals == "clearest"
         rows = step_rows(
             origins, predictions,
             horizon=self.horizon, ego_shape=ego_shape, obstacle_shapes=obstacle_shapes,
             support=self.support, previous_normals=previous, ego_velocity=x0[2:],
-            nearside_from=y0 if self.normals == "nearside" else None, normals=given,
+            nearside_from=y0 if self.normals == "nearside" else None,
+            clearest_from=y0 if clearest else None,
+            clearest_plan=self._clearest_plan(y0) if clearest else None,
             input_bounds=base.input_bounds if self.intersample else None,
             dt=float(base.dt), **self._risk_options(),
         )
