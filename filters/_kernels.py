@@ -497,6 +497,8 @@ def halfspace_kernel(flat, horizon, dim, origins, mode, given, ego, plan, previo
                 side = 0.0
                 for j in range(dim):
                     side += (origins[t, j] - mean[t, j]) * (ego[j] - mean[t, j])
+                if not math.isfinite(side):  # a non-finite reference or ego, or an overflow
+                    return NON_FINITE_RESULT
                 size2 = 0.0
                 for j in range(dim):
                     v = mean[t, j] - (origins[t, j] if side > 0.0 else ego[j])

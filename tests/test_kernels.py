@@ -492,7 +492,8 @@ def test_bad_samples_raise_the_same_named_errors():
                             obstacle_shapes=[Disc(0.3)] * 2, backend=backend)
 
 
-@pytest.mark.parametrize("normals", [{}, {"clearest_from": np.array([0.5, 0.2])},
+@pytest.mark.parametrize("normals", [{}, {"nearside_from": np.array([0.5, 0.2])},
+                                     {"clearest_from": np.array([0.5, 0.2])},
                                      {"clearest_from": np.array([0.5, 0.2]),
                                       "clearest_plan": np.zeros((4, 2))}])
 def test_non_finite_reference_in_the_lean_path_is_named(normals):
