@@ -349,10 +349,10 @@ def _clearest_instance(rng: np.random.Generator, plan: bool, horizon: int = 10):
 
     * obstacle 0, step 2: the reference (and the plan) on the sample mean, so the
       direction falls back to the one from the ego;
-    * obstacle 1, step 3 and obstacle 2, step 0: the ego on the mean (rounding apart),
-      so the direction from the ego is degenerate too and the first axis is taken
-      (at step 3 only without a plan: the near-side rule from the ego; with a plan the
-      reference or the plan is the origin there).
+    * obstacle 1, step 3 and obstacle 2, step 0: the ego exactly on the mean (dyadic
+      samples, whose means both paths compute exactly), so the direction from the ego
+      is degenerate too and the first axis is taken (at step 3 only without a plan: the
+      near-side rule from the ego; with a plan the reference or the plan is the origin).
     """
     n = 3
     reference, samples = instance(rng, n, 100, horizon + 3, spread=0.3)
@@ -362,8 +362,11 @@ def _clearest_instance(rng: np.random.Generator, plan: bool, horizon: int = 10):
     samples[0, :, 2] += reference[2] - samples[0, :, 2].mean(axis=0)
     if plan:
         path[2] = reference[2]
-    ego = samples[1, :, 3].mean(axis=0)
-    samples[2, :, 0] += ego - samples[2, :, 0].mean(axis=0)
+    ego = np.array([0.75, -1.25])
+    around = np.stack([np.resize([0.125, -0.125], 100), np.resize([0.25, 0.25, -0.25, -0.25],
+                                                                   100)], axis=-1)
+    samples[1, :, 3] = ego + around
+    samples[2, :, 0] = ego - around
     return reference, samples, ego, path
 
 
