@@ -15,8 +15,9 @@ The samples arrive flattened, ``flat[i, s, t d + j] = p_{i,s,t,j}``. Per obstacl
    :math:`\sum_s (p_{i,s,t,j} - p_{i,0,t,j})` (so the rounding error does not grow
    with the size of the positions), which give the sample means
    :math:`\bar p_{i,t}`;
-3. **normals** from the origins (or given, or the near-side ones) to the means, with
-   the fallbacks of :func:`filters.safe_halfspaces` for a degenerate normal;
+3. **normals** from the origins (or given, or the near-side or clearest ones of
+   :mod:`filters.step_rows`) to the means, with the fallbacks of
+   :func:`filters.safe_halfspaces` for a degenerate normal;
 4. **risks** of the losses :math:`x_s = -h \cdot p_{i,s,t}` along the step's normal
    and, for the inter-sample start rows, along the next step's normal
    :math:`h' = h_{i,t+1} / \lVert h_{i,t+1} \rVert`; the losses are formed only where
@@ -77,6 +78,7 @@ ZERO_NORMAL = 3
 MODE_PAPER = 0  # normals from the origins (reference positions) to the sample means
 MODE_GIVEN = 1  # normals given (unit), offsets along them
 MODE_NEARSIDE = 2  # the wrapper's "nearside" normals, computed here
+MODE_CLEAREST = 3  # the wrapper's "clearest" normals, computed here
 
 RISK_MEAN = 0
 RISK_CVAR = 1
@@ -87,6 +89,7 @@ RISK_CONFORMAL = 4
 DEGENERATE_DISTANCE = 1e-9  # = filters.halfspaces.DEGENERATE_DISTANCE
 _NEARSIDE_MIN = 1e-9  # the near-side normal's thresholds (filters.step_rows.nearside_normals)
 _NEARSIDE_FLOOR = 1e-12
+_CLEAREST_SHORT = 0.5  # filters.step_rows.clearest_normals: shorter directions fall back
 
 _SMALL = 8  # ranges this short are finished by counting
 _BAND_MIN = 32  # fewer losses than this are selected from directly
@@ -337,6 +340,81 @@ def _excess(work, n, tau):
     return total
 
 
+# --------------------------------------------------------------------------- normals
+
+
+@njit(**_INLINE)
+def _clearest_normal(normals, i, t, mean, origins, plan, ego, dim):
+    """Write the clearest unit normal of obstacle ``i`` at step ``t`` to ``normals[i, t]``.
+
+    The operations of :func:`filters.step_rows.clearest_normals`, in its order: at the
+    first step no candidate; later, from the farther of the reference ``origins[t]``
+    and the plan ``plan[t]`` (zero within 1e-9 of the mean), or without a plan (``plan``
+    empty) the near-side normal; a candidate shorter than 1/2 falls back to the
+    direction from ``ego`` (within 1e-9 of the mean: the first axis). Then normalised
+    again, as :func:`filters.safe_halfspaces` does to given normals. Returns
+    :data:`NON_FINITE_RESULT` if a distance from the mean is not finite (a non-finite
+    position, an overflow), else :data:`OK`.
+    """
+    has_plan = plan.shape[0] > 0
+    ego2 = 0.0
+    reference2 = 0.0
+    plan2 = 0.0
+    for j in range(dim):
+        v = mean[t, j] - ego[j]
+        ego2 += v * v
+        v = mean[t, j] - origins[t, j]
+        reference2 += v * v
+        if has_plan:
+            v = mean[t, j] - plan[t, j]
+            plan2 += v * v
+    from_ego = math.sqrt(ego2)
+    from_reference = math.sqrt(reference2)
+    from_plan = math.sqrt(plan2)
+    if not (math.isfinite(from_ego) and math.isfinite(from_reference)
+            and math.isfinite(from_plan)):
+        return NON_FINITE_RESULT
+    size2 = 0.0  # the candidate's squared length
+    if t > 0 and has_plan:  # from the clearer origin
+        use_reference = from_reference >= from_plan
+        size = from_reference if use_reference else from_plan
+        if size > _NEARSIDE_MIN:
+            for j in range(dim):
+                v = (mean[t, j] - (origins[t, j] if use_reference else plan[t, j])) / size
+                normals[i, t, j] = v
+                size2 += v * v
+    elif t > 0:  # the near-side normal
+        side = 0.0
+        for j in range(dim):
+            side += (origins[t, j] - mean[t, j]) * (ego[j] - mean[t, j])
+        for j in range(dim):
+            v = mean[t, j] - (origins[t, j] if side > 0.0 else ego[j])
+            normals[i, t, j] = v
+            size2 += v * v
+        size = math.sqrt(size2)
+        if not size > _NEARSIDE_MIN:
+            size = max(from_ego, _NEARSIDE_FLOOR)
+            for j in range(dim):
+                normals[i, t, j] = mean[t, j] - ego[j]
+        size2 = 0.0
+        for j in range(dim):
+            v = normals[i, t, j] / size
+            normals[i, t, j] = v
+            size2 += v * v
+    if math.sqrt(size2) < _CLEAREST_SHORT:  # the direction from the ego, else an axis
+        size2 = 0.0
+        for j in range(dim):
+            v = 1.0 if j == 0 else 0.0
+            if from_ego > _NEARSIDE_MIN:
+                v = (mean[t, j] - ego[j]) / from_ego
+            normals[i, t, j] = v
+            size2 += v * v
+    size = math.sqrt(size2)
+    for j in range(dim):
+        normals[i, t, j] = normals[i, t, j] / size
+    return OK
+
+
 # --------------------------------------------------------------------------- per obstacle
 
 
@@ -350,7 +428,7 @@ def _transpose(flat, i, width, rows):
 
 
 @njit(**_FLAGS)
-def halfspace_kernel(flat, horizon, dim, origins, mode, given, ego, previous, velocity,
+def halfspace_kernel(flat, horizon, dim, origins, mode, given, ego, plan, previous, velocity,
                      risk, alpha, mass, k, factor, z_guess, band_width, delta, epsilon,
                      conformal, radii, start_rows, low, high, arc, disabled,
                      normals, degenerate, offsets, rows_normals, rows_offsets):
@@ -360,22 +438,24 @@ def halfspace_kernel(flat, horizon, dim, origins, mode, given, ego, previous, ve
     and the sample means; the unit normals of :func:`filters.safe_halfspaces` (paper
     mode: origin to mean, and for a degenerate one the previous normal, minus the ego
     velocity, the first axis), given ones, or the near-side ones of
-    :func:`filters.step_rows.nearside_normals` normalised again (as ``safe_halfspaces``
-    does to given normals); then along each normal :math:`h` the offset
-    :math:`b = -((R - \\delta) + r)`. With ``start_rows``, row ``i`` of ``rows_*`` is the
-    end row (the halfspace tightened by the arc margin :math:`m(h_{i,t})` of
-    :func:`filters.intersample.arc_margin`) and row ``k + i`` the start row: the
-    step-``t`` samples along the next step's normal normalised again (as
+    :func:`filters.step_rows.nearside_normals` or the clearest ones of
+    :func:`filters.step_rows.clearest_normals` (:func:`_clearest_normal`) normalised
+    again (as ``safe_halfspaces`` does to given normals); then along each normal
+    :math:`h` the offset :math:`b = -((R - \\delta) + r)`. With ``start_rows``, row
+    ``i`` of ``rows_*`` is the end row (the halfspace tightened by the arc margin
+    :math:`m(h_{i,t})` of :func:`filters.intersample.arc_margin`) and row ``k + i`` the
+    start row: the step-``t`` samples along the next step's normal normalised again (as
     :func:`filters.halfspaces.offsets_along`), tightened by :math:`m(h_{i,t+1})`, and
-    ``0 @ y <= disabled`` at the last step
-    (:func:`filters.intersample_rows`' layout). The losses go to ``work[0]``; rows 1
-    and 2 are the selection's scratch. (One function: a call with this many array
-    arguments costs more than an obstacle's bookkeeping.)
+    ``0 @ y <= disabled`` at the last step (:func:`filters.intersample_rows`' layout).
+    The losses go to ``work[0]``; rows 1 and 2 are the selection's scratch. (One
+    function: a call with this many array arguments costs more than an obstacle's
+    bookkeeping.)
 
     Parameters (checked by :func:`filters.kernels.compiled_rows`): ``flat``
     ``(k, N, T' d)``; ``horizon`` ``T <= T'``; ``dim`` ``d``; ``origins`` ``(T, d)``
-    (paper and near-side modes); ``mode`` one of the ``MODE_*``; ``given`` ``(k, T, d)``
-    unit normals (given mode); ``ego`` ``(d,)`` (near-side mode); ``previous``
+    (paper, near-side and clearest modes); ``mode`` one of the ``MODE_*``; ``given``
+    ``(k, T, d)`` unit normals (given mode); ``ego`` ``(d,)`` (near-side and clearest
+    modes); ``plan`` ``(T, d)`` or empty (clearest mode); ``previous``
     ``(k, T, d)`` or empty; ``velocity`` ``(1 | T, d)`` or empty; the risk constants of
     :func:`filters.kernels._risk_constants`; ``delta``; ``epsilon`` ``(1 | T,)``;
     ``conformal`` ``(1 | k, 1 | T)``; ``radii`` ``(k,)`` (ego plus obstacle radius);
@@ -408,10 +488,17 @@ def halfspace_kernel(flat, horizon, dim, origins, mode, given, ego, previous, ve
                 for j in range(dim):
                     normals[i, t, j] = given[i, t, j]
                 continue
+            if mode == MODE_CLEAREST:
+                status = _clearest_normal(normals, i, t, mean, origins, plan, ego, dim)
+                if status != OK:
+                    return status
+                continue
             if mode == MODE_NEARSIDE:  # from the reference while on the ego's side, else ego
                 side = 0.0
                 for j in range(dim):
                     side += (origins[t, j] - mean[t, j]) * (ego[j] - mean[t, j])
+                if not math.isfinite(side):  # a non-finite reference or ego, or an overflow
+                    return NON_FINITE_RESULT
                 size2 = 0.0
                 for j in range(dim):
                     v = mean[t, j] - (origins[t, j] if side > 0.0 else ego[j])

@@ -14,13 +14,17 @@ take ``backend=``:
 * ``"auto"`` (the default): ``"numba"`` wherever it applies, else ``"numpy"``.
 
 The kernel covers every risk of :data:`filters.risk.RISKS`, scalar and per-step
-:math:`\epsilon`, conformal margins, given normals, the near-side normals and the
-degenerate-normal fallbacks, for disc-shaped ego and obstacles in any dimension, with
-the unbounded support :math:`\Xi = \mathbb{R}^d` (a polytope support changes only
-DR-CVaR, Proposition 1: that case, and polygon shapes, stay on the numpy path). Its
-results equal the numpy path's to rounding (about 1e-15 of the positions' scale; the
-tests hold them to 1e-12 of it): both evaluate the same closed forms in another order
-of summation. Both are deterministic: on a machine, the same data give the same bits.
+:math:`\epsilon`, conformal margins, given normals, the near-side and clearest normals
+of :mod:`filters.step_rows` and the degenerate-normal fallbacks, for disc-shaped ego and
+obstacles in any dimension, with the unbounded support :math:`\Xi = \mathbb{R}^d` (a
+polytope support changes only DR-CVaR, Proposition 1: that case, and polygon shapes,
+stay on the numpy path). Its results equal the numpy path's to rounding (about 1e-15 of
+the positions' scale; the tests hold them to 1e-12 of it): both evaluate the same closed
+forms in another order of summation. The near-side and clearest rules choose between two
+origins; at an exact tie (two origins equally far from a mean, or the near-side product
+zero) the choice follows the last bits of the sample means, so there the two paths may
+take different, equally valid, normals. Both are deterministic: on a machine, the same
+data give the same bits.
 
 numba is imported, and the kernel loaded from numba's on-disk cache, only when a
 compiled path first runs (``import filters`` stays light). The very first run on a
@@ -55,7 +59,7 @@ BACKENDS: tuple[str, ...] = ("auto", "numba", "numpy")
 
 _RISK_CODES = {"mean": 0, "cvar": 1, "dr_cvar": 2, "gaussian_cc": 3, "moment_dr": 3,
                "conformal": 4}
-_MODES = {"paper": 0, "given": 1, "nearside": 2}
+_MODES = {"paper": 0, "given": 1, "nearside": 2, "clearest": 3}
 #: Half-width of the selection band around the Gaussian guess of the CVaR's threshold,
 #: in standard errors of the sample quantile (plus a floor, in standard deviations).
 _BAND_ERRORS = 2.0
@@ -204,6 +208,7 @@ def compiled_rows(
     conformal_margins: np.ndarray | float | None = None,
     normals: str | np.ndarray = "paper",
     ego_position: np.ndarray | None = None,
+    plan: np.ndarray | None = None,
     previous_normals: np.ndarray | None = None,
     ego_velocity: np.ndarray | None = None,
     input_bounds: tuple[np.ndarray, np.ndarray] | None = None,
@@ -224,7 +229,8 @@ def compiled_rows(
         ``T``.
     origins
         ``(T, d)``: where the normals start (``"paper"``: the reference positions;
-        ``"nearside"``: the reference, while it is on the ego's side of the mean);
+        ``"nearside"``: the reference, while it is on the ego's side of the mean;
+        ``"clearest"``: the reference or the plan, whichever is farther from the mean);
         ``None`` with given normals.
     radii
         ``(k,)``: ego radius plus obstacle radius, in m (the collision margin of discs).
@@ -232,8 +238,12 @@ def compiled_rows(
         As for :func:`filters.safe_halfspaces` (``epsilon`` a float or ``(T,)``;
         margins a scalar, ``(T,)`` or ``(k, T)``).
     normals
-        ``"paper"``, ``"nearside"`` (needs ``ego_position``) or given unit normals
-        ``(k, T, d)``.
+        ``"paper"``, ``"nearside"`` (:func:`filters.step_rows.nearside_normals`; needs
+        ``ego_position``), ``"clearest"`` (:func:`filters.step_rows.clearest_normals`;
+        needs ``ego_position``, uses ``plan``) or given unit normals ``(k, T, d)``.
+    plan
+        ``"clearest"``: the last optimal plan's positions shifted by one step ``(T, d)``,
+        or ``None`` (no plan: the near-side rule after the first step).
     previous_normals, ego_velocity
         The degenerate-normal fallbacks (``"paper"`` only): ``(k, T, d)``, and ``(d,)``
         or ``(T, d)``.
@@ -253,6 +263,7 @@ def compiled_rows(
     else:
         mode, given = _MODES["given"], _floats(normals, 3)
     ego = _EMPTY_1 if ego_position is None else _floats(ego_position, 1)
+    shifted_plan = _EMPTY_2 if plan is None else _floats(plan, 2)
     previous = _EMPTY_3 if previous_normals is None else _floats(previous_normals, 3)
     velocity = _EMPTY_2 if ego_velocity is None else _floats(ego_velocity, 2)
     eps = _floats(epsilon, 1) if code == 2 else _ZERO
@@ -272,9 +283,10 @@ def compiled_rows(
         rows_normals, rows_offsets = _EMPTY_3, _EMPTY_2
     origins = _EMPTY_2 if origins is None else _floats(origins, 2)
     status = kernels.halfspace_kernel(
-        flat, horizon, dim, origins, mode, given, ego, previous, velocity, code, alpha, mass, k,
-        factor, z_guess, width, delta, eps, margins, _floats(radii, 1), start, low, high, arc,
-        disabled_offset, out_normals, out_degenerate, out_offsets, rows_normals, rows_offsets)
+        flat, horizon, dim, origins, mode, given, ego, shifted_plan, previous, velocity, code,
+        alpha, mass, k, factor, z_guess, width, delta, eps, margins, _floats(radii, 1), start,
+        low, high, arc, disabled_offset, out_normals, out_degenerate, out_offsets, rows_normals,
+        rows_offsets)
     return KernelRows(out_normals, out_degenerate, out_offsets,
                       rows_normals if start else None, rows_offsets if start else None,
                       int(status))

@@ -3,7 +3,8 @@ r"""The halfspace rows of one filter step: the safe halfspaces and the inter-sam
 :class:`filters.SafetyFilterWrapper` calls :func:`step_rows` once per control step. It
 is the composition
 
-1. (``nearside_from`` given) :func:`nearside_normals`;
+1. (``nearside_from`` given) :func:`nearside_normals`; (``clearest_from`` given)
+   :func:`clearest_normals`;
 2. :func:`filters.safe_halfspaces` (Definitions 2-3);
 3. (``input_bounds`` given) :func:`filters.intersample_rows`, the end rows tightened by
    the arc margin and the start rows along the next step's normal,
@@ -27,6 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from filters._validation import finite_array
 from filters.errors import InvalidArrayError, InvalidParameterError
 from filters.geometry import Shape
 from filters.halfspaces import Halfspaces, safe_halfspaces
@@ -35,7 +37,7 @@ from filters.kernels import check_backend, compiled_rows, kernel_applies, use_ke
 from filters.mpc.filter import DISABLED_OFFSET
 from filters.risk import check_epsilon_array, check_margins
 
-__all__ = ["StepRows", "nearside_normals", "step_rows"]
+__all__ = ["StepRows", "clearest_normals", "nearside_normals", "step_rows"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -95,6 +97,85 @@ def nearside_normals(samples: np.ndarray, reference: np.ndarray, ego: np.ndarray
                     fallback / np.maximum(fallback_size, 1e-12))
 
 
+def clearest_normals(samples: np.ndarray, reference: np.ndarray, ego: np.ndarray,
+                     plan: np.ndarray | None = None) -> np.ndarray:
+    r"""Normals from the clearer of the reference and the last plan: ``normals="clearest"``.
+
+    Any unit normal :math:`h` gives a valid safe halfspace
+    :math:`h \cdot y \le b(h)` (Definitions 2-3 hold for every direction); the
+    choice decides which plans the filter can find. With :math:`\bar p_{i,t}` the
+    sample mean of obstacle :math:`i` at step :math:`t`, the normal is
+    :math:`h_{i,t} = (\bar p_{i,t} - o_{i,t}) / \|\bar p_{i,t} - o_{i,t}\|`, with the
+    origin
+
+    * :math:`o_{i,1} = y_0`, the current position, at the first step: the direction in
+      which the next position gets clear of the obstacle fastest (a plan's first
+      position lies within :math:`T_s \|v\| + T_s^2 u_{max}/2` of :math:`y_0`);
+    * for :math:`t \ge 2`, with :math:`\hat y_t` the last optimal plan shifted by one
+      step: :math:`o_{i,t} = y^r_t` (the reference, the paper's choice) if
+      :math:`\|\bar p_{i,t} - y^r_t\| \ge \|\bar p_{i,t} - \hat y_t\|`, else
+      :math:`\hat y_t`: the clearer of the two. A point :math:`z` as far from
+      :math:`\bar p` as the halfspace's margin satisfies the halfspace whose normal
+      starts at :math:`z` (:math:`h \cdot (\bar p - z) = \|\bar p - z\|`). Where the
+      plan's normal is taken, the shifted plan (which met last step's rows) meets it
+      again up to the change of the predictions, and the normal cannot flip where the
+      reference runs through the obstacle, since the plan does not; where the
+      reference's normal is taken, the reference meets its own row whenever the plan
+      met its. This makes infeasible steps rarer; it is no guarantee of recursive
+      feasibility (the first-step normal, the inter-sample rows and the reference's
+      normals may still cut the shifted plan off);
+    * without a plan (``plan=None``: the first step of an episode, or after a step
+      that was not optimal, whose plan may pass through an obstacle), the
+      ``"nearside"`` rule for :math:`t \ge 2`.
+
+    A direction of length at most 1e-9 (an origin on the mean) falls back to the one
+    from :math:`y_0`, and where :math:`y_0` is on the mean too, to the first axis.
+    This is the numpy reference of ``step_rows(..., clearest_from=ego,
+    clearest_plan=plan)``, whose compiled kernel computes the same normals.
+
+    Parameters
+    ----------
+    samples
+        Prediction samples ``(k, N_s, T, d)``, in m.
+    reference
+        Reference positions :math:`y^r_1..y^r_T`, ``(T, d)``.
+    ego
+        Current position :math:`y_0`, ``(d,)``.
+    plan
+        The last optimal plan's positions shifted by one step and re-anchored at
+        :math:`y_0` (:math:`\hat y_1..\hat y_T`, ``(T, d)``), or ``None``.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(k, T, d)`` unit normals.
+    """
+    means = samples.mean(axis=1)  # (k, T, d)
+    if plan is None:
+        normals = nearside_normals(samples, reference, ego)
+    else:
+        to_reference = means - reference[None]
+        to_plan = means - plan[None]
+        d_reference = np.sqrt(np.add.reduce(to_reference * to_reference, axis=-1))
+        d_plan = np.sqrt(np.add.reduce(to_plan * to_plan, axis=-1))
+        use_reference = (d_reference >= d_plan)[..., None]
+        diff = np.where(use_reference, to_reference, to_plan)
+        size = np.where(use_reference, d_reference[..., None], d_plan[..., None])
+        normals = diff / np.maximum(size, 1e-12)
+        normals = np.where(size > 1e-9, normals, 0.0)
+    from_ego = means - ego[None, None]  # (k, T, d)
+    ego_size = np.sqrt(np.add.reduce(from_ego * from_ego, axis=-1, keepdims=True))
+    ego_normals = np.where(ego_size > 1e-9, from_ego / np.maximum(ego_size, 1e-12), 0.0)
+    normals[:, 0] = ego_normals[:, 0]
+    degenerate = np.sqrt(np.add.reduce(normals * normals, axis=-1, keepdims=True)) < 0.5
+    if degenerate.any():  # an origin on the mean: the direction from the ego, else an axis
+        axis = np.zeros(means.shape[-1])
+        axis[0] = 1.0
+        fallback = np.where(ego_size > 1e-9, ego_normals, axis)
+        normals = np.where(degenerate, fallback, normals)
+    return normals
+
+
 def step_rows(
     origins: np.ndarray,
     samples: np.ndarray,
@@ -111,6 +192,8 @@ def step_rows(
     previous_normals: np.ndarray | None = None,
     ego_velocity: np.ndarray | None = None,
     nearside_from: np.ndarray | None = None,
+    clearest_from: np.ndarray | None = None,
+    clearest_plan: np.ndarray | None = None,
     normals: np.ndarray | None = None,
     input_bounds: tuple[np.ndarray, np.ndarray] | None = None,
     dt: float = 0.0,
@@ -136,9 +219,13 @@ def step_rows(
     nearside_from
         The current ego position ``(d,)``: use :func:`nearside_normals` (from
         ``origins`` while on the ego's side of the obstacle, else from here).
+    clearest_from, clearest_plan
+        The current ego position ``(d,)`` and the last optimal plan's positions shifted
+        by one step ``(T, d)`` (or ``None``: no plan): use :func:`clearest_normals`
+        (``origins`` are the reference positions), the wrapper's ``normals="clearest"``.
     normals
-        Given unit normals ``(k, T, d)`` (e.g. the wrapper's ``normals="clearest"``);
-        ``origins`` then only fixes the shapes. Not together with ``nearside_from``.
+        Given unit normals ``(k, T, d)``; ``origins`` then only fix the shapes. At most
+        one of ``nearside_from``, ``clearest_from`` and ``normals``.
     input_bounds, dt
         The ego's input box ``(low, high)`` in m/s² and the sampling time in s: add
         the inter-sample rows of :func:`filters.intersample_rows`.
@@ -148,12 +235,20 @@ def step_rows(
     Raises
     ------
     InvalidArrayError
-        If the samples hold NaN or infinite values (named by index), or an array has
-        the wrong shape; the errors of :func:`filters.safe_halfspaces` otherwise.
+        If the samples, ``clearest_from`` or ``clearest_plan`` hold NaN or infinite
+        values (named by index), or an array has the wrong shape; the errors of
+        :func:`filters.safe_halfspaces` otherwise.
+    InvalidParameterError
+        If more than one of ``nearside_from``, ``clearest_from`` and ``normals`` is
+        given, or ``clearest_plan`` without ``clearest_from``.
     """
     backend = check_backend(backend)
-    if nearside_from is not None and normals is not None:
-        raise InvalidParameterError("step_rows: give nearside_from or normals, not both")
+    if (nearside_from is not None) + (clearest_from is not None) + (normals is not None) > 1:
+        raise InvalidParameterError(
+            "step_rows: give at most one of nearside_from, clearest_from and normals")
+    if clearest_plan is not None and clearest_from is None:
+        raise InvalidParameterError("step_rows: clearest_plan needs clearest_from (the ego "
+                                    "position)")
     if (type(samples) is np.ndarray and samples.ndim == 4 and samples.shape[0]
             and samples.shape[2] >= horizon and type(origins) is np.ndarray
             and origins.shape == (horizon, samples.shape[3]) and samples.shape[1]
@@ -162,17 +257,20 @@ def step_rows(
                            and kernel_applies(ego_shape, obstacle_shapes, None, risk))):
         rows = _compiled(origins, samples, horizon, ego_shape, obstacle_shapes, risk, alpha,
                          delta, epsilon, conformal_margins, previous_normals, ego_velocity,
-                         nearside_from, normals, input_bounds, dt)
+                         nearside_from, clearest_from, clearest_plan, normals, input_bounds,
+                         dt)
         if rows is not None:
             return rows
     return _reference(origins, samples, horizon, ego_shape, obstacle_shapes, risk, alpha,
                       delta, epsilon, conformal_margins, support, previous_normals,
-                      ego_velocity, nearside_from, normals, input_bounds, dt)
+                      ego_velocity, nearside_from, clearest_from, clearest_plan, normals,
+                      input_bounds, dt)
 
 
 def _reference(origins, samples, horizon, ego_shape, obstacle_shapes, risk, alpha, delta,
                epsilon, conformal_margins, support, previous_normals, ego_velocity,
-               nearside_from, normals, input_bounds, dt) -> StepRows:
+               nearside_from, clearest_from, clearest_plan, normals, input_bounds,
+               dt) -> StepRows:
     """The numpy composition (see the module docstring)."""
     samples = np.asarray(samples, dtype=np.float64)
     if samples.ndim != 4 or samples.shape[2] < horizon:
@@ -191,6 +289,12 @@ def _reference(origins, samples, horizon, ego_shape, obstacle_shapes, risk, alph
     if nearside_from is not None and samples.shape[0]:
         given = nearside_normals(samples, np.asarray(origins, dtype=np.float64),
                                  np.asarray(nearside_from, dtype=np.float64))
+    if clearest_from is not None and samples.shape[0]:
+        dim = samples.shape[3]
+        ego = finite_array("clearest_from", clearest_from, shape=(dim,))
+        plan = (None if clearest_plan is None
+                else finite_array("clearest_plan", clearest_plan, shape=(horizon, dim)))
+        given = clearest_normals(samples, np.asarray(origins, dtype=np.float64), ego, plan)
     halfspaces = safe_halfspaces(
         origins, samples, ego_shape=ego_shape, obstacle_shapes=obstacle_shapes,
         support=support, previous_normals=previous_normals, ego_velocity=ego_velocity,
@@ -205,7 +309,7 @@ def _reference(origins, samples, horizon, ego_shape, obstacle_shapes, risk, alph
 
 def _compiled(origins, samples, horizon, ego_shape, obstacle_shapes, risk, alpha, delta,
               epsilon, conformal_margins, previous_normals, ego_velocity, nearside_from,
-              normals, input_bounds, dt) -> StepRows | None:
+              clearest_from, clearest_plan, normals, input_bounds, dt) -> StepRows | None:
     """The kernel path; ``None`` when an argument has an unexpected shape or the kernel
     reports a problem (the numpy path then runs and names it). The kernel does not
     check indices: every array it reads is checked here or in :func:`compiled_rows`."""
@@ -214,6 +318,8 @@ def _compiled(origins, samples, horizon, ego_shape, obstacle_shapes, risk, alpha
             or (ego_velocity is not None
                 and np.shape(ego_velocity) not in ((dim,), (horizon, dim)))
             or (nearside_from is not None and np.shape(nearside_from) != (dim,))
+            or (clearest_from is not None and np.shape(clearest_from) != (dim,))
+            or (clearest_plan is not None and np.shape(clearest_plan) != (horizon, dim))
             or (normals is not None and np.shape(normals) != (k, horizon, dim))
             or (input_bounds is not None
                 and not all(np.shape(b) in ((), (1,), (dim,)) for b in input_bounds))
@@ -226,12 +332,16 @@ def _compiled(origins, samples, horizon, ego_shape, obstacle_shapes, risk, alpha
         margins = check_margins(conformal_margins, (k, horizon))
     radii = np.array([shape.radius for shape in obstacle_shapes], dtype=np.float64)
     radii += ego_shape.radius
+    if nearside_from is not None:
+        mode, ego = "nearside", nearside_from
+    elif clearest_from is not None:
+        mode, ego = "clearest", clearest_from
+    else:
+        mode, ego = ("paper" if normals is None else normals), None
     out = compiled_rows(
         samples, horizon, origins, radii=radii, risk=risk, alpha=alpha, delta=delta,
-        epsilon=epsilon, conformal_margins=margins,
-        normals=(normals if normals is not None
-                 else "paper" if nearside_from is None else "nearside"),
-        ego_position=nearside_from,
+        epsilon=epsilon, conformal_margins=margins, normals=mode, ego_position=ego,
+        plan=clearest_plan,
         previous_normals=previous_normals, ego_velocity=ego_velocity,
         input_bounds=input_bounds, dt=dt, disabled_offset=DISABLED_OFFSET)
     if out.status != 0:

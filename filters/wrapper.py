@@ -42,7 +42,8 @@ from filters.references import (
 )
 from filters.risk import CHANCE_RISKS, check_alpha, check_epsilon, check_risk
 from filters.risk import RISKS as _METRICS
-from filters.step_rows import nearside_normals, step_rows
+from filters.step_rows import clearest_normals as clearest_normals  # re-exported
+from filters.step_rows import step_rows
 
 RISKS: tuple[str, ...] = ("none", *_METRICS)
 """Risk settings accepted by :class:`SafetyFilterWrapper` (``"none"``: pass-through)."""
@@ -296,7 +297,7 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         reference and the last optimal plan is farther from the obstacle, so that the
         normals follow the plan where the reference runs through an obstacle and do not
         flip; ``"nearside"`` while there is no optimal plan; see
-        :func:`clearest_normals`).
+        :func:`filters.step_rows.clearest_normals`).
     fallback
         ``"soft"`` (default): when the hard QP is infeasible, the exact-penalty QP with
         halfspace and arena rows softened (it equals the hard solution whenever that is
@@ -750,13 +751,12 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             return _shifted_positions(plan @ self._base.dynamics[2].T, y0)
         return ref_positions
 
-    def _clearest_normals(self, samples: np.ndarray, reference: np.ndarray,
-                          y0: np.ndarray) -> np.ndarray:
-        """The ``normals="clearest"`` normals ``(k, T, d)`` (see :func:`clearest_normals`)."""
-        plan = None
-        if self._last_plan is not None and self._plan_optimal:
-            plan = _shifted_positions(self._last_plan @ self._base.dynamics[2].T, y0)
-        return clearest_normals(samples, reference, y0, plan)
+    def _clearest_plan(self, y0: np.ndarray) -> np.ndarray | None:
+        """The last plan's positions shifted to start at ``y0`` ``(T, d)``, if that step
+        was optimal, else ``None`` (the plan of ``normals="clearest"``)."""
+        if self._last_plan is None or not self._plan_optimal:
+            return None
+        return _shifted_positions(self._last_plan @ self._base.dynamics[2].T, y0)
 
     def _halfspaces(
         self, base: FilterableEnv, x0: np.ndarray, ref_states: np.ndarray, radii: np.ndarray
@@ -777,14 +777,14 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         C = base.dynamics[2]
         y0 = C @ x0
         origins = self._normal_origins(y0, ref_states[1:, :] @ C.T)
-        given = None
-        if self.normals == "clearest" and len(radii):
-            given = self._clearest_normals(predictions[:, :, : self.horizon], origins, y0)
+        clearest = self.normals == "clearest"
         rows = step_rows(
             origins, predictions,
             horizon=self.horizon, ego_shape=ego_shape, obstacle_shapes=obstacle_shapes,
             support=self.support, previous_normals=previous, ego_velocity=x0[2:],
-            nearside_from=y0 if self.normals == "nearside" else None, normals=given,
+            nearside_from=y0 if self.normals == "nearside" else None,
+            clearest_from=y0 if clearest else None,
+            clearest_plan=self._clearest_plan(y0) if clearest else None,
             input_bounds=base.input_bounds if self.intersample else None,
             dt=float(base.dt), **self._risk_options(),
         )
@@ -817,81 +817,6 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                                 reuse=self._halfspace_lines)
         if drawn is not None:
             self._halfspace_lines = drawn
-
-
-def clearest_normals(samples: np.ndarray, reference: np.ndarray, ego: np.ndarray,
-                     plan: np.ndarray | None = None) -> np.ndarray:
-    r"""Normals from the clearer of the reference and the last plan: ``normals="clearest"``.
-
-    Any unit normal :math:`h` gives a valid safe halfspace
-    :math:`h \cdot y \le b(h)` (Definitions 2-3 hold for every direction); the
-    choice decides which plans the filter can find. With :math:`\bar p_{i,t}` the
-    sample mean of obstacle :math:`i` at step :math:`t`, the normal is
-    :math:`h_{i,t} = (\bar p_{i,t} - o_{i,t}) / \|\bar p_{i,t} - o_{i,t}\|`, with the
-    origin
-
-    * :math:`o_{i,1} = y_0`, the current position, at the first step: the direction in
-      which the next position gets clear of the obstacle fastest (a plan's first
-      position lies within :math:`T_s \|v\| + T_s^2 u_{max}/2` of :math:`y_0`);
-    * for :math:`t \ge 2`, with :math:`\hat y_t` the last optimal plan shifted by one
-      step: :math:`o_{i,t} = y^r_t` (the reference, the paper's choice) if
-      :math:`\|\bar p_{i,t} - y^r_t\| \ge \|\bar p_{i,t} - \hat y_t\|`, else
-      :math:`\hat y_t`: the clearer of the two. A point :math:`z` as far from
-      :math:`\bar p` as the halfspace's margin satisfies the halfspace whose normal
-      starts at :math:`z` (:math:`h \cdot (\bar p - z) = \|\bar p - z\|`). Where the
-      plan's normal is taken, the shifted plan (which met last step's rows) meets it
-      again up to the change of the predictions, and the normal cannot flip where the
-      reference runs through the obstacle, since the plan does not; where the
-      reference's normal is taken, the reference meets its own row whenever the plan
-      met its. This makes infeasible steps rarer; it is no guarantee of recursive
-      feasibility (the first-step normal, the inter-sample rows and the reference's
-      normals may still cut the shifted plan off);
-    * without a plan (``plan=None``: the first step of an episode, or after a step
-      that was not optimal, whose plan may pass through an obstacle), the
-      ``"nearside"`` rule for :math:`t \ge 2`.
-
-    Parameters
-    ----------
-    samples
-        Prediction samples ``(k, N_s, T, d)``, in m.
-    reference
-        Reference positions :math:`y^r_1..y^r_T`, ``(T, d)``.
-    ego
-        Current position :math:`y_0`, ``(d,)``.
-    plan
-        The last optimal plan's positions shifted by one step and re-anchored at
-        :math:`y_0` (:math:`\hat y_1..\hat y_T`, ``(T, d)``), or ``None``.
-
-    Returns
-    -------
-    numpy.ndarray
-        ``(k, T, d)`` unit normals (a degenerate direction falls back to the one from
-        :math:`y_0`, as in the ``"nearside"`` rule).
-    """
-    means = samples.mean(axis=1)  # (k, T, d)
-    if plan is None:
-        normals = nearside_normals(samples, reference, ego)
-    else:
-        to_reference = means - reference[None]
-        to_plan = means - plan[None]
-        d_reference = np.sqrt(np.add.reduce(to_reference * to_reference, axis=-1))
-        d_plan = np.sqrt(np.add.reduce(to_plan * to_plan, axis=-1))
-        use_reference = (d_reference >= d_plan)[..., None]
-        diff = np.where(use_reference, to_reference, to_plan)
-        size = np.where(use_reference, d_reference[..., None], d_plan[..., None])
-        normals = diff / np.maximum(size, 1e-12)
-        normals = np.where(size > 1e-9, normals, 0.0)
-    from_ego = means - ego[None, None]  # (k, T, d)
-    ego_size = np.sqrt(np.add.reduce(from_ego * from_ego, axis=-1, keepdims=True))
-    ego_normals = np.where(ego_size > 1e-9, from_ego / np.maximum(ego_size, 1e-12), 0.0)
-    normals[:, 0] = ego_normals[:, 0]
-    degenerate = np.sqrt(np.add.reduce(normals * normals, axis=-1, keepdims=True)) < 0.5
-    if degenerate.any():  # an origin on the mean: the direction from the ego, else an axis
-        axis = np.zeros(means.shape[-1])
-        axis[0] = 1.0
-        fallback = np.where(ego_size > 1e-9, ego_normals, axis)
-        normals = np.where(degenerate, fallback, normals)
-    return normals
 
 
 def _shifted_positions(positions: np.ndarray, y0: np.ndarray) -> np.ndarray:

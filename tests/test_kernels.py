@@ -22,7 +22,7 @@ from filters.geometry import ConvexPolygon
 from filters.halfspaces import offsets_along
 from filters.kernels import compiled_rows
 from filters.risk import RISKS, empirical_cvar
-from filters.step_rows import step_rows
+from filters.step_rows import clearest_normals, step_rows
 
 TOL = 1e-12
 LOW, HIGH = np.full(2, -10.0), np.full(2, 10.0)
@@ -340,8 +340,118 @@ def test_step_rows_with_given_normals_kernel_equals_numpy(intersample):
     slow = step_rows(reference[:horizon], samples, backend="numpy", **kwargs)
     assert close(fast.normals, slow.normals) and close(fast.offsets, slow.offsets, 4.0)
     assert close(fast.halfspaces.normals, given)
-    with pytest.raises(InvalidParameterError, match="not both"):
+    with pytest.raises(InvalidParameterError, match="at most one"):
         step_rows(reference[:horizon], samples, nearside_from=np.zeros(2), **kwargs)
+
+
+def _clearest_instance(rng: np.random.Generator, plan: bool, horizon: int = 10):
+    """Three obstacles, and the clearest rule's degenerate cases placed on purpose:
+
+    * obstacle 0, step 2: the reference (and the plan) on the sample mean, so the
+      direction falls back to the one from the ego;
+    * obstacle 1, step 3 and obstacle 2, step 0: the ego exactly on the mean (dyadic
+      samples, whose means both paths compute exactly), so the direction from the ego
+      is degenerate too and the first axis is taken (at step 3 only without a plan: the
+      near-side rule from the ego; with a plan the reference or the plan is the origin).
+    """
+    n = 3
+    reference, samples = instance(rng, n, 100, horizon + 3, spread=0.3)
+    reference = reference[:horizon]
+    shift = rng.uniform(-4.0, 4.0, (horizon, 2))
+    path = reference + shift if plan else None
+    samples[0, :, 2] += reference[2] - samples[0, :, 2].mean(axis=0)
+    if plan:
+        path[2] = reference[2]
+    ego = np.array([0.75, -1.25])
+    around = np.stack([np.resize([0.125, -0.125], 100), np.resize([0.25, 0.25, -0.25, -0.25],
+                                                                   100)], axis=-1)
+    samples[1, :, 3] = ego + around
+    samples[2, :, 0] = ego - around
+    return reference, samples, ego, path
+
+
+@pytest.mark.parametrize("risk", RISKS)
+@pytest.mark.parametrize("plan", [False, True])
+@pytest.mark.parametrize("intersample", [False, True])
+def test_step_rows_clearest_kernel_equals_the_numpy_composition(risk, plan, intersample):
+    """normals="clearest" computed in the kernel against clearest_normals, safe_halfspaces
+    and intersample_rows in numpy, with and without a plan, degenerate steps included (the
+    paper's fallbacks, previous normals and ego velocity, are not used by this rule)."""
+    rng = np.random.default_rng(20)
+    n, horizon = 3, 10
+    reference, samples, ego, path = _clearest_instance(rng, plan, horizon)
+    kwargs = dict(horizon=horizon, ego_shape=Disc(0.3),
+                  obstacle_shapes=[Disc(0.3), Disc(0.5), Disc(0.1)],
+                  previous_normals=rng.standard_normal((n, horizon, 2)),
+                  ego_velocity=np.array([1.5, 0.2]), clearest_from=ego, clearest_plan=path,
+                  input_bounds=(LOW, HIGH) if intersample else None, dt=0.2,
+                  **options_for(risk, rng, horizon, n))
+    if risk == "dr_cvar":
+        kwargs["epsilon"] = np.linspace(0.01, 0.1, horizon)
+    fast = step_rows(reference, samples, backend="numba", **kwargs)
+    slow = step_rows(reference, samples, backend="numpy", **kwargs)
+    assert close(fast.normals, slow.normals) and close(fast.offsets, slow.offsets, 4.0)
+    assert close(fast.halfspaces.offsets, slow.halfspaces.offsets, 4.0)
+    assert not fast.halfspaces.degenerate.any() and not slow.halfspaces.degenerate.any()
+    expected = clearest_normals(samples[:, :, :horizon], reference, ego, path)
+    assert close(fast.halfspaces.normals, expected)
+    assert fast.normals.shape == (2 * n if intersample else n, horizon, 2)
+    # the degenerate cases were reached: the ego's direction, and the first axis
+    from_ego = samples[0, :, 2].mean(axis=0) - ego
+    assert close(fast.halfspaces.normals[0, 2], from_ego / np.linalg.norm(from_ego))
+    assert np.array_equal(fast.halfspaces.normals[2, 0], [1.0, 0.0])
+    if not plan:
+        assert np.array_equal(fast.halfspaces.normals[1, 3], [1.0, 0.0])
+
+
+def test_clearest_ties_go_to_the_reference_and_to_the_ego_as_in_numpy():
+    """Exact ties, with sample means that both paths compute exactly: the reference as far
+    from the mean as the plan (taken: ``>=``), and the reference orthogonal to the ego's
+    side of the mean (near-side rule: not ``> 0``, so from the ego). Where the means are
+    not exact, a tie is decided by their last bits (see the property tests)."""
+    pattern = np.array([[0.25, 0.0], [-0.25, 0.0], [0.0, 0.125], [0.0, -0.125]])
+    means = np.array([[-1.0, 0.5], [1.0, 0.5], [1.0, 0.0]])  # steps 0, 1, 2
+    samples = (means[None, :, :] + pattern[:, None, :])[None]  # (1, 4, 3, 2)
+    reference = np.array([[0.0, 2.0], [1.75, 1.0], [1.0, 0.75]])
+    plan = np.array([[2.0, 2.0], [0.25, 1.0], [3.0, 3.0]])
+    ego = np.zeros(2)
+    for path, step, origin in ((plan, 1, reference[1]), (None, 2, ego)):
+        out = compiled_rows(samples, 3, reference, radii=np.full(1, 0.6), risk="mean",
+                            alpha=0.2, delta=0.1, epsilon=0.05, normals="clearest",
+                            ego_position=ego, plan=path)
+        expected = clearest_normals(samples, reference, ego, path)
+        direction = means[step] - origin
+        assert np.allclose(expected[0, step], direction / np.linalg.norm(direction),
+                           rtol=0.0, atol=1e-15)
+        assert out.status == 0 and close(out.normals, expected)
+
+
+def test_clearest_kernel_equals_clearest_normals_on_random_instances():
+    """Many random instances (dimension 2 and 3, plans near the reference so that either
+    origin is chosen, origins near the means): the kernel's normals are clearest_normals'."""
+    rng = np.random.default_rng(21)
+    chosen = {True: 0, False: 0}
+    for trial in range(200):
+        dim = 2 if trial % 4 else 3
+        n, horizon = int(rng.integers(1, 5)), int(rng.integers(1, 12))
+        reference, samples = instance(rng, n, int(rng.integers(1, 60)), horizon, dim=dim,
+                                      spread=float(rng.uniform(0.01, 1.0)))
+        ego = rng.uniform(-4.0, 4.0, dim)
+        plan = None
+        if trial % 3:
+            plan = reference + rng.normal(0.0, 1.0, (horizon, dim))
+            means = samples.mean(axis=1)
+            chosen[True] += int(np.sum(np.linalg.norm(means - reference, axis=-1)
+                                       >= np.linalg.norm(means - plan, axis=-1)))
+            chosen[False] += int(np.sum(np.linalg.norm(means - reference, axis=-1)
+                                        < np.linalg.norm(means - plan, axis=-1)))
+        out = compiled_rows(samples, horizon, reference, radii=np.full(n, 0.6), risk="cvar",
+                            alpha=0.2, delta=0.1, epsilon=0.05, normals="clearest",
+                            ego_position=ego, plan=plan)
+        assert out.status == 0
+        assert close(out.normals, clearest_normals(samples, reference, ego, plan))
+        assert close(np.linalg.norm(out.normals, axis=-1), np.ones((n, horizon)))
+    assert chosen[True] > 100 and chosen[False] > 100
 
 
 def test_step_rows_with_one_step_and_one_sample():
@@ -385,14 +495,46 @@ def test_bad_samples_raise_the_same_named_errors():
                             obstacle_shapes=[Disc(0.3)] * 2, backend=backend)
 
 
-def test_non_finite_reference_in_the_lean_path_is_named():
+@pytest.mark.parametrize("normals", [{}, {"nearside_from": np.array([0.5, 0.2])},
+                                     {"clearest_from": np.array([0.5, 0.2])},
+                                     {"clearest_from": np.array([0.5, 0.2]),
+                                      "clearest_plan": np.zeros((4, 2))}])
+def test_non_finite_reference_in_the_lean_path_is_named(normals):
     rng = np.random.default_rng(13)
     reference, samples = instance(rng, 2, 10, 4)
     reference[2, 1] = np.nan
-    with pytest.raises(InvalidArrayError, match="reference_positions"):
-        step_rows(reference, samples, horizon=4, ego_shape=Disc(0.3),
-                  obstacle_shapes=[Disc(0.3)] * 2, risk="cvar", alpha=0.2, delta=0.1,
-                  epsilon=0.05, backend="numba")
+    for backend in ("numba", "numpy"):
+        with pytest.raises(InvalidArrayError, match="reference_positions"):
+            step_rows(reference, samples, horizon=4, ego_shape=Disc(0.3),
+                      obstacle_shapes=[Disc(0.3)] * 2, risk="cvar", alpha=0.2, delta=0.1,
+                      epsilon=0.05, backend=backend, **normals)
+
+
+def test_clearest_arguments_are_checked():
+    """Bad ego positions and plans: named errors on both paths, never a silent normal."""
+    rng = np.random.default_rng(17)
+    reference, samples = instance(rng, 2, 10, 4)
+    kwargs = dict(horizon=4, ego_shape=Disc(0.3), obstacle_shapes=[Disc(0.3)] * 2,
+                  risk="cvar", alpha=0.2, delta=0.1, epsilon=0.05)
+    ego, plan = np.array([0.5, 0.2]), np.zeros((4, 2))
+    bad_ego, bad_plan = ego.copy(), plan.copy()
+    bad_ego[1] = np.nan
+    bad_plan[3, 0] = np.inf
+    for backend in ("numba", "numpy"):
+        for bad, match in (
+                (dict(clearest_from=np.ones(3)), r"clearest_from must have shape \(2,\)"),
+                (dict(clearest_from=ego, clearest_plan=np.ones((3, 2))),
+                 r"clearest_plan must have shape \(4, 2\)"),
+                (dict(clearest_from=bad_ego), r"clearest_from must be finite.*\(1,\)"),
+                (dict(clearest_from=bad_ego, clearest_plan=plan), "clearest_from"),
+                (dict(clearest_from=ego, clearest_plan=bad_plan),
+                 r"clearest_plan must be finite.*\(3, 0\)")):
+            with pytest.raises(InvalidArrayError, match=match):
+                step_rows(reference, samples, backend=backend, **bad, **kwargs)
+        for bad in (dict(clearest_plan=plan), dict(clearest_from=ego, nearside_from=ego),
+                    dict(clearest_from=ego, normals=np.ones((2, 4, 2)))):
+            with pytest.raises(InvalidParameterError):
+                step_rows(reference, samples, backend=backend, **bad, **kwargs)
 
 
 def test_step_rows_checks_every_shape_before_the_kernel():

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import hypothesis.extra.numpy as hnp
 import numpy as np
-from hypothesis import given
+from hypothesis import assume, given
 from hypothesis import strategies as st
 
 from filters.geometry import Disc
@@ -27,6 +27,21 @@ def instances(draw):
     samples = draw(hnp.arrays(np.float64, (n, n_samples, horizon, 2), elements=elements))
     reference = draw(hnp.arrays(np.float64, (horizon, 2), elements=grid))
     return reference, samples
+
+
+def choice_is_a_tie(samples, reference, ego, plan, first: int) -> bool:
+    """Whether the near-side or clearest rule meets a tie (to 1e-10) at a step ``>= first``:
+    the reference and the ego on orthogonal sides of a mean, or the reference and the plan
+    equally far from it. There the choice follows the last bits of the sample means,
+    which the two paths sum in another order; both choices are the rule's."""
+    means = samples.mean(axis=1)[:, first:]
+    reference = reference[first:]
+    if plan is not None:
+        gap = (np.linalg.norm(means - reference, axis=-1)
+               - np.linalg.norm(means - plan[first:], axis=-1))
+    else:
+        gap = np.einsum("ktd,ktd->kt", reference - means, ego - means)
+    return bool(np.any(np.abs(gap) < 1e-10))
 
 
 def agree(a: np.ndarray, b: np.ndarray) -> bool:
@@ -53,15 +68,26 @@ def test_kernel_equals_numpy(instance, risk, alpha, delta, epsilon, integral):
 
 
 @given(instance=instances(), risk=st.sampled_from(["cvar", "dr_cvar", "mean", "moment_dr"]),
-       nearside=st.booleans())
-def test_step_rows_kernel_equals_numpy(instance, risk, nearside):
+       normals=st.sampled_from(["paper", "nearside", "clearest", "clearest_plan"]),
+       data=st.data())
+def test_step_rows_kernel_equals_numpy(instance, risk, normals, data):
     reference, samples = instance
     n, _, horizon, _ = samples.shape
     ego = np.array([-3.5, 0.25])
+    mode: dict = {}
+    if normals == "nearside":
+        mode = dict(nearside_from=ego)
+        assume(not choice_is_a_tie(samples, reference, ego, None, 0))
+    elif normals.startswith("clearest"):  # on the grid too: the ego or the plan on a mean
+        ego = data.draw(hnp.arrays(np.float64, (2,), elements=grid))
+        mode = dict(clearest_from=ego)
+        if normals == "clearest_plan":
+            mode["clearest_plan"] = data.draw(hnp.arrays(np.float64, (horizon, 2),
+                                                         elements=grid))
+        assume(not choice_is_a_tie(samples, reference, ego, mode.get("clearest_plan"), 1))
     kwargs = dict(horizon=horizon, ego_shape=DISC, obstacle_shapes=[DISC] * n, risk=risk,
                   alpha=0.2, delta=0.1, epsilon=0.05, ego_velocity=np.array([1.5, 0.0]),
-                  nearside_from=ego if nearside else None,
-                  input_bounds=(np.full(2, -10.0), np.full(2, 10.0)), dt=0.2)
+                  input_bounds=(np.full(2, -10.0), np.full(2, 10.0)), dt=0.2, **mode)
     try:
         slow = step_rows(reference, samples, backend="numpy", **kwargs)
     except ValueError as error:  # e.g. a zero near-side normal: both raise the same
