@@ -31,7 +31,9 @@ from filters.calibration import OnlineCalibration
 from filters.errors import InvalidParameterError, InvalidTypeError
 from filters.geometry import Disc
 from filters.halfspaces import Halfspaces
+from filters.kernels import WrapperRows, kernels_available
 from filters.mpc import FilterResult, FilterStatus, MPCSafetyFilter
+from filters.mpc.filter import DISABLED_OFFSET
 from filters.mpc.terminal import stopping_terminal_set
 from filters.protocol import FilterableEnv
 from filters.references import (
@@ -527,6 +529,13 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._hook: Callable[[Any], None] | None = None
         self._halfspace_lines: Any = None  # the hook's line collection, reused per frame
         self._shape_cache: tuple[tuple, Disc, list[Disc]] | None = None
+        # The prepared per-step kernels: the held-action reference's constants, and the
+        # rows kernel (built per set of obstacle radii) where the settings allow it.
+        self._hold = (self._prepared_hold() if self.risk != "none"
+                      and self.reference is hold_action_reference else None)
+        self._fast_rows = (self.risk not in ("none", "conformal") and self.epsilon != "auto"
+                           and support is None and kernels_available())
+        self._rows_cache: tuple[tuple, WrapperRows | None] | None = None
         if self.risk != "none":  # builds (and so validates) the weights and bounds now
             self._mpc = self._build_filter(max(1, len(np.asarray(base.obstacle_radii))))
         if self._calibration is not None:
@@ -540,6 +549,23 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     def rows_per_obstacle(self) -> int:
         """Halfspace rows per obstacle and step: 2 with the inter-sample rows, else 1."""
         return 2 if self.intersample else 1
+
+    def _prepared_hold(self) -> tuple | None:
+        """``(x0 shape, action shape, kernel, low, high, A, B)`` of the held-action reference,
+        checked once (:func:`filters.references.hold_action_reference` checks them every
+        call), or ``None`` if they do not fit together (that function then raises)."""
+        base = self._base
+        A, B, _ = base.dynamics
+        A, B = np.ascontiguousarray(A, dtype=np.float64), np.ascontiguousarray(B, dtype=np.float64)
+        low, high = (np.ascontiguousarray(b, dtype=np.float64) for b in base.input_bounds)
+        if B.ndim != 2:
+            return None
+        n, m = B.shape
+        if A.shape != (n, n) or low.shape != (m,) or high.shape != (m,):
+            return None
+        from filters._reference_kernels import hold  # numba: imported on first use only
+
+        return (n,), (m,), hold, low, high, A, B
 
     def _build_filter(self, n_obstacles: int) -> MPCSafetyFilter:
         base = self._base
@@ -696,7 +722,11 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         try:
             if not finite:
                 raise InvalidParameterError(f"the proposed action is not finite: {proposed}")
-            ref_states, ref_inputs = self.reference(base, proposed, self.horizon)
+            hold = self._hold
+            if hold is not None and x0.shape == hold[0] and proposed.shape == hold[1]:
+                ref_states, ref_inputs = hold[2](x0, proposed, *hold[3:], self.horizon)
+            else:
+                ref_states, ref_inputs = self.reference(base, proposed, self.horizon)
             start = time.perf_counter()
             halfspaces, rows = self._halfspaces(base, x0, ref_states, radii)
             middle = time.perf_counter()
@@ -762,6 +792,22 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self, base: FilterableEnv, x0: np.ndarray, ref_states: np.ndarray, radii: np.ndarray
     ) -> tuple[Halfspaces, tuple[np.ndarray, np.ndarray]]:
         predictions = np.asarray(base.predictions, dtype=float)
+        prepared = self._prepared_rows(float(base.ego_radius), radii, predictions)
+        if prepared is not None:
+            previous = self._previous_normals
+            if previous is not None and previous.shape[0] != len(radii):
+                previous = None
+            plan = self._last_plan if (self.normals == "previous_plan" or (
+                self.normals == "clearest" and self._plan_optimal)) else None
+            out = prepared(predictions, x0, ref_states, base.dynamics[2], plan, previous)
+            if out is not None and out.status == 0:
+                halfspaces = Halfspaces(out.normals, out.offsets, self.risk, self.alpha,
+                                        self.delta, self.epsilon, out.degenerate)
+                if out.rows_normals is None:
+                    return halfspaces, (out.normals, out.offsets)
+                return halfspaces, (out.rows_normals, out.rows_offsets)
+        # the general call (other settings, or a problem the kernel reported: the numpy
+        # path names it)
         if predictions.shape[2] < self.horizon:
             raise InvalidParameterError(
                 f"the filter horizon {self.horizon} exceeds the prediction horizon "
@@ -789,6 +835,31 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             dt=float(base.dt), **self._risk_options(),
         )
         return rows.halfspaces, (rows.normals, rows.offsets)
+
+    def _prepared_rows(self, ego_radius: float, radii: np.ndarray,
+                       predictions: np.ndarray) -> WrapperRows | None:
+        """The prepared rows kernel (:class:`filters.kernels.WrapperRows`) for these discs and
+        sample count, built once per set of them; ``None`` where the general call runs (a
+        polytope support, the conformal risk, ``epsilon="auto"``, an unexpected shape)."""
+        if not self._fast_rows or predictions.ndim != 4:
+            return None
+        key = (ego_radius, tuple(radii.tolist()), predictions.shape[1], predictions.shape[3])
+        cached = self._rows_cache
+        if cached is not None and cached[0] == key:
+            return cached[1]
+        prepared = None
+        if len(radii):
+            ego_shape, obstacle_shapes = self._shapes(ego_radius, radii)
+            base = self._base
+            prepared = WrapperRows(
+                horizon=self.horizon, n_samples=predictions.shape[1],
+                radii=np.array([shape.radius for shape in obstacle_shapes]) + ego_shape.radius,
+                risk=self.risk, alpha=self.alpha, delta=self.delta, epsilon=self.epsilon,
+                normals=self.normals, dim=predictions.shape[3],
+                input_bounds=base.input_bounds if self.intersample else None,
+                dt=float(base.dt), disabled_offset=DISABLED_OFFSET)
+        self._rows_cache = (key, prepared)
+        return prepared
 
     def _shapes(self, ego_radius: float, radii: np.ndarray) -> tuple[Disc, list[Disc]]:
         """The ego and obstacle discs, built once per set of radii (not every step)."""
