@@ -39,10 +39,14 @@ from filters.mpc.fast import (
     REJECT_NON_FINITE,
     REJECT_VIOLATION,
     SHORTCUT,
+    SOLVED,
 )
 
 _FLAGS = dict(cache=True, nogil=True, error_model="numpy")
 _INLINE = dict(_FLAGS, inline="always")
+# Sums in any order (vectorised partial sums, as in filters._kernels): the order is fixed
+# when a kernel is compiled for this CPU, so a machine gives the same bits on every call.
+_SUMS = dict(_FLAGS, fastmath={"reassoc"})
 
 
 @njit(**_INLINE)
@@ -137,11 +141,11 @@ def _finite(array):
     return True
 
 
-@njit(**_FLAGS)
+@njit(**_SUMS)
 def prepare_step(x0, ref_states, u_ref, normals, offsets, shortcut, state_cost,
                  A, B, C, gain, F, W, u_low, u_high, y_low, y_high, G, g,
                  input_axes, arena_axes, fixed_upper, fixed_lower, disabled, slack_tolerance,
-                 R_w, Q_w, x_ref, u, states, f, qp_A, upper, lower, scratch, info):
+                 R_w, Q_w, x_ref, u, states, f, qp_A, qp_AT, upper, lower, scratch, info):
     r"""The shortcut, or the QP data of one step (module docstring).
 
     Inputs: ``x0`` ``(n,)``; ``ref_states`` ``(T + 1, n)`` (row 0 unused); ``u_ref``
@@ -155,7 +159,9 @@ def prepare_step(x0, ref_states, u_ref, normals, offsets, shortcut, state_cost,
     Outputs: ``x_ref`` ``(T, n)`` the effective reference states; with the shortcut
     ``u`` ``(T m,)``, ``states`` ``(T + 1, n)`` and ``info[0]`` its cost; otherwise
     ``f`` ``(T m,)``, the DAQP arrays ``qp_A`` ``(n_fixed + K T, T m)`` (only its
-    halfspace rows are written), ``upper`` and ``lower``. ``scratch`` ``(n + T n + T m,)``.
+    halfspace rows are written), ``upper`` and ``lower``, and (unless it is empty) the
+    same halfspace rows into the transposed rows ``qp_AT``. ``scratch``
+    ``(n + T n + T m,)``.
 
     Returns :data:`NON_FINITE` (some input is NaN or infinite: nothing is written),
     :data:`SHORTCUT` or :data:`QP`.
@@ -167,7 +173,7 @@ def prepare_step(x0, ref_states, u_ref, normals, offsets, shortcut, state_cost,
     K = (qp_A.shape[0] - fixed_upper.shape[0]) // horizon
     n_fixed = fixed_upper.shape[0]
     nu = horizon * m
-    if not (_finite(x0) and _finite(ref_states[1:]) and _finite(u_ref) and _finite(normals)
+    if not (_finite(x0) and _finite(ref_states) and _finite(u_ref) and _finite(normals)
             and _finite(offsets)):
         return NON_FINITE
     # the effective reference: the given states, or (first_input) the roll-out of u^r
@@ -244,6 +250,7 @@ def prepare_step(x0, ref_states, u_ref, normals, offsets, shortcut, state_cost,
         lower[row] = fixed_lower[row] - value
         row += 1
     # halfspace rows, step-major: a' W_t z <= b - a' C Phi_t x0
+    transposed = qp_AT.shape[0] > 0
     for t in range(horizon):
         for i in range(K):
             q = n_fixed + t * K + i
@@ -258,10 +265,14 @@ def prepare_step(x0, ref_states, u_ref, normals, offsets, shortcut, state_cost,
                     for a in range(d):
                         total += normals[i, t, a] * W[t, a, c]
                     qp_A[q, c] = total
+                    if transposed:
+                        qp_AT[c, q] = total
             else:
                 upper[q] = disabled
                 for c in range(nu):
                     qp_A[q, c] = 0.0
+                    if transposed:
+                        qp_AT[c, q] = 0.0
     return QP
 
 
@@ -304,7 +315,7 @@ def _row_excess(states, normals, offsets, C, y_low, y_high, G, g, halfspace, bou
         row += 1
 
 
-@njit(**_FLAGS)
+@njit(**_SUMS)
 def accept_step(z, x0, x_ref, u_ref, normals, offsets, state_cost, soft_halfspaces,
                 soft_bounds, u_of_z, A, B, C, u_low, u_high, y_low, y_high, G, g,
                 clip_tolerance, feasibility_tolerance, slack_tolerance, R_w, Q_w, u, states,
@@ -380,3 +391,197 @@ def accept_step(z, x0, x_ref, u_ref, normals, offsets, state_cost, soft_halfspac
         return REJECT_VIOLATION
     info[0] = _cost(u, states, x_ref, u_ref, R_w, Q_w, state_cost)
     return ACCEPTED
+
+
+# --------------------------------------------------------------------------- the hard QP
+
+
+@njit(**_INLINE)
+def _rotate_rows(M, i, j, c, s, start):
+    """Rows ``i``, ``j`` of ``M`` (columns ``start:``): ``(c x + s y, -s x + c y)``."""
+    for k in range(start, M.shape[1]):
+        x = M[i, k]
+        y = M[j, k]
+        M[i, k] = c * x + s * y
+        M[j, k] = -s * x + c * y
+
+
+@njit(**_SUMS)
+def ldp_solve(A, AT, upper, lower, f, z, tolerance, max_iterations):
+    r"""Goldfarb-Idnani's dual active-set method for the whitened QP (identity Hessian).
+
+    .. math:: \min_z \tfrac12 \|z\|^2 + f^\top z \quad \text{s.t.} \quad
+        l_j \le a_j^\top z \le u_j \ \text{for every row } j \text{ of } A
+
+    (``±inf`` for a free side). From the unconstrained minimiser :math:`z = -f`, the
+    most violated row (by more than ``tolerance``) enters; a full step makes it active, a
+    partial step drops the active row whose multiplier reaches zero first, so the
+    multipliers stay nonnegative (dual feasible) throughout: the first point that meets
+    every row is the optimum. The active rows' normals are kept as :math:`N = J R`
+    (``J`` orthogonal, stored transposed; ``R`` upper triangular), updated by Givens
+    rotations (Goldfarb and Idnani 1983, with :math:`H = I` so that :math:`J = Q`).
+
+    ``AT`` is ``A`` transposed (``(T m, rows)``: the rows' values at ``z`` are then
+    vectorised sums over the rows). Writes ``z``; returns ``(status, iterations)``: status
+    1 solved, -1 infeasible (a violated row that no step can satisfy), -4
+    ``max_iterations`` reached.
+    """
+    nu = f.shape[0]
+    n_rows = A.shape[0]
+    values = np.empty(n_rows)
+    JT = np.zeros((nu, nu))  # row i: column i of J
+    R = np.zeros((nu, nu))
+    for i in range(nu):
+        JT[i, i] = 1.0
+        z[i] = -f[i]
+    active = np.empty(nu, dtype=np.int64)
+    lam = np.empty(nu)
+    state = np.zeros(n_rows, dtype=np.int8)  # 1: upper side active, -1: lower side
+    d = np.empty(nu)
+    step = np.empty(nu)
+    r = np.empty(nu)
+    q = 0
+    iterations = 0
+    while True:
+        # the most violated row
+        worst = tolerance
+        p = -1
+        side = 0.0
+        for j in range(n_rows):
+            values[j] = 0.0
+        for c in range(nu):
+            zc = z[c]
+            for j in range(n_rows):
+                values[j] += AT[c, j] * zc
+        for j in range(n_rows):
+            value = values[j]
+            if value - upper[j] > worst and state[j] != 1:
+                worst = value - upper[j]
+                p = j
+                side = 1.0
+            if lower[j] - value > worst and state[j] != -1:
+                worst = lower[j] - value
+                p = j
+                side = -1.0
+        if p < 0:
+            return 1, iterations
+        norm2 = 0.0
+        for c in range(nu):
+            norm2 += A[p, c] * A[p, c]
+        lam_p = 0.0
+        while True:  # until row p is active
+            iterations += 1
+            if iterations > max_iterations:
+                return -4, iterations
+            # d = J' n with n = -side a_p (the row as n' z >= -side bound)
+            for i in range(nu):
+                total = 0.0
+                for c in range(nu):
+                    total += JT[i, c] * A[p, c]
+                d[i] = -side * total
+            # primal direction J2 d2, dual direction r = R^{-1} d1
+            free2 = 0.0
+            for c in range(nu):
+                step[c] = 0.0
+            for i in range(q, nu):
+                free2 += d[i] * d[i]
+                for c in range(nu):
+                    step[c] += JT[i, c] * d[i]
+            for i in range(q - 1, -1, -1):
+                total = d[i]
+                for k in range(i + 1, q):
+                    total -= R[i, k] * r[k]
+                r[i] = total / R[i, i]
+            partial = np.inf
+            drop = -1
+            for i in range(q):
+                if r[i] > 0.0 and max(lam[i], 0.0) / r[i] < partial:
+                    partial = max(lam[i], 0.0) / r[i]
+                    drop = i
+            full = np.inf
+            if free2 > 1e-12 * norm2:
+                value = 0.0
+                for c in range(nu):
+                    value += A[p, c] * z[c]
+                violation = value - upper[p] if side > 0.0 else lower[p] - value
+                full = violation / free2
+            if partial == np.inf and full == np.inf:
+                return -1, iterations
+            t = min(partial, full)
+            if full < np.inf:
+                for c in range(nu):
+                    z[c] += t * step[c]
+            for i in range(q):
+                lam[i] -= t * r[i]
+            lam_p += t
+            if full <= partial:  # row p becomes active: rotate d[q+1:] into d[q]
+                for i in range(nu - 1, q, -1):
+                    if d[i] != 0.0:
+                        h = math.hypot(d[i - 1], d[i])
+                        c_ = d[i - 1] / h
+                        s_ = d[i] / h
+                        d[i - 1] = h
+                        d[i] = 0.0
+                        _rotate_rows(JT, i - 1, i, c_, s_, 0)
+                for i in range(q + 1):
+                    R[i, q] = d[i]
+                active[q] = p
+                lam[q] = lam_p
+                state[p] = 1 if side > 0.0 else -1
+                q += 1
+                break
+            # drop the active row whose multiplier reached zero, restore R's triangle
+            state[active[drop]] = 0
+            for i in range(drop, q - 1):
+                active[i] = active[i + 1]
+                lam[i] = lam[i + 1]
+                for k in range(q):
+                    R[k, i] = R[k, i + 1]
+            q -= 1
+            for i in range(drop, q):
+                a = R[i, i]
+                b = R[i + 1, i]
+                if b != 0.0:
+                    h = math.hypot(a, b)
+                    c_ = a / h
+                    s_ = b / h
+                    _rotate_rows(R, i, i + 1, c_, s_, i)
+                    R[i + 1, i] = 0.0
+                    _rotate_rows(JT, i, i + 1, c_, s_, 0)
+
+
+@njit(**_SUMS)
+def hard_step(x0, ref_states, u_ref, normals, offsets, shortcut, state_cost,
+              A, B, C, gain, F, W, u_low, u_high, y_low, y_high, G, g,
+              input_axes, arena_axes, fixed_upper, fixed_lower, disabled, slack_tolerance,
+              R_w, Q_w, u_of_z, clip_tolerance, feasibility_tolerance, primal_tolerance,
+              max_iterations, x_ref, u, states, f, qp_A, qp_AT, upper, lower, scratch, z,
+              info):
+    """One hard step in one call: :func:`prepare_step`, then (when the shortcut does not
+    answer) :func:`ldp_solve` on the QP data just written and :func:`accept_step` of its
+    answer.
+
+    Returns :data:`NON_FINITE`, :data:`SHORTCUT`, :data:`SOLVED` (``u``, ``states`` and
+    ``info`` hold the accepted answer; ``info[4]`` the iterations) or :data:`QP` (the
+    solver found the QP infeasible or stopped, or its answer was rejected: the QP data
+    are written for DAQP, which decides as on the general path).
+    """
+    code = prepare_step(x0, ref_states, u_ref, normals, offsets, shortcut, state_cost,
+                        A, B, C, gain, F, W, u_low, u_high, y_low, y_high, G, g,
+                        input_axes, arena_axes, fixed_upper, fixed_lower, disabled,
+                        slack_tolerance, R_w, Q_w, x_ref, u, states, f, qp_A, qp_AT, upper,
+                        lower, scratch, info)
+    if code != QP:
+        return code
+    status, iterations = ldp_solve(qp_A, qp_AT, upper, lower, f, z, primal_tolerance,
+                                   max_iterations)
+    info[4] = iterations
+    if status != 1:
+        return QP
+    empty2 = np.empty((0, 0))
+    empty1 = np.empty(0)
+    accepted = accept_step(z, x0, x_ref, u_ref, normals, offsets, state_cost, False, False,
+                           u_of_z, A, B, C, u_low, u_high, y_low, y_high, G, g,
+                           clip_tolerance, feasibility_tolerance, slack_tolerance, R_w, Q_w,
+                           u, states, empty2, empty1, empty2, empty1, info)
+    return SOLVED if accepted == ACCEPTED else QP

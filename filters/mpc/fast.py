@@ -30,12 +30,21 @@ from filters.mpc.problem import MPCProblem
 if TYPE_CHECKING:
     from filters.mpc.backends.daqp import DAQPBackend
 
+
+def daqp_defaults() -> dict[str, Any]:
+    """DAQP's default settings."""
+    import daqp
+
+    return daqp.Model().settings
+
 __all__ = ["ACCEPTED", "NON_FINITE", "QP", "REJECT_CLIP", "REJECT_NON_FINITE",
-           "REJECT_VIOLATION", "SHORTCUT", "FastHardStep", "fast_path_applies"]
+           "REJECT_VIOLATION", "SHORTCUT", "SOLVED", "FastHardStep", "fast_path_applies"]
 
 #: :meth:`FastHardStep.prepare`'s answers: some input is NaN or infinite (nothing was
 #: written), the unconstrained minimiser is the answer, or the QP's data were written.
 NON_FINITE, SHORTCUT, QP = -1, 0, 1
+#: :meth:`FastHardStep.solve_hard`'s answer when its own solver's answer was accepted.
+SOLVED = 2
 #: :meth:`FastHardStep.accept`'s answers: accepted, or why DAQP's answer was rejected.
 ACCEPTED, REJECT_NON_FINITE, REJECT_CLIP, REJECT_VIOLATION = 0, 1, 2, 3
 
@@ -108,7 +117,20 @@ class FastHardStep:
         self.x_ref = np.empty((T, n))
         self.f = np.empty(T * m)
         self._scratch = np.empty(n + T * n + T * m)
-        self.info = np.empty(4)
+        self.info = np.empty(5)
+        #: Solve the hard QP with the compiled solver first (``solve_hard``); DAQP decides
+        #: when it finds the QP infeasible or stops. Not when DAQP has settings of the
+        #: user's (``solver_settings``): those are DAQP's to apply.
+        self.own_solver = backend.settings == daqp_defaults()
+        #: Its stopping rule: no row violated by more than this (DAQP's ``primal_tol``).
+        self.primal_tolerance = float(backend.settings.get("primal_tol", 1e-6))
+        qp_rows = backend.row_buffers[0].shape[0]
+        # the rows transposed for the compiled solver; the fixed rows are written once
+        self._AT = np.zeros((T * m, qp_rows))
+        self._AT[:, : qp.n_fixed] = qp.fixed_rows.T
+        self._no_AT = np.empty((0, qp_rows))
+        self.max_iterations = 10 * (qp_rows + T * m)
+        self.z = np.empty(T * m)
         finite = [np.isfinite(b).sum() for b in problem.position_bounds]
         self._n_bounds = T * int(sum(finite)) + G.shape[0]
         self._no_rows = (np.empty((0, T)), np.empty(0))
@@ -126,8 +148,26 @@ class FastHardStep:
             x0, reference_states, reference_inputs, normals, offsets, shortcut,
             self._state_cost, A, B, C, self._gain, self._cost_map, self._maps, *self._u_box,
             *self._y_box, *self._terminal, *self._axes, *self._fixed, disabled,
-            slack_tolerance, *self._weights, self.x_ref, inputs, states, self.f, qp_A, upper,
-            lower, self._scratch, self.info)
+            slack_tolerance, *self._weights, self.x_ref, inputs, states, self.f, qp_A,
+            self._no_AT, upper, lower, self._scratch, self.info)
+
+    def solve_hard(self, x0: np.ndarray, reference_states: np.ndarray,
+                   reference_inputs: np.ndarray, normals: np.ndarray, offsets: np.ndarray,
+                   shortcut: bool, inputs: np.ndarray, states: np.ndarray) -> int:
+        """:func:`~filters.mpc._fast_kernels.hard_step`: :meth:`prepare`, then the compiled
+        solver and :meth:`accept`: ``NON_FINITE``, ``SHORTCUT``, ``SOLVED`` (``inputs``,
+        ``states`` and :attr:`info` hold the accepted answer) or ``QP`` (DAQP decides)."""
+        A, B, C = self._model
+        qp_A, upper, lower = self.backend.row_buffers
+        disabled, slack_tolerance, clip_tolerance, feasibility_tolerance = self._tolerances
+        return self._kernels.hard_step(
+            x0, reference_states, reference_inputs, normals, offsets, shortcut,
+            self._state_cost, A, B, C, self._gain, self._cost_map, self._maps, *self._u_box,
+            *self._y_box, *self._terminal, *self._axes, *self._fixed, disabled,
+            slack_tolerance, *self._weights, self._u_of_z, clip_tolerance,
+            feasibility_tolerance, self.primal_tolerance, self.max_iterations, self.x_ref,
+            inputs, states, self.f, qp_A, self._AT, upper, lower, self._scratch, self.z,
+            self.info)
 
     def accept(self, z: np.ndarray, x0: np.ndarray, reference_inputs: np.ndarray,
                normals: np.ndarray, offsets: np.ndarray, inputs: np.ndarray,

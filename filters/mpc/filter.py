@@ -601,18 +601,32 @@ class MPCSafetyFilter:
                 and offsets.flags.c_contiguous):
             return None
         inputs, states = np.empty(T * m), np.empty(self._states_shape)
-        code = fast.prepare(x0, reference_states, ref_inputs, normals, offsets,
-                            self._skip and reference_inputs is not None, inputs, states)
+        shortcut = self._skip and reference_inputs is not None
+        begin = time.perf_counter()
+        if fast.own_solver:
+            code = fast.solve_hard(x0, reference_states, ref_inputs, normals, offsets, shortcut,
+                                   inputs, states)
+        else:
+            code = fast.prepare(x0, reference_states, ref_inputs, normals, offsets, shortcut,
+                                inputs, states)
         if code == fast_codes.NON_FINITE:
             return None
+        info = fast.info
         if code == fast_codes.SHORTCUT:
             self._qp_solves = 0
             plan = inputs.reshape(T, m)
             self._plan, self._failures = plan, 0
             return self._result(FilterStatus.OPTIMAL, plan, states, None, 0.0, _NO_QP, 0, 0.0,
-                                float(fast.info[0]), start)
+                                float(info[0]), start)
         self._qp_solves = 1
         self._step, self._pending = None, (x0, reference_states, ref_inputs, normals, offsets)
+        if code == fast_codes.SOLVED:  # the compiled solver's answer, accepted
+            plan = inputs.reshape(T, m)
+            self._plan, self._failures = plan, 0
+            bound_total = float(info[3]) if info[3] > SLACK_TOLERANCE else 0.0
+            return self._result(FilterStatus.OPTIMAL, plan, states, None, bound_total,
+                                "Solved", int(info[4]), time.perf_counter() - begin,
+                                float(info[0]), start)
         backend = fast.backend
         try:
             z, status, flag, iterations, solve_time = backend.solve_written(fast.f)
@@ -622,7 +636,6 @@ class MPCSafetyFilter:
         answer = ""
         if z is not None and flag >= 1:
             code = fast.accept(z, x0, ref_inputs, normals, offsets, inputs, states)
-            info = fast.info
             if code == fast_codes.ACCEPTED:
                 plan = inputs.reshape(T, m)
                 self._plan, self._failures = plan, 0
@@ -651,7 +664,6 @@ class MPCSafetyFilter:
             slack = np.empty(offsets.shape)
             code = fast.accept_recovery(z, x0, ref_inputs, normals, offsets, inputs, states,
                                         slack)
-            info = fast.info
             if code == fast_codes.ACCEPTED:
                 plan = inputs.reshape(T, m)
                 self._plan = plan

@@ -253,6 +253,11 @@ class DAQPBackend:
         return self._solution(x, flag, iterations, solve_time, rows)
 
     @property
+    def settings(self) -> dict[str, Any]:
+        """The DAQP settings of this back end's models (DAQP's defaults, overridden)."""
+        return {**daqp.Model().settings, **self._settings}
+
+    @property
     def row_buffers(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(A, upper, lower)``: the full model's rows ``(n_fixed + K T, T m)`` and bounds,
         which :meth:`solve_written` hands to DAQP (written in place by the caller;
