@@ -362,9 +362,11 @@ class WrapperRows:
 
     def __call__(self, samples: np.ndarray, x0: np.ndarray, ref_states: np.ndarray,
                  C: np.ndarray, plan_states: np.ndarray | None,
-                 previous_normals: np.ndarray | None) -> KernelRows | None:
-        """The step's :class:`KernelRows`, or ``None`` if an array does not fit (the general
-        path then runs). ``status`` non-zero: the kernel found a non-finite number.
+                 previous_normals: np.ndarray | None) -> tuple | None:
+        """``(status, normals, degenerate, offsets, rows_normals, rows_offsets)`` as in
+        :class:`KernelRows` (a plain tuple: this runs every step), or ``None`` if an array
+        does not fit (the general path then runs). ``status`` non-zero: the kernel found a
+        non-finite number.
 
         ``samples`` ``(k, N_s, T', d)`` float64 C-contiguous, ``T' >= T``; ``x0`` ``(2 d,)``
         (position, velocity); ``ref_states`` and ``plan_states`` ``(T + 1, 2 d)``
@@ -404,5 +406,6 @@ class WrapperRows:
             kk, factor, z_guess, width, self._delta, self._epsilon, _ZERO_2, self.radii,
             self._start, self._low, self._high, self._arc, self._disabled, normals,
             degenerate, offsets, rows_normals, rows_offsets)
-        return KernelRows(normals, degenerate, offsets, rows_normals if self._start else None,
-                          rows_offsets if self._start else None, int(status))
+        if not self._start:
+            return status, normals, degenerate, offsets, None, None
+        return status, normals, degenerate, offsets, rows_normals, rows_offsets

@@ -523,7 +523,9 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 self.calibration_episodes = CALIBRATION_EPISODES if episodes is None else episodes
         self._mpc: MPCSafetyFilter | None = None
         self._previous_normals: np.ndarray | None = None
-        self._last_halfspaces: Halfspaces | None = None
+        # the last step's halfspaces: made on demand from (normals, offsets, degenerate)
+        self._halfspace_parts: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._halfspaces_made: Halfspaces | None = None
         self._last_plan: np.ndarray | None = None
         self._plan_optimal = False  # whether _last_plan met every row (status "optimal")
         self._hook: Callable[[Any], None] | None = None
@@ -535,7 +537,7 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                       and self.reference is hold_action_reference else None)
         self._fast_rows = (self.risk not in ("none", "conformal") and self.epsilon != "auto"
                            and support is None and kernels_available())
-        self._rows_cache: tuple[tuple, WrapperRows | None] | None = None
+        self._rows_cache: tuple | None = None  # (radii, ego radius, shape, rows, key)
         if self.risk != "none":  # builds (and so validates) the weights and bounds now
             self._mpc = self._build_filter(max(1, len(np.asarray(base.obstacle_radii))))
         if self._calibration is not None:
@@ -544,6 +546,16 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     @property
     def _base(self) -> FilterableEnv:
         return self._unwrapped
+
+    @property
+    def _last_halfspaces(self) -> Halfspaces | None:
+        """The last filtered step's :class:`~filters.halfspaces.Halfspaces` (for drawing),
+        made on first use from that step's arrays."""
+        if self._halfspaces_made is None and self._halfspace_parts is not None:
+            normals, offsets, degenerate = self._halfspace_parts
+            self._halfspaces_made = Halfspaces(normals, offsets, self.risk, self.alpha,
+                                               self.delta, self.epsilon, degenerate)
+        return self._halfspaces_made
 
     @property
     def rows_per_obstacle(self) -> int:
@@ -597,7 +609,7 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self._calibration.reset()
             self._calibrate()
         self._previous_normals = None
-        self._last_halfspaces = None
+        self._halfspace_parts = self._halfspaces_made = None
         self._last_plan = None
         self._plan_optimal = False
         self._install_render_hook()
@@ -716,8 +728,9 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         base = self._unwrapped
         x0 = np.asarray(base.ego_state, dtype=float)
         radii = np.asarray(base.obstacle_radii, dtype=float)
-        if self._mpc is None or self._rows * radii.shape[0] > self._mpc.n_obstacles:
-            self._mpc = self._build_filter(len(radii))
+        mpc = self._mpc
+        if mpc is None or self._rows * radii.shape[0] > mpc.n_obstacles:
+            mpc = self._mpc = self._build_filter(len(radii))
         begin = time.perf_counter()
         try:
             if not finite:
@@ -728,14 +741,12 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             else:
                 ref_states, ref_inputs = self.reference(base, proposed, self.horizon)
             start = time.perf_counter()
-            halfspaces, rows = self._halfspaces(base, x0, ref_states, radii)
+            normals, offsets, rows = self._halfspaces(base, x0, ref_states, radii)
             middle = time.perf_counter()
-            result: FilterResult = self._mpc.solve(
-                x0, ref_states, rows, reference_inputs=ref_inputs
-            )
+            result: FilterResult = mpc.solve(x0, ref_states, rows, reference_inputs=ref_inputs)
         except (ValueError, TypeError, FloatingPointError) as exc:
             # Bad numbers from the policy or the predictions (NaN, inf): brake, say why.
-            applied = np.clip(self._mpc.braking_input(x0), *base.input_bounds)
+            applied = np.clip(mpc.braking_input(x0), *base.input_bounds)
             applied.setflags(write=False)
             self._last_plan = None
             self._plan_optimal = False
@@ -747,27 +758,21 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             )
             return applied, report
         end = time.perf_counter()
+        states = result.states
         applied = _owned(result.inputs[0])
-        self._previous_normals = halfspaces.normals
-        self._last_halfspaces = halfspaces
-        self._last_plan = result.states
+        self._previous_normals = normals
+        self._last_plan = states
         self._plan_optimal = result.status is FilterStatus.OPTIMAL
         slack = result.slack
         if slack is not None:
-            k = halfspaces.n_obstacles
+            k = normals.shape[0]
             # per obstacle and step (the larger of the two inter-sample rows)
-            slack = np.maximum(slack[:k], slack[k : 2 * k]) if self.intersample else slack[:k]
+            slack = _owned(np.maximum(slack[:k], slack[k : 2 * k]) if self.intersample
+                           else slack[:k])
         report = _report(
-            result.status.value, proposed, applied,
-            intervention=_distance(applied, proposed),
-            solve_time=float(result.solve_time),
-            halfspace_time=middle - start,
-            filter_time=end - start,
-            reference_time=start - begin,
-            slack=_owned(slack),
-            normals=_owned(halfspaces.normals),
-            offsets=_owned(halfspaces.offsets),
-            planned_states=_owned(result.states),
+            result.status.value, proposed, applied, _distance(applied, proposed),
+            float(result.solve_time), middle - start, end - start, start - begin, slack,
+            _owned(normals), _owned(offsets), _owned(states),
         )
         return applied, report
 
@@ -790,22 +795,25 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     def _halfspaces(
         self, base: FilterableEnv, x0: np.ndarray, ref_states: np.ndarray, radii: np.ndarray
-    ) -> tuple[Halfspaces, tuple[np.ndarray, np.ndarray]]:
+    ) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray]]:
+        """The step's halfspaces ``(normals, offsets)`` and the QP's rows (with the
+        inter-sample rows, if set); the halfspaces are kept for :attr:`_last_halfspaces`."""
         predictions = np.asarray(base.predictions, dtype=float)
-        prepared = self._prepared_rows(float(base.ego_radius), radii, predictions)
+        prepared = self._prepared_rows(base, radii, predictions)
         if prepared is not None:
             previous = self._previous_normals
-            if previous is not None and previous.shape[0] != len(radii):
+            if previous is not None and previous.shape[0] != radii.shape[0]:
                 previous = None
             plan = self._last_plan if (self.normals == "previous_plan" or (
                 self.normals == "clearest" and self._plan_optimal)) else None
             out = prepared(predictions, x0, ref_states, base.dynamics[2], plan, previous)
-            if out is not None and out.status == 0:
-                halfspaces = Halfspaces(out.normals, out.offsets, self.risk, self.alpha,
-                                        self.delta, self.epsilon, out.degenerate)
-                if out.rows_normals is None:
-                    return halfspaces, (out.normals, out.offsets)
-                return halfspaces, (out.rows_normals, out.rows_offsets)
+            if out is not None and out[0] == 0:
+                _, normals, degenerate, offsets, rows_normals, rows_offsets = out
+                self._halfspace_parts, self._halfspaces_made = (normals, offsets,
+                                                                degenerate), None
+                if rows_normals is None:
+                    return normals, offsets, (normals, offsets)
+                return normals, offsets, (rows_normals, rows_offsets)
         # the general call (other settings, or a problem the kernel reported: the numpy
         # path names it)
         if predictions.shape[2] < self.horizon:
@@ -834,23 +842,28 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             input_bounds=base.input_bounds if self.intersample else None,
             dt=float(base.dt), **self._risk_options(),
         )
-        return rows.halfspaces, (rows.normals, rows.offsets)
+        halfspaces = rows.halfspaces
+        self._halfspace_parts, self._halfspaces_made = None, halfspaces
+        return halfspaces.normals, halfspaces.offsets, (rows.normals, rows.offsets)
 
-    def _prepared_rows(self, ego_radius: float, radii: np.ndarray,
+    def _prepared_rows(self, base: FilterableEnv, radii: np.ndarray,
                        predictions: np.ndarray) -> WrapperRows | None:
         """The prepared rows kernel (:class:`filters.kernels.WrapperRows`) for these discs and
         sample count, built once per set of them; ``None`` where the general call runs (a
         polytope support, the conformal risk, ``epsilon="auto"``, an unexpected shape)."""
         if not self._fast_rows or predictions.ndim != 4:
             return None
-        key = (ego_radius, tuple(radii.tolist()), predictions.shape[1], predictions.shape[3])
         cached = self._rows_cache
-        if cached is not None and cached[0] == key:
-            return cached[1]
-        prepared = None
-        if len(radii):
-            ego_shape, obstacle_shapes = self._shapes(ego_radius, radii)
-            base = self._base
+        ego_radius = base.ego_radius
+        if (cached is not None and cached[0] is radii and cached[1] == ego_radius
+                and cached[2] == predictions.shape):
+            return cached[3]  # the same radii array as last step (the usual case)
+        key = (float(ego_radius), tuple(radii.tolist()), predictions.shape[1],
+               predictions.shape[3])
+        if cached is not None and cached[4] == key:
+            prepared = cached[3]
+        elif len(radii):
+            ego_shape, obstacle_shapes = self._shapes(float(ego_radius), radii)
             prepared = WrapperRows(
                 horizon=self.horizon, n_samples=predictions.shape[1],
                 radii=np.array([shape.radius for shape in obstacle_shapes]) + ego_shape.radius,
@@ -858,7 +871,9 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 normals=self.normals, dim=predictions.shape[3],
                 input_bounds=base.input_bounds if self.intersample else None,
                 dt=float(base.dt), disabled_offset=DISABLED_OFFSET)
-        self._rows_cache = (key, prepared)
+        else:
+            prepared = None
+        self._rows_cache = (radii, ego_radius, predictions.shape, prepared, key)
         return prepared
 
     def _shapes(self, ego_radius: float, radii: np.ndarray) -> tuple[Disc, list[Disc]]:

@@ -33,6 +33,7 @@ from numba import njit
 
 from filters.mpc.fast import (
     ACCEPTED,
+    INFEASIBLE,
     NON_FINITE,
     QP,
     REJECT_CLIP,
@@ -261,12 +262,14 @@ def prepare_step(x0, ref_states, u_ref, normals, offsets, shortcut, state_cost,
                     shift += normals[i, t, a] * position[t, a]
                 upper[q] = offsets[i, t] - shift
                 for c in range(nu):
-                    total = 0.0
-                    for a in range(d):
-                        total += normals[i, t, a] * W[t, a, c]
-                    qp_A[q, c] = total
-                    if transposed:
-                        qp_AT[c, q] = total
+                    qp_A[q, c] = normals[i, t, 0] * W[t, 0, c]
+                for a in range(1, d):
+                    weight = normals[i, t, a]
+                    for c in range(nu):
+                        qp_A[q, c] += weight * W[t, a, c]
+                if transposed:
+                    for c in range(nu):
+                        qp_AT[c, q] = qp_A[q, c]
             else:
                 upper[q] = disabled
                 for c in range(nu):
@@ -562,9 +565,9 @@ def hard_step(x0, ref_states, u_ref, normals, offsets, shortcut, state_cost,
     answer.
 
     Returns :data:`NON_FINITE`, :data:`SHORTCUT`, :data:`SOLVED` (``u``, ``states`` and
-    ``info`` hold the accepted answer; ``info[4]`` the iterations) or :data:`QP` (the
-    solver found the QP infeasible or stopped, or its answer was rejected: the QP data
-    are written for DAQP, which decides as on the general path).
+    ``info`` hold the accepted answer; ``info[4]`` the iterations), :data:`INFEASIBLE`
+    (the solver found the QP infeasible) or :data:`QP` (it stopped, or its answer was
+    rejected). With the last two, the QP data are written for DAQP.
     """
     code = prepare_step(x0, ref_states, u_ref, normals, offsets, shortcut, state_cost,
                         A, B, C, gain, F, W, u_low, u_high, y_low, y_high, G, g,
@@ -576,6 +579,8 @@ def hard_step(x0, ref_states, u_ref, normals, offsets, shortcut, state_cost,
     status, iterations = ldp_solve(qp_A, qp_AT, upper, lower, f, z, primal_tolerance,
                                    max_iterations)
     info[4] = iterations
+    if status == -1:
+        return INFEASIBLE
     if status != 1:
         return QP
     empty2 = np.empty((0, 0))

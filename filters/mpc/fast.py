@@ -37,14 +37,15 @@ def daqp_defaults() -> dict[str, Any]:
 
     return daqp.Model().settings
 
-__all__ = ["ACCEPTED", "NON_FINITE", "QP", "REJECT_CLIP", "REJECT_NON_FINITE",
+__all__ = ["ACCEPTED", "INFEASIBLE", "NON_FINITE", "QP", "REJECT_CLIP", "REJECT_NON_FINITE",
            "REJECT_VIOLATION", "SHORTCUT", "SOLVED", "FastHardStep", "fast_path_applies"]
 
 #: :meth:`FastHardStep.prepare`'s answers: some input is NaN or infinite (nothing was
 #: written), the unconstrained minimiser is the answer, or the QP's data were written.
 NON_FINITE, SHORTCUT, QP = -1, 0, 1
-#: :meth:`FastHardStep.solve_hard`'s answer when its own solver's answer was accepted.
-SOLVED = 2
+#: :meth:`FastHardStep.solve_hard`'s answers when its own solver's answer was accepted,
+#: and when that solver found the hard QP infeasible.
+SOLVED, INFEASIBLE = 2, 3
 #: :meth:`FastHardStep.accept`'s answers: accepted, or why DAQP's answer was rejected.
 ACCEPTED, REJECT_NON_FINITE, REJECT_CLIP, REJECT_VIOLATION = 0, 1, 2, 3
 
@@ -156,7 +157,9 @@ class FastHardStep:
                    shortcut: bool, inputs: np.ndarray, states: np.ndarray) -> int:
         """:func:`~filters.mpc._fast_kernels.hard_step`: :meth:`prepare`, then the compiled
         solver and :meth:`accept`: ``NON_FINITE``, ``SHORTCUT``, ``SOLVED`` (``inputs``,
-        ``states`` and :attr:`info` hold the accepted answer) or ``QP`` (DAQP decides)."""
+        ``states`` and :attr:`info` hold the accepted answer), ``INFEASIBLE`` or ``QP``
+        (the solver stopped or its answer was rejected): the QP data are then written
+        for DAQP."""
         A, B, C = self._model
         qp_A, upper, lower = self.backend.row_buffers
         disabled, slack_tolerance, clip_tolerance, feasibility_tolerance = self._tolerances

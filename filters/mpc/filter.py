@@ -627,12 +627,22 @@ class MPCSafetyFilter:
             return self._result(FilterStatus.OPTIMAL, plan, states, None, bound_total,
                                 "Solved", int(info[4]), time.perf_counter() - begin,
                                 float(info[0]), start)
+        recovery = fast.recovery
+        if recovery is not None and self._recovery is not recovery:
+            recovery = None
         backend = fast.backend
-        try:
-            z, status, flag, iterations, solve_time = backend.solve_written(fast.f)
-        except Exception as exc:  # a back end bug must not crash the control loop
-            backend.drop_model()
-            z, status, flag, iterations, solve_time = None, f"exception: {exc!r}", -1, 0, 0.0
+        if code == fast_codes.INFEASIBLE and recovery is not None:
+            # The compiled solver's verdict stands: the recovery QP follows, and it has the
+            # hard QP's answer if that is feasible after all (the exact penalty).
+            z, status, flag = None, "PrimalInfeasible", -1
+            iterations, solve_time = int(info[4]), time.perf_counter() - begin
+        else:  # DAQP decides, as on the general path
+            try:
+                z, status, flag, iterations, solve_time = backend.solve_written(fast.f)
+            except Exception as exc:  # a back end bug must not crash the control loop
+                backend.drop_model()
+                z, status, flag, iterations, solve_time = (None, f"exception: {exc!r}", -1, 0,
+                                                           0.0)
         answer = ""
         if z is not None and flag >= 1:
             code = fast.accept(z, x0, ref_inputs, normals, offsets, inputs, states)
@@ -645,8 +655,7 @@ class MPCSafetyFilter:
             answer = _rejection(code, info)
         self._failures += 1
         status_text = f"{status} ({answer})" if answer else status
-        recovery = fast.recovery
-        if recovery is None or self._recovery is not recovery:
+        if recovery is None:
             return self._recover(self._last_step, x0, normals, offsets, status_text,
                                  iterations, solve_time, start)
         # the recovery QP: the same rows, softened (fallback="soft")
