@@ -362,6 +362,13 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         ``"persistent"``: the calibration carries over between episodes (the behaviour
         before ``calibration_memory`` existed, with ``calibration_episodes=0``).
 
+    fast_path
+        ``True`` (default): the lean per-step path (the held-action kernel called with
+        constants checked once, the halfspace rows by :class:`filters.kernels.WrapperRows`,
+        the filter's compiled hard step of :mod:`filters.mpc.fast`); its results equal
+        the general path's to rounding. ``False``: the general path (``step_rows``, the
+        filter's general solve), the reference the fast one is checked against.
+
     Raises
     ------
     InvalidParameterError
@@ -415,6 +422,7 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         calibration_seed: int = CALIBRATION_SEED,
         calibration_memory: str = "episode",
         compiled_rollout: bool = True,
+        fast_path: bool = True,
     ) -> None:
         # No deep copy: policies and planners hold solver and torch state.
         gym.utils.RecordConstructorArgs.__init__(
@@ -426,7 +434,7 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             intervention_penalty=intervention_penalty, support=support,
             draw_halfspaces=draw_halfspaces, calibration_episodes=calibration_episodes,
             calibration_seed=calibration_seed, calibration_memory=calibration_memory,
-            compiled_rollout=compiled_rollout,
+            compiled_rollout=compiled_rollout, fast_path=fast_path,
         )
         gym.Wrapper.__init__(self, env)
         self._unwrapped: FilterableEnv = env.unwrapped  # type: ignore[assignment]
@@ -465,12 +473,13 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         )
         for name, flag in (("intersample", intersample), ("terminal", terminal),
                            ("soft", soft), ("draw_halfspaces", draw_halfspaces),
-                           ("compiled_rollout", compiled_rollout)):
+                           ("compiled_rollout", compiled_rollout), ("fast_path", fast_path)):
             if not isinstance(flag, (bool, np.bool_)):
                 raise InvalidTypeError(f"{name} must be a bool, got {flag!r}")
         self.intersample, self.terminal = bool(intersample), bool(terminal)
         self._rows = 2 if self.intersample else 1  # rows_per_obstacle, read every step
         self.soft, self.draw_halfspaces = bool(soft), bool(draw_halfspaces)
+        self.fast_path = bool(fast_path)
         self.intervention_penalty = scalar_in_range(
             "intervention_penalty", intervention_penalty, low=0.0, high=np.inf,
             high_inclusive=False,
@@ -533,10 +542,11 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._shape_cache: tuple[tuple, Disc, list[Disc]] | None = None
         # The prepared per-step kernels: the held-action reference's constants, and the
         # rows kernel (built per set of obstacle radii) where the settings allow it.
-        self._hold = (self._prepared_hold() if self.risk != "none"
+        self._hold = (self._prepared_hold() if self.fast_path and self.risk != "none"
                       and self.reference is hold_action_reference else None)
-        self._fast_rows = (self.risk not in ("none", "conformal") and self.epsilon != "auto"
-                           and support is None and kernels_available())
+        self._fast_rows = (self.fast_path and self.risk not in ("none", "conformal")
+                           and self.epsilon != "auto" and support is None
+                           and kernels_available())
         self._rows_cache: tuple | None = None  # (radii, ego radius, shape, rows, key)
         if self.risk != "none":  # builds (and so validates) the weights and bounds now
             self._mpc = self._build_filter(max(1, len(np.asarray(base.obstacle_radii))))
@@ -595,7 +605,7 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             input_bounds=base.input_bounds, position_bounds=base.position_bounds,
             n_obstacles=self.rows_per_obstacle * rows, soft=self.soft,
             objective=self.objective, later_input_weight=self.later_input_weight,
-            terminal_set=terminal_set, fallback=self.fallback,
+            terminal_set=terminal_set, fallback=self.fallback, fast_path=self.fast_path,
         )
 
     # ------------------------------------------------------------------ gym API
