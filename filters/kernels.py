@@ -194,6 +194,14 @@ def _floats(value: object, ndim: int) -> np.ndarray:
     return array
 
 
+_FLOAT64 = np.dtype(np.float64)
+
+
+def _plain(array: np.ndarray) -> bool:
+    """Whether an ndarray holds C-contiguous native float64 (what the kernels take as is)."""
+    return (array.dtype is _FLOAT64 or array.dtype == _FLOAT64) and array.flags.c_contiguous
+
+
 def _bound(value: object, dim: int) -> np.ndarray:
     """An input bound as a ``(d,)`` float array (a scalar applies to every axis)."""
     array = np.ascontiguousarray(value, dtype=np.float64)
@@ -359,6 +367,8 @@ class WrapperRows:
             self._low = self._high = _EMPTY_1
             self._arc = 0.0
         self._disabled = float(disabled_offset)
+        self._C_given: object = None
+        self._C = _EMPTY_2
 
     def __call__(self, samples: np.ndarray, x0: np.ndarray, ref_states: np.ndarray,
                  C: np.ndarray, plan_states: np.ndarray | None,
@@ -377,20 +387,24 @@ class WrapperRows:
         T, dim, k = self.horizon, self.dim, self.n_obstacles
         n = 2 * dim
         shape = samples.shape
-        if not (type(samples) is np.ndarray and samples.dtype == np.float64
-                and samples.ndim == 4 and shape[0] == k and shape[1] == self.n_samples
-                and shape[2] >= T and shape[3] == dim and samples.flags.c_contiguous
-                and x0.shape == (n,) and ref_states.shape == (T + 1, n)
-                and C.shape == (dim, n)):
+        if not (type(samples) is np.ndarray and _plain(samples) and len(shape) == 4
+                and shape[0] == k and shape[1] == self.n_samples and shape[2] >= T
+                and shape[3] == dim and type(x0) is np.ndarray and _plain(x0)
+                and x0.shape == (n,) and type(ref_states) is np.ndarray and _plain(ref_states)
+                and ref_states.shape == (T + 1, n) and np.shape(C) == (dim, n)):
             return None
         if plan_states is None or self._origin_mode != 2 and self._mode != _MODES["clearest"]:
             plan_states = _EMPTY_2
-        elif plan_states.shape != (T + 1, n):
+        elif not (type(plan_states) is np.ndarray and _plain(plan_states)
+                  and plan_states.shape == (T + 1, n)):
             return None
         if previous_normals is None or self._mode != _MODES["paper"]:
             previous_normals = _EMPTY_3
-        elif previous_normals.shape != (k, T, dim):
+        elif not (type(previous_normals) is np.ndarray and _plain(previous_normals)
+                  and previous_normals.shape == (k, T, dim)):
             return None
+        if C is not self._C_given:  # the environment's output map, converted once
+            self._C_given, self._C = C, _floats(C, 2)
         code, mass, kk, factor, z_guess, width = self._constants
         normals = np.empty((k, T, dim))
         degenerate = np.empty((k, T), dtype=np.bool_)
@@ -400,9 +414,8 @@ class WrapperRows:
         else:
             rows_normals, rows_offsets = _EMPTY_3, _EMPTY_2
         status = self._kernels.wrapper_step_kernel(
-            samples.reshape(k, self.n_samples, -1), T, dim, _floats(x0, 1),
-            _floats(ref_states, 2), _floats(C, 2), self._origin_mode, self._mode,
-            _floats(plan_states, 2), _floats(previous_normals, 3), code, self._alpha, mass,
+            samples.reshape(k, self.n_samples, -1), T, dim, x0, ref_states, self._C,
+            self._origin_mode, self._mode, plan_states, previous_normals, code, self._alpha, mass,
             kk, factor, z_guess, width, self._delta, self._epsilon, _ZERO_2, self.radii,
             self._start, self._low, self._high, self._arc, self._disabled, normals,
             degenerate, offsets, rows_normals, rows_offsets)

@@ -81,8 +81,8 @@ def test_compiled_solver_equals_daqp_and_cvxpy(nu):
         infeasible = case % 4 == 3 and rows > 4
         matrix, upper, lower, f = _random_qp(rng, nu, rows, infeasible)
         z = np.empty(nu)
-        status, iterations = kernels.ldp_solve(matrix, np.ascontiguousarray(matrix.T), upper,
-                                               lower, f, z, 1e-9, 10 * (rows + nu))
+        status, iterations = kernels.ldp_solve(np.ascontiguousarray(matrix.T), upper, lower, f,
+                                               z, 1e-9, 10 * (rows + nu))
         theirs, flag = _daqp(matrix, upper, lower, f)
         assert status in (1, -1) and iterations >= 0
         verdicts[status] += 1
@@ -108,17 +108,16 @@ def test_compiled_solver_without_rows_and_with_the_optimum_inside():
     kernels = _kernels()
     f = np.array([1.0, -2.0, 0.5])
     z = np.empty(3)
-    empty = np.empty((0, 3))
-    assert kernels.ldp_solve(empty, np.empty((3, 0)), np.empty(0), np.empty(0), f, z, 1e-9,
-                             10) == (1, 0)
+    assert kernels.ldp_solve(np.empty((3, 0)), np.empty(0), np.empty(0), f, z, 1e-9, 10) == (
+        1, 0)
     np.testing.assert_array_equal(z, -f)
     matrix = np.eye(3)
-    status, iterations = kernels.ldp_solve(matrix, matrix.T.copy(), np.full(3, 5.0),
+    status, iterations = kernels.ldp_solve(matrix.T.copy(), np.full(3, 5.0),
                                            np.full(3, -5.0), f, z, 1e-9, 10)
     assert (status, iterations) == (1, 0)
     np.testing.assert_array_equal(z, -f)
     # an iteration limit reached is a status, not a loop without end
-    status, _ = kernels.ldp_solve(matrix, matrix.T.copy(), np.full(3, -1.0), np.full(3, -2.0),
+    status, _ = kernels.ldp_solve(matrix.T.copy(), np.full(3, -1.0), np.full(3, -2.0),
                                   f, z, 1e-9, 1)
     assert status == -4
 

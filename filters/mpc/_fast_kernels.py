@@ -146,7 +146,8 @@ def _finite(array):
 def prepare_step(x0, ref_states, u_ref, normals, offsets, shortcut, state_cost,
                  A, B, C, gain, F, W, u_low, u_high, y_low, y_high, G, g,
                  input_axes, arena_axes, fixed_upper, fixed_lower, disabled, slack_tolerance,
-                 R_w, Q_w, x_ref, u, states, f, qp_A, qp_AT, upper, lower, scratch, info):
+                 R_w, Q_w, x_ref, u, states, f, qp_A, qp_AT, upper, lower, scratch, info,
+                 write_A):
     r"""The shortcut, or the QP data of one step (module docstring).
 
     Inputs: ``x0`` ``(n,)``; ``ref_states`` ``(T + 1, n)`` (row 0 unused); ``u_ref``
@@ -160,9 +161,9 @@ def prepare_step(x0, ref_states, u_ref, normals, offsets, shortcut, state_cost,
     Outputs: ``x_ref`` ``(T, n)`` the effective reference states; with the shortcut
     ``u`` ``(T m,)``, ``states`` ``(T + 1, n)`` and ``info[0]`` its cost; otherwise
     ``f`` ``(T m,)``, the DAQP arrays ``qp_A`` ``(n_fixed + K T, T m)`` (only its
-    halfspace rows are written), ``upper`` and ``lower``, and (unless it is empty) the
-    same halfspace rows into the transposed rows ``qp_AT``. ``scratch``
-    ``(n + T n + T m,)``.
+    halfspace rows are written, and only with ``write_A``), ``upper`` and ``lower``, and
+    (unless it is empty) the same halfspace rows into the transposed rows ``qp_AT``.
+    ``scratch`` ``(n + T n + T m,)``.
 
     Returns :data:`NON_FINITE` (some input is NaN or infinite: nothing is written),
     :data:`SHORTCUT` or :data:`QP`.
@@ -219,9 +220,12 @@ def prepare_step(x0, ref_states, u_ref, normals, offsets, shortcut, state_cost,
     flat = u_ref.ravel()
     for j in range(nu):
         scratch[n + horizon * n + j] = flat[j]
+    skip = n if state_cost else n + horizon * n  # first_input: F's X^r block is zero
     for r in range(nu):
         total = 0.0
-        for c in range(scratch.shape[0]):
+        for c in range(n):
+            total += F[r, c] * scratch[c]
+        for c in range(skip, scratch.shape[0]):
             total += F[r, c] * scratch[c]
         f[r] = total
     # the free response x^0_t = A^t x0 (into states), its positions and the shifted bounds
@@ -252,6 +256,7 @@ def prepare_step(x0, ref_states, u_ref, normals, offsets, shortcut, state_cost,
         row += 1
     # halfspace rows, step-major: a' W_t z <= b - a' C Phi_t x0
     transposed = qp_AT.shape[0] > 0
+    row = np.empty(nu)
     for t in range(horizon):
         for i in range(K):
             q = n_fixed + t * K + i
@@ -262,20 +267,21 @@ def prepare_step(x0, ref_states, u_ref, normals, offsets, shortcut, state_cost,
                     shift += normals[i, t, a] * position[t, a]
                 upper[q] = offsets[i, t] - shift
                 for c in range(nu):
-                    qp_A[q, c] = normals[i, t, 0] * W[t, 0, c]
+                    row[c] = normals[i, t, 0] * W[t, 0, c]
                 for a in range(1, d):
                     weight = normals[i, t, a]
                     for c in range(nu):
-                        qp_A[q, c] += weight * W[t, a, c]
-                if transposed:
-                    for c in range(nu):
-                        qp_AT[c, q] = qp_A[q, c]
+                        row[c] += weight * W[t, a, c]
             else:
                 upper[q] = disabled
                 for c in range(nu):
-                    qp_A[q, c] = 0.0
-                    if transposed:
-                        qp_AT[c, q] = 0.0
+                    row[c] = 0.0
+            if write_A:
+                for c in range(nu):
+                    qp_A[q, c] = row[c]
+            if transposed:
+                for c in range(nu):
+                    qp_AT[c, q] = row[c]
     return QP
 
 
@@ -410,7 +416,7 @@ def _rotate_rows(M, i, j, c, s, start):
 
 
 @njit(**_SUMS)
-def ldp_solve(A, AT, upper, lower, f, z, tolerance, max_iterations):
+def ldp_solve(AT, upper, lower, f, z, tolerance, max_iterations):
     r"""Goldfarb-Idnani's dual active-set method for the whitened QP (identity Hessian).
 
     .. math:: \min_z \tfrac12 \|z\|^2 + f^\top z \quad \text{s.t.} \quad
@@ -424,13 +430,13 @@ def ldp_solve(A, AT, upper, lower, f, z, tolerance, max_iterations):
     (``J`` orthogonal, stored transposed; ``R`` upper triangular), updated by Givens
     rotations (Goldfarb and Idnani 1983, with :math:`H = I` so that :math:`J = Q`).
 
-    ``AT`` is ``A`` transposed (``(T m, rows)``: the rows' values at ``z`` are then
+    The rows come transposed, ``AT`` ``(T m, rows)`` (the rows' values at ``z`` are then
     vectorised sums over the rows). Writes ``z``; returns ``(status, iterations)``: status
     1 solved, -1 infeasible (a violated row that no step can satisfy), -4
     ``max_iterations`` reached.
     """
     nu = f.shape[0]
-    n_rows = A.shape[0]
+    n_rows = AT.shape[1]
     values = np.empty(n_rows)
     JT = np.zeros((nu, nu))  # row i: column i of J
     R = np.zeros((nu, nu))
@@ -470,7 +476,7 @@ def ldp_solve(A, AT, upper, lower, f, z, tolerance, max_iterations):
             return 1, iterations
         norm2 = 0.0
         for c in range(nu):
-            norm2 += A[p, c] * A[p, c]
+            norm2 += AT[c, p] * AT[c, p]
         lam_p = 0.0
         while True:  # until row p is active
             iterations += 1
@@ -480,7 +486,7 @@ def ldp_solve(A, AT, upper, lower, f, z, tolerance, max_iterations):
             for i in range(nu):
                 total = 0.0
                 for c in range(nu):
-                    total += JT[i, c] * A[p, c]
+                    total += JT[i, c] * AT[c, p]
                 d[i] = -side * total
             # primal direction J2 d2, dual direction r = R^{-1} d1
             free2 = 0.0
@@ -505,7 +511,7 @@ def ldp_solve(A, AT, upper, lower, f, z, tolerance, max_iterations):
             if free2 > 1e-12 * norm2:
                 value = 0.0
                 for c in range(nu):
-                    value += A[p, c] * z[c]
+                    value += AT[c, p] * z[c]
                 violation = value - upper[p] if side > 0.0 else lower[p] - value
                 full = violation / free2
             if partial == np.inf and full == np.inf:
@@ -554,29 +560,30 @@ def ldp_solve(A, AT, upper, lower, f, z, tolerance, max_iterations):
 
 
 @njit(**_SUMS)
-def hard_step(x0, ref_states, u_ref, normals, offsets, shortcut, state_cost,
+def hard_step(x0, ref_states, u_ref, normals, offsets, shortcut, u, states, state_cost,
               A, B, C, gain, F, W, u_low, u_high, y_low, y_high, G, g,
               input_axes, arena_axes, fixed_upper, fixed_lower, disabled, slack_tolerance,
               R_w, Q_w, u_of_z, clip_tolerance, feasibility_tolerance, primal_tolerance,
-              max_iterations, x_ref, u, states, f, qp_A, qp_AT, upper, lower, scratch, z,
-              info):
-    """One hard step in one call: :func:`prepare_step`, then (when the shortcut does not
-    answer) :func:`ldp_solve` on the QP data just written and :func:`accept_step` of its
-    answer.
+              max_iterations, x_ref, f, qp_A, qp_AT, upper, lower, scratch, z, info):
+    """One hard step in one call: :func:`prepare_step` (the rows into ``qp_AT`` only),
+    then (when the shortcut does not answer) :func:`ldp_solve` on the QP data just
+    written and :func:`accept_step` of its answer.
 
     Returns :data:`NON_FINITE`, :data:`SHORTCUT`, :data:`SOLVED` (``u``, ``states`` and
     ``info`` hold the accepted answer; ``info[4]`` the iterations), :data:`INFEASIBLE`
     (the solver found the QP infeasible) or :data:`QP` (it stopped, or its answer was
-    rejected). With the last two, the QP data are written for DAQP.
+    rejected). DAQP's row matrix ``qp_A`` is not written (see
+    :meth:`filters.mpc.fast.FastHardStep.write_daqp_rows`); ``upper``, ``lower`` and
+    ``f`` are.
     """
     code = prepare_step(x0, ref_states, u_ref, normals, offsets, shortcut, state_cost,
                         A, B, C, gain, F, W, u_low, u_high, y_low, y_high, G, g,
                         input_axes, arena_axes, fixed_upper, fixed_lower, disabled,
                         slack_tolerance, R_w, Q_w, x_ref, u, states, f, qp_A, qp_AT, upper,
-                        lower, scratch, info)
+                        lower, scratch, info, False)
     if code != QP:
         return code
-    status, iterations = ldp_solve(qp_A, qp_AT, upper, lower, f, z, primal_tolerance,
+    status, iterations = ldp_solve(qp_AT, upper, lower, f, z, primal_tolerance,
                                    max_iterations)
     info[4] = iterations
     if status == -1:

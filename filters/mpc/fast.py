@@ -123,15 +123,27 @@ class FastHardStep:
         #: when it finds the QP infeasible or stops. Not when DAQP has settings of the
         #: user's (``solver_settings``): those are DAQP's to apply.
         self.own_solver = backend.settings == daqp_defaults()
-        #: Its stopping rule: no row violated by more than this (DAQP's ``primal_tol``).
+        #: Its stopping rule: no row violated by more than this (DAQP's ``primal_tol``;
+        #: fixed at construction).
         self.primal_tolerance = float(backend.settings.get("primal_tol", 1e-6))
         qp_rows = backend.row_buffers[0].shape[0]
         # the rows transposed for the compiled solver; the fixed rows are written once
         self._AT = np.zeros((T * m, qp_rows))
         self._AT[:, : qp.n_fixed] = qp.fixed_rows.T
         self._no_AT = np.empty((0, qp_rows))
+        self._n_fixed = qp.n_fixed
         self.max_iterations = 10 * (qp_rows + T * m)
         self.z = np.empty(T * m)
+        A, B, C = self._model
+        qp_A, upper, lower = backend.row_buffers
+        disabled, slack_tolerance, clip_tolerance, feasibility_tolerance = self._tolerances
+        # hard_step's arguments after the step's own (the same objects every step)
+        self._hard_tail = (
+            self._state_cost, A, B, C, self._gain, self._cost_map, self._maps, *self._u_box,
+            *self._y_box, *self._terminal, *self._axes, *self._fixed, disabled,
+            slack_tolerance, *self._weights, self._u_of_z, clip_tolerance,
+            feasibility_tolerance, self.primal_tolerance, self.max_iterations, self.x_ref,
+            self.f, qp_A, self._AT, upper, lower, self._scratch, self.z, self.info)
         finite = [np.isfinite(b).sum() for b in problem.position_bounds]
         self._n_bounds = T * int(sum(finite)) + G.shape[0]
         self._no_rows = (np.empty((0, T)), np.empty(0))
@@ -150,7 +162,7 @@ class FastHardStep:
             self._state_cost, A, B, C, self._gain, self._cost_map, self._maps, *self._u_box,
             *self._y_box, *self._terminal, *self._axes, *self._fixed, disabled,
             slack_tolerance, *self._weights, self.x_ref, inputs, states, self.f, qp_A,
-            self._no_AT, upper, lower, self._scratch, self.info)
+            self._no_AT, upper, lower, self._scratch, self.info, True)
 
     def solve_hard(self, x0: np.ndarray, reference_states: np.ndarray,
                    reference_inputs: np.ndarray, normals: np.ndarray, offsets: np.ndarray,
@@ -158,19 +170,17 @@ class FastHardStep:
         """:func:`~filters.mpc._fast_kernels.hard_step`: :meth:`prepare`, then the compiled
         solver and :meth:`accept`: ``NON_FINITE``, ``SHORTCUT``, ``SOLVED`` (``inputs``,
         ``states`` and :attr:`info` hold the accepted answer), ``INFEASIBLE`` or ``QP``
-        (the solver stopped or its answer was rejected): the QP data are then written
-        for DAQP."""
-        A, B, C = self._model
-        qp_A, upper, lower = self.backend.row_buffers
-        disabled, slack_tolerance, clip_tolerance, feasibility_tolerance = self._tolerances
-        return self._kernels.hard_step(
-            x0, reference_states, reference_inputs, normals, offsets, shortcut,
-            self._state_cost, A, B, C, self._gain, self._cost_map, self._maps, *self._u_box,
-            *self._y_box, *self._terminal, *self._axes, *self._fixed, disabled,
-            slack_tolerance, *self._weights, self._u_of_z, clip_tolerance,
-            feasibility_tolerance, self.primal_tolerance, self.max_iterations, self.x_ref,
-            inputs, states, self.f, qp_A, self._AT, upper, lower, self._scratch, self.z,
-            self.info)
+        (the solver stopped or its answer was rejected); for DAQP after the last two,
+        call :meth:`write_daqp_rows` first."""
+        return self._kernels.hard_step(x0, reference_states, reference_inputs, normals,
+                                       offsets, shortcut, inputs, states, *self._hard_tail)
+
+    def write_daqp_rows(self) -> None:
+        """Write the step's halfspace rows into DAQP's row matrix (after :meth:`solve_hard`,
+        which writes them transposed only; the bounds and ``f`` are written)."""
+        qp_A = self.backend.row_buffers[0]
+        n_fixed = self._n_fixed
+        qp_A[n_fixed:] = self._AT[:, n_fixed:].T
 
     def accept(self, z: np.ndarray, x0: np.ndarray, reference_inputs: np.ndarray,
                normals: np.ndarray, offsets: np.ndarray, inputs: np.ndarray,

@@ -630,6 +630,8 @@ class MPCSafetyFilter:
         recovery = fast.recovery
         if recovery is not None and self._recovery is not recovery:
             recovery = None
+        if fast.own_solver:
+            fast.write_daqp_rows()  # DAQP solves next: it takes the rows as they are
         backend = fast.backend
         if code == fast_codes.INFEASIBLE and recovery is not None:
             # The compiled solver's verdict stands: the recovery QP follows, and it has the
