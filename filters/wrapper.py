@@ -865,9 +865,9 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             return None
         cached = self._rows_cache
         ego_radius = base.ego_radius
-        if (cached is not None and cached[0] is radii and cached[1] == ego_radius
-                and cached[2] == predictions.shape):
-            return cached[3]  # the same radii array as last step (the usual case)
+        if (cached is not None and cached[0] is radii and not radii.flags.writeable
+                and cached[1] == ego_radius and cached[2] == predictions.shape):
+            return cached[3]  # the same read-only radii array as last step (the usual case)
         key = (float(ego_radius), tuple(radii.tolist()), predictions.shape[1],
                predictions.shape[3])
         if cached is not None and cached[4] == key:
