@@ -620,3 +620,86 @@ def halfspace_kernel(flat, horizon, dim, origins, mode, given, ego, plan, previo
                     rows_normals[n_obstacles + i, t, j] = 0.0
                 rows_offsets[n_obstacles + i, t] = disabled
     return OK
+
+
+# --------------------------------------------------------------------------- the wrapper's step
+
+ORIGIN_REFERENCE = 0  # normals start at the reference positions C x^r_t
+ORIGIN_EGO = 1  # ... at the current position C x_0, every step
+ORIGIN_PLAN = 2  # ... at the last plan shifted by one step (the reference without a plan)
+
+
+@njit(**_INLINE)
+def _shifted_plan(plan_states, C, y0, out):
+    """``out[t] = (C x^p_{t+2} - C x^p_1) + y0`` (the last row repeats ``C x^p_T``): the last
+    plan ``(T + 1, n)`` shifted by one step and re-anchored at ``y0``, in the operation
+    order of :func:`filters.wrapper._shifted_positions`."""
+    horizon, dim = out.shape
+    n = plan_states.shape[1]
+    for t in range(horizon):
+        row = min(t + 2, horizon)
+        for a in range(dim):
+            here = 0.0
+            first = 0.0
+            for j in range(n):
+                here += C[a, j] * plan_states[row, j]
+                first += C[a, j] * plan_states[1, j]
+            out[t, a] = (here - first) + y0[a]
+
+
+@njit(**_FLAGS)
+def wrapper_step_kernel(flat, horizon, dim, x0, ref_states, C, origin_mode, mode, plan_states,
+                        previous_raw, risk, alpha, mass, k, factor, z_guess, band_width, delta,
+                        epsilon, conformal, radii, start_rows, low, high, arc, disabled,
+                        normals, degenerate, offsets, rows_normals, rows_offsets):
+    """:func:`halfspace_kernel` with its inputs formed from the wrapper's raw state.
+
+    From the state ``x0`` ``(n,)`` (its velocity ``x0[dim : 2 dim]`` is the degenerate
+    normals' fallback), the reference ``ref_states`` ``(T + 1, n)``, the output map ``C``
+    ``(d, n)``, the last plan ``plan_states`` ``(T + 1, n)`` (or empty) and the last normals
+    ``previous_raw`` ``(k, T, d)`` (or empty): the origins (``origin_mode``: the reference
+    positions, the ego position, or the shifted plan when there is one), the ego position
+    and the shifted plan of the near-side and clearest modes, and the previous normals
+    shifted by one step (the last step repeated). Then :func:`halfspace_kernel` with the
+    remaining arguments; returns its status.
+    """
+    n = x0.shape[0]
+    y0 = np.empty(dim)
+    for a in range(dim):
+        value = 0.0
+        for j in range(n):
+            value += C[a, j] * x0[j]
+        y0[a] = value
+    has_plan = plan_states.shape[0] > 0
+    origins = np.empty((horizon, dim))
+    if origin_mode == ORIGIN_EGO:
+        for t in range(horizon):
+            for a in range(dim):
+                origins[t, a] = y0[a]
+    elif origin_mode == ORIGIN_PLAN and has_plan:
+        _shifted_plan(plan_states, C, y0, origins)
+    else:
+        for t in range(horizon):
+            for a in range(dim):
+                value = 0.0
+                for j in range(n):
+                    value += ref_states[t + 1, j] * C[a, j]
+                origins[t, a] = value
+    plan = np.empty((horizon if mode == MODE_CLEAREST and has_plan else 0, dim))
+    if plan.shape[0]:
+        _shifted_plan(plan_states, C, y0, plan)
+    ego = y0 if mode == MODE_NEARSIDE or mode == MODE_CLEAREST else np.empty(0)
+    n_previous = previous_raw.shape[0]
+    previous = np.empty((n_previous, horizon if n_previous else 0, dim))
+    for i in range(n_previous):
+        for t in range(horizon):
+            for a in range(dim):
+                previous[i, t, a] = previous_raw[i, min(t + 1, horizon - 1), a]
+    velocity = np.empty((1, dim))
+    for a in range(dim):
+        velocity[0, a] = x0[dim + a]
+    return halfspace_kernel(flat, horizon, dim, origins, mode, np.empty((0, 0, 0)), ego, plan,
+                            previous, velocity, risk, alpha, mass, k, factor, z_guess,
+                            band_width, delta, epsilon, conformal, radii, start_rows, low, high,
+                            arc, disabled, normals, degenerate, offsets, rows_normals,
+                            rows_offsets)

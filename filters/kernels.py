@@ -48,9 +48,11 @@ from filters.risk import CHANCE_RISKS, cantelli_factor, gaussian_factor, tail_co
 __all__ = [
     "BACKENDS",
     "KernelRows",
+    "WrapperRows",
     "check_backend",
     "compiled_rows",
     "kernel_applies",
+    "kernels_available",
     "use_kernel",
 ]
 
@@ -81,6 +83,11 @@ def check_backend(backend: object) -> str:
     if not isinstance(backend, str):
         raise InvalidTypeError(f"backend must be a string, one of {BACKENDS}, got {backend!r}")
     raise InvalidParameterError(f"backend must be one of {BACKENDS}, got {backend!r}")
+
+
+def kernels_available() -> bool:
+    """Whether the compiled kernels can run (numba imports; imports it on first call)."""
+    return _load() is not None
 
 
 def kernel_applies(
@@ -187,6 +194,14 @@ def _floats(value: object, ndim: int) -> np.ndarray:
     return array
 
 
+_FLOAT64 = np.dtype(np.float64)
+
+
+def _plain(array: np.ndarray) -> bool:
+    """Whether an ndarray holds C-contiguous native float64 (what the kernels take as is)."""
+    return (array.dtype is _FLOAT64 or array.dtype == _FLOAT64) and array.flags.c_contiguous
+
+
 def _bound(value: object, dim: int) -> np.ndarray:
     """An input bound as a ``(d,)`` float array (a scalar applies to every axis)."""
     array = np.ascontiguousarray(value, dtype=np.float64)
@@ -290,3 +305,120 @@ def compiled_rows(
     return KernelRows(out_normals, out_degenerate, out_offsets,
                       rows_normals if start else None, rows_offsets if start else None,
                       int(status))
+
+
+_ORIGINS = {"paper": 0, "ego": 1, "previous_plan": 2, "nearside": 0, "clearest": 0}
+_NORMAL_MODES = {"paper": "paper", "ego": "paper", "previous_plan": "paper",
+                 "nearside": "nearside", "clearest": "clearest"}
+
+
+class WrapperRows:
+    """The wrapper's halfspace rows, one kernel call per step with the constants prepared.
+
+    What :func:`filters.step_rows.step_rows` computes for
+    :class:`filters.SafetyFilterWrapper` on the compiled path, for one set of obstacles
+    (disc radii), one sample count and a risk with fixed settings (every risk but
+    ``"conformal"``, a float ``epsilon``): the risk constants, radii, input bounds and
+    arc margin are formed once, and the kernel forms the origins, the ego position, the
+    shifted plan and the shifted previous normals from the raw state itself (the
+    operations of the wrapper, in their order). The same kernel as the general call, on
+    the same numbers: the same bits.
+
+    Parameters
+    ----------
+    horizon, n_samples
+        ``T`` and ``N_s``.
+    radii
+        Ego plus obstacle radius per obstacle ``(k,)``, m.
+    risk, alpha, delta, epsilon
+        Checked risk settings (``risk`` not ``"conformal"``, ``epsilon`` a float).
+    normals
+        The wrapper's ``normals`` setting (:data:`filters.wrapper.NORMAL_SOURCES`).
+    input_bounds, dt
+        With ``input_bounds``, the inter-sample rows (as :func:`compiled_rows`).
+    disabled_offset
+        Offset of the unused last start rows.
+    """
+
+    def __init__(self, *, horizon: int, n_samples: int, radii: np.ndarray, risk: str,
+                 alpha: float, delta: float, epsilon: float, normals: str,
+                 input_bounds: tuple[np.ndarray, np.ndarray] | None, dt: float,
+                 disabled_offset: float, dim: int = 2) -> None:
+        if risk == "conformal" or type(epsilon) is not float:
+            raise InvalidParameterError("WrapperRows takes fixed risk settings (not conformal, "
+                                        f"a float epsilon), got {risk!r}, {epsilon!r}")
+        self._kernels = _load()
+        if self._kernels is None:
+            raise InvalidParameterError(f"WrapperRows needs numba: {_missing}")
+        self.horizon, self.n_samples, self.dim = int(horizon), int(n_samples), int(dim)
+        self.radii = np.ascontiguousarray(radii, dtype=np.float64)
+        self.n_obstacles = self.radii.shape[0]
+        self.normals = normals
+        self._origin_mode = _ORIGINS[normals]
+        self._mode = _MODES[_NORMAL_MODES[normals]]
+        self._constants = _risk_constants(risk, alpha, self.n_samples)
+        self._alpha, self._delta = float(alpha), float(delta)
+        self._epsilon = _floats(epsilon, 1)
+        self._start = input_bounds is not None
+        if self._start:
+            self._low, self._high = _bound(input_bounds[0], dim), _bound(input_bounds[1], dim)
+            self._arc = dt * dt / 8.0
+        else:
+            self._low = self._high = _EMPTY_1
+            self._arc = 0.0
+        self._disabled = float(disabled_offset)
+        self._C_given: object = None
+        self._C = _EMPTY_2
+
+    def __call__(self, samples: np.ndarray, x0: np.ndarray, ref_states: np.ndarray,
+                 C: np.ndarray, plan_states: np.ndarray | None,
+                 previous_normals: np.ndarray | None) -> tuple | None:
+        """``(status, normals, degenerate, offsets, rows_normals, rows_offsets)`` as in
+        :class:`KernelRows` (a plain tuple: this runs every step), or ``None`` if an array
+        does not fit (the general path then runs). ``status`` non-zero: the kernel found a
+        non-finite number.
+
+        ``samples`` ``(k, N_s, T', d)`` float64 C-contiguous, ``T' >= T``; ``x0`` ``(2 d,)``
+        (position, velocity); ``ref_states`` and ``plan_states`` ``(T + 1, 2 d)``
+        (``plan_states``: the last plan for ``"previous_plan"``, the last optimal plan for
+        ``"clearest"``, else ignored); ``C`` ``(d, 2 d)``; ``previous_normals``
+        ``(k, T, d)`` (``"paper"``-style modes) or ``None``.
+        """
+        T, dim, k = self.horizon, self.dim, self.n_obstacles
+        n = 2 * dim
+        shape = samples.shape
+        if not (type(samples) is np.ndarray and _plain(samples) and len(shape) == 4
+                and shape[0] == k and shape[1] == self.n_samples and shape[2] >= T
+                and shape[3] == dim and type(x0) is np.ndarray and _plain(x0)
+                and x0.shape == (n,) and type(ref_states) is np.ndarray and _plain(ref_states)
+                and ref_states.shape == (T + 1, n) and np.shape(C) == (dim, n)):
+            return None
+        if plan_states is None or self._origin_mode != 2 and self._mode != _MODES["clearest"]:
+            plan_states = _EMPTY_2
+        elif not (type(plan_states) is np.ndarray and _plain(plan_states)
+                  and plan_states.shape == (T + 1, n)):
+            return None
+        if previous_normals is None or self._mode != _MODES["paper"]:
+            previous_normals = _EMPTY_3
+        elif not (type(previous_normals) is np.ndarray and _plain(previous_normals)
+                  and previous_normals.shape == (k, T, dim)):
+            return None
+        if C is not self._C_given:  # the environment's output map, converted once
+            self._C_given, self._C = C, _floats(C, 2)
+        code, mass, kk, factor, z_guess, width = self._constants
+        normals = np.empty((k, T, dim))
+        degenerate = np.empty((k, T), dtype=np.bool_)
+        offsets = np.empty((k, T))
+        if self._start:
+            rows_normals, rows_offsets = np.empty((2 * k, T, dim)), np.empty((2 * k, T))
+        else:
+            rows_normals, rows_offsets = _EMPTY_3, _EMPTY_2
+        status = self._kernels.wrapper_step_kernel(
+            samples.reshape(k, self.n_samples, -1), T, dim, x0, ref_states, self._C,
+            self._origin_mode, self._mode, plan_states, previous_normals, code, self._alpha, mass,
+            kk, factor, z_guess, width, self._delta, self._epsilon, _ZERO_2, self.radii,
+            self._start, self._low, self._high, self._arc, self._disabled, normals,
+            degenerate, offsets, rows_normals, rows_offsets)
+        if not self._start:
+            return status, normals, degenerate, offsets, None, None
+        return status, normals, degenerate, offsets, rows_normals, rows_offsets

@@ -31,7 +31,9 @@ from filters.calibration import OnlineCalibration
 from filters.errors import InvalidParameterError, InvalidTypeError
 from filters.geometry import Disc
 from filters.halfspaces import Halfspaces
+from filters.kernels import WrapperRows, kernels_available
 from filters.mpc import FilterResult, FilterStatus, MPCSafetyFilter
+from filters.mpc.filter import DISABLED_OFFSET
 from filters.mpc.terminal import stopping_terminal_set
 from filters.protocol import FilterableEnv
 from filters.references import (
@@ -360,6 +362,13 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         ``"persistent"``: the calibration carries over between episodes (the behaviour
         before ``calibration_memory`` existed, with ``calibration_episodes=0``).
 
+    fast_path
+        ``True`` (default): the lean per-step path (the held-action kernel called with
+        constants checked once, the halfspace rows by :class:`filters.kernels.WrapperRows`,
+        the filter's compiled hard step of :mod:`filters.mpc.fast`); its results equal
+        the general path's to rounding. ``False``: the general path (``step_rows``, the
+        filter's general solve), the reference the fast one is checked against.
+
     Raises
     ------
     InvalidParameterError
@@ -413,6 +422,7 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         calibration_seed: int = CALIBRATION_SEED,
         calibration_memory: str = "episode",
         compiled_rollout: bool = True,
+        fast_path: bool = True,
     ) -> None:
         # No deep copy: policies and planners hold solver and torch state.
         gym.utils.RecordConstructorArgs.__init__(
@@ -424,7 +434,7 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             intervention_penalty=intervention_penalty, support=support,
             draw_halfspaces=draw_halfspaces, calibration_episodes=calibration_episodes,
             calibration_seed=calibration_seed, calibration_memory=calibration_memory,
-            compiled_rollout=compiled_rollout,
+            compiled_rollout=compiled_rollout, fast_path=fast_path,
         )
         gym.Wrapper.__init__(self, env)
         self._unwrapped: FilterableEnv = env.unwrapped  # type: ignore[assignment]
@@ -463,12 +473,13 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         )
         for name, flag in (("intersample", intersample), ("terminal", terminal),
                            ("soft", soft), ("draw_halfspaces", draw_halfspaces),
-                           ("compiled_rollout", compiled_rollout)):
+                           ("compiled_rollout", compiled_rollout), ("fast_path", fast_path)):
             if not isinstance(flag, (bool, np.bool_)):
                 raise InvalidTypeError(f"{name} must be a bool, got {flag!r}")
         self.intersample, self.terminal = bool(intersample), bool(terminal)
         self._rows = 2 if self.intersample else 1  # rows_per_obstacle, read every step
         self.soft, self.draw_halfspaces = bool(soft), bool(draw_halfspaces)
+        self.fast_path = bool(fast_path)
         self.intervention_penalty = scalar_in_range(
             "intervention_penalty", intervention_penalty, low=0.0, high=np.inf,
             high_inclusive=False,
@@ -521,12 +532,22 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 self.calibration_episodes = CALIBRATION_EPISODES if episodes is None else episodes
         self._mpc: MPCSafetyFilter | None = None
         self._previous_normals: np.ndarray | None = None
-        self._last_halfspaces: Halfspaces | None = None
+        # the last step's halfspaces: made on demand from (normals, offsets, degenerate)
+        self._halfspace_parts: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._halfspaces_made: Halfspaces | None = None
         self._last_plan: np.ndarray | None = None
         self._plan_optimal = False  # whether _last_plan met every row (status "optimal")
         self._hook: Callable[[Any], None] | None = None
         self._halfspace_lines: Any = None  # the hook's line collection, reused per frame
         self._shape_cache: tuple[tuple, Disc, list[Disc]] | None = None
+        # The prepared per-step kernels: the held-action reference's constants, and the
+        # rows kernel (built per set of obstacle radii) where the settings allow it.
+        self._hold = (self._prepared_hold() if self.fast_path and self.risk != "none"
+                      and self.reference is hold_action_reference else None)
+        self._fast_rows = (self.fast_path and self.risk not in ("none", "conformal")
+                           and self.epsilon != "auto" and support is None
+                           and kernels_available())
+        self._rows_cache: tuple | None = None  # (radii, ego radius, shape, rows, key)
         if self.risk != "none":  # builds (and so validates) the weights and bounds now
             self._mpc = self._build_filter(max(1, len(np.asarray(base.obstacle_radii))))
         if self._calibration is not None:
@@ -537,9 +558,36 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         return self._unwrapped
 
     @property
+    def _last_halfspaces(self) -> Halfspaces | None:
+        """The last filtered step's :class:`~filters.halfspaces.Halfspaces` (for drawing),
+        made on first use from that step's arrays."""
+        if self._halfspaces_made is None and self._halfspace_parts is not None:
+            normals, offsets, degenerate = self._halfspace_parts
+            self._halfspaces_made = Halfspaces(normals, offsets, self.risk, self.alpha,
+                                               self.delta, self.epsilon, degenerate)
+        return self._halfspaces_made
+
+    @property
     def rows_per_obstacle(self) -> int:
         """Halfspace rows per obstacle and step: 2 with the inter-sample rows, else 1."""
         return 2 if self.intersample else 1
+
+    def _prepared_hold(self) -> tuple | None:
+        """``(x0 shape, action shape, kernel, low, high, A, B)`` of the held-action reference,
+        checked once (:func:`filters.references.hold_action_reference` checks them every
+        call), or ``None`` if they do not fit together (that function then raises)."""
+        base = self._base
+        A, B, _ = base.dynamics
+        A, B = np.ascontiguousarray(A, dtype=np.float64), np.ascontiguousarray(B, dtype=np.float64)
+        low, high = (np.ascontiguousarray(b, dtype=np.float64) for b in base.input_bounds)
+        if B.ndim != 2:
+            return None
+        n, m = B.shape
+        if A.shape != (n, n) or low.shape != (m,) or high.shape != (m,):
+            return None
+        from filters._reference_kernels import hold  # numba: imported on first use only
+
+        return (n,), (m,), hold, low, high, A, B
 
     def _build_filter(self, n_obstacles: int) -> MPCSafetyFilter:
         base = self._base
@@ -557,7 +605,7 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             input_bounds=base.input_bounds, position_bounds=base.position_bounds,
             n_obstacles=self.rows_per_obstacle * rows, soft=self.soft,
             objective=self.objective, later_input_weight=self.later_input_weight,
-            terminal_set=terminal_set, fallback=self.fallback,
+            terminal_set=terminal_set, fallback=self.fallback, fast_path=self.fast_path,
         )
 
     # ------------------------------------------------------------------ gym API
@@ -571,7 +619,7 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self._calibration.reset()
             self._calibrate()
         self._previous_normals = None
-        self._last_halfspaces = None
+        self._halfspace_parts = self._halfspaces_made = None
         self._last_plan = None
         self._plan_optimal = False
         self._install_render_hook()
@@ -690,22 +738,25 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         base = self._unwrapped
         x0 = np.asarray(base.ego_state, dtype=float)
         radii = np.asarray(base.obstacle_radii, dtype=float)
-        if self._mpc is None or self._rows * radii.shape[0] > self._mpc.n_obstacles:
-            self._mpc = self._build_filter(len(radii))
+        mpc = self._mpc
+        if mpc is None or self._rows * radii.shape[0] > mpc.n_obstacles:
+            mpc = self._mpc = self._build_filter(len(radii))
         begin = time.perf_counter()
         try:
             if not finite:
                 raise InvalidParameterError(f"the proposed action is not finite: {proposed}")
-            ref_states, ref_inputs = self.reference(base, proposed, self.horizon)
+            hold = self._hold
+            if hold is not None and x0.shape == hold[0] and proposed.shape == hold[1]:
+                ref_states, ref_inputs = hold[2](x0, proposed, *hold[3:], self.horizon)
+            else:
+                ref_states, ref_inputs = self.reference(base, proposed, self.horizon)
             start = time.perf_counter()
-            halfspaces, rows = self._halfspaces(base, x0, ref_states, radii)
+            normals, offsets, rows = self._halfspaces(base, x0, ref_states, radii)
             middle = time.perf_counter()
-            result: FilterResult = self._mpc.solve(
-                x0, ref_states, rows, reference_inputs=ref_inputs
-            )
+            result: FilterResult = mpc.solve(x0, ref_states, rows, reference_inputs=ref_inputs)
         except (ValueError, TypeError, FloatingPointError) as exc:
             # Bad numbers from the policy or the predictions (NaN, inf): brake, say why.
-            applied = np.clip(self._mpc.braking_input(x0), *base.input_bounds)
+            applied = np.clip(mpc.braking_input(x0), *base.input_bounds)
             applied.setflags(write=False)
             self._last_plan = None
             self._plan_optimal = False
@@ -717,27 +768,21 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             )
             return applied, report
         end = time.perf_counter()
+        states = result.states
         applied = _owned(result.inputs[0])
-        self._previous_normals = halfspaces.normals
-        self._last_halfspaces = halfspaces
-        self._last_plan = result.states
+        self._previous_normals = normals
+        self._last_plan = states
         self._plan_optimal = result.status is FilterStatus.OPTIMAL
         slack = result.slack
         if slack is not None:
-            k = halfspaces.n_obstacles
+            k = normals.shape[0]
             # per obstacle and step (the larger of the two inter-sample rows)
-            slack = np.maximum(slack[:k], slack[k : 2 * k]) if self.intersample else slack[:k]
+            slack = _owned(np.maximum(slack[:k], slack[k : 2 * k]) if self.intersample
+                           else slack[:k])
         report = _report(
-            result.status.value, proposed, applied,
-            intervention=_distance(applied, proposed),
-            solve_time=float(result.solve_time),
-            halfspace_time=middle - start,
-            filter_time=end - start,
-            reference_time=start - begin,
-            slack=_owned(slack),
-            normals=_owned(halfspaces.normals),
-            offsets=_owned(halfspaces.offsets),
-            planned_states=_owned(result.states),
+            result.status.value, proposed, applied, _distance(applied, proposed),
+            float(result.solve_time), middle - start, end - start, start - begin, slack,
+            _owned(normals), _owned(offsets), _owned(states),
         )
         return applied, report
 
@@ -760,8 +805,27 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     def _halfspaces(
         self, base: FilterableEnv, x0: np.ndarray, ref_states: np.ndarray, radii: np.ndarray
-    ) -> tuple[Halfspaces, tuple[np.ndarray, np.ndarray]]:
+    ) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray]]:
+        """The step's halfspaces ``(normals, offsets)`` and the QP's rows (with the
+        inter-sample rows, if set); the halfspaces are kept for :attr:`_last_halfspaces`."""
         predictions = np.asarray(base.predictions, dtype=float)
+        prepared = self._prepared_rows(base, radii, predictions)
+        if prepared is not None:
+            previous = self._previous_normals
+            if previous is not None and previous.shape[0] != radii.shape[0]:
+                previous = None
+            plan = self._last_plan if (self.normals == "previous_plan" or (
+                self.normals == "clearest" and self._plan_optimal)) else None
+            out = prepared(predictions, x0, ref_states, base.dynamics[2], plan, previous)
+            if out is not None and out[0] == 0:
+                _, normals, degenerate, offsets, rows_normals, rows_offsets = out
+                self._halfspace_parts, self._halfspaces_made = (normals, offsets,
+                                                                degenerate), None
+                if rows_normals is None:
+                    return normals, offsets, (normals, offsets)
+                return normals, offsets, (rows_normals, rows_offsets)
+        # the general call (other settings, or a problem the kernel reported: the numpy
+        # path names it)
         if predictions.shape[2] < self.horizon:
             raise InvalidParameterError(
                 f"the filter horizon {self.horizon} exceeds the prediction horizon "
@@ -788,7 +852,39 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             input_bounds=base.input_bounds if self.intersample else None,
             dt=float(base.dt), **self._risk_options(),
         )
-        return rows.halfspaces, (rows.normals, rows.offsets)
+        halfspaces = rows.halfspaces
+        self._halfspace_parts, self._halfspaces_made = None, halfspaces
+        return halfspaces.normals, halfspaces.offsets, (rows.normals, rows.offsets)
+
+    def _prepared_rows(self, base: FilterableEnv, radii: np.ndarray,
+                       predictions: np.ndarray) -> WrapperRows | None:
+        """The prepared rows kernel (:class:`filters.kernels.WrapperRows`) for these discs and
+        sample count, built once per set of them; ``None`` where the general call runs (a
+        polytope support, the conformal risk, ``epsilon="auto"``, an unexpected shape)."""
+        if not self._fast_rows or predictions.ndim != 4:
+            return None
+        cached = self._rows_cache
+        ego_radius = base.ego_radius
+        if (cached is not None and cached[0] is radii and not radii.flags.writeable
+                and cached[1] == ego_radius and cached[2] == predictions.shape):
+            return cached[3]  # the same read-only radii array as last step (the usual case)
+        key = (float(ego_radius), tuple(radii.tolist()), predictions.shape[1],
+               predictions.shape[3])
+        if cached is not None and cached[4] == key:
+            prepared = cached[3]
+        elif len(radii):
+            ego_shape, obstacle_shapes = self._shapes(float(ego_radius), radii)
+            prepared = WrapperRows(
+                horizon=self.horizon, n_samples=predictions.shape[1],
+                radii=np.array([shape.radius for shape in obstacle_shapes]) + ego_shape.radius,
+                risk=self.risk, alpha=self.alpha, delta=self.delta, epsilon=self.epsilon,
+                normals=self.normals, dim=predictions.shape[3],
+                input_bounds=base.input_bounds if self.intersample else None,
+                dt=float(base.dt), disabled_offset=DISABLED_OFFSET)
+        else:
+            prepared = None
+        self._rows_cache = (radii, ego_radius, predictions.shape, prepared, key)
+        return prepared
 
     def _shapes(self, ego_radius: float, radii: np.ndarray) -> tuple[Disc, list[Disc]]:
         """The ego and obstacle discs, built once per set of radii (not every step)."""

@@ -187,14 +187,17 @@ def test_recovery_slack_is_the_minimal_l1_violation():
     assert checked >= 5
 
 
+@pytest.mark.parametrize("fast_path", [False, True])
 @pytest.mark.parametrize("excess", [2e-5, 2e-3])
-def test_answers_slightly_outside_the_input_box_are_clipped_and_checked(excess):
+def test_answers_slightly_outside_the_input_box_are_clipped_and_checked(excess, fast_path):
     """A back end answer up to INPUT_CLIP_TOLERANCE outside the input box is clipped and
     its rows are checked on the clipped plan (a recovery answer 2e-5 outside was once
-    rejected, and the filter braked); beyond it, the answer is rejected."""
+    rejected, and the filter braked); beyond it, the answer is rejected. On the general
+    path and on the fast path (filters.mpc.fast), which calls DAQP's ``solve_written``."""
     from filters.mpc.filter import INPUT_CLIP_TOLERANCE
 
-    mpc = make_filter("daqp", n_obstacles=3)
+    mpc = make_filter("daqp", n_obstacles=3, fast_path=fast_path)
+    assert (mpc._fast is not None and mpc._fast.recovery is mpc._recovery) == fast_path
     recovery = mpc._recovery
     real = recovery.solve
 
@@ -207,7 +210,19 @@ def test_answers_slightly_outside_the_input_box_are_clipped_and_checked(excess):
         inputs[inputs <= -5.0 + 1e-9] -= excess
         return dataclasses.replace(solution, inputs=inputs)
 
+    real_written = recovery.solve_written
+
+    def outside_written(f):  # the same in the whitened variables z = U' u
+        z, *rest = real_written(f)
+        if z is None or rest[1] < 1:
+            return (z, *rest)
+        inputs = recovery.qp.u_of_z @ z
+        inputs[inputs >= 5.0 - 1e-9] += excess
+        inputs[inputs <= -5.0 + 1e-9] -= excess
+        return (recovery.qp.z_of_u @ inputs, *rest)
+
     recovery.solve = outside
+    recovery.solve_written = outside_written
     saturated = 0
     for instance in mode_instances("recovery", 5, 10):
         mpc.reset()

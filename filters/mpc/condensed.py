@@ -108,6 +108,13 @@ class CondensedQP:
         ``"bounds"`` is in its ``soft_rows``).
     position_maps
         :math:`W_t`, ``(T, d, T m)``.
+    cost_map
+        :math:`F` with :math:`f_z = F [x_0; X^r; u^r]`, ``(T m, n + T n + T m)``, dense.
+    fixed_upper, fixed_lower
+        The fixed rows' bounds before the shift by the current state, ``(n_fixed,)``.
+    input_axes, arena_axes
+        The input and position axes with a finite side: those of the input and arena
+        rows.
     """
 
     def __init__(self, problem: MPCProblem) -> None:
@@ -129,7 +136,8 @@ class CondensedQP:
         self.u_of_z = np.ascontiguousarray(u_of_z)
         # f = F [x0; X^r; u^r]; f_z = U^{-1} f = u_of_z' f.
         linear = np.hstack([2.0 * gamma.T @ Q_bar @ phi, -2.0 * gamma.T @ Q_bar, -2.0 * R_bar])
-        self._F = matvec_operator(u_of_z.T @ linear)
+        self.cost_map = np.ascontiguousarray(u_of_z.T @ linear)
+        self._F = matvec_operator(self.cost_map)
 
         C_phi = np.einsum("dn,tnk->tdk", p.C, phi.reshape(T, n, n))  # (T, d, n)
         C_gamma = np.einsum("dn,tnk->tdk", p.C, gamma.reshape(T, n, nu))  # (T, d, nu)
@@ -145,11 +153,12 @@ class CondensedQP:
         rows = [u_of_z[input_index], W[:, arena_axes].reshape(-1, nu),
                 G @ gamma[(T - 1) * n :] @ u_of_z]
         self.fixed_rows = np.ascontiguousarray(np.vstack(rows))
-        self._fixed_upper = np.concatenate(
+        self.fixed_upper = np.concatenate(
             [np.tile(u_high[input_axes], T), np.tile(y_high[arena_axes], T), g])
-        self._fixed_lower = np.concatenate(
+        self.fixed_lower = np.concatenate(
             [np.tile(u_low[input_axes], T), np.tile(y_low[arena_axes], T),
              np.full(len(g), -np.inf)])
+        self.input_axes, self.arena_axes = input_axes, arena_axes
         self._input_index = input_index
         n_inputs, n_arena = len(input_index), T * len(arena_axes)
         self.n_fixed = n_inputs + n_arena + len(g)
@@ -165,7 +174,6 @@ class CondensedQP:
         self._S = matvec_operator(np.vstack([shift, C_phi.reshape(T * d, n)]))
         # One product E z: u, the positions C Gamma u, the terminal values G Gamma_T u.
         self._E = matvec_operator(np.vstack([u_of_z, W.reshape(T * d, nu), rows[2]]))
-        self._arena_axes = arena_axes
         self._hi, self._lo = np.isfinite(y_high[arena_axes]), np.isfinite(y_low[arena_axes])
         self.T, self.n, self.m, self.d, self.K, self.nu = T, n, m, d, K, nu
         self._v = np.empty(n + T * n + nu)
@@ -179,8 +187,8 @@ class CondensedQP:
         shift = self._S @ x0
         n_fixed = self.n_fixed
         positions0 = shift[n_fixed:].reshape(self.T, self.d)
-        upper = self._fixed_upper - shift[:n_fixed]
-        lower = self._fixed_lower - shift[:n_fixed]
+        upper = self.fixed_upper - shift[:n_fixed]
+        lower = self.fixed_lower - shift[:n_fixed]
         normals_t = normals.transpose(1, 0, 2)  # (T, K, d)
         hs_upper = offsets.T - _vecdot(normals_t, positions0[:, None, :])
         return StepRows(f, upper, lower, normals_t, hs_upper, positions0)
@@ -200,7 +208,7 @@ class CondensedQP:
         nu, T, d = self.nu, self.T, self.d
         u = values[:nu]
         positions = values[nu : nu + T * d].reshape(T, d)
-        fixed = np.concatenate((u[self._input_index], positions[:, self._arena_axes].reshape(-1),
+        fixed = np.concatenate((u[self._input_index], positions[:, self.arena_axes].reshape(-1),
                                 values[nu + T * d :]))
         return u, fixed, positions
 

@@ -34,9 +34,11 @@ import scipy.linalg
 
 from filters._validation import finite_array
 from filters.errors import InvalidParameterError, InvalidTypeError
+from filters.mpc import fast as fast_codes
 from filters.mpc._linalg import matvec_operator
 from filters.mpc.checks import all_finite, finite_step_array, parse_halfspaces
-from filters.mpc.problem import MPCProblem
+from filters.mpc.fast import FastHardStep, fast_path_applies
+from filters.mpc.problem import SOFT_ROWS, MPCProblem
 from filters.mpc.recovery import braking_gain, rollout_with_brake, shifted_plan
 from filters.mpc.result import FilterResult, FilterStatus, QPSolution, StepData
 
@@ -73,6 +75,7 @@ SLACK_TOLERANCE = 1e-6
 INPUT_CLIP_TOLERANCE = 1e-4
 
 _NO_QP = "unconstrained optimum feasible (no QP needed)"
+_FLOAT64 = np.dtype(np.float64)  # a singleton: ``dtype is _FLOAT64`` is the cheap test
 _vecdot = getattr(np, "vecdot", None) or (lambda a, b: np.einsum("...d,...d->...", a, b))
 
 
@@ -188,6 +191,11 @@ class MPCSafetyFilter:
         (the same sparse QP in PIQP) or ``"cvxpy"`` (the readable reference; imports
         CVXPY). :attr:`backend` and :attr:`recovery_backend` tell which ones ``"auto"``
         picked.
+    fast_path
+        Solve the common step, a hard QP with DAQP on the full whitened QP, with the
+        compiled fast path of :mod:`filters.mpc.fast` (default ``True``; its results
+        equal the general path's to rounding). ``False``: always the general path (the
+        reference the tests compare the fast one against).
 
     Raises
     ------
@@ -235,8 +243,10 @@ class MPCSafetyFilter:
         terminal_set: tuple[np.ndarray, np.ndarray] | None = None,
         fallback: str = "soft",
         backend: str = "auto",
+        fast_path: bool = True,
     ) -> None:
-        for name, value in (("soft", soft), ("skip_feasible_reference", skip_feasible_reference)):
+        for name, value in (("soft", soft), ("skip_feasible_reference", skip_feasible_reference),
+                            ("fast_path", fast_path)):
             if not isinstance(value, (bool, np.bool_)):
                 raise InvalidTypeError(f"{name} must be a bool, got {value!r}")
         if fallback not in FALLBACKS:
@@ -313,7 +323,18 @@ class MPCSafetyFilter:
         self._plan: np.ndarray | None = None
         self._failures = 0
         self._qp_solves = 0
-        self._last_step: StepData | None = None
+        self._step: StepData | None = None  # the last QP step's data (see _last_step)
+        self._pending: tuple | None = None  # ... or the arrays to build them from
+        self._no_rows = (np.zeros((0, T, problem.d)), np.zeros((0, T)))
+        self._fast: FastHardStep | None = None
+        if fast_path and fast_path_applies(problem, self._primary):
+            recovery = self._recovery if self._recovery is not None and fast_path_applies(
+                recovery_problem, self._recovery, soft_rows=SOFT_ROWS) else None
+            self._fast = FastHardStep(
+                problem, self._primary, recovery, gain=problem.gain,
+                disabled_offset=DISABLED_OFFSET,
+                slack_tolerance=SLACK_TOLERANCE, clip_tolerance=INPUT_CLIP_TOLERANCE,
+                feasibility_tolerance=FEASIBILITY_TOLERANCE)
 
     # ------------------------------------------------------------------ properties
     @property
@@ -493,10 +514,16 @@ class MPCSafetyFilter:
             If ``halfspaces`` has an unsupported type.
         """
         start = time.perf_counter()
-        p = self.problem
+        fast = self._fast
+        if fast is not None and self._primary is fast.backend:
+            result = self._solve_fast(fast, x0, reference_states, halfspaces, reference_inputs,
+                                      start)
+            if result is not None:
+                return result
         T, n, m = self._T, self._n, self._m
         x0 = finite_step_array("x0", x0, (n,))
-        ref_states = finite_step_array("reference_states", reference_states, (T + 1, n))[1:]
+        reference_states = finite_step_array("reference_states", reference_states, (T + 1, n))
+        ref_states = reference_states[1:]
         if reference_inputs is None:
             ref_inputs = self._zero_inputs
         else:
@@ -524,19 +551,11 @@ class MPCSafetyFilter:
                     slack = np.zeros((k, T)) if self._soft else None
                     return self._result(
                         FilterStatus.OPTIMAL, inputs, states, slack, 0.0, _NO_QP, 0, 0.0,
-                        ref_states, ref_inputs, start,
+                        self._cost(inputs, states, ref_states, ref_inputs), start,
                     )
 
-        K = self._K
-        if k == K:
-            padded_normals, padded_offsets = normals, offsets
-        else:  # unused rows read 0 @ y <= DISABLED_OFFSET
-            padded_normals = np.zeros((K, T, self._d))
-            padded_offsets = np.full((K, T), DISABLED_OFFSET)
-            padded_normals[:k] = normals
-            padded_offsets[:k] = offsets
-        step = StepData(x0, ref_states, ref_inputs, padded_normals, padded_offsets)
-        self._last_step = step  # for inspection and tests
+        step = self._padded_step(x0, ref_states, ref_inputs, normals, offsets)
+        self._step, self._pending = step, None
 
         primary = self._call(self._primary, step)
         answer = self._accept(primary, self._primary_soft_rows, x0, normals, offsets)
@@ -552,10 +571,161 @@ class MPCSafetyFilter:
                 FilterStatus.OPTIMAL
             )
             return self._result(status, inputs, states, slack, self._bound_total(bounds),
-                                status_text, iterations, solve_time, ref_states, ref_inputs,
-                                start)
+                                status_text, iterations, solve_time,
+                                self._cost(inputs, states, ref_states, ref_inputs), start)
         self._failures += 1
+        return self._recover(step, x0, normals, offsets, status_text, iterations, solve_time,
+                             start)
 
+    def _solve_fast(
+        self, fast: FastHardStep, x0: object, reference_states: object, halfspaces: object,
+        reference_inputs: object, start: float,
+    ) -> FilterResult | None:
+        """The step by :class:`~filters.mpc.fast.FastHardStep`, or ``None`` when the general
+        path must run (arrays that are not plain float64 of the right shapes, or non-finite
+        numbers: the general path raises the named error)."""
+        T, n, m = self._T, self._n, self._m
+        if type(halfspaces) is tuple and len(halfspaces) == 2:
+            normals, offsets = halfspaces
+        elif halfspaces is None:
+            normals, offsets = self._no_rows
+        else:
+            return None
+        ref_inputs = self._zero_inputs if reference_inputs is None else reference_inputs
+        if not (_plain(x0, (n,)) and _plain(reference_states, (T + 1, n))
+                and _plain(ref_inputs, (T, m)) and type(normals) is np.ndarray
+                and type(offsets) is np.ndarray and _float64(normals) and _float64(offsets)
+                and normals.ndim == 3
+                and normals.shape[0] <= self._K and normals.shape[1:] == self._positions_shape
+                and offsets.shape == (normals.shape[0], T) and normals.flags.c_contiguous
+                and offsets.flags.c_contiguous):
+            return None
+        inputs, states = np.empty(T * m), np.empty(self._states_shape)
+        shortcut = self._skip and reference_inputs is not None
+        begin = time.perf_counter()
+        if fast.own_solver:
+            code = fast.solve_hard(x0, reference_states, ref_inputs, normals, offsets, shortcut,
+                                   inputs, states)
+        else:
+            code = fast.prepare(x0, reference_states, ref_inputs, normals, offsets, shortcut,
+                                inputs, states)
+        if code == fast_codes.NON_FINITE:
+            return None
+        info = fast.info
+        if code == fast_codes.SHORTCUT:
+            self._qp_solves = 0
+            plan = inputs.reshape(T, m)
+            self._plan, self._failures = plan, 0
+            return self._result(FilterStatus.OPTIMAL, plan, states, None, 0.0, _NO_QP, 0, 0.0,
+                                float(info[0]), start)
+        self._qp_solves = 1
+        self._step, self._pending = None, (x0, reference_states, ref_inputs, normals, offsets)
+        if code == fast_codes.SOLVED:  # the compiled solver's answer, accepted
+            plan = inputs.reshape(T, m)
+            self._plan, self._failures = plan, 0
+            bound_total = float(info[3]) if info[3] > SLACK_TOLERANCE else 0.0
+            return self._result(FilterStatus.OPTIMAL, plan, states, None, bound_total,
+                                "Solved", int(info[4]), time.perf_counter() - begin,
+                                float(info[0]), start)
+        recovery = fast.recovery
+        if recovery is not None and self._recovery is not recovery:
+            recovery = None
+        if fast.own_solver:
+            fast.write_daqp_rows()  # DAQP solves next: it takes the rows as they are
+        backend = fast.backend
+        if code == fast_codes.INFEASIBLE and recovery is not None:
+            # The compiled solver's verdict stands: the recovery QP follows, and it has the
+            # hard QP's answer if that is feasible after all (the exact penalty).
+            z, status, flag = None, "PrimalInfeasible", -1
+            iterations, solve_time = int(info[4]), time.perf_counter() - begin
+        else:  # DAQP decides, as on the general path
+            try:
+                z, status, flag, iterations, solve_time = backend.solve_written(fast.f)
+            except Exception as exc:  # a back end bug must not crash the control loop
+                backend.drop_model()
+                z, status, flag, iterations, solve_time = (None, f"exception: {exc!r}", -1, 0,
+                                                           0.0)
+        answer = ""
+        if z is not None and flag >= 1:
+            code = fast.accept(z, x0, ref_inputs, normals, offsets, inputs, states)
+            if code == fast_codes.ACCEPTED:
+                plan = inputs.reshape(T, m)
+                self._plan, self._failures = plan, 0
+                bound_total = float(info[3]) if info[3] > SLACK_TOLERANCE else 0.0
+                return self._result(FilterStatus.OPTIMAL, plan, states, None, bound_total,
+                                    status, iterations, solve_time, float(info[0]), start)
+            answer = _rejection(code, info)
+        self._failures += 1
+        status_text = f"{status} ({answer})" if answer else status
+        if recovery is None:
+            return self._recover(self._last_step, x0, normals, offsets, status_text,
+                                 iterations, solve_time, start)
+        # the recovery QP: the same rows, softened (fallback="soft")
+        self._qp_solves = 2
+        try:
+            fast.copy_rows_to_recovery()
+            z, status, flag, more, seconds = recovery.solve_written(fast.f)
+        except Exception as exc:  # a back end bug must not crash the control loop
+            recovery.drop_model()
+            z, status, flag, more, seconds = None, f"exception: {exc!r}", -1, 0, 0.0
+        iterations += more
+        solve_time += seconds
+        answer = ""
+        if z is not None and flag >= 1:
+            slack = np.empty(offsets.shape)
+            code = fast.accept_recovery(z, x0, ref_inputs, normals, offsets, inputs, states,
+                                        slack)
+            if code == fast_codes.ACCEPTED:
+                plan = inputs.reshape(T, m)
+                self._plan = plan
+                slack[slack <= SLACK_TOLERANCE] = 0.0
+                bound_total = float(info[3]) if info[3] > SLACK_TOLERANCE else 0.0
+                if bound_total > 0.0:
+                    outcome = FilterStatus.RECOVERY
+                elif slack.any():
+                    outcome = FilterStatus.SOFT
+                else:
+                    outcome = FilterStatus.OPTIMAL
+                return self._result(outcome, plan, states, slack, bound_total,
+                                    f"hard QP: {status_text}; recovery QP: {status}",
+                                    iterations, solve_time, float(info[0]), start)
+            answer = _rejection(code, info)
+        # the recovery failed too: brake (the general path's last resort)
+        reason = f" ({answer})" if answer else ""
+        return self._brake(x0, normals, offsets, None,
+                           f"hard QP: {status_text}; recovery QP: {status}{reason}",
+                           iterations, solve_time, self._last_step, start)
+
+    @property
+    def _last_step(self) -> StepData | None:
+        """The last QP step's data as the back ends take them (for inspection and tests)."""
+        if self._pending is not None:
+            x0, reference_states, ref_inputs, normals, offsets = self._pending
+            ref_states = reference_states[1:]
+            if not self._has_state_cost:
+                ref_states = (self._phi @ x0 + self._gamma @ ref_inputs.reshape(-1)).reshape(
+                    self._T, self._n)
+            self._step = self._padded_step(x0, ref_states, ref_inputs, normals, offsets)
+            self._pending = None
+        return self._step
+
+    def _padded_step(self, x0: np.ndarray, ref_states: np.ndarray, ref_inputs: np.ndarray,
+                     normals: np.ndarray, offsets: np.ndarray) -> StepData:
+        """The back ends' step data: the halfspaces padded to ``n_obstacles`` rows."""
+        K, k = self._K, normals.shape[0]
+        if k == K:
+            return StepData(x0, ref_states, ref_inputs, normals, offsets)
+        padded_normals = np.zeros((K, self._T, self._d))  # unused rows: 0 @ y <= 1
+        padded_offsets = np.full((K, self._T), DISABLED_OFFSET)
+        padded_normals[:k] = normals
+        padded_offsets[:k] = offsets
+        return StepData(x0, ref_states, ref_inputs, padded_normals, padded_offsets)
+
+    def _recover(self, step: StepData, x0: np.ndarray, normals: np.ndarray,
+                 offsets: np.ndarray, status_text: str, iterations: int, solve_time: float,
+                 start: float) -> FilterResult:
+        """After a failed hard QP: the recovery QP (then braking), or the paper's fallback."""
+        ref_states, ref_inputs = step.ref_states, step.ref_inputs
         if self._recovery is not None:  # fallback="soft": the recovery QP
             recovery = self._call(self._recovery, step)
             answer = self._accept(recovery, self._recovery_soft_rows, x0, normals, offsets)
@@ -574,10 +744,19 @@ class MPCSafetyFilter:
                 else:
                     status = FilterStatus.OPTIMAL
                 return self._result(status, inputs, states, slack, bound_total, status_text,
-                                    iterations, solve_time, ref_states, ref_inputs, start)
+                                    iterations, solve_time,
+                                    self._cost(inputs, states, ref_states, ref_inputs), start)
             prefix = None
         else:  # fallback="paper": the last plan, shifted
             prefix = shifted_plan(self._plan, self._failures)
+        return self._brake(x0, normals, offsets, prefix, status_text, iterations, solve_time,
+                           step, start)
+
+    def _brake(self, x0: np.ndarray, normals: np.ndarray, offsets: np.ndarray,
+               prefix: np.ndarray | None, status_text: str, iterations: int,
+               solve_time: float, step: StepData, start: float) -> FilterResult:
+        """The shifted plan ``prefix`` (``"shifted"``), or braking from ``x0`` (``"brake"``)."""
+        p, T, m = self.problem, self._T, self._m
         status = FilterStatus.BRAKE if prefix is None else FilterStatus.SHIFTED
         inputs, states = rollout_with_brake(
             p.A, p.B, x0, np.zeros((0, m)) if prefix is None else prefix, T,
@@ -586,7 +765,8 @@ class MPCSafetyFilter:
         _, halfspace, bounds = self._evaluate(x0, inputs, normals, offsets)
         return self._result(status, inputs, states, self._slack(halfspace),
                             self._bound_total(bounds), status_text, iterations, solve_time,
-                            ref_states, ref_inputs, start)
+                            self._cost(inputs, states, step.ref_states, step.ref_inputs),
+                            start)
 
     def _cost(self, inputs: np.ndarray, states: np.ndarray, ref_states: np.ndarray,
               ref_inputs: np.ndarray) -> float:
@@ -615,21 +795,37 @@ class MPCSafetyFilter:
     def _result(
         self, status: FilterStatus, inputs: np.ndarray, states: np.ndarray,
         slack: np.ndarray | None, bound_slack: float, solver_status: str, iterations: int,
-        solve_time: float, ref_states: np.ndarray, ref_inputs: np.ndarray, start: float,
+        solve_time: float, objective: float, start: float,
     ) -> FilterResult:
         for array in (inputs, states, slack):
             if array is not None:
                 array.setflags(write=False)
-        return FilterResult(
-            status=status,
-            inputs=inputs,
-            states=states,
-            solve_time=solve_time,
-            total_time=time.perf_counter() - start,
-            slack=slack,
-            solver_status=solver_status,
-            iterations=iterations,
-            objective=self._cost(inputs, states, ref_states, ref_inputs),
-            consecutive_failures=self._failures,
-            bound_slack=bound_slack,
-        )
+        # FilterResult's fields set directly: its frozen __init__ costs a call per field
+        result = object.__new__(FilterResult)
+        result.__dict__.update({
+            "status": status, "inputs": inputs, "states": states, "solve_time": solve_time,
+            "total_time": time.perf_counter() - start, "slack": slack,
+            "solver_status": solver_status, "iterations": iterations, "objective": objective,
+            "consecutive_failures": self._failures, "bound_slack": bound_slack,
+        })
+        return result
+
+
+def _plain(array: object, shape: tuple[int, ...]) -> bool:
+    """Whether ``array`` is a C-contiguous float64 ndarray of ``shape`` (the fast path's)."""
+    return (type(array) is np.ndarray and _float64(array) and array.shape == shape
+            and array.flags.c_contiguous)
+
+
+def _float64(array: np.ndarray) -> bool:
+    """Whether ``array`` holds native float64 (the identity test first: it is the cheap one)."""
+    return array.dtype is _FLOAT64 or array.dtype == _FLOAT64
+
+
+def _rejection(code: int, info: np.ndarray) -> str:
+    """Why the fast path's acceptance check rejected an answer (the general path's words)."""
+    if code == fast_codes.REJECT_NON_FINITE:
+        return "rejected: non-finite solution"
+    if code == fast_codes.REJECT_CLIP:
+        return f"rejected: input bound violated by {info[1]:.3g}"
+    return f"rejected: constraint violation {info[2]:.3g} > {FEASIBILITY_TOLERANCE:g}"

@@ -237,7 +237,7 @@ class DAQPBackend:
         except (KeyboardInterrupt, SystemExit):
             raise
         except Exception as exc:
-            self._model, self._cold = None, True
+            self.drop_model()
             return QPSolution(False, f"exception: {exc!r}")
 
     def _solve_full(self, rows: StepRows) -> QPSolution:
@@ -247,23 +247,56 @@ class DAQPBackend:
             self._upper_hs[...] = rows.hs_upper
         self._upper[:n_fixed] = rows.upper
         self._lower[:n_fixed] = rows.lower
+        x, status, flag, iterations, solve_time = self.solve_written(rows.f)
+        if x is None:  # DAQP refused the setup
+            return QPSolution(False, status, solve_time=solve_time)
+        return self._solution(x, flag, iterations, solve_time, rows)
+
+    @property
+    def settings(self) -> dict[str, Any]:
+        """The DAQP settings of this back end's models (DAQP's defaults, overridden)."""
+        return {**daqp.Model().settings, **self._settings}
+
+    @property
+    def row_buffers(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(A, upper, lower)``: the full model's rows ``(n_fixed + K T, T m)`` and bounds,
+        which :meth:`solve_written` hands to DAQP (written in place by the caller;
+        without ``lazy`` only)."""
+        if self.lazy:
+            raise AttributeError("a lazy DAQP back end keeps no full row buffers")
+        return self._A, self._upper, self._lower
+
+    def solve_written(self, f: np.ndarray) -> tuple[np.ndarray | None, str, int, int, float]:
+        """DAQP on the rows in :attr:`row_buffers` and the linear cost ``f`` (``lazy=False``).
+
+        Returns ``(z, status, exitflag, iterations, solve_time)``: ``z`` the whitened
+        answer (meaningful when ``exitflag >= 1``), ``status`` the name the filter reports.
+        A model that DAQP refuses to set up gives ``(None, "daqp setup exitflag N", N, 0,
+        t)``. Raises what DAQP raises (:meth:`solve` turns that into a failed solve; see
+        :meth:`drop_model`).
+        """
         begin = time.perf_counter()
         if self._model is None:
-            self._model = self._new_model()
-            if isinstance(self._model, int):
-                flag, self._model = self._model, None
-                return QPSolution(False, f"daqp setup exitflag {flag}",
-                                  solve_time=time.perf_counter() - begin)
+            model = self._new_model()
+            if isinstance(model, int):
+                return (None, f"daqp setup exitflag {model}", model, 0,
+                        time.perf_counter() - begin)
+            self._model = model
         if self._cold or not self._warm_start:
-            self._model.update(f=rows.f, A=self._A, bupper=self._upper, blower=self._lower,
+            self._model.update(f=f, A=self._A, bupper=self._upper, blower=self._lower,
                                sense=self._sense)
         else:
-            self._model.update(f=rows.f, A=self._A, bupper=self._upper, blower=self._lower)
+            self._model.update(f=f, A=self._A, bupper=self._upper, blower=self._lower)
         x, _, flag, info = self._model.solve()
         solve_time = time.perf_counter() - begin
         flag = int(flag)
         self._cold = flag < 1
-        return self._solution(x, flag, int(info.get("iterations", 0)), solve_time, rows)
+        return (x, _STATUS.get(flag, f"daqp exitflag {flag}"), flag,
+                int(info.get("iterations", 0)), solve_time)
+
+    def drop_model(self) -> None:
+        """Forget the DAQP model (after an exception): the next solve sets up a new one."""
+        self._model, self._cold = None, True
 
     def _solve_lazy(self, rows: StepRows) -> QPSolution:
         qp = self.qp
