@@ -8,7 +8,7 @@ renderer's hooks (line and shaded safe side), so the clip shows what the filter
 enforced at every step. Everything is seeded: the same options give the same frames.
 The clip in ``docs/figures`` was made with::
 
-    python scripts/record_video.py --scenario RandomCrossing --seed 1 --gif \\
+    python scripts/record_video.py --scenario RandomCrossing --seed 2 --gif \\
         --output docs/figures
 
 ``RecordVideo`` needs moviepy (``pip install 'safe-nav[video]'``; it is in ``dev`` too).

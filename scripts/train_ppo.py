@@ -27,9 +27,8 @@ variants of the safe-RL comparison, with the same recipe::
         --filter dr_cvar --alpha 0.2 --delta 0.1 --epsilon 0.05 \
         --output runs/ppo_dr_cvar_in_loop.zip
 
-(``agents/pretrained/ppo_lagrangian.zip`` and ``ppo_dr_cvar_in_loop.zip`` were trained
-with the earlier recipe: the same commands without ``--physical-actions`` and
-``--env-option``.) Each prints SB3's table with the ``safety/`` metrics after every
+(``agents/pretrained/ppo_lagrangian.zip`` and ``ppo_dr_cvar_in_loop.zip`` are these two
+runs, with ``--output`` pointing there.) Each prints SB3's table with the ``safety/`` metrics after every
 rollout and writes ``<output>.metrics.csv``; ``--eval-freq N`` adds held-out evaluations
 (``eval/``) and ``--tensorboard DIR`` TensorBoard event files.
 """
