@@ -373,6 +373,29 @@ class EncounterRecord:
         """Steps where the filter's hard QP failed (:data:`INFEASIBLE_STATUSES`)."""
         return sum(s in INFEASIBLE_STATUSES for s in self.statuses)
 
+    @property
+    def step_collisions(self) -> tuple[list[bool], list[bool]]:
+        """Per step ``1..S``: the continuous-time and the end-sample collision flags."""
+        swept = [bool(np.min(row) <= 0.0) if row.size else False for row in self.swept]
+        sampled = [bool(np.min(row) <= 0.0) if row.size else False
+                   for row in self.distances[1:]]
+        return swept, sampled
+
+    @property
+    def first_collision_step(self) -> int:
+        """The first step with a continuous-time collision (1-based), 0 if none."""
+        swept, _ = self.step_collisions
+        return swept.index(True) + 1 if any(swept) else 0
+
+    @property
+    def collision_cause(self) -> str:
+        """Why the first collision happened: ``""``, ``"fallback"``, ``"inter_sample"`` or
+        ``"noise"`` (:func:`agents.runner.collision_cause`, the evaluation's rule)."""
+        from agents.runner import collision_cause
+
+        swept, sampled = self.step_collisions
+        return collision_cause(swept, sampled, list(self.statuses))
+
 
 def _planner(preset: ReproductionPreset, env: Any):
     from agents.planners import MPCReferencePlanner
@@ -774,7 +797,7 @@ def _summary_rows(rows: Sequence[WindowRow], *, sampled: bool) -> list[SummaryRo
 EPISODE_COLUMNS = ("preset", "scenario", "risk", "seed", "steps", "collision",
                    "sampled_collision", "window_first", "window_last", "window_min_distance",
                    "min_distance", "min_swept_distance", "fallback_steps",
-                   "wall_time", "error")
+                   "first_collision_step", "collision_cause", "wall_time", "error")
 """Columns of ``episodes.csv`` (distances in m: sampled, except ``min_swept_distance``)."""
 
 
@@ -792,8 +815,8 @@ def write_episodes_csv(records: Sequence[EncounterRecord], path: Path) -> Path:
                 r.preset, r.scenario, r.risk, r.seed, r.steps, r.collision,
                 r.sampled_collision, window[0], window[1],
                 f"{window_minimum(series, window)[0]:.6g}", f"{_nanmin(r.distances):.6g}",
-                f"{_nanmin(r.swept):.6g}", r.fallback_steps,
-                f"{r.wall_time:.4f}", r.error])
+                f"{_nanmin(r.swept):.6g}", r.fallback_steps, r.first_collision_step,
+                r.collision_cause, f"{r.wall_time:.4f}", r.error])
     return path
 
 
@@ -955,6 +978,11 @@ def _monte_carlo_section(
               "time (the environment's swept clearance over each step) and sampled (at the "
               "0.2 s samples, the paper's count).", ""]
     lines += _window_table(rows, dt)
+    lines += ["", "Causes of the filtered runs' collisions (continuous time, whole episode; "
+              "`collision_cause` in `episodes.csv`: a fallback status at the colliding step "
+              "or the two before it, an overlap only between two samples, or realised "
+              "noise beyond the margin after nominal steps):", ""]
+    lines += _cause_lines(records)
     lines += ["", f"![window box plots]({relative}/figures/distance_boxplots.png)", "",
               f"![collisions, continuous time]({relative}/figures/collision_rates.png)", "",
               f"![collisions, sampled]({relative}/figures/collision_rates_sampled.png)", ""]
@@ -965,6 +993,23 @@ def _monte_carlo_section(
     lines += compare_with_paper(rows)
     lines.append("")
     return lines
+
+
+def _cause_lines(records: Sequence[EncounterRecord]) -> list[str]:
+    """One line per filtered scenario and risk with collisions: the counts per cause."""
+    from agents.summary import COLLISION_CAUSES
+
+    lines = []
+    for scenario in dict.fromkeys(r.scenario for r in records):
+        for risk in dict.fromkeys(r.risk for r in records):
+            if risk == "none":
+                continue
+            causes = [r.collision_cause for r in records
+                      if r.scenario == scenario and r.risk == risk and not r.error]
+            if any(causes):
+                counts = ", ".join(f"{name} {causes.count(name)}" for name in COLLISION_CAUSES)
+                lines.append(f"- {short_name(scenario)}, {risk}: {counts}")
+    return lines or ["- none"]
 
 
 def _monte_carlo_figures(

@@ -15,6 +15,7 @@ import time
 import traceback
 import zipfile
 from collections import Counter, OrderedDict
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -34,11 +35,42 @@ from filters.errors import InvalidParameterError
 from filters.wrapper import FALLBACK_STATUSES, NOMINAL_STATUSES
 
 __all__ = ["EpisodeStats", "Trajectory", "TrajectoryRecorder", "check_policy",
-           "clear_env_cache", "load_policy", "make_env", "policy_file", "run_episode",
-           "run_spec"]
+           "clear_env_cache", "collision_cause", "load_policy", "make_env", "policy_file",
+           "run_episode", "run_spec"]
 
 FALLBACK_WINDOW = 2
 """A collision is blamed on a fallback if one ran this many steps before it, or at it."""
+
+
+def collision_cause(collisions: Sequence[bool], sampled_collisions: Sequence[bool],
+                    statuses: Sequence[str]) -> str:
+    """Why an episode's first continuous-time collision happened.
+
+    Parameters
+    ----------
+    collisions, sampled_collisions, statuses
+        Per step ``t = 1..S``: the continuous-time collision flag over the step, the
+        collision flag at its end sample, and the filter's status at the step.
+
+    Returns
+    -------
+    str
+        ``""`` (no collision), ``"fallback"`` (a status that is not nominal, i.e. neither
+        "optimal" nor the unfiltered pass-through, at the first colliding step or in the
+        :data:`FALLBACK_WINDOW` steps before it),
+        ``"inter_sample"`` (the ego overlaps an obstacle only between two samples) or
+        ``"noise"`` (after nominal steps, at a sample: the realised motion went beyond
+        the risk margin).
+    """
+    if not any(collisions):
+        return ""
+    first = list(collisions).index(True)
+    window = statuses[max(0, first - FALLBACK_WINDOW):first + 1]
+    if any(status not in NOMINAL_STATUSES for status in window):
+        return "fallback"
+    if not sampled_collisions[first]:
+        return "inter_sample"
+    return "noise"
 
 
 @dataclass
@@ -518,15 +550,7 @@ class EpisodeStats:
 
     def collision_cause(self) -> str:
         """Why the first continuous-time collision happened (see :class:`EpisodeRecord`)."""
-        if not any(self.collisions):
-            return ""
-        first = self.collisions.index(True)
-        window = self.status_list[max(0, first - FALLBACK_WINDOW):first + 1]
-        if any(status not in NOMINAL_STATUSES for status in window):
-            return "fallback"
-        if not self.sampled_collisions[first]:
-            return "inter_sample"
-        return "noise"
+        return collision_cause(self.collisions, self.sampled_collisions, self.status_list)
 
     def summary(self) -> dict[str, Any]:
         """The record's columns that describe what happened."""

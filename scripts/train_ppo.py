@@ -28,9 +28,9 @@ variants of the safe-RL comparison, with the same recipe::
         --output runs/ppo_dr_cvar_in_loop.zip
 
 (``agents/pretrained/ppo_lagrangian.zip`` and ``ppo_dr_cvar_in_loop.zip`` are these two
-runs, with ``--output`` pointing there.) Each prints SB3's table with the ``safety/`` metrics after every
-rollout and writes ``<output>.metrics.csv``; ``--eval-freq N`` adds held-out evaluations
-(``eval/``) and ``--tensorboard DIR`` TensorBoard event files.
+runs, with ``--output`` pointing there.) Each prints SB3's table with the ``safety/``
+metrics after every rollout and writes ``<output>.metrics.csv``; ``--eval-freq N`` adds
+held-out evaluations (``eval/``) and ``--tensorboard DIR`` TensorBoard event files.
 """
 
 from __future__ import annotations

@@ -128,6 +128,42 @@ def test_window_statistics_on_synthetic_distance_series():
     assert "paper about -0.22 m, here -0.300 m" in lines and "match" in lines
 
 
+def test_collision_causes_follow_the_evaluation_rule():
+    from dataclasses import replace
+
+    from agents.runner import collision_cause
+
+    assert collision_cause([False, False], [False, False], ["optimal", "soft"]) == ""
+    assert collision_cause([False, True], [False, True], ["optimal", "optimal"]) == "noise"
+    assert collision_cause([False, True], [False, False], ["optimal", "optimal"]) == \
+        "inter_sample"
+    # a fallback at the colliding step or in the two before it takes the blame
+    for where in (0, 1, 2):
+        statuses = ["optimal"] * 3
+        statuses[where] = "soft"
+        assert collision_cause([False, False, True], [False, False, True], statuses) == \
+            "fallback"
+    assert collision_cause([False] * 3 + [True], [False] * 3 + [True],
+                           ["brake"] + ["optimal"] * 3) == "noise"  # three steps before
+
+    head_on = "SafeNav/HeadOn-v0"
+    base = np.linspace(2.0, 0.5, 16)
+    clean = _record(head_on, "dr_cvar", 0, base)
+    assert (clean.first_collision_step, clean.collision_cause) == (0, "")
+    dip = base.copy()
+    dip[6] = -0.3  # a sampled collision at the end of step 6
+    noise = _record(head_on, "dr_cvar", 1, dip)
+    assert (noise.first_collision_step, noise.collision_cause) == (6, "noise")
+    swept = np.minimum(base[1:], base[:-1])
+    swept[3] = -0.1  # between samples 3 and 4 only
+    between = _record(head_on, "dr_cvar", 2, base, swept)
+    assert (between.first_collision_step, between.collision_cause) == (4, "inter_sample")
+    statuses = list(noise.statuses)
+    statuses[4] = "shifted"  # the paper's fallback two steps before
+    fallback = replace(noise, statuses=tuple(statuses))
+    assert fallback.collision_cause == "fallback"
+
+
 def test_scenarios_without_a_paper_window_use_the_unfiltered_closest_approach():
     multi = "SafeNav/MultiObstacle-v0"
     records = [_record(multi, "none", s, np.abs(np.arange(26) - k) - 0.1)
