@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from filters.errors import InvalidParameterError
 from filters.mpc.problem import MPCProblem
 
 if TYPE_CHECKING:
@@ -86,6 +87,10 @@ class FastHardStep:
                  recovery: DAQPBackend | None = None, *, gain: np.ndarray,
                  disabled_offset: float, slack_tolerance: float, clip_tolerance: float,
                  feasibility_tolerance: float) -> None:
+        if not disabled_offset > 0.0:  # hard_step leaves the unused rows out: never violated
+            raise InvalidParameterError(
+                f"disabled_offset must be > 0 (an unused row is 0 @ z <= disabled_offset), "
+                f"got {disabled_offset!r}")
         from filters.mpc import _fast_kernels  # imports numba: first use only
 
         self._kernels = _fast_kernels
