@@ -91,7 +91,10 @@ class EpisodeCostInfo(gym.Wrapper):
 def report_field(report: Any, name: str) -> Any:
     """A field of ``info["filter"]``: a :class:`filters.wrapper.FilterReport` (attribute)
     or a plain mapping (key)."""
-    return getattr(report, name) if hasattr(report, name) else report[name]
+    try:  # one attribute lookup (hasattr + getattr would be two): this runs every step
+        return getattr(report, name)
+    except AttributeError:
+        return report[name]
 
 
 def _box_map(space: spaces.Space, what: str) -> tuple[np.ndarray, np.ndarray]:

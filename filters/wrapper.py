@@ -1020,9 +1020,12 @@ def _distance(a: np.ndarray, b: np.ndarray) -> float:
     ``numpy.linalg.norm(a - b)`` (the same bits for the 2-vectors here) without its
     per-call overhead.
     """
+    xs, ys = np.asarray(a, dtype=float).tolist(), np.asarray(b, dtype=float).tolist()
+    if len(xs) == 2 == len(ys):  # the usual planar action, the loop below unrolled
+        dx, dy = xs[0] - ys[0], xs[1] - ys[1]
+        return math.sqrt(dx * dx + dy * dy)
     total = 0.0
-    for x, y in zip(np.asarray(a, dtype=float).tolist(), np.asarray(b, dtype=float).tolist(),
-                    strict=True):
+    for x, y in zip(xs, ys, strict=True):
         difference = x - y
         total += difference * difference
     return math.sqrt(total)

@@ -25,6 +25,7 @@ from filters.benchmarks.filter_qp import double_integrator, filter_kwargs
 from filters.errors import InvalidArrayError
 from filters.geometry import Disc
 from filters.mpc import FilterStatus, MPCSafetyFilter, stopping_terminal_set
+from filters.mpc.fast import INFEASIBLE, SOLVED
 from filters.mpc.filter import DISABLED_OFFSET
 from filters.step_rows import step_rows
 
@@ -239,6 +240,44 @@ def test_fast_step_pads_fewer_rows_and_takes_none():
             assert np.all(padded.offsets[k:] == DISABLED_OFFSET)
     step["halfspaces"] = None
     _same(_solve(fast, step), _solve(general, step), "no halfspaces")
+
+
+def test_compact_rows_give_the_full_layout_s_bits():
+    """The compiled solver sees the k used halfspace rows per step only (the K - k unused
+    ones, ``0 @ z <= disabled``, left out): the same status, iterations and bits as the
+    solver on DAQP's full row layout; and DAQP's rows written from the compact ones are
+    the rows :meth:`FastHardStep.prepare` writes."""
+    kernels = _kernels()
+    mpc = _make("trajectory", "recovery", True, n_obstacles=6)
+    fast = mpc._fast
+    qp_A, upper, lower = fast.backend.row_buffers
+    rng = np.random.default_rng(11)
+    verdicts = set()
+    for case in range(120):
+        x0 = np.array([rng.uniform(-4.5, -2.0), rng.uniform(-1.0, 1.0), 1.5, 0.0])
+        step = _step(rng, x0, "recovery", inputs=True)
+        normals, offsets = step["halfspaces"]
+        k = int(rng.integers(0, normals.shape[0] + 1))
+        normals, offsets = np.ascontiguousarray(normals[:k]), np.ascontiguousarray(offsets[:k])
+        args = (step["x0"], step["reference_states"], step["reference_inputs"], normals,
+                offsets, False)
+        code = fast.solve_hard(*args, np.empty(20), np.empty((11, 4)))
+        if code not in (SOLVED, INFEASIBLE):
+            continue
+        verdicts.add(code)
+        z, iterations = fast.z.copy(), int(fast.info[4])
+        fast.write_daqp_rows(k)
+        written = qp_A.copy()
+        full = np.empty(20)
+        status, full_iterations = kernels.ldp_solve(
+            np.ascontiguousarray(written.T), upper.copy(), lower.copy(), fast.f.copy(), full,
+            fast.primal_tolerance, fast.max_iterations)
+        assert (status, full_iterations) == ((1 if code == SOLVED else -1), iterations), case
+        if code == SOLVED:
+            np.testing.assert_array_equal(z, full, err_msg=f"case {case}")
+        fast.prepare(*args, np.empty(20), np.empty((11, 4)))  # writes DAQP's rows itself
+        np.testing.assert_array_equal(written, qp_A, err_msg=f"case {case}")
+    assert verdicts == {SOLVED, INFEASIBLE}
 
 
 def test_fast_step_leaves_other_arrays_to_the_general_path():

@@ -162,7 +162,10 @@ def prepare_step(x0, ref_states, u_ref, normals, offsets, shortcut, state_cost,
     ``u`` ``(T m,)``, ``states`` ``(T + 1, n)`` and ``info[0]`` its cost; otherwise
     ``f`` ``(T m,)``, the DAQP arrays ``qp_A`` ``(n_fixed + K T, T m)`` (only its
     halfspace rows are written, and only with ``write_A``), ``upper`` and ``lower``, and
-    (unless it is empty) the same halfspace rows into the transposed rows ``qp_AT``.
+    (unless it is empty) the ``k`` used halfspace rows of each step into the transposed
+    rows ``qp_AT``, compactly: row ``i < k`` of step ``t`` into column
+    ``n_fixed + t k + i`` (the ``K - k`` unused rows per step, ``0 @ z <= disabled``, are
+    left out; see :func:`hard_step`).
     ``scratch`` ``(n + T n + T m,)``.
 
     Returns :data:`NON_FINITE` (some input is NaN or infinite: nothing is written),
@@ -279,9 +282,10 @@ def prepare_step(x0, ref_states, u_ref, normals, offsets, shortcut, state_cost,
             if write_A:
                 for c in range(nu):
                     qp_A[q, c] = row[c]
-            if transposed:
+            if transposed and i < k:  # compact: the step's k used rows only
+                column = n_fixed + t * k + i
                 for c in range(nu):
-                    qp_AT[c, q] = row[c]
+                    qp_AT[c, column] = row[c]
     return QP
 
 
@@ -417,6 +421,12 @@ def _rotate_rows(M, i, j, c, s, start):
 
 @njit(**_SUMS)
 def ldp_solve(AT, upper, lower, f, z, tolerance, max_iterations):
+    r"""Goldfarb-Idnani's dual active-set method on every row of ``AT`` (:func:`ldp_rows`)."""
+    return ldp_rows(AT, AT.shape[1], upper, lower, f, z, tolerance, max_iterations)
+
+
+@njit(**_SUMS)
+def ldp_rows(AT, n_rows, upper, lower, f, z, tolerance, max_iterations):
     r"""Goldfarb-Idnani's dual active-set method for the whitened QP (identity Hessian).
 
     .. math:: \min_z \tfrac12 \|z\|^2 + f^\top z \quad \text{s.t.} \quad
@@ -430,13 +440,13 @@ def ldp_solve(AT, upper, lower, f, z, tolerance, max_iterations):
     (``J`` orthogonal, stored transposed; ``R`` upper triangular), updated by Givens
     rotations (Goldfarb and Idnani 1983, with :math:`H = I` so that :math:`J = Q`).
 
-    The rows come transposed, ``AT`` ``(T m, rows)`` (the rows' values at ``z`` are then
-    vectorised sums over the rows). Writes ``z``; returns ``(status, iterations)``: status
-    1 solved, -1 infeasible (a violated row that no step can satisfy), -4
-    ``max_iterations`` reached.
+    The rows come transposed, ``AT`` ``(T m, >= n_rows)``, of which the first ``n_rows``
+    columns are the QP's rows (the rows' values at ``z`` are then vectorised sums over
+    the rows), with their bounds ``upper``, ``lower`` ``(>= n_rows,)``. Writes ``z``;
+    returns ``(status, iterations)``: status 1 solved, -1 infeasible (a violated row that
+    no step can satisfy), -4 ``max_iterations`` reached.
     """
     nu = f.shape[0]
-    n_rows = AT.shape[1]
     values = np.empty(n_rows)
     JT = np.zeros((nu, nu))  # row i: column i of J
     R = np.zeros((nu, nu))
@@ -573,8 +583,8 @@ def hard_step(x0, ref_states, u_ref, normals, offsets, shortcut, u, states, stat
     ``info`` hold the accepted answer; ``info[4]`` the iterations), :data:`INFEASIBLE`
     (the solver found the QP infeasible) or :data:`QP` (it stopped, or its answer was
     rejected). DAQP's row matrix ``qp_A`` is not written (see
-    :meth:`filters.mpc.fast.FastHardStep.write_daqp_rows`); ``upper``, ``lower`` and
-    ``f`` are.
+    :meth:`filters.mpc.fast.FastHardStep.write_daqp_rows`: ``qp_AT`` holds the used rows
+    compactly); ``upper``, ``lower`` and ``f`` are, in DAQP's full layout.
     """
     code = prepare_step(x0, ref_states, u_ref, normals, offsets, shortcut, state_cost,
                         A, B, C, gain, F, W, u_low, u_high, y_low, y_high, G, g,
@@ -583,8 +593,25 @@ def hard_step(x0, ref_states, u_ref, normals, offsets, shortcut, u, states, stat
                         lower, scratch, info, False)
     if code != QP:
         return code
-    status, iterations = ldp_solve(qp_AT, upper, lower, f, z, primal_tolerance,
-                                   max_iterations)
+    # The solver sees the used rows only: the fixed rows, then per step the k used
+    # halfspace rows, in the full layout's order (so the same row wins every choice of
+    # the most violated one; an unused row, 0 @ z <= disabled, is never violated).
+    horizon = u_ref.shape[0]
+    k = normals.shape[0]
+    n_fixed = fixed_upper.shape[0]
+    K = (upper.shape[0] - n_fixed) // horizon
+    n_rows = n_fixed + horizon * k
+    used_upper = np.empty(n_rows)
+    used_lower = np.empty(n_rows)
+    for r in range(n_fixed):
+        used_upper[r] = upper[r]
+        used_lower[r] = lower[r]
+    for t in range(horizon):
+        for i in range(k):
+            used_upper[n_fixed + t * k + i] = upper[n_fixed + t * K + i]
+            used_lower[n_fixed + t * k + i] = lower[n_fixed + t * K + i]
+    status, iterations = ldp_rows(qp_AT, n_rows, used_upper, used_lower, f, z,
+                                  primal_tolerance, max_iterations)
     info[4] = iterations
     if status == -1:
         return INFEASIBLE

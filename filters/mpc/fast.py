@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from filters.errors import InvalidParameterError
 from filters.mpc.problem import MPCProblem
 
 if TYPE_CHECKING:
@@ -86,6 +87,10 @@ class FastHardStep:
                  recovery: DAQPBackend | None = None, *, gain: np.ndarray,
                  disabled_offset: float, slack_tolerance: float, clip_tolerance: float,
                  feasibility_tolerance: float) -> None:
+        if not disabled_offset > 0.0:  # hard_step leaves the unused rows out: never violated
+            raise InvalidParameterError(
+                f"disabled_offset must be > 0 (an unused row is 0 @ z <= disabled_offset), "
+                f"got {disabled_offset!r}")
         from filters.mpc import _fast_kernels  # imports numba: first use only
 
         self._kernels = _fast_kernels
@@ -171,16 +176,20 @@ class FastHardStep:
         solver and :meth:`accept`: ``NON_FINITE``, ``SHORTCUT``, ``SOLVED`` (``inputs``,
         ``states`` and :attr:`info` hold the accepted answer), ``INFEASIBLE`` or ``QP``
         (the solver stopped or its answer was rejected); for DAQP after the last two,
-        call :meth:`write_daqp_rows` first."""
+        call :meth:`write_daqp_rows` (with ``k = normals.shape[0]``) first."""
         return self._kernels.hard_step(x0, reference_states, reference_inputs, normals,
                                        offsets, shortcut, inputs, states, *self._hard_tail)
 
-    def write_daqp_rows(self) -> None:
-        """Write the step's halfspace rows into DAQP's row matrix (after :meth:`solve_hard`,
-        which writes them transposed only; the bounds and ``f`` are written)."""
+    def write_daqp_rows(self, k: int) -> None:
+        """Write the step's halfspace rows into DAQP's row matrix (after :meth:`solve_hard`
+        of a step with ``k`` halfspace rows per step, which writes them transposed and
+        compactly only; the bounds and ``f`` are written): step ``t``'s rows into DAQP's
+        rows ``n_fixed + t K + i``, ``i < k``, and zeros into its ``K - k`` unused ones."""
         qp_A = self.backend.row_buffers[0]
-        n_fixed = self._n_fixed
-        qp_A[n_fixed:] = self._AT[:, n_fixed:].T
+        n_fixed, T, K, nu = self._n_fixed, self.T, self.K, self.T * self.m
+        rows = qp_A[n_fixed:].reshape(T, K, nu)  # a view: written in place
+        rows[:, :k] = self._AT[:, n_fixed : n_fixed + T * k].T.reshape(T, k, nu)
+        rows[:, k:] = 0.0
 
     def accept(self, z: np.ndarray, x0: np.ndarray, reference_inputs: np.ndarray,
                normals: np.ndarray, offsets: np.ndarray, inputs: np.ndarray,

@@ -631,7 +631,7 @@ class MPCSafetyFilter:
         if recovery is not None and self._recovery is not recovery:
             recovery = None
         if fast.own_solver:
-            fast.write_daqp_rows()  # DAQP solves next: it takes the rows as they are
+            fast.write_daqp_rows(normals.shape[0])  # DAQP solves next: it takes them as they are
         backend = fast.backend
         if code == fast_codes.INFEASIBLE and recovery is not None:
             # The compiled solver's verdict stands: the recovery QP follows, and it has the
