@@ -680,13 +680,8 @@ class MPCSafetyFilter:
                 self._plan = plan
                 slack[slack <= SLACK_TOLERANCE] = 0.0
                 bound_total = float(info[3]) if info[3] > SLACK_TOLERANCE else 0.0
-                if bound_total > 0.0:
-                    outcome = FilterStatus.RECOVERY
-                elif slack.any():
-                    outcome = FilterStatus.SOFT
-                else:
-                    outcome = FilterStatus.OPTIMAL
-                return self._result(outcome, plan, states, slack, bound_total,
+                return self._result(_recovery_status(slack, bound_total), plan, states,
+                                    slack, bound_total,
                                     f"hard QP: {status_text}; recovery QP: {status}",
                                     iterations, solve_time, float(info[0]), start)
             answer = _rejection(code, info)
@@ -737,13 +732,8 @@ class MPCSafetyFilter:
                 inputs, states, halfspace, bounds = answer
                 self._plan = inputs
                 slack, bound_total = self._slack(halfspace), self._bound_total(bounds)
-                if bound_total > 0.0:
-                    status = FilterStatus.RECOVERY
-                elif slack.any():
-                    status = FilterStatus.SOFT
-                else:
-                    status = FilterStatus.OPTIMAL
-                return self._result(status, inputs, states, slack, bound_total, status_text,
+                return self._result(_recovery_status(slack, bound_total), inputs, states,
+                                    slack, bound_total, status_text,
                                     iterations, solve_time,
                                     self._cost(inputs, states, ref_states, ref_inputs), start)
             prefix = None
@@ -820,6 +810,18 @@ def _plain(array: object, shape: tuple[int, ...]) -> bool:
 def _float64(array: np.ndarray) -> bool:
     """Whether ``array`` holds native float64 (the identity test first: it is the cheap one)."""
     return array.dtype is _FLOAT64 or array.dtype == _FLOAT64
+
+
+def _recovery_status(slack: np.ndarray, bound_total: float) -> FilterStatus:
+    """The status of an accepted recovery answer: ``"recovery"`` if it used arena or
+    terminal slack (``bound_total > 0``), ``"soft"`` if only halfspace slack (``slack``,
+    already zeroed below the tolerance), else ``"optimal"`` (the hard QP was feasible
+    after all: the exact penalty returned its solution)."""
+    if bound_total > 0.0:
+        return FilterStatus.RECOVERY
+    if slack.any():
+        return FilterStatus.SOFT
+    return FilterStatus.OPTIMAL
 
 
 def _rejection(code: int, info: np.ndarray) -> str:
