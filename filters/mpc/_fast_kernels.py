@@ -68,6 +68,21 @@ def _rollout(x0, u, A, B, states):
 
 
 @njit(**_INLINE)
+def _positions(states, C):
+    """``(T, d)`` positions :math:`y_t = C x_{t+1}`, ``t = 0..T-1``, of ``states`` ``(T+1, n)``."""
+    horizon = states.shape[0] - 1
+    d, n = C.shape
+    position = np.empty((horizon, d))
+    for t in range(horizon):
+        for a in range(d):
+            value = 0.0
+            for j in range(n):
+                value += C[a, j] * states[t + 1, j]
+            position[t, a] = value
+    return position
+
+
+@njit(**_INLINE)
 def _excess(states, normals, offsets, C, y_low, y_high, G, g, tolerance):
     r"""``(worst bound row, worst halfspace row, total bound violation above tolerance)``.
 
@@ -83,13 +98,11 @@ def _excess(states, normals, offsets, C, y_low, y_high, G, g, tolerance):
     worst_bound = -np.inf
     worst_halfspace = -np.inf
     total = 0.0
-    position = np.empty(d)
+    positions = _positions(states, C)
     for t in range(horizon):
+        position = positions[t]
         for a in range(d):
-            value = 0.0
-            for j in range(n):
-                value += C[a, j] * states[t + 1, j]
-            position[a] = value
+            value = position[a]
             if y_high[a] < np.inf:
                 e = value - y_high[a]
                 worst_bound = max(worst_bound, e)
@@ -238,13 +251,7 @@ def prepare_step(x0, ref_states, u_ref, normals, offsets, shortcut, state_cost,
     for r in range(row):  # input rows: no shift
         upper[r] = fixed_upper[r]
         lower[r] = fixed_lower[r]
-    position = np.empty((horizon, d))
-    for t in range(horizon):
-        for a in range(d):
-            value = 0.0
-            for j in range(n):
-                value += C[a, j] * states[t + 1, j]
-            position[t, a] = value
+    position = _positions(states, C)
     for t in range(horizon):  # arena rows, step-major
         for a in arena_axes:
             upper[row] = fixed_upper[row] - position[t, a]
@@ -297,13 +304,8 @@ def _row_excess(states, normals, offsets, C, y_low, y_high, G, g, halfspace, bou
     horizon = states.shape[0] - 1
     d, n = C.shape
     k = normals.shape[0]
-    position = np.empty((horizon, d))
+    position = _positions(states, C)
     for t in range(horizon):
-        for a in range(d):
-            value = 0.0
-            for j in range(n):
-                value += C[a, j] * states[t + 1, j]
-            position[t, a] = value
         for i in range(k):
             value = 0.0
             for a in range(d):
