@@ -293,6 +293,25 @@ def test_offsets_along_and_intersample_rows_equal_numpy(risk):
     assert close(fast_rows.offsets, slow_rows.offsets, 4.0)
 
 
+def _step_rows_both_backends(reference, samples, rng, risk, intersample, **normals):
+    """``step_rows`` on three discs with the numba kernel and the numpy composition
+    (``normals``: the normal rule's keywords), checked equal in normals and offsets."""
+    n, horizon = samples.shape[0], reference.shape[0]
+    kwargs = dict(horizon=horizon, ego_shape=Disc(0.3),
+                  obstacle_shapes=[Disc(0.3), Disc(0.5), Disc(0.1)],
+                  previous_normals=rng.standard_normal((n, horizon, 2)),
+                  ego_velocity=np.array([1.5, 0.2]),
+                  input_bounds=(LOW, HIGH) if intersample else None, dt=0.2,
+                  **normals, **options_for(risk, rng, horizon, n))
+    if risk == "dr_cvar":
+        kwargs["epsilon"] = np.linspace(0.01, 0.1, horizon)
+    fast = step_rows(reference, samples, backend="numba", **kwargs)
+    slow = step_rows(reference, samples, backend="numpy", **kwargs)
+    assert close(fast.normals, slow.normals) and close(fast.offsets, slow.offsets, 4.0)
+    assert close(fast.halfspaces.offsets, slow.halfspaces.offsets, 4.0)
+    return fast, slow
+
+
 @pytest.mark.parametrize("risk", RISKS)
 @pytest.mark.parametrize("nearside", [False, True])
 @pytest.mark.parametrize("intersample", [False, True])
@@ -305,19 +324,8 @@ def test_step_rows_kernel_equals_the_numpy_composition(risk, nearside, intersamp
     reference = reference[:horizon]
     samples[0, :, 2] += reference[2] - samples[0, :, 2].mean(axis=0)  # mean at the reference
     ego = rng.uniform(-4.0, 4.0, 2)
-    previous = rng.standard_normal((n, horizon, 2))
-    kwargs = dict(horizon=horizon, ego_shape=Disc(0.3),
-                  obstacle_shapes=[Disc(0.3), Disc(0.5), Disc(0.1)],
-                  previous_normals=previous, ego_velocity=np.array([1.5, 0.2]),
-                  nearside_from=ego if nearside else None,
-                  input_bounds=(LOW, HIGH) if intersample else None, dt=0.2,
-                  **options_for(risk, rng, horizon, n))
-    if risk == "dr_cvar":
-        kwargs["epsilon"] = np.linspace(0.01, 0.1, horizon)
-    fast = step_rows(reference, samples, backend="numba", **kwargs)
-    slow = step_rows(reference, samples, backend="numpy", **kwargs)
-    assert close(fast.normals, slow.normals) and close(fast.offsets, slow.offsets, 4.0)
-    assert close(fast.halfspaces.offsets, slow.halfspaces.offsets, 4.0)
+    fast, slow = _step_rows_both_backends(
+        reference, samples, rng, risk, intersample, nearside_from=ego if nearside else None)
     assert np.array_equal(fast.halfspaces.degenerate, slow.halfspaces.degenerate)
     assert fast.normals.shape == (2 * n if intersample else n, horizon, 2)
     if not nearside:
@@ -380,18 +388,8 @@ def test_step_rows_clearest_kernel_equals_the_numpy_composition(risk, plan, inte
     rng = np.random.default_rng(20)
     n, horizon = 3, 10
     reference, samples, ego, path = _clearest_instance(rng, plan, horizon)
-    kwargs = dict(horizon=horizon, ego_shape=Disc(0.3),
-                  obstacle_shapes=[Disc(0.3), Disc(0.5), Disc(0.1)],
-                  previous_normals=rng.standard_normal((n, horizon, 2)),
-                  ego_velocity=np.array([1.5, 0.2]), clearest_from=ego, clearest_plan=path,
-                  input_bounds=(LOW, HIGH) if intersample else None, dt=0.2,
-                  **options_for(risk, rng, horizon, n))
-    if risk == "dr_cvar":
-        kwargs["epsilon"] = np.linspace(0.01, 0.1, horizon)
-    fast = step_rows(reference, samples, backend="numba", **kwargs)
-    slow = step_rows(reference, samples, backend="numpy", **kwargs)
-    assert close(fast.normals, slow.normals) and close(fast.offsets, slow.offsets, 4.0)
-    assert close(fast.halfspaces.offsets, slow.halfspaces.offsets, 4.0)
+    fast, slow = _step_rows_both_backends(reference, samples, rng, risk, intersample,
+                                          clearest_from=ego, clearest_plan=path)
     assert not fast.halfspaces.degenerate.any() and not slow.halfspaces.degenerate.any()
     expected = clearest_normals(samples[:, :, :horizon], reference, ego, path)
     assert close(fast.halfspaces.normals, expected)
