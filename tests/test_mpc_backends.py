@@ -185,15 +185,15 @@ def test_piqp_settings_are_checked():
         make("piqp", 10, "trajectory", "hard", solver_settings=[("max_iter", 3)])
 
 
-def test_auto_picks_daqp_for_hard_qps_and_piqp_for_long_soft_ones():
-    for horizon in (10, 40, 60, 61, 80):
+def test_auto_picks_daqp_for_hard_qps_and_daqp_then_piqp_for_long_soft_ones():
+    for horizon in (10, 20, 21, 40, 80):
         for mode in ("hard", "soft", "recovery"):
             mpc = make("auto", horizon, "trajectory", mode)
             long = horizon * 2 > AUTO_DAQP_MAX_INPUTS
-            assert mpc.backend == ("piqp" if mode == "soft" and long else "daqp")
-            assert mpc.recovery_backend == ("piqp" if long else "daqp")
+            assert mpc.backend == ("daqp+piqp" if mode == "soft" and long else "daqp")
+            assert mpc.recovery_backend == ("daqp+piqp" if long else "daqp")
             assert auto_backend(mpc.problem) == mpc.backend
-    assert AUTO_DAQP_MAX_INPUTS == 120
+    assert AUTO_DAQP_MAX_INPUTS == 40
     assert make("auto", 80, "trajectory", "paper").recovery_backend is None
     # the lazy rows start above LAZY_MIN_INPUTS inputs
     assert not make("auto", 20, "trajectory", "hard")._primary.lazy
@@ -238,6 +238,41 @@ def test_daqp_soft_qp_is_never_worse_than_the_reference_in_its_own_objective():
             penalised = [r.objective + rho * (0.0 if r.slack is None else r.slack.sum())
                          + rho * r.bound_slack for r in (ours, theirs)]
             assert penalised[0] <= penalised[1] * (1 + 1e-6) + 1e-6
+
+
+def test_daqp_iteration_budget_is_checked_and_spent_over_the_rounds():
+    from filters.errors import InvalidParameterError
+    from filters.mpc.backends.daqp import DAQPBackend
+    from filters.mpc.result import StepData
+
+    problem = make("auto", 40, "trajectory", "recovery")._recovery.problem
+    for bad in (0, -3, 2.5, True, "10"):
+        with pytest.raises(InvalidParameterError, match="iteration_budget"):
+            DAQPBackend(problem, lazy=True, iteration_budget=bad)
+    rng = np.random.default_rng(11)
+    spent = 0
+    for _ in range(6):
+        case = instance(rng, 40, "recovery")
+        normals, offsets = case["halfspaces"]
+        padded_n, padded_o = np.zeros((K, 40, 2)), np.ones((K, 40))
+        padded_n[: len(normals)], padded_o[: len(offsets)] = normals, offsets
+        step = StepData(case["x0"], case["reference_states"][1:], np.zeros((40, 2)),
+                        padded_n, padded_o)
+        answer = DAQPBackend(problem, lazy=True).solve(step)  # fresh: no warm start
+        assert answer.found
+        if answer.iterations < 3:
+            continue
+        budget = answer.iterations // 2
+        capped = DAQPBackend(problem, lazy=True, iteration_budget=budget).solve(step)
+        assert not capped.found and capped.status == "MaxIterations"
+        assert capped.iterations <= budget
+        # DAQP's limit counts the iteration that finds the optimum, which it does not report
+        enough = DAQPBackend(problem, lazy=True,
+                             iteration_budget=answer.iterations + 1).solve(step)
+        assert enough.found
+        np.testing.assert_array_equal(enough.inputs, answer.inputs)  # the same solves
+        spent += 1
+    assert spent  # some instance needed iterations
 
 
 def test_daqp_iteration_limit_is_a_failure_not_an_exception():

@@ -57,9 +57,12 @@ __all__ = [
 #: Back ends by name (the CVXPY one imports CVXPY when built); ``"auto"`` picks DAQP or
 #: PIQP per QP (see :func:`auto_backend`).
 BACKENDS = ("auto", "clarabel", "daqp", "piqp", "cvxpy")
-#: ``backend="auto"`` solves QPs with soft rows with DAQP while the condensed QP has at
-#: most this many inputs ``T m``, else with PIQP (hard QPs: DAQP; see :func:`auto_backend`).
-AUTO_DAQP_MAX_INPUTS = 120
+#: ``backend="auto"`` solves QPs with soft rows with DAQP alone while the condensed QP
+#: has at most this many inputs ``T m`` (DAQP's full, not lazy, QP), else with DAQP
+#: within an iteration budget and PIQP after it (see :func:`auto_backend`).
+AUTO_DAQP_MAX_INPUTS = 40
+#: The name of that combination (:mod:`filters.mpc.backends.hybrid`).
+HYBRID = "daqp+piqp"
 #: What to do when the hard QP fails.
 FALLBACKS = ("soft", "paper")
 #: Offset written in unused halfspace rows: the row reads ``0 @ y <= 1``.
@@ -89,20 +92,23 @@ def auto_backend(problem: MPCProblem) -> str:
       matter, not with all of them; an infeasible hard QP is detected in a few
       iterations.
     * A QP with soft rows (``soft=True``, and the recovery QP): ``"daqp"`` while
-      :math:`T m \le 120` (:data:`AUTO_DAQP_MAX_INPUTS`), else ``"piqp"`` (a sparse
-      interior-point method). Every violated soft row enters an active-set method's
-      working set, one per iteration; strongly infeasible long-horizon steps violate
-      hundreds of rows (the scaling grid's T = 80 steps: DAQP took thousands of
-      iterations, up to 100x an interior-point method's time), while an interior-point
-      method's iterations do not depend on how many rows end up violated. On those
-      recovery QPs PIQP took 0.6-0.7x Clarabel's time (T = 40 and 80, 1 to 20
-      obstacles, the same answers to the solvers' tolerances).
+      :math:`T m \le 40` (:data:`AUTO_DAQP_MAX_INPUTS`, DAQP's full QP), else
+      ``"daqp+piqp"`` (:class:`~filters.mpc.backends.hybrid.ActiveSetThenInteriorPoint`):
+      DAQP's lazy QP within an iteration budget, PIQP (a sparse interior-point method)
+      when the budget runs out. Every violated soft row enters an active-set method's
+      working set, one per iteration, while an interior-point method's ~20 iterations
+      do not depend on how many rows end up violated: on the scaling grid's long
+      horizons a step that violates a few rows took DAQP 0.8 ms and PIQP 7 ms, a strongly
+      infeasible one that violates hundreds took DAQP thousands of iterations (up to
+      130 ms) and PIQP 2-7 ms. Neither alone is fast on both; the budget bounds what a
+      wrong first guess costs, and a run of strongly infeasible steps goes to PIQP
+      directly.
 
     The measurements behind both rules are printed by ``safe-nav bench --scaling``
     (columns for each explicit back end).
     """
     if problem.soft_rows and problem.horizon * problem.m > AUTO_DAQP_MAX_INPUTS:
-        return "piqp"
+        return HYBRID
     return "daqp"
 
 
@@ -119,6 +125,10 @@ def _make_backend(name: str, problem: MPCProblem, settings: Mapping[str, Any] | 
         from filters.mpc.backends.piqp import PIQPBackend
 
         return PIQPBackend(problem, solver_settings=settings)
+    if name == HYBRID:
+        from filters.mpc.backends.hybrid import ActiveSetThenInteriorPoint
+
+        return ActiveSetThenInteriorPoint(problem)  # only "auto" without settings builds it
     from filters.mpc.backends.cvxpy import CVXPYBackend  # imports cvxpy
 
     return CVXPYBackend(problem, solver_settings=settings)
@@ -185,7 +195,8 @@ class MPCSafetyFilter:
         last plan, then brake).
     backend
         ``"auto"`` (default: DAQP for the hard QP; for QPs with soft rows DAQP while
-        ``T m <= 120``, else PIQP; see :func:`auto_backend`), ``"daqp"`` (the
+        ``T m <= 40``, else ``"daqp+piqp"``, DAQP within an iteration budget and PIQP
+        after it; see :func:`auto_backend`), ``"daqp"`` (the
         whitened condensed QP, dual active set, lazy rows for long horizons; soft rows as
         DAQP soft constraints), ``"clarabel"`` (the sparse QP built once), ``"piqp"``
         (the same sparse QP in PIQP) or ``"cvxpy"`` (the readable reference; imports
@@ -369,8 +380,8 @@ class MPCSafetyFilter:
 
     @property
     def backend(self) -> str:
-        """The hard QP's back end: ``"daqp"``, ``"clarabel"``, ``"piqp"`` or ``"cvxpy"``
-        (``"auto"`` resolved)."""
+        """The primary QP's back end: ``"daqp"``, ``"clarabel"``, ``"piqp"``, ``"cvxpy"``, or
+        ``"daqp+piqp"`` (``"auto"`` resolved, ``soft=True`` with a long horizon)."""
         return self._backend_name
 
     @property

@@ -4,7 +4,8 @@
   dual active-set solver, with lazy rows for long horizons; soft rows as DAQP soft
   constraints (exact L1 penalty). ``"auto"`` uses it for every hard QP.
 * :mod:`filters.mpc.backends.clarabel`: the sparse QP built once, updated per step.
-* :mod:`filters.mpc.backends.piqp`: the same sparse QP in PIQP (proximal interior point);
+* :mod:`filters.mpc.backends.piqp`: the same sparse QP in PIQP (proximal interior point).
+* :mod:`filters.mpc.backends.hybrid`: DAQP within an iteration budget, then PIQP;
   ``"auto"`` uses it for the QPs with soft rows of long horizons.
 * :mod:`filters.mpc.backends.cvxpy`: the same QP in CVXPY (the reference; imports CVXPY).
 
