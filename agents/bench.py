@@ -434,25 +434,53 @@ def benchmark_training(timesteps: int = 20_480, chunk: int = 2048, seed: int = 0
 # --------------------------------------------------------------------------- --scaling
 def _sparse_growth(points: list) -> str:
     """How the sparse back ends' hard-QP time grows from the shortest horizon >= 20 to the
-    longest, per obstacle count and N_s (medians of the ratios)."""
+    longest, over the obstacle counts x N_s of ``points`` (medians, with the ranges).
+
+    Per back end: the plain time ratio (the issue's criterion, at most the horizon ratio
+    for linear growth), split into its two factors, the ratio of the median iteration
+    counts (a property of the instances) and the ratio of the median times per iteration
+    (the back end's work); and the slope of a least-squares fit of log time against log T
+    over every horizon >= 20 (1 for linear growth), which uses the middle horizons too.
+    """
     horizons = sorted({p.horizon for p in points if p.horizon >= 20})
     if len(horizons) < 2:
         return "sparse back ends' growth: needs two horizons >= 20"
     short, long = horizons[0], horizons[-1]
-    parts = []
+    series: dict[tuple[int, int], dict[int, object]] = {}
+    for p in points:
+        if p.horizon >= 20:
+            series.setdefault((p.n_obstacles, p.n_samples), {})[p.horizon] = p
+
+    def spread(values: list[float], unit: str = "x") -> str:
+        array = np.array(values, dtype=float)
+        return (f"{np.median(array):.2f}{unit} (range {array.min():.2f}{unit} to "
+                f"{array.max():.2f}{unit})")
+
+    lines = [f"sparse back ends, hard QP alone, T = {long} over T = {short} (horizon ratio "
+             f"{long / short:.0f}; linear growth: at most {long / short:.0f}x, slope 1), "
+             f"medians over {len(series)} obstacle counts x N_s:"]
     for name in ("clarabel", "piqp"):
-        growth = []
-        for p in points:
-            base = [q for q in points if q.horizon == short and q.n_obstacles == p.n_obstacles
-                    and q.n_samples == p.n_samples]
-            if p.horizon == long and base:
-                growth.append(getattr(p, f"{name}_per_qp_ms") / getattr(
-                    base[0], f"{name}_per_qp_ms"))
-        array = np.array(growth)
-        parts.append(f"{name} median {np.median(array):.2f}x (range {array.min():.2f}x to "
-                     f"{array.max():.2f}x)")
-    return (f"sparse back ends, hard QP alone, T = {long} over T = {short} (horizon "
-            f"ratio {long / short:.0f}): " + "; ".join(parts))
+        time_ratio, iteration_ratio, per_iteration_ratio, slopes = [], [], [], []
+        for by_horizon in series.values():
+            if short in by_horizon and long in by_horizon:
+                a, b = by_horizon[short], by_horizon[long]
+                time_ratio.append(getattr(b, f"{name}_per_qp_ms") / getattr(
+                    a, f"{name}_per_qp_ms"))
+                iteration_ratio.append(getattr(b, f"{name}_per_qp_iterations") / getattr(
+                    a, f"{name}_per_qp_iterations"))
+                per_iteration_ratio.append(getattr(b, f"{name}_per_iteration_us") / getattr(
+                    a, f"{name}_per_iteration_us"))
+            if len(by_horizon) >= 2:
+                ts = sorted(by_horizon)
+                ms = [getattr(by_horizon[t], f"{name}_per_qp_ms") for t in ts]
+                slopes.append(float(np.polyfit(np.log(ts), np.log(ms), 1)[0]))
+        if not time_ratio:
+            continue
+        lines.append(
+            f"  {name}: time {spread(time_ratio)}; its factors: iterations "
+            f"{spread(iteration_ratio)}, time per iteration {spread(per_iteration_ratio)}; "
+            f"log-log slope of time over T in {horizons}: {spread(slopes, '')}")
+    return "\n".join(lines)
 
 
 def benchmark_rollout_reference(

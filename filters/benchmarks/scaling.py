@@ -37,9 +37,14 @@ Ours is the default ``backend="auto"`` (DAQP for the hard QP; DAQP or PIQP for t
 recovery QP, by size; the point reports which); each explicit back end (``"daqp"``,
 ``"clarabel"``, ``"piqp"``) then solves
 the same recorded halfspaces in a pass of its own, so that the table shows them all
-and how far their inputs are apart; the sparse passes (Clarabel, PIQP) also time their
-hard QP alone at every step ("per QP": one kind of QP at every size, so that its growth
-with T is the back end's, not that of the share of recovery QPs). The filters are timed in
+and how far their inputs are apart; the sparse back ends (Clarabel, PIQP) then also time
+their hard QP alone at every step, in one more pass each ("per QP": one kind of QP at
+every size, so that its growth with T is the back end's, not that of the share of
+recovery QPs; a pass of its own, so that the recovery QP the filter pass just solved does
+not evict its data from the caches between steps), with its median interior-point
+iterations, its median time per iteration and the share of hard QPs it solved (the
+growth with T splits into iterations, a property of the instances, and the work per
+iteration, the back end's). The filters are timed in
 separate passes over the same instances (interleaved, each evicts the other's data from
 the caches). Every number is a median over the steps of one run; the ratios compare
 numbers of the same run.
@@ -259,6 +264,12 @@ class ScalingPoint:
     piqp_per_qp_ms: float = float("nan")  # backend="piqp": its hard QP alone
     family: str = "straight"  # instance family (FAMILIES)
     halfspaces_numpy_ms: float = float("nan")  # the numpy reference, same instances
+    clarabel_per_qp_iterations: float = float("nan")  # its hard QP alone: median iterations
+    clarabel_per_iteration_us: float = float("nan")  # median of (time / iterations), µs
+    clarabel_per_qp_solved: float = float("nan")  # share of the hard QPs it solved
+    piqp_per_qp_iterations: float = float("nan")
+    piqp_per_iteration_us: float = float("nan")
+    piqp_per_qp_solved: float = float("nan")
 
     def as_row(self) -> dict:
         """Flat ``dict`` for CSV (statuses as ``name:count`` pairs)."""
@@ -344,8 +355,11 @@ def benchmark_point(
 
     backend_ms: dict[str, list[float]] = {}
     backend_inputs: dict[str, list] = {}
-    per_qp_ms: dict[str, list[float]] = {"clarabel": [], "piqp": []}
+    per_qp: dict[str, list[tuple[float, int, bool]]] = {"clarabel": [], "piqp": []}
     zero_inputs = np.zeros((horizon, B.shape[1]))
+    hard_steps = [StepData(instance.x0, instance.reference_states[1:], zero_inputs,
+                           np.asarray(hs.normals), np.asarray(hs.offsets))
+                  for instance, hs in zip(instances, recorded, strict=True)]
     for name in ("daqp", "clarabel", "piqp"):
         explicit = MPCSafetyFilter(A, B, C, backend=name, **kwargs)
         backend_ms[name], backend_inputs[name] = [], []
@@ -357,12 +371,12 @@ def benchmark_point(
             backend_ms[name].append(1e3 * (time.perf_counter() - begin))
             backend_inputs[name].append(
                 answer.inputs if answer.status == FilterStatus.OPTIMAL else None)
-            if name in per_qp_ms:  # the hard QP alone, the same QP at every step
-                step = StepData(instance.x0, instance.reference_states[1:], zero_inputs,
-                                np.asarray(hs.normals), np.asarray(hs.offsets))
+        if name in per_qp:  # the hard QP alone, the same QP at every step, in a pass of its own
+            for step in hard_steps:
                 begin = time.perf_counter()
-                explicit._primary.solve(step)
-                per_qp_ms[name].append(1e3 * (time.perf_counter() - begin))
+                solution = explicit._primary.solve(step)
+                per_qp[name].append((1e3 * (time.perf_counter() - begin),
+                                     solution.iterations, solution.found))
     between = [float(np.max(np.abs(a - b))) for a, b in zip(
         backend_inputs["daqp"], backend_inputs["clarabel"], strict=True)
         if a is not None and b is not None]
@@ -378,16 +392,32 @@ def benchmark_point(
         daqp_qp_ms=float(np.median(backend_ms["daqp"])),
         clarabel_qp_ms=float(np.median(backend_ms["clarabel"])),
         daqp_clarabel_difference=max(between) if between else float("nan"),
-        clarabel_per_qp_ms=_median(per_qp_ms["clarabel"]),
         piqp_qp_ms=float(np.median(backend_ms["piqp"])),
-        piqp_per_qp_ms=_median(per_qp_ms["piqp"]),
+        **_per_qp_fields("clarabel", per_qp["clarabel"]),
+        **_per_qp_fields("piqp", per_qp["piqp"]),
         family=family,
         halfspaces_numpy_ms=float(np.median(numpy_ms)),
     )
 
 
-def _median(values: list[float]) -> float:
-    return float(np.median(values)) if values else float("nan")
+def _per_qp_fields(name: str, timings: list[tuple[float, int, bool]]) -> dict[str, float]:
+    """The :class:`ScalingPoint` fields of one sparse back end's hard-QP pass.
+
+    ``timings`` holds ``(wall time in ms, interior-point iterations, solved)`` per step;
+    the time per iteration is each step's wall time over its iterations (at least one).
+    """
+    if not timings:
+        return {f"{name}_per_qp_ms": float("nan"), f"{name}_per_qp_iterations": float("nan"),
+                f"{name}_per_iteration_us": float("nan"),
+                f"{name}_per_qp_solved": float("nan")}
+    table = np.array(timings, dtype=float)  # (steps, 3)
+    ms, iterations, solved = table[:, 0], table[:, 1], table[:, 2]
+    return {
+        f"{name}_per_qp_ms": float(np.median(ms)),
+        f"{name}_per_qp_iterations": float(np.median(iterations)),
+        f"{name}_per_iteration_us": float(np.median(1e3 * ms / np.maximum(iterations, 1.0))),
+        f"{name}_per_qp_solved": float(np.mean(solved)),
+    }
 
 
 def _backend_label(mpc: MPCSafetyFilter) -> str:
@@ -418,9 +448,10 @@ def format_scaling_table(points: Sequence[ScalingPoint]) -> str:
     lines = [
         "| obstacles | T | N_s | halfspaces | halfspaces numpy | QP | step | CVXPY QP | "
         "CVXPY / step | CVXPY / QP | auto picks | QP daqp | QP clarabel | QP piqp | "
-        "per QP clarabel | per QP piqp | max abs u_daqp - u_clarabel | statuses (ours) | "
-        "same status |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "per QP clarabel | per QP piqp | per QP iterations clarabel / piqp | "
+        "per iteration µs clarabel / piqp | hard QPs solved | max abs u_daqp - u_clarabel | "
+        "statuses (ours) | same status |",
+        "|" + "---|" * 22,
     ]
     for p in points:
         statuses = ", ".join(f"{k} {v}" for k, v in sorted(p.statuses.items()))
@@ -430,6 +461,9 @@ def format_scaling_table(points: Sequence[ScalingPoint]) -> str:
             f"{p.ratio:.1f}x | "
             f"{p.qp_ratio:.1f}x | {p.backend} | {p.daqp_qp_ms:.3f} | {p.clarabel_qp_ms:.3f} | "
             f"{p.piqp_qp_ms:.3f} | {p.clarabel_per_qp_ms:.3f} | {p.piqp_per_qp_ms:.3f} | "
+            f"{p.clarabel_per_qp_iterations:.0f} / {p.piqp_per_qp_iterations:.0f} | "
+            f"{p.clarabel_per_iteration_us:.1f} / {p.piqp_per_iteration_us:.1f} | "
+            f"{100 * p.clarabel_per_qp_solved:.0f}% | "
             f"{p.daqp_clarabel_difference:.1e} | {statuses} | "
             f"{100 * p.agreement:.0f}% |"
         )
