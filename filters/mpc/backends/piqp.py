@@ -17,8 +17,7 @@ so the symbolic factorisation is reused). ``backend="auto"`` uses it for the QPs
 soft rows of long horizons, where an active-set method is slow (many violated rows)
 and it is faster than Clarabel on the same QP (see :func:`filters.mpc.filter.auto_backend`).
 
-Settings: one thread, PIQP's sparse LDL' (AMD ordering: the KKT factor of the
-multiple-shooting QP stays banded, its size linear in ``T``); QPs with soft rows tighten
+Settings: one thread, PIQP's sparse LDL' of the KKT system; QPs with soft rows tighten
 the duality-gap tolerances to :data:`SOFT_GAP_TOLERANCE`; hard QPs loosen the
 primal-infeasibility tolerance to :data:`HARD_PRIMAL_INFEASIBILITY_TOLERANCE`. Override
 with ``solver_settings``.
@@ -48,10 +47,10 @@ __all__ = [
 SOFT_GAP_TOLERANCE = 1e-10
 
 #: Primal-infeasibility tolerance (``eps_primal_inf``) of hard QPs; PIQP's default is
-#: 1e-4. A hard QP far from feasible (a long reference that leaves the arena, halfspaces
-#: that cut off every reachable position) is certified infeasible once the scaled dual
-#: residual of the certificate is below it; at the default, the certificate of such long
-#: QPs took up to three times the iterations of a solve. Checked on hard QPs whose
+#: 1e-4. PIQP declares a QP primal infeasible when its infeasibility certificate meets
+#: this tolerance; for hard QPs far from feasible (a long reference that leaves the
+#: arena, halfspaces that cut off every reachable position) the default took two to three
+#: times the iterations of a solve at long horizons. Checked on hard QPs whose
 #: halfspace offsets sit 10 µm to 1 cm on either side of the feasibility boundary
 #: (bisected with Clarabel at 1e-12): the same status as Clarabel's. Soft QPs are always
 #: feasible and keep the default.
