@@ -44,7 +44,11 @@ recovery QPs; a pass of its own, so that the recovery QP the filter pass just so
 not evict its data from the caches between steps), with its median interior-point
 iterations, its median time per iteration and the share of hard QPs it solved (the
 growth with T splits into iterations, a property of the instances, and the work per
-iteration, the back end's). The filters are timed in
+iteration, the back end's). Besides the wall time, that pass records the CPU time of the
+thread (``time.thread_time``): on a machine whose cores are shared, a QP that takes
+milliseconds is more often preempted mid-solve than one that takes a tenth of that, so
+its wall-time median grows faster with T than its work; the time per iteration is CPU
+time. The filters are timed in
 separate passes over the same instances (interleaved, each evicts the other's data from
 the caches). Every number is a median over the steps of one run; the ratios compare
 numbers of the same run.
@@ -264,9 +268,11 @@ class ScalingPoint:
     piqp_per_qp_ms: float = float("nan")  # backend="piqp": its hard QP alone
     family: str = "straight"  # instance family (FAMILIES)
     halfspaces_numpy_ms: float = float("nan")  # the numpy reference, same instances
+    clarabel_per_qp_cpu_ms: float = float("nan")  # its hard QP alone: CPU time of the thread
     clarabel_per_qp_iterations: float = float("nan")  # its hard QP alone: median iterations
-    clarabel_per_iteration_us: float = float("nan")  # median of (time / iterations), µs
+    clarabel_per_iteration_us: float = float("nan")  # median of (CPU time / iterations), µs
     clarabel_per_qp_solved: float = float("nan")  # share of the hard QPs it solved
+    piqp_per_qp_cpu_ms: float = float("nan")
     piqp_per_qp_iterations: float = float("nan")
     piqp_per_iteration_us: float = float("nan")
     piqp_per_qp_solved: float = float("nan")
@@ -355,7 +361,7 @@ def benchmark_point(
 
     backend_ms: dict[str, list[float]] = {}
     backend_inputs: dict[str, list] = {}
-    per_qp: dict[str, list[tuple[float, int, bool]]] = {"clarabel": [], "piqp": []}
+    per_qp: dict[str, list[tuple[float, float, int, bool]]] = {"clarabel": [], "piqp": []}
     zero_inputs = np.zeros((horizon, B.shape[1]))
     hard_steps = [StepData(instance.x0, instance.reference_states[1:], zero_inputs,
                            np.asarray(hs.normals), np.asarray(hs.offsets))
@@ -373,9 +379,10 @@ def benchmark_point(
                 answer.inputs if answer.status == FilterStatus.OPTIMAL else None)
         if name in per_qp:  # the hard QP alone, the same QP at every step, in a pass of its own
             for step in hard_steps:
-                begin = time.perf_counter()
+                begin, begin_cpu = time.perf_counter(), time.thread_time()
                 solution = explicit._primary.solve(step)
-                per_qp[name].append((1e3 * (time.perf_counter() - begin),
+                end_cpu, end = time.thread_time(), time.perf_counter()
+                per_qp[name].append((1e3 * (end - begin), 1e3 * (end_cpu - begin_cpu),
                                      solution.iterations, solution.found))
     between = [float(np.max(np.abs(a - b))) for a, b in zip(
         backend_inputs["daqp"], backend_inputs["clarabel"], strict=True)
@@ -400,24 +407,23 @@ def benchmark_point(
     )
 
 
-def _per_qp_fields(name: str, timings: list[tuple[float, int, bool]]) -> dict[str, float]:
+def _per_qp_fields(name: str, timings: list[tuple[float, float, int, bool]]
+                   ) -> dict[str, float]:
     """The :class:`ScalingPoint` fields of one sparse back end's hard-QP pass.
 
-    ``timings`` holds ``(wall time in ms, interior-point iterations, solved)`` per step;
-    the time per iteration is each step's wall time over its iterations (at least one).
+    ``timings`` holds ``(wall time in ms, CPU time of the thread in ms, interior-point
+    iterations, solved)`` per step; the time per iteration is each step's CPU time over
+    its iterations (at least one).
     """
+    keys = ("per_qp_ms", "per_qp_cpu_ms", "per_qp_iterations", "per_iteration_us",
+            "per_qp_solved")
     if not timings:
-        return {f"{name}_per_qp_ms": float("nan"), f"{name}_per_qp_iterations": float("nan"),
-                f"{name}_per_iteration_us": float("nan"),
-                f"{name}_per_qp_solved": float("nan")}
-    table = np.array(timings, dtype=float)  # (steps, 3)
-    ms, iterations, solved = table[:, 0], table[:, 1], table[:, 2]
-    return {
-        f"{name}_per_qp_ms": float(np.median(ms)),
-        f"{name}_per_qp_iterations": float(np.median(iterations)),
-        f"{name}_per_iteration_us": float(np.median(1e3 * ms / np.maximum(iterations, 1.0))),
-        f"{name}_per_qp_solved": float(np.mean(solved)),
-    }
+        return {f"{name}_{key}": float("nan") for key in keys}
+    table = np.array(timings, dtype=float)  # (steps, 4)
+    wall, cpu, iterations, solved = table.T
+    values = (np.median(wall), np.median(cpu), np.median(iterations),
+              np.median(1e3 * cpu / np.maximum(iterations, 1.0)), np.mean(solved))
+    return {f"{name}_{key}": float(value) for key, value in zip(keys, values, strict=True)}
 
 
 def _backend_label(mpc: MPCSafetyFilter) -> str:
@@ -448,11 +454,12 @@ def format_scaling_table(points: Sequence[ScalingPoint]) -> str:
     lines = [
         "| obstacles | T | N_s | halfspaces | halfspaces numpy | QP | step | CVXPY QP | "
         "CVXPY / step | CVXPY / QP | auto picks | QP daqp | QP clarabel | QP piqp | "
-        "per QP clarabel | per QP piqp | per QP iterations clarabel / piqp | "
-        "per iteration µs clarabel / piqp | hard QPs solved (clarabel) | "
+        "per QP clarabel | per QP piqp | per QP CPU clarabel / piqp | "
+        "per QP iterations clarabel / piqp | "
+        "CPU per iteration µs clarabel / piqp | hard QPs solved (clarabel) | "
         "max abs u_daqp - u_clarabel | "
         "statuses (ours) | same status |",
-        "|" + "---|" * 22,
+        "|" + "---|" * 23,
     ]
     for p in points:
         statuses = ", ".join(f"{k} {v}" for k, v in sorted(p.statuses.items()))
@@ -462,6 +469,7 @@ def format_scaling_table(points: Sequence[ScalingPoint]) -> str:
             f"{p.ratio:.1f}x | "
             f"{p.qp_ratio:.1f}x | {p.backend} | {p.daqp_qp_ms:.3f} | {p.clarabel_qp_ms:.3f} | "
             f"{p.piqp_qp_ms:.3f} | {p.clarabel_per_qp_ms:.3f} | {p.piqp_per_qp_ms:.3f} | "
+            f"{p.clarabel_per_qp_cpu_ms:.3f} / {p.piqp_per_qp_cpu_ms:.3f} | "
             f"{p.clarabel_per_qp_iterations:.0f} / {p.piqp_per_qp_iterations:.0f} | "
             f"{p.clarabel_per_iteration_us:.1f} / {p.piqp_per_iteration_us:.1f} | "
             f"{100 * p.clarabel_per_qp_solved:.0f}% | "
