@@ -434,25 +434,60 @@ def benchmark_training(timesteps: int = 20_480, chunk: int = 2048, seed: int = 0
 # --------------------------------------------------------------------------- --scaling
 def _sparse_growth(points: list) -> str:
     """How the sparse back ends' hard-QP time grows from the shortest horizon >= 20 to the
-    longest, per obstacle count and N_s (medians of the ratios)."""
+    longest, over the obstacle counts x N_s of ``points`` (medians, with the ranges).
+
+    Per back end: the plain wall-time ratio (the issue's criterion: at most the horizon
+    ratio for linear growth), the same ratio of the CPU time of the thread (what the
+    back end computes, without the waits of a busy machine), split into its two factors,
+    the ratio of the median iteration counts (a property of the instances) and the ratio
+    of the median CPU times per iteration (the back end's work); and the slopes of
+    least-squares fits of log time against log T over every horizon >= 20 (1 for linear
+    growth), which use the middle horizons too.
+    """
     horizons = sorted({p.horizon for p in points if p.horizon >= 20})
     if len(horizons) < 2:
         return "sparse back ends' growth: needs two horizons >= 20"
     short, long = horizons[0], horizons[-1]
-    parts = []
+    series: dict[tuple[int, int], dict[int, object]] = {}
+    for p in points:
+        if p.horizon >= 20:
+            series.setdefault((p.n_obstacles, p.n_samples), {})[p.horizon] = p
+
+    def spread(values: list[float], unit: str = "x") -> str:
+        array = np.array(values, dtype=float)
+        return (f"{np.median(array):.2f}{unit} (range {array.min():.2f}{unit} to "
+                f"{array.max():.2f}{unit})")
+
+    def slope(by_horizon: dict, field: str) -> float:
+        ts = sorted(by_horizon)
+        return float(np.polyfit(np.log(ts), np.log([getattr(by_horizon[t], field)
+                                                    for t in ts]), 1)[0])
+
+    lines = [f"sparse back ends, hard QP alone, T = {long} over T = {short} (horizon ratio "
+             f"{long / short:.0f}; linear growth: at most {long / short:.0f}x, slope 1), "
+             f"medians over {len(series)} obstacle counts x N_s:"]
     for name in ("clarabel", "piqp"):
-        growth = []
-        for p in points:
-            base = [q for q in points if q.horizon == short and q.n_obstacles == p.n_obstacles
-                    and q.n_samples == p.n_samples]
-            if p.horizon == long and base:
-                growth.append(getattr(p, f"{name}_per_qp_ms") / getattr(
-                    base[0], f"{name}_per_qp_ms"))
-        array = np.array(growth)
-        parts.append(f"{name} median {np.median(array):.2f}x (range {array.min():.2f}x to "
-                     f"{array.max():.2f}x)")
-    return (f"sparse back ends, hard QP alone, T = {long} over T = {short} (horizon "
-            f"ratio {long / short:.0f}): " + "; ".join(parts))
+        fields = {key: f"{name}_{key}" for key in (
+            "per_qp_ms", "per_qp_cpu_ms", "per_qp_iterations", "per_iteration_us")}
+        ratios: dict[str, list[float]] = {key: [] for key in fields}
+        slopes: dict[str, list[float]] = {"per_qp_ms": [], "per_qp_cpu_ms": []}
+        for by_horizon in series.values():
+            if short in by_horizon and long in by_horizon:
+                for key, field in fields.items():
+                    ratios[key].append(getattr(by_horizon[long], field)
+                                       / getattr(by_horizon[short], field))
+            if len(by_horizon) >= 2:
+                for key in slopes:
+                    slopes[key].append(slope(by_horizon, fields[key]))
+        if not ratios["per_qp_ms"]:
+            continue
+        lines.append(
+            f"  {name}: wall time {spread(ratios['per_qp_ms'])}; CPU time "
+            f"{spread(ratios['per_qp_cpu_ms'])}, its factors: iterations "
+            f"{spread(ratios['per_qp_iterations'])}, CPU time per iteration "
+            f"{spread(ratios['per_iteration_us'])}; log-log slope over T in {horizons}: "
+            f"wall {spread(slopes['per_qp_ms'], '')}, CPU {spread(slopes['per_qp_cpu_ms'], '')}")
+    return "\n".join(lines)
 
 
 def benchmark_rollout_reference(

@@ -301,3 +301,49 @@ def test_piqp_update_equals_rebuild(mode):
                         case)
         assert updated.status == rebuilt.status
         np.testing.assert_allclose(updated.inputs, rebuilt.inputs, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("horizon", [20, pytest.param(80, marks=pytest.mark.slow)])
+def test_piqp_hard_infeasibility_tolerance_keeps_clarabels_status_at_the_boundary(horizon):
+    """Shift a hard QP's halfspace offsets by ``lam`` (m): bisect with Clarabel at 1e-12
+    where it turns infeasible, then PIQP (hard-QP tolerance) must say what Clarabel says
+    10 µm to 1 cm on either side of that boundary."""
+    from filters.mpc.backends.piqp import HARD_PRIMAL_INFEASIBILITY_TOLERANCE
+
+    tight = {name: 1e-12 for name in ("tol_feas", "tol_gap_abs", "tol_gap_rel",
+                                      "tol_infeas_abs", "tol_infeas_rel")}
+    reference = make("clarabel", horizon, "trajectory", "paper", solver_settings=tight,
+                     skip_feasible_reference=False)
+    piqp_filter = make("piqp", horizon, "trajectory", "paper", skip_feasible_reference=False)
+    settings = piqp_filter._primary.solver.settings
+    assert settings.eps_primal_inf == HARD_PRIMAL_INFEASIBILITY_TOLERANCE
+    soft = make("piqp", horizon, "trajectory", "soft")
+    assert soft._primary.solver.settings.eps_primal_inf != HARD_PRIMAL_INFEASIBILITY_TOLERANCE
+
+    def shifted(case: dict, lam: float) -> dict:
+        normals, offsets = case["halfspaces"]
+        return {**case, "halfspaces": (normals, offsets + lam)}
+
+    def feasible(mpc: MPCSafetyFilter, case: dict) -> bool:
+        mpc.reset()
+        return solve(mpc, case).status is FilterStatus.OPTIMAL
+
+    rng = np.random.default_rng([7, horizon])
+    checked = 0
+    while checked < 3:
+        case = instance(rng, horizon, "hard")
+        low, high = -20.0, 5.0
+        if feasible(reference, shifted(case, low)) or not feasible(reference, shifted(case, high)):
+            continue
+        for _ in range(30):  # to 2e-8 m
+            middle = 0.5 * (low + high)
+            if feasible(reference, shifted(case, middle)):
+                high = middle
+            else:
+                low = middle
+        for delta in (1e-2, 1e-3, 1e-4, 1e-5):
+            assert feasible(reference, shifted(case, high + delta))
+            assert not feasible(reference, shifted(case, low - delta))
+            assert feasible(piqp_filter, shifted(case, high + delta)), delta
+            assert not feasible(piqp_filter, shifted(case, low - delta)), delta
+        checked += 1

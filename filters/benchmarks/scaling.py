@@ -37,9 +37,18 @@ Ours is the default ``backend="auto"`` (DAQP for the hard QP; DAQP or PIQP for t
 recovery QP, by size; the point reports which); each explicit back end (``"daqp"``,
 ``"clarabel"``, ``"piqp"``) then solves
 the same recorded halfspaces in a pass of its own, so that the table shows them all
-and how far their inputs are apart; the sparse passes (Clarabel, PIQP) also time their
-hard QP alone at every step ("per QP": one kind of QP at every size, so that its growth
-with T is the back end's, not that of the share of recovery QPs). The filters are timed in
+and how far their inputs are apart; the sparse back ends (Clarabel, PIQP) then also time
+their hard QP alone at every step, in one more pass each ("per QP": one kind of QP at
+every size, so that its growth with T is the back end's, not that of the share of
+recovery QPs; a pass of its own, so that the recovery QP the filter pass just solved does
+not evict its data from the caches between steps), with its median interior-point
+iterations, its median time per iteration and the share of hard QPs it solved (the
+growth with T splits into iterations, a property of the instances, and the work per
+iteration, the back end's). Besides the wall time, that pass records the CPU time of the
+thread (``time.thread_time``): on a machine whose cores are shared, a QP that takes
+milliseconds is more often preempted mid-solve than one that takes a tenth of that, so
+its wall-time median grows faster with T than its work; the time per iteration is CPU
+time. The filters are timed in
 separate passes over the same instances (interleaved, each evicts the other's data from
 the caches). Every number is a median over the steps of one run; the ratios compare
 numbers of the same run.
@@ -259,6 +268,14 @@ class ScalingPoint:
     piqp_per_qp_ms: float = float("nan")  # backend="piqp": its hard QP alone
     family: str = "straight"  # instance family (FAMILIES)
     halfspaces_numpy_ms: float = float("nan")  # the numpy reference, same instances
+    clarabel_per_qp_cpu_ms: float = float("nan")  # its hard QP alone: CPU time of the thread
+    clarabel_per_qp_iterations: float = float("nan")  # its hard QP alone: median iterations
+    clarabel_per_iteration_us: float = float("nan")  # median of (CPU time / iterations), µs
+    clarabel_per_qp_solved: float = float("nan")  # share of the hard QPs it solved
+    piqp_per_qp_cpu_ms: float = float("nan")
+    piqp_per_qp_iterations: float = float("nan")
+    piqp_per_iteration_us: float = float("nan")
+    piqp_per_qp_solved: float = float("nan")
 
     def as_row(self) -> dict:
         """Flat ``dict`` for CSV (statuses as ``name:count`` pairs)."""
@@ -344,8 +361,11 @@ def benchmark_point(
 
     backend_ms: dict[str, list[float]] = {}
     backend_inputs: dict[str, list] = {}
-    per_qp_ms: dict[str, list[float]] = {"clarabel": [], "piqp": []}
+    per_qp: dict[str, list[tuple[float, float, int, bool]]] = {"clarabel": [], "piqp": []}
     zero_inputs = np.zeros((horizon, B.shape[1]))
+    hard_steps = [StepData(instance.x0, instance.reference_states[1:], zero_inputs,
+                           np.asarray(hs.normals), np.asarray(hs.offsets))
+                  for instance, hs in zip(instances, recorded, strict=True)]
     for name in ("daqp", "clarabel", "piqp"):
         explicit = MPCSafetyFilter(A, B, C, backend=name, **kwargs)
         backend_ms[name], backend_inputs[name] = [], []
@@ -357,12 +377,13 @@ def benchmark_point(
             backend_ms[name].append(1e3 * (time.perf_counter() - begin))
             backend_inputs[name].append(
                 answer.inputs if answer.status == FilterStatus.OPTIMAL else None)
-            if name in per_qp_ms:  # the hard QP alone, the same QP at every step
-                step = StepData(instance.x0, instance.reference_states[1:], zero_inputs,
-                                np.asarray(hs.normals), np.asarray(hs.offsets))
-                begin = time.perf_counter()
-                explicit._primary.solve(step)
-                per_qp_ms[name].append(1e3 * (time.perf_counter() - begin))
+        if name in per_qp:  # the hard QP alone, the same QP at every step, in a pass of its own
+            for step in hard_steps:
+                begin, begin_cpu = time.perf_counter(), time.thread_time()
+                solution = explicit._primary.solve(step)
+                end_cpu, end = time.thread_time(), time.perf_counter()
+                per_qp[name].append((1e3 * (end - begin), 1e3 * (end_cpu - begin_cpu),
+                                     solution.iterations, solution.found))
     between = [float(np.max(np.abs(a - b))) for a, b in zip(
         backend_inputs["daqp"], backend_inputs["clarabel"], strict=True)
         if a is not None and b is not None]
@@ -378,16 +399,31 @@ def benchmark_point(
         daqp_qp_ms=float(np.median(backend_ms["daqp"])),
         clarabel_qp_ms=float(np.median(backend_ms["clarabel"])),
         daqp_clarabel_difference=max(between) if between else float("nan"),
-        clarabel_per_qp_ms=_median(per_qp_ms["clarabel"]),
         piqp_qp_ms=float(np.median(backend_ms["piqp"])),
-        piqp_per_qp_ms=_median(per_qp_ms["piqp"]),
+        **_per_qp_fields("clarabel", per_qp["clarabel"]),
+        **_per_qp_fields("piqp", per_qp["piqp"]),
         family=family,
         halfspaces_numpy_ms=float(np.median(numpy_ms)),
     )
 
 
-def _median(values: list[float]) -> float:
-    return float(np.median(values)) if values else float("nan")
+def _per_qp_fields(name: str, timings: list[tuple[float, float, int, bool]]
+                   ) -> dict[str, float]:
+    """The :class:`ScalingPoint` fields of one sparse back end's hard-QP pass.
+
+    ``timings`` holds ``(wall time in ms, CPU time of the thread in ms, interior-point
+    iterations, solved)`` per step; the time per iteration is each step's CPU time over
+    its iterations (at least one).
+    """
+    keys = ("per_qp_ms", "per_qp_cpu_ms", "per_qp_iterations", "per_iteration_us",
+            "per_qp_solved")
+    if not timings:
+        return {f"{name}_{key}": float("nan") for key in keys}
+    table = np.array(timings, dtype=float)  # (steps, 4)
+    wall, cpu, iterations, solved = table.T
+    values = (np.median(wall), np.median(cpu), np.median(iterations),
+              np.median(1e3 * cpu / np.maximum(iterations, 1.0)), np.mean(solved))
+    return {f"{name}_{key}": float(value) for key, value in zip(keys, values, strict=True)}
 
 
 def _backend_label(mpc: MPCSafetyFilter) -> str:
@@ -418,9 +454,12 @@ def format_scaling_table(points: Sequence[ScalingPoint]) -> str:
     lines = [
         "| obstacles | T | N_s | halfspaces | halfspaces numpy | QP | step | CVXPY QP | "
         "CVXPY / step | CVXPY / QP | auto picks | QP daqp | QP clarabel | QP piqp | "
-        "per QP clarabel | per QP piqp | max abs u_daqp - u_clarabel | statuses (ours) | "
-        "same status |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "per QP clarabel | per QP piqp | per QP CPU clarabel / piqp | "
+        "per QP iterations clarabel / piqp | "
+        "CPU per iteration µs clarabel / piqp | hard QPs solved (clarabel) | "
+        "max abs u_daqp - u_clarabel | "
+        "statuses (ours) | same status |",
+        "|" + "---|" * 23,
     ]
     for p in points:
         statuses = ", ".join(f"{k} {v}" for k, v in sorted(p.statuses.items()))
@@ -430,6 +469,10 @@ def format_scaling_table(points: Sequence[ScalingPoint]) -> str:
             f"{p.ratio:.1f}x | "
             f"{p.qp_ratio:.1f}x | {p.backend} | {p.daqp_qp_ms:.3f} | {p.clarabel_qp_ms:.3f} | "
             f"{p.piqp_qp_ms:.3f} | {p.clarabel_per_qp_ms:.3f} | {p.piqp_per_qp_ms:.3f} | "
+            f"{p.clarabel_per_qp_cpu_ms:.3f} / {p.piqp_per_qp_cpu_ms:.3f} | "
+            f"{p.clarabel_per_qp_iterations:.0f} / {p.piqp_per_qp_iterations:.0f} | "
+            f"{p.clarabel_per_iteration_us:.1f} / {p.piqp_per_iteration_us:.1f} | "
+            f"{100 * p.clarabel_per_qp_solved:.0f}% | "
             f"{p.daqp_clarabel_difference:.1e} | {statuses} | "
             f"{100 * p.agreement:.0f}% |"
         )

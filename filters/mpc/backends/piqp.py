@@ -16,6 +16,11 @@ entries :math:`a_{i,t}^\top C` of :math:`G` change (``update``, same sparsity pa
 so the symbolic factorisation is reused). ``backend="auto"`` uses it for the QPs with
 soft rows of long horizons, where an active-set method is slow (many violated rows)
 and it is faster than Clarabel on the same QP (see :func:`filters.mpc.filter.auto_backend`).
+
+Settings: one thread, PIQP's sparse LDL' of the KKT system; QPs with soft rows tighten
+the duality-gap tolerances to :data:`SOFT_GAP_TOLERANCE`; hard QPs loosen the
+primal-infeasibility tolerance to :data:`HARD_PRIMAL_INFEASIBILITY_TOLERANCE`. Override
+with ``solver_settings``.
 """
 
 from __future__ import annotations
@@ -33,11 +38,23 @@ from filters.mpc._linalg import matvec_operator
 from filters.mpc.problem import MPCProblem
 from filters.mpc.result import QPSolution, StepData
 
-__all__ = ["SOFT_GAP_TOLERANCE", "PIQPBackend", "piqp_settings"]
+__all__ = [
+    "HARD_PRIMAL_INFEASIBILITY_TOLERANCE", "SOFT_GAP_TOLERANCE", "PIQPBackend", "piqp_settings",
+]
 
 #: Duality-gap tolerances (absolute and relative) of QPs with soft rows, as Clarabel's
 #: (:data:`filters.mpc.backends.clarabel.SOFT_GAP_TOLERANCE`): the penalty dominates.
 SOFT_GAP_TOLERANCE = 1e-10
+
+#: Primal-infeasibility tolerance (``eps_primal_inf``) of hard QPs; PIQP's default is
+#: 1e-4. PIQP declares a QP primal infeasible when its infeasibility certificate meets
+#: this tolerance; for hard QPs far from feasible (a long reference that leaves the
+#: arena, halfspaces that cut off every reachable position) the default took two to three
+#: times the iterations of a solve at long horizons. Checked on hard QPs whose
+#: halfspace offsets sit 10 µm to 1 cm on either side of the feasibility boundary
+#: (bisected with Clarabel at 1e-12): the same status as Clarabel's. Soft QPs are always
+#: feasible and keep the default.
+HARD_PRIMAL_INFEASIBILITY_TOLERANCE = 3e-4
 
 _vecdot = getattr(np, "vecdot", None) or (lambda a, b: np.einsum("...d,...d->...", a, b))
 
@@ -59,6 +76,8 @@ def piqp_settings(solver: piqp.SparseSolver, overrides: Mapping[str, Any] | None
     settings.kkt_solver = piqp.sparse_ldlt
     if soft:
         settings.eps_duality_gap_abs = settings.eps_duality_gap_rel = SOFT_GAP_TOLERANCE
+    else:
+        settings.eps_primal_inf = HARD_PRIMAL_INFEASIBILITY_TOLERANCE
     if overrides is None:
         return
     if not isinstance(overrides, Mapping):
