@@ -24,18 +24,19 @@ otherwise) and ``observe`` the observation of :class:`safe_nav_env.SafeNavEnv` (
 Precision. The network runs in float64 from the float32 observation and its mean is
 rounded once to float32: the arithmetic of :class:`agents.NumpyPolicy`, up to two
 details. Each layer sums its products in input order (numpy's ``@`` may order them
-otherwise), and ``tanh`` is :func:`agents.vector_tanh.tanh`, within 2 units in the last
-place (2.2e-16) of ``np.tanh``. Both move the float64 mean by a few 1e-15 (the
+otherwise), and ``tanh`` is :func:`agents.vector_tanh.tanh`, within 2 units in the
+last place (2.2e-16) of ``np.tanh``. Both move the float64 mean by a few 1e-15 (the
 ``tanh`` alone: at most 2.7e-15 on 200,000 random observations of the shipped policy),
-far below float32's rounding step (6e-8 relative): the float32 action is the same
-(all 400,000 there), unless the float64 mean falls that close to a float32 rounding
-boundary, and then it differs by one float32 step. The roll-out therefore equals the Python roll-out with
-:class:`~agents.NumpyPolicy` to rounding (to 1e-12 m/s² on the test states), and the
-one with Stable-Baselines3's ``predict`` (or :class:`~agents.TorchActorPolicy`), whose
-float32 arithmetic differs from the exact float32 network by a few float32 rounding
-steps, to about 1e-6 m/s² per action. Pass ``compiled=False`` to
-:class:`~filters.references.PolicyRolloutReference` (or ``compiled_rollout=False`` to
-the wrapper) for the policy's own ``predict`` at every step.
+far below float32's rounding step (6e-8 relative): the float32 action is the same (all
+400,000 there), unless the float64 mean falls that close to a float32 rounding
+boundary, and then it differs by one float32 step. The roll-out therefore equals the
+Python roll-out with :class:`~agents.NumpyPolicy` to rounding (to 1e-12 m/s² on the
+test states), and the one with Stable-Baselines3's ``predict`` (or
+:class:`~agents.TorchActorPolicy`), whose float32 arithmetic differs from the exact
+float32 network by a few float32 rounding steps, to about 1e-6 m/s² per action. Pass
+``compiled=False`` to :class:`~filters.references.PolicyRolloutReference` (or
+``compiled_rollout=False`` to the wrapper) for the policy's own ``predict`` at every
+step.
 
 Which policies and environments. Actors of SB3's ``MlpPolicy`` (``Linear`` layers with
 ``Tanh``, ``ReLU``, ``LeakyReLU`` or ``ELU``, a ``FlattenExtractor``, a ``Box`` action
@@ -193,6 +194,34 @@ def _affine(src, weight, dst):
 
 
 @njit(error_model="numpy", cache=True)
+def _activate(dst, bias, code, parameter):
+    """``dst[i] = σ(dst[i] + b_i)`` for ``i < len(bias)``, ``σ`` by its activation code.
+
+    A function of its own: inlined in the loop over layers, whose arrays change from
+    one layer to the next, the ``tanh`` loop does not vectorise.
+    """
+    n_out = bias.shape[0]
+    if code == 1:
+        for i in range(n_out):
+            dst[i] = tanh(dst[i] + bias[i])
+    elif code == 2:
+        for i in range(n_out):
+            v = dst[i] + bias[i]
+            dst[i] = v if v > 0.0 else 0.0
+    elif code == 3:
+        for i in range(n_out):
+            v = dst[i] + bias[i]
+            dst[i] = v if v >= 0.0 else parameter * v
+    elif code == 4:
+        for i in range(n_out):
+            v = dst[i] + bias[i]
+            dst[i] = v if v > 0.0 else parameter * math.expm1(v)
+    else:
+        for i in range(n_out):
+            dst[i] = dst[i] + bias[i]
+
+
+@njit(error_model="numpy", cache=True)
 def _mlp(obs, weights, biases, activations, parameters, squash, low, high, out, z, work):
     """``out[:] = π(obs)``: float64 network on a float32 observation, float32 box output.
 
@@ -207,30 +236,8 @@ def _mlp(obs, weights, biases, activations, parameters, squash, low, high, out, 
         z[j] = np.float64(obs[j])
     src, dst = z, work
     for layer in range(len(weights)):
-        weight = weights[layer]
-        bias = biases[layer]
-        n_in, n_out = weight.shape
-        _affine(src, weight, dst)
-        code = activations[layer]
-        parameter = parameters[layer]
-        if code == 1:
-            for i in range(n_out):
-                dst[i] = tanh(dst[i] + bias[i])
-        elif code == 2:
-            for i in range(n_out):
-                v = dst[i] + bias[i]
-                dst[i] = v if v > 0.0 else 0.0
-        elif code == 3:
-            for i in range(n_out):
-                v = dst[i] + bias[i]
-                dst[i] = v if v >= 0.0 else parameter * v
-        elif code == 4:
-            for i in range(n_out):
-                v = dst[i] + bias[i]
-                dst[i] = v if v > 0.0 else parameter * math.expm1(v)
-        else:
-            for i in range(n_out):
-                dst[i] = dst[i] + bias[i]
+        _affine(src, weights[layer], dst)
+        _activate(dst, biases[layer], activations[layer], parameters[layer])
         src, dst = dst, src
     half, one = np.float32(0.5), np.float32(1.0)
     for i in range(out.shape[0]):
@@ -245,6 +252,7 @@ def _mlp(obs, weights, biases, activations, parameters, squash, low, high, out, 
             if a > high[i]:
                 a = high[i]
             out[i] = a
+
 
 @njit(cache=True)
 def _observe(x, positions, velocities, goal, max_obstacles, obs, order, centre):
