@@ -60,6 +60,7 @@ from typing import Any
 
 import numpy as np
 from numba import njit
+from numba.core.errors import TypingError
 
 from agents.vector_tanh import tanh
 from filters.errors import InvalidArrayError, InvalidParameterError
@@ -150,6 +151,42 @@ class ActorNetwork:
             array.setflags(write=False)
         return cls(tuple(weights), tuple(biases), codes, parameters, bool(squash), low, high)
 
+    def __post_init__(self) -> None:
+        # The kernel's form, packed once: every layer in one float64 array (``W_l^T``
+        # row by row, then ``b_l``) and a table of int64 rows ``(inputs, outputs, where
+        # W_l^T starts, where b_l starts, activation code)``, the box as float32 (2, m).
+        # Arrays rather than tuples of arrays: numba types tuples slowly at every call.
+        if not (len(self.weights) == len(self.biases) == len(self.activations)
+                == len(self.parameters) >= 1):
+            raise InvalidArrayError(
+                f"an ActorNetwork needs as many weights, biases, activations and parameters "
+                f"(at least one layer), got {len(self.weights)}, {len(self.biases)}, "
+                f"{len(self.activations)} and {len(self.parameters)}")
+        parts, rows, start, inputs = [], [], 0, self.weights[0].shape[0]
+        for index, (weight, bias) in enumerate(zip(self.weights, self.biases, strict=True)):
+            n_in, n_out = weight.shape
+            if n_in != inputs or bias.shape != (n_out,):
+                raise InvalidArrayError(
+                    f"layer {index}: W^T {weight.shape} and b {bias.shape} do not chain "
+                    f"(inputs {inputs})")
+            rows.append((n_in, n_out, start, start + n_in * n_out,
+                         int(self.activations[index])))
+            parts += [np.asarray(weight, dtype=np.float64).reshape(-1),
+                      np.asarray(bias, dtype=np.float64)]
+            start += n_in * n_out + n_out
+            inputs = n_out
+        box = np.array([self.action_low, self.action_high], dtype=np.float32)
+        if box.shape != (2, inputs):
+            raise InvalidArrayError(
+                f"the action box {box.shape[1:]} must have one entry per output ({inputs})")
+        values = np.concatenate(parts)
+        layout = np.array(rows, dtype=np.int64)
+        for array in (values, layout, box):
+            array.setflags(write=False)
+        object.__setattr__(self, "_values", values)
+        object.__setattr__(self, "_layout", layout)
+        object.__setattr__(self, "_box", box)
+
     @property
     def n_inputs(self) -> int:
         return int(self.weights[0].shape[0])
@@ -222,35 +259,39 @@ def _activate(dst, bias, code, parameter):
 
 
 @njit(error_model="numpy", cache=True)
-def _mlp(obs, weights, biases, activations, parameters, squash, low, high, out, z, work):
+def _mlp(obs, values, layout, parameters, squash, box, out, z, work):
     """``out[:] = π(obs)``: float64 network on a float32 observation, float32 box output.
 
-    ``z_{l+1} = σ_l(z_l W_l^T + b_l)``: each output sums its products in input order
-    (as a matrix product's definition; the loop over outputs is the inner one, so it
-    vectorises without reordering a sum), then adds the bias; ``tanh`` is the
-    vectorisable :func:`agents.vector_tanh.tanh`. ``z`` and ``work`` are float64 work
-    arrays at least as long as the widest layer (inputs included), overwritten here
-    before they are read.
+    ``z_{l+1} = σ_l(z_l W_l^T + b_l)`` (the layers as :class:`ActorNetwork` packs them:
+    ``values``, ``layout``): each output sums its products in input order (as a matrix
+    product's definition; the loop over outputs is the inner one, so it vectorises
+    without reordering a sum), then adds the bias; ``tanh`` is the vectorisable
+    :func:`agents.vector_tanh.tanh`. ``z`` and ``work`` are float64 work arrays at least
+    as long as the widest layer (inputs included), overwritten here before they are
+    read.
     """
     for j in range(obs.shape[0]):
         z[j] = np.float64(obs[j])
     src, dst = z, work
-    for layer in range(len(weights)):
-        _affine(src, weights[layer], dst)
-        _activate(dst, biases[layer], activations[layer], parameters[layer])
+    for layer in range(layout.shape[0]):
+        n_in, n_out = layout[layer, 0], layout[layer, 1]
+        w_at, b_at = layout[layer, 2], layout[layer, 3]
+        _affine(src, values[w_at:w_at + n_in * n_out].reshape((n_in, n_out)), dst)
+        _activate(dst, values[b_at:b_at + n_out], layout[layer, 4], parameters[layer])
         src, dst = dst, src
     half, one = np.float32(0.5), np.float32(1.0)
     for i in range(out.shape[0]):
+        low, high = box[0, i], box[1, i]
         if squash:
             # float32(tanh(mean)), then low + 0.5 (s + 1) (high - low) in float32
             s = np.float32(tanh(src[i]))
-            out[i] = low[i] + half * (s + one) * (high[i] - low[i])
+            out[i] = low + half * (s + one) * (high - low)
         else:
             a = np.float32(src[i])
-            if a < low[i]:
-                a = low[i]
-            if a > high[i]:
-                a = high[i]
+            if a < low:
+                a = low
+            if a > high:
+                a = high
             out[i] = a
 
 
@@ -323,26 +364,38 @@ def _sample_means(predictions, means):
 
 
 @njit(error_model="numpy", cache=True)
-def _rollout(x0, u0, predictions, velocities, goal, max_obstacles, n_obs, A, B, low, high,
-             horizon, weights, biases, activations, parameters, squash, action_low,
-             action_high, centre, half_width):
-    """States ``(T+1, n)``, inputs ``(T, m)`` and ``0``, or ``k > 0``: the observation
-    at look-ahead ``k`` was not finite (then the arrays are partly filled).
+def _rollout(x0, u0, predictions, velocities, goal, max_obstacles, A, B, low, high, horizon,
+             values, layout, parameters, squash, box, action_map):
+    """States ``(T+1, n)``, inputs ``(T, m)`` and a status: ``0``; ``k > 0``: the
+    observation at look-ahead ``k`` was not finite (then the arrays are partly filled);
+    ``-1``: the shapes do not fit together; ``-2``: the horizon is not in ``[1, T_pred +
+    1]`` (then the arrays are empty). Indices are not checked in numba, so the shapes are
+    checked here before any is used.
 
     The sample means of all look-ahead steps are summed first, sample by sample over
     the contiguous ``(step, coordinate)`` rows of ``predictions``: each mean still adds
-    its samples in sample order, as a loop per step would.
+    its samples in sample order, as a loop per step would. ``action_map`` holds the
+    centre and half-width of the map of the network's actions to m/s².
     """
     n_state, m = B.shape
+    n_obs = 6 + 5 * max_obstacles  # the SafeNavEnv layout _observe writes
+    n_layers = layout.shape[0]
+    n_obstacles = predictions.shape[0]
+    if (n_state != 4 or A.shape[0] != 4 or A.shape[1] != 4 or x0.shape[0] != 4
+            or u0.shape[0] != m or low.shape[0] != m or high.shape[0] != m or n_layers == 0
+            or layout[0, 0] != n_obs or layout[n_layers - 1, 1] != m or box.shape[1] != m
+            or action_map.shape[1] != m or velocities.shape[0] != n_obstacles
+            or velocities.shape[1] != 2 or predictions.shape[3] != 2 or goal.shape[0] != 2):
+        return np.empty((0, n_state)), np.empty((0, m)), -1
+    if horizon < 1 or horizon > predictions.shape[2] + 1:
+        return np.empty((0, n_state)), np.empty((0, m)), -2
     states = np.empty((horizon + 1, n_state))
     inputs = np.empty((horizon, m))
-    n_obstacles = predictions.shape[0]
-    steps = horizon - 1
-    means = np.empty((n_obstacles, steps, 2))  # the sample mean at look-ahead k + 1
+    means = np.empty((n_obstacles, horizon - 1, 2))  # the sample mean at look-ahead k + 1
     _sample_means(predictions, means)
     width = n_obs
-    for layer in range(len(weights)):
-        width = max(width, weights[layer].shape[1])
+    for layer in range(n_layers):
+        width = max(width, layout[layer, 1])
     z = np.empty(width)
     work = np.empty(width)
     obs = np.empty(n_obs, dtype=np.float32)
@@ -354,7 +407,7 @@ def _rollout(x0, u0, predictions, velocities, goal, max_obstacles, n_obs, A, B, 
     for k in range(horizon):
         if k == 0:
             for i in range(m):
-                u = u0[i]
+                u = np.float64(u0[i])
                 if u < low[i]:
                     u = low[i]
                 if u > high[i]:
@@ -366,10 +419,9 @@ def _rollout(x0, u0, predictions, velocities, goal, max_obstacles, n_obs, A, B, 
             for i in range(n_obs):
                 if not math.isfinite(obs[i]):
                     return states, inputs, k
-            _mlp(obs, weights, biases, activations, parameters, squash, action_low,
-                 action_high, action, z, work)
+            _mlp(obs, values, layout, parameters, squash, box, action, z, work)
             for i in range(m):
-                u = centre[i] + half_width[i] * np.float64(action[i])
+                u = action_map[0, i] + action_map[1, i] * np.float64(action[i])
                 if u < low[i]:
                     u = low[i]
                 if u > high[i]:
@@ -422,10 +474,12 @@ class CompiledRollout:
         self._network = network
         self._static = network if isinstance(network, ActorNetwork) else None
         current = self._current()
-        self._n_inputs = current.n_inputs
+        self._obs_shape = (current.n_inputs,)
         m = current.n_outputs
         self.centre = _vector(0.0 if centre is None else centre, m)
         self.half_width = _vector(1.0 if half_width is None else half_width, m)
+        self._action_map = np.array([self.centre, self.half_width])  # the kernel's form
+        self._action_map.setflags(write=False)
         self._env_types: dict[type, bool] = {}
 
     def _current(self) -> ActorNetwork:
@@ -434,14 +488,26 @@ class CompiledRollout:
     def supports(self, env: Any) -> bool:
         """Whether this roll-out can run on ``env`` (see :func:`supports_env`) and its
         observation has the size the network takes."""
-        kind = type(env)
-        known = self._env_types.get(kind)
+        known = self._env_types.get(type(env))
         if known is None:
-            known = self._env_types[kind] = supports_env(env)
-        return known and env.observation_space.shape == (self._n_inputs,)
+            known = self._env_types[type(env)] = supports_env(env)
+        return known and env.observation_space.shape == self._obs_shape
+
+    def reference(self, env: Any, action: Any,
+                  horizon: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """``self(env, action, horizon)`` if :meth:`supports` ``env``, else ``None``."""
+        known = self._env_types.get(type(env))
+        if known is None:
+            known = self._env_types[type(env)] = supports_env(env)
+        if not known or env.observation_space.shape != self._obs_shape:
+            return None
+        return self(env, action, horizon)
 
     def __call__(self, env: Any, action: Any, horizon: int) -> tuple[np.ndarray, np.ndarray]:
         """The roll-out from ``env``'s current state (``env`` a supported ``SafeNavEnv``).
+
+        The kernel checks the shapes itself (a status, then the error here): only what
+        it cannot take as an argument is checked before.
 
         Raises
         ------
@@ -451,45 +517,52 @@ class CompiledRollout:
         InvalidParameterError
             If ``horizon`` exceeds the predictions by more than one step.
         """
-        net = self._current()
+        net = self._static if self._static is not None else self._network()
         A, B, _ = env.dynamics
         low, high = env.input_bounds
         predictions = env.predictions
-        velocities = env.obstacle_velocities
-        u0 = np.asarray(action, dtype=np.float64)
+        u0 = action
+        if type(u0) is not np.ndarray or u0.dtype.char not in "fd":  # float32 as it is
+            u0 = np.asarray(action, dtype=np.float64)
         if u0.shape != low.shape:
             if u0.size != low.size:
                 raise InvalidArrayError(
                     f"action must have {low.size} entries, got shape {u0.shape}")
             u0 = u0.reshape(low.shape)
-        n_obs = 6 + 5 * env.max_obstacles  # the SafeNavEnv layout the kernel writes
-        m = low.shape[0]
-        if (net.n_inputs != n_obs or net.n_outputs != m or B.shape != (4, m)
-                or A.shape != (4, 4) or env.ego_state.shape != (4,) or high.shape != (m,)
-                or predictions.shape[0] != velocities.shape[0] or predictions.shape[3] != 2):
-            raise InvalidArrayError(
-                f"the network takes {net.n_inputs} inputs and gives {net.n_outputs} actions; "
-                f"the environment observes {n_obs} entries and takes {low.shape[0]} inputs, "
-                f"with predictions {predictions.shape} for {velocities.shape[0]} obstacles "
-                f"and the state {env.ego_state.shape}")
-        if not 1 <= horizon <= predictions.shape[2] + 1:
-            raise InvalidParameterError(
-                f"horizon must be an integer in [1, {predictions.shape[2] + 1}] (one more "
-                f"than the prediction horizon), got {horizon!r}")
         if not predictions.flags.c_contiguous:  # the kernel reads whole sample rows
             predictions = np.ascontiguousarray(predictions)
-        states, inputs, failed = _rollout(
-            env.ego_state, u0, predictions, velocities, env.goal,
-            env.max_obstacles, n_obs, A, B, low, high, int(horizon), net.weights,
-            net.biases, net.activations, net.parameters, net.squash, net.action_low,
-            net.action_high, self.centre, self.half_width,
-        )
-        if failed:
+        try:
+            states, inputs, status = _rollout(
+                env.ego_state, u0, predictions, env.obstacle_velocities, env.goal,
+                env.max_obstacles, A, B, low, high, int(horizon), net._values, net._layout,
+                net.parameters, net.squash, net._box, self._action_map)
+        except TypingError as error:  # an array of another dimension or dtype
             raise InvalidArrayError(
-                f"the policy roll-out's observation at look-ahead step {failed} is not "
-                "finite (NaN or infinite predictions or states)"
-            )
+                f"the environment's arrays do not fit the compiled roll-out: {error}"
+            ) from error
+        if status:
+            self._raise(status, env, net, horizon)
         return states, inputs
+
+    @staticmethod
+    def _raise(status: int, env: Any, net: ActorNetwork, horizon: Any) -> None:
+        """The error of a kernel status (see :func:`_rollout`)."""
+        if status == -1:
+            predictions, velocities = env.predictions, env.obstacle_velocities
+            raise InvalidArrayError(
+                f"the network takes {net.n_inputs} inputs and gives {net.n_outputs} actions; "
+                f"the environment observes {6 + 5 * env.max_obstacles} entries and takes "
+                f"{env.input_bounds[0].size} inputs, with predictions {predictions.shape} "
+                f"and velocities {velocities.shape} for the obstacles, the state "
+                f"{env.ego_state.shape}, the goal {env.goal.shape} and dynamics "
+                f"{env.dynamics[0].shape}, {env.dynamics[1].shape}")
+        if status == -2:
+            raise InvalidParameterError(
+                f"horizon must be an integer in [1, {env.predictions.shape[2] + 1}] (one "
+                f"more than the prediction horizon), got {horizon!r}")
+        raise InvalidArrayError(
+            f"the policy roll-out's observation at look-ahead step {status} is not "
+            "finite (NaN or infinite predictions or states)")
 
 
 def _vector(value: Any, m: int) -> np.ndarray:
@@ -624,6 +697,6 @@ def rollout_reference(
     compiled = policy._compiled_rollout
     if compiled is None:
         compiled = policy._compiled_rollout = compile_rollout(policy) or False
-    if compiled is False or not compiled.supports(env):
+    if compiled is False:
         return None
-    return compiled(env, action, horizon)
+    return compiled.reference(env, action, horizon)
