@@ -152,40 +152,25 @@ class ActorNetwork:
         return cls(tuple(weights), tuple(biases), codes, parameters, bool(squash), low, high)
 
     def __post_init__(self) -> None:
-        # The kernel's form, packed once: every layer in one float64 array (``W_l^T``
-        # row by row, then ``b_l``) and a table of int64 rows ``(inputs, outputs, where
-        # W_l^T starts, where b_l starts, activation code)``, the box as float32 (2, m).
-        # Arrays rather than tuples of arrays: numba types tuples slowly at every call.
+        # The kernel does not check indices: direct construction is checked as
+        # from_layers checks (the layers chain, one box entry per output).
         if not (len(self.weights) == len(self.biases) == len(self.activations)
                 == len(self.parameters) >= 1):
             raise InvalidArrayError(
                 f"an ActorNetwork needs as many weights, biases, activations and parameters "
                 f"(at least one layer), got {len(self.weights)}, {len(self.biases)}, "
                 f"{len(self.activations)} and {len(self.parameters)}")
-        parts, rows, start, inputs = [], [], 0, self.weights[0].shape[0]
+        inputs = self.weights[0].shape[0]
         for index, (weight, bias) in enumerate(zip(self.weights, self.biases, strict=True)):
-            n_in, n_out = weight.shape
-            if n_in != inputs or bias.shape != (n_out,):
+            if weight.ndim != 2 or weight.shape[0] != inputs or bias.shape != weight.shape[1:]:
                 raise InvalidArrayError(
                     f"layer {index}: W^T {weight.shape} and b {bias.shape} do not chain "
                     f"(inputs {inputs})")
-            rows.append((n_in, n_out, start, start + n_in * n_out,
-                         int(self.activations[index])))
-            parts += [np.asarray(weight, dtype=np.float64).reshape(-1),
-                      np.asarray(bias, dtype=np.float64)]
-            start += n_in * n_out + n_out
-            inputs = n_out
-        box = np.array([self.action_low, self.action_high], dtype=np.float32)
-        if box.shape != (2, inputs):
+            inputs = weight.shape[1]
+        if np.shape(self.action_low) != (inputs,) or np.shape(self.action_high) != (inputs,):
             raise InvalidArrayError(
-                f"the action box {box.shape[1:]} must have one entry per output ({inputs})")
-        values = np.concatenate(parts)
-        layout = np.array(rows, dtype=np.int64)
-        for array in (values, layout, box):
-            array.setflags(write=False)
-        object.__setattr__(self, "_values", values)
-        object.__setattr__(self, "_layout", layout)
-        object.__setattr__(self, "_box", box)
+                f"the action box ({np.shape(self.action_low)}, {np.shape(self.action_high)}) "
+                f"must have one entry per network output ({inputs})")
 
     @property
     def n_inputs(self) -> int:
@@ -259,29 +244,32 @@ def _activate(dst, bias, code, parameter):
 
 
 @njit(error_model="numpy", cache=True)
-def _mlp(obs, values, layout, parameters, squash, box, out, z, work):
+def _mlp(obs, values, layout, out, z, work):
     """``out[:] = π(obs)``: float64 network on a float32 observation, float32 box output.
 
-    ``z_{l+1} = σ_l(z_l W_l^T + b_l)`` (the layers as :class:`ActorNetwork` packs them:
-    ``values``, ``layout``): each output sums its products in input order (as a matrix
-    product's definition; the loop over outputs is the inner one, so it vectorises
-    without reordering a sum), then adds the bias; ``tanh`` is the vectorisable
-    :func:`agents.vector_tanh.tanh`. ``z`` and ``work`` are float64 work arrays at least
-    as long as the widest layer (inputs included), overwritten here before they are
-    read.
+    ``z_{l+1} = σ_l(z_l W_l^T + b_l)`` (the layers as :func:`_pack` packs them in
+    ``values`` and ``layout``): each output sums its products in input order (as a
+    matrix product's definition; the loop over outputs is the inner one, so it
+    vectorises without reordering a sum), then adds the bias; ``tanh`` is the
+    vectorisable :func:`agents.vector_tanh.tanh`. ``z`` and ``work`` are float64 work
+    arrays at least as long as the widest layer (inputs included), overwritten here
+    before they are read.
     """
     for j in range(obs.shape[0]):
         z[j] = np.float64(obs[j])
     src, dst = z, work
-    for layer in range(layout.shape[0]):
-        n_in, n_out = layout[layer, 0], layout[layer, 1]
-        w_at, b_at = layout[layer, 2], layout[layer, 3]
+    n_layers, squash, parameters_at, box_at = layout[0, 0], layout[0, 1], layout[0, 2], layout[0, 3]
+    for layer in range(n_layers):
+        n_in, n_out = layout[1 + layer, 0], layout[1 + layer, 1]
+        w_at, b_at = layout[1 + layer, 2], layout[1 + layer, 3]
         _affine(src, values[w_at:w_at + n_in * n_out].reshape((n_in, n_out)), dst)
-        _activate(dst, values[b_at:b_at + n_out], layout[layer, 4], parameters[layer])
+        _activate(dst, values[b_at:b_at + n_out], layout[1 + layer, 4],
+                  values[parameters_at + layer])
         src, dst = dst, src
     half, one = np.float32(0.5), np.float32(1.0)
-    for i in range(out.shape[0]):
-        low, high = box[0, i], box[1, i]
+    m = out.shape[0]
+    for i in range(m):
+        low, high = np.float32(values[box_at + i]), np.float32(values[box_at + m + i])
         if squash:
             # float32(tanh(mean)), then low + 0.5 (s + 1) (high - low) in float32
             s = np.float32(tanh(src[i]))
@@ -364,38 +352,40 @@ def _sample_means(predictions, means):
 
 
 @njit(error_model="numpy", cache=True)
-def _rollout(x0, u0, predictions, velocities, goal, max_obstacles, A, B, low, high, horizon,
-             values, layout, parameters, squash, box, action_map):
-    """States ``(T+1, n)``, inputs ``(T, m)`` and a status: ``0``; ``k > 0``: the
-    observation at look-ahead ``k`` was not finite (then the arrays are partly filled);
-    ``-1``: the shapes do not fit together; ``-2``: the horizon is not in ``[1, T_pred +
-    1]`` (then the arrays are empty). Indices are not checked in numba, so the shapes are
-    checked here before any is used.
+def _rollout(x0, u0, predictions, velocities, goal, max_obstacles, A, B, low, high, values,
+             layout, states, inputs):
+    """Fill ``states`` ``(T+1, n)`` and ``inputs`` ``(T, m)``; return a status: ``0``;
+    ``k > 0``: the observation at look-ahead ``k`` was not finite (then the arrays are
+    partly filled); ``-1``: the shapes do not fit together; ``-2``: the horizon ``T`` is
+    above ``T_pred + 1`` (then nothing is written). Indices are not checked in numba, so
+    every shape is checked here before any is used.
 
     The sample means of all look-ahead steps are summed first, sample by sample over
     the contiguous ``(step, coordinate)`` rows of ``predictions``: each mean still adds
-    its samples in sample order, as a loop per step would. ``action_map`` holds the
-    centre and half-width of the map of the network's actions to m/s².
+    its samples in sample order, as a loop per step would. The network, its box and the
+    map of its actions to m/s² are ``values`` and ``layout`` (see :func:`_pack`).
     """
     n_state, m = B.shape
+    horizon = inputs.shape[0]
     n_obs = 6 + 5 * max_obstacles  # the SafeNavEnv layout _observe writes
-    n_layers = layout.shape[0]
+    n_layers = layout[0, 0]
     n_obstacles = predictions.shape[0]
     if (n_state != 4 or A.shape[0] != 4 or A.shape[1] != 4 or x0.shape[0] != 4
-            or u0.shape[0] != m or low.shape[0] != m or high.shape[0] != m or n_layers == 0
-            or layout[0, 0] != n_obs or layout[n_layers - 1, 1] != m or box.shape[1] != m
-            or action_map.shape[1] != m or velocities.shape[0] != n_obstacles
-            or velocities.shape[1] != 2 or predictions.shape[3] != 2 or goal.shape[0] != 2):
-        return np.empty((0, n_state)), np.empty((0, m)), -1
+            or u0.shape[0] != m or low.shape[0] != m or high.shape[0] != m or n_layers < 1
+            or layout.shape[0] != n_layers + 1 or layout[1, 0] != n_obs
+            or layout[n_layers, 1] != m or layout[0, 5] != m or inputs.shape[1] != m
+            or states.shape[0] != horizon + 1 or states.shape[1] != n_state
+            or velocities.shape[0] != n_obstacles or velocities.shape[1] != 2
+            or predictions.shape[3] != 2 or goal.shape[0] != 2):
+        return -1
     if horizon < 1 or horizon > predictions.shape[2] + 1:
-        return np.empty((0, n_state)), np.empty((0, m)), -2
-    states = np.empty((horizon + 1, n_state))
-    inputs = np.empty((horizon, m))
+        return -2
+    map_at = layout[0, 4]
     means = np.empty((n_obstacles, horizon - 1, 2))  # the sample mean at look-ahead k + 1
     _sample_means(predictions, means)
     width = n_obs
     for layer in range(n_layers):
-        width = max(width, layout[layer, 1])
+        width = max(width, layout[1 + layer, 1])
     z = np.empty(width)
     work = np.empty(width)
     obs = np.empty(n_obs, dtype=np.float32)
@@ -418,10 +408,10 @@ def _rollout(x0, u0, predictions, velocities, goal, max_obstacles, A, B, low, hi
                      distance)
             for i in range(n_obs):
                 if not math.isfinite(obs[i]):
-                    return states, inputs, k
-            _mlp(obs, values, layout, parameters, squash, box, action, z, work)
+                    return k
+            _mlp(obs, values, layout, action, z, work)
             for i in range(m):
-                u = action_map[0, i] + action_map[1, i] * np.float64(action[i])
+                u = values[map_at + i] + values[map_at + m + i] * np.float64(action[i])
                 if u < low[i]:
                     u = low[i]
                 if u > high[i]:
@@ -435,7 +425,7 @@ def _rollout(x0, u0, predictions, velocities, goal, max_obstacles, A, B, low, hi
             for j in range(m):
                 bu += B[i, j] * inputs[k, j]
             states[k + 1, i] = ax + bu
-    return states, inputs, 0
+    return 0
 
 
 # --------------------------------------------------------------------------- the maker
@@ -478,9 +468,8 @@ class CompiledRollout:
         m = current.n_outputs
         self.centre = _vector(0.0 if centre is None else centre, m)
         self.half_width = _vector(1.0 if half_width is None else half_width, m)
-        self._action_map = np.array([self.centre, self.half_width])  # the kernel's form
-        self._action_map.setflags(write=False)
         self._env_types: dict[type, bool] = {}
+        self._packed: tuple[ActorNetwork | None, Any, Any] = (None, None, None)
 
     def _current(self) -> ActorNetwork:
         return self._static if self._static is not None else self._network()
@@ -518,6 +507,10 @@ class CompiledRollout:
             If ``horizon`` exceeds the predictions by more than one step.
         """
         net = self._static if self._static is not None else self._network()
+        packed_net, values, layout = self._packed
+        if net is not packed_net:  # a new export of live parameters, or the first call
+            values, layout = _pack(net, self.centre, self.half_width)
+            self._packed = (net, values, layout)
         A, B, _ = env.dynamics
         low, high = env.input_bounds
         predictions = env.predictions
@@ -529,13 +522,17 @@ class CompiledRollout:
                 raise InvalidArrayError(
                     f"action must have {low.size} entries, got shape {u0.shape}")
             u0 = u0.reshape(low.shape)
+        steps = int(horizon)
+        if steps < 1:
+            self._raise(-2, env, net, horizon)
         if not predictions.flags.c_contiguous:  # the kernel reads whole sample rows
             predictions = np.ascontiguousarray(predictions)
+        states = np.empty((steps + 1, 4))  # fresh each call: a kept result never changes
+        inputs = np.empty((steps, low.shape[0]))
         try:
-            states, inputs, status = _rollout(
-                env.ego_state, u0, predictions, env.obstacle_velocities, env.goal,
-                env.max_obstacles, A, B, low, high, int(horizon), net._values, net._layout,
-                net.parameters, net.squash, net._box, self._action_map)
+            status = _rollout(env.ego_state, u0, predictions, env.obstacle_velocities,
+                              env.goal, env.max_obstacles, A, B, low, high, values, layout,
+                              states, inputs)
         except TypingError as error:  # an array of another dimension or dtype
             raise InvalidArrayError(
                 f"the environment's arrays do not fit the compiled roll-out: {error}"
@@ -571,6 +568,37 @@ def _vector(value: Any, m: int) -> np.ndarray:
     return array
 
 
+def _pack(net: ActorNetwork, centre: np.ndarray,
+          half_width: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The kernel's two network arguments (arrays: numba types tuples of arrays slowly
+    at every call, and each argument costs).
+
+    ``values`` (float64): per layer ``W_l^T`` row by row then ``b_l``; then the
+    activation parameters, the action box (float32 values, exact in float64), the
+    centre and the half-width of the map to m/s². ``layout`` (int64): row 0 the header
+    ``(layers, squash, parameters at, box at, map at, m)``, row ``1 + l`` layer ``l``'s
+    ``(inputs, outputs, W_l^T at, b_l at, activation code, 0)``.
+    """
+    parts, rows, start = [], [], 0
+    for weight, bias, code in zip(net.weights, net.biases, net.activations, strict=True):
+        n_in, n_out = weight.shape
+        rows.append((n_in, n_out, start, start + n_in * n_out, int(code), 0))
+        parts += [np.asarray(weight, dtype=np.float64).reshape(-1),
+                  np.asarray(bias, dtype=np.float64)]
+        start += n_in * n_out + n_out
+    m = net.n_outputs
+    header = (len(rows), int(net.squash), start, start + len(rows), start + len(rows) + 2 * m, m)
+    parts += [np.asarray(net.parameters, dtype=np.float64),
+              np.asarray(net.action_low, dtype=np.float32).astype(np.float64),
+              np.asarray(net.action_high, dtype=np.float32).astype(np.float64),
+              centre, half_width]
+    values = np.concatenate(parts)
+    layout = np.array([header, *rows], dtype=np.int64)
+    values.setflags(write=False)
+    layout.setflags(write=False)
+    return values, layout
+
+
 # --------------------------------------------------------------------------- exports
 class _TorchNetwork:
     """The :class:`ActorNetwork` of live torch parameters, rebuilt when any changes.
@@ -584,23 +612,23 @@ class _TorchNetwork:
         self._linears = linears
         self._params = [p for module, _ in linears for p in (module.weight, module.bias)]
         self._squash, self._low, self._high = squash, low, high
-        self._key: tuple | None = None
+        self._versions: list[int] | None = None
+        self._pointers: list[int] | None = None
         self._network: ActorNetwork | None = None
 
-    def _state(self) -> tuple | None:
-        try:
-            return tuple((p._version, p.data_ptr()) for p in self._params)
-        except AttributeError:  # pragma: no cover - a torch without version counters
-            return None
-
     def __call__(self) -> ActorNetwork:
-        key = self._state()
-        if key is None or key != self._key:
+        params = self._params
+        try:  # two list comprehensions: the cheapest way to read them (called every step)
+            versions = [p._version for p in params]
+        except AttributeError:  # pragma: no cover - a torch without version counters
+            versions = None
+        pointers = [p.data_ptr() for p in params]
+        if versions is None or versions != self._versions or pointers != self._pointers:
             layers = [(module.weight.detach().cpu().numpy().T, module.bias.detach().cpu().numpy(),
                        name, 0.0) for module, name in self._linears]
             self._network = ActorNetwork.from_layers(
                 layers, squash=self._squash, action_low=self._low, action_high=self._high)
-            self._key = key
+            self._versions, self._pointers = versions, pointers
         return self._network
 
 
