@@ -485,7 +485,7 @@ class CompiledRollout:
     def reference(self, env: Any, action: Any,
                   horizon: int) -> tuple[np.ndarray, np.ndarray] | None:
         """``self(env, action, horizon)`` if :meth:`supports` ``env``, else ``None``."""
-        known = self._env_types.get(type(env))
+        known = self._env_types.get(type(env))  # supports(), inlined: called every step
         if known is None:
             known = self._env_types[type(env)] = supports_env(env)
         if not known or env.observation_space.shape != self._obs_shape:
