@@ -22,14 +22,21 @@ otherwise) and ``observe`` the observation of :class:`safe_nav_env.SafeNavEnv` (
 ``observe`` method, nearest obstacles first).
 
 Precision. The network runs in float64 from the float32 observation and its mean is
-rounded once to float32: the arithmetic of :class:`agents.NumpyPolicy`, which is the
-exact value of the float32 network; torch's float32 arithmetic differs from it by a
-few float32 rounding steps (about 1e-6 relative). The roll-out therefore equals the
-Python roll-out with :class:`~agents.NumpyPolicy` to rounding, and the one with
-Stable-Baselines3's ``predict`` (or :class:`~agents.TorchActorPolicy`) to about 1e-6
-m/s² per action. Pass ``compiled=False`` to
-:class:`~filters.references.PolicyRolloutReference` (or ``compiled_rollout=False`` to
-the wrapper) for the policy's own ``predict`` at every step.
+rounded once to float32: the arithmetic of :class:`agents.NumpyPolicy`, up to two
+details. Each layer sums its products in input order (numpy's ``@`` may order them
+otherwise), and ``tanh`` is :func:`agents.vector_tanh.tanh`, within 2 units in the
+last place (2.2e-16) of ``np.tanh``. Both move the float64 mean by a few 1e-15 (the
+``tanh`` alone: at most 2.7e-15 on 200,000 random observations of the shipped policy),
+far below float32's rounding step (6e-8 relative): the float32 action is the same (all
+400,000 there), unless the float64 mean falls that close to a float32 rounding
+boundary, and then it differs by one float32 step. The roll-out therefore equals the
+Python roll-out with :class:`~agents.NumpyPolicy` to rounding (to 1e-12 m/s² on the
+test states), and the one with Stable-Baselines3's ``predict`` (or
+:class:`~agents.TorchActorPolicy`), whose float32 arithmetic differs from the exact
+float32 network by a few float32 rounding steps, to about 1e-6 m/s² per action. Pass
+``compiled=False`` to :class:`~filters.references.PolicyRolloutReference` (or
+``compiled_rollout=False`` to the wrapper) for the policy's own ``predict`` at every
+step.
 
 Which policies and environments. Actors of SB3's ``MlpPolicy`` (``Linear`` layers with
 ``Tanh``, ``ReLU``, ``LeakyReLU`` or ``ELU``, a ``FlattenExtractor``, a ``Box`` action
@@ -40,8 +47,8 @@ observation. Anything else makes :func:`compile_rollout` return ``None`` and the
 caller falls back to the Python roll-out.
 
 Determinism. The kernel keeps no state between calls (its work arrays are allocated
-per call) and sums in a fixed order: the same inputs give the same bits, whatever ran
-before; one instance may serve several environments.
+per call and written before they are read) and sums in a fixed order: the same inputs
+give the same bits, whatever ran before; one instance may serve several environments.
 """
 
 from __future__ import annotations
@@ -53,7 +60,9 @@ from typing import Any
 
 import numpy as np
 from numba import njit
+from numba.core.errors import TypingError
 
+from agents.vector_tanh import tanh
 from filters.errors import InvalidArrayError, InvalidParameterError
 
 __all__ = ["ActorNetwork", "CompiledRollout", "compile_rollout", "rollout_reference",
@@ -142,6 +151,27 @@ class ActorNetwork:
             array.setflags(write=False)
         return cls(tuple(weights), tuple(biases), codes, parameters, bool(squash), low, high)
 
+    def __post_init__(self) -> None:
+        # The kernel does not check indices: direct construction is checked as
+        # from_layers checks (the layers chain, one box entry per output).
+        if not (len(self.weights) == len(self.biases) == len(self.activations)
+                == len(self.parameters) >= 1):
+            raise InvalidArrayError(
+                f"an ActorNetwork needs as many weights, biases, activations and parameters "
+                f"(at least one layer), got {len(self.weights)}, {len(self.biases)}, "
+                f"{len(self.activations)} and {len(self.parameters)}")
+        inputs = self.weights[0].shape[0]
+        for index, (weight, bias) in enumerate(zip(self.weights, self.biases, strict=True)):
+            if weight.ndim != 2 or weight.shape[0] != inputs or bias.shape != weight.shape[1:]:
+                raise InvalidArrayError(
+                    f"layer {index}: W^T {weight.shape} and b {bias.shape} do not chain "
+                    f"(inputs {inputs})")
+            inputs = weight.shape[1]
+        if np.shape(self.action_low) != (inputs,) or np.shape(self.action_high) != (inputs,):
+            raise InvalidArrayError(
+                f"the action box ({np.shape(self.action_low)}, {np.shape(self.action_high)}) "
+                f"must have one entry per network output ({inputs})")
+
     @property
     def n_inputs(self) -> int:
         return int(self.weights[0].shape[0])
@@ -152,52 +182,104 @@ class ActorNetwork:
 
 
 # --------------------------------------------------------------------------- the kernel
-@njit(cache=True)
-def _mlp(obs, weights, biases, activations, parameters, squash, low, high, out):
+@njit(error_model="numpy", cache=True)
+def _affine(src, weight, dst):
+    """``dst[i] = Σ_j src[j] weight[j, i]`` for ``i < outputs``, each sum in input order.
+
+    ``((0 + z_0 w_0i) + z_1 w_1i) + ...``: the loop of a matrix product's definition,
+    evaluated four inputs at a time for all outputs (the outputs are the vectorised
+    inner loop, so no sum is reordered), or output by output for fewer than 8 outputs.
+    """
+    n_in, n_out = weight.shape
+    if n_out < 8:
+        for i in range(n_out):
+            a = 0.0
+            for j in range(n_in):
+                a += src[j] * weight[j, i]
+            dst[i] = a
+        return
+    for i in range(n_out):
+        dst[i] = 0.0
+    j = 0
+    while j + 4 <= n_in:
+        z0, z1, z2, z3 = src[j], src[j + 1], src[j + 2], src[j + 3]
+        w0, w1, w2, w3 = weight[j], weight[j + 1], weight[j + 2], weight[j + 3]
+        for i in range(n_out):
+            dst[i] = (((dst[i] + z0 * w0[i]) + z1 * w1[i]) + z2 * w2[i]) + z3 * w3[i]
+        j += 4
+    while j < n_in:
+        zj = src[j]
+        wj = weight[j]
+        for i in range(n_out):
+            dst[i] += zj * wj[i]
+        j += 1
+
+
+@njit(error_model="numpy", cache=True)
+def _activate(dst, bias, code, parameter):
+    """``dst[i] = σ(dst[i] + b_i)`` for ``i < len(bias)``, ``σ`` by its activation code.
+
+    A function of its own: inlined in the loop over layers, whose arrays change from
+    one layer to the next, the ``tanh`` loop does not vectorise.
+    """
+    n_out = bias.shape[0]
+    if code == 1:
+        for i in range(n_out):
+            dst[i] = tanh(dst[i] + bias[i])
+    elif code == 2:
+        for i in range(n_out):
+            v = dst[i] + bias[i]
+            dst[i] = v if v > 0.0 else 0.0
+    elif code == 3:
+        for i in range(n_out):
+            v = dst[i] + bias[i]
+            dst[i] = v if v >= 0.0 else parameter * v
+    elif code == 4:
+        for i in range(n_out):
+            v = dst[i] + bias[i]
+            dst[i] = v if v > 0.0 else parameter * math.expm1(v)
+    else:
+        for i in range(n_out):
+            dst[i] = dst[i] + bias[i]
+
+
+@njit(error_model="numpy", cache=True)
+def _mlp(obs, values, layout, out, z, work):
     """``out[:] = π(obs)``: float64 network on a float32 observation, float32 box output.
 
-    ``z_{l+1} = σ_l(z_l W_l^T + b_l)``: each output sums its products in input order
-    (as a matrix product's definition; the loop over outputs is the inner one, so it
-    vectorises without reordering a sum), then adds the bias.
+    ``z_{l+1} = σ_l(z_l W_l^T + b_l)`` (the layers as :func:`_pack` packs them in
+    ``values`` and ``layout``): each output sums its products in input order (as a
+    matrix product's definition; the loop over outputs is the inner one, so it
+    vectorises without reordering a sum), then adds the bias; ``tanh`` is the
+    vectorisable :func:`agents.vector_tanh.tanh`. ``z`` and ``work`` are float64 work
+    arrays at least as long as the widest layer (inputs included), overwritten here
+    before they are read.
     """
-    z = np.empty(obs.shape[0])
     for j in range(obs.shape[0]):
         z[j] = np.float64(obs[j])
-    for layer in range(len(weights)):
-        weight = weights[layer]
-        bias = biases[layer]
-        n_in, n_out = weight.shape
-        nxt = np.zeros(n_out)
-        for j in range(n_in):
-            zj = z[j]
-            for i in range(n_out):
-                nxt[i] += zj * weight[j, i]
-        code = activations[layer]
-        parameter = parameters[layer]
-        for i in range(n_out):
-            v = nxt[i] + bias[i]
-            if code == 1:
-                v = math.tanh(v)
-            elif code == 2:
-                v = v if v > 0.0 else 0.0
-            elif code == 3:
-                v = v if v >= 0.0 else parameter * v
-            elif code == 4:
-                v = v if v > 0.0 else parameter * math.expm1(v)
-            nxt[i] = v
-        z = nxt
+    src, dst = z, work
+    n_layers, squash, parameters_at, box_at = layout[0, 0], layout[0, 1], layout[0, 2], layout[0, 3]
+    for layer in range(n_layers):
+        n_in, n_out = layout[1 + layer, 0], layout[1 + layer, 1]
+        w_at, b_at = layout[1 + layer, 2], layout[1 + layer, 3]
+        _affine(src, values[w_at:w_at + n_in * n_out].reshape((n_in, n_out)), dst)
+        _activate(dst, values[b_at:b_at + n_out], layout[1 + layer, 4],
+                  values[parameters_at + layer])
+        src, dst = dst, src
     half, one = np.float32(0.5), np.float32(1.0)
-    for i in range(out.shape[0]):
+    m = out.shape[0]
+    for i in range(m):
+        low, high = np.float32(values[box_at + i]), np.float32(values[box_at + m + i])
         if squash:
             # float32(tanh(mean)), then low + 0.5 (s + 1) (high - low) in float32
-            s = np.float32(math.tanh(z[i]))
-            out[i] = low[i] + half * (s + one) * (high[i] - low[i])
+            s = np.float32(tanh(src[i]))
+            out[i] = low + half * (s + one) * (high - low)
         else:
-            a = np.float32(z[i])
-            if a < low[i]:
-                a = low[i]
-            if a > high[i]:
-                a = high[i]
+            a = np.float32(src[i])
+            if a < low:
+                a = low
+            if a > high:
+                a = high
             out[i] = a
 
 
@@ -237,17 +319,75 @@ def _observe(x, positions, velocities, goal, max_obstacles, obs, order, centre):
         obs[base + 4] = 1.0
 
 
-@njit(cache=True)
-def _rollout(x0, u0, predictions, velocities, goal, max_obstacles, n_obs, A, B, low, high,
-             horizon, weights, biases, activations, parameters, squash, action_low,
-             action_high, centre, half_width):
-    """States ``(T+1, n)``, inputs ``(T, m)`` and ``0``, or ``k > 0``: the observation
-    at look-ahead ``k`` was not finite (then the arrays are partly filled)."""
+@njit(error_model="numpy", cache=True)
+def _sample_means(predictions, means):
+    """``means[i, k] = (1/N_s) Σ_j predictions[i, j, k]`` for ``k < means.shape[1]``.
+
+    ``predictions`` is C-contiguous ``(n, N_s, T, 2)``: each sample's ``(step,
+    coordinate)`` row is contiguous, so the sums run over whole rows (vectorised), four
+    samples at a time; each mean still adds its samples in sample order,
+    ``((0 + p_0) + p_1) + ...``, then divides by ``N_s``.
+    """
+    n_obstacles, n_samples, horizon = predictions.shape[:3]
+    rows = predictions.reshape((n_obstacles, n_samples, 2 * horizon))
+    sums = means.reshape((n_obstacles, 2 * means.shape[1]))
+    width = sums.shape[1]
+    for i in range(n_obstacles):
+        total = sums[i]
+        for q in range(width):
+            total[q] = 0.0
+        j = 0
+        while j + 4 <= n_samples:
+            r0, r1, r2, r3 = rows[i, j], rows[i, j + 1], rows[i, j + 2], rows[i, j + 3]
+            for q in range(width):
+                total[q] = (((total[q] + r0[q]) + r1[q]) + r2[q]) + r3[q]
+            j += 4
+        while j < n_samples:
+            r0 = rows[i, j]
+            for q in range(width):
+                total[q] += r0[q]
+            j += 1
+        for q in range(width):
+            total[q] /= n_samples
+
+
+@njit(error_model="numpy", cache=True)
+def _rollout(x0, u0, predictions, velocities, goal, max_obstacles, A, B, low, high, values,
+             layout, states, inputs):
+    """Fill ``states`` ``(T+1, n)`` and ``inputs`` ``(T, m)``; return a status: ``0``;
+    ``k > 0``: the observation at look-ahead ``k`` was not finite (then the arrays are
+    partly filled); ``-1``: the shapes do not fit together; ``-2``: the horizon ``T`` is
+    above ``T_pred + 1`` (then nothing is written). Indices are not checked in numba, so
+    every shape is checked here before any is used.
+
+    The sample means of all look-ahead steps are summed first, sample by sample over
+    the contiguous ``(step, coordinate)`` rows of ``predictions``: each mean still adds
+    its samples in sample order, as a loop per step would. The network, its box and the
+    map of its actions to m/s² are ``values`` and ``layout`` (see :func:`_pack`).
+    """
     n_state, m = B.shape
-    states = np.empty((horizon + 1, n_state))
-    inputs = np.empty((horizon, m))
-    n_obstacles, n_samples = predictions.shape[0], predictions.shape[1]
-    means = np.zeros((n_obstacles, 2))
+    horizon = inputs.shape[0]
+    n_obs = 6 + 5 * max_obstacles  # the SafeNavEnv layout _observe writes
+    n_layers = layout[0, 0]
+    n_obstacles = predictions.shape[0]
+    if (n_state != 4 or A.shape[0] != 4 or A.shape[1] != 4 or x0.shape[0] != 4
+            or u0.shape[0] != m or low.shape[0] != m or high.shape[0] != m or n_layers < 1
+            or layout.shape[0] != n_layers + 1 or layout[1, 0] != n_obs
+            or layout[n_layers, 1] != m or layout[0, 5] != m or inputs.shape[1] != m
+            or states.shape[0] != horizon + 1 or states.shape[1] != n_state
+            or velocities.shape[0] != n_obstacles or velocities.shape[1] != 2
+            or predictions.shape[3] != 2 or goal.shape[0] != 2):
+        return -1
+    if horizon < 1 or horizon > predictions.shape[2] + 1:
+        return -2
+    map_at = layout[0, 4]
+    means = np.empty((n_obstacles, horizon - 1, 2))  # the sample mean at look-ahead k + 1
+    _sample_means(predictions, means)
+    width = n_obs
+    for layer in range(n_layers):
+        width = max(width, layout[1 + layer, 1])
+    z = np.empty(width)
+    work = np.empty(width)
     obs = np.empty(n_obs, dtype=np.float32)
     action = np.empty(m, dtype=np.float32)
     order = np.empty(n_obstacles, dtype=np.int64)
@@ -257,28 +397,21 @@ def _rollout(x0, u0, predictions, velocities, goal, max_obstacles, n_obs, A, B, 
     for k in range(horizon):
         if k == 0:
             for i in range(m):
-                u = u0[i]
+                u = np.float64(u0[i])
                 if u < low[i]:
                     u = low[i]
                 if u > high[i]:
                     u = high[i]
                 inputs[0, i] = u
         else:
-            for i in range(n_obstacles):  # the sample mean at look-ahead k (step t+k)
-                sx, sy = 0.0, 0.0
-                for j in range(n_samples):
-                    sx += predictions[i, j, k - 1, 0]
-                    sy += predictions[i, j, k - 1, 1]
-                means[i, 0] = sx / n_samples
-                means[i, 1] = sy / n_samples
-            _observe(states[k], means, velocities, goal, max_obstacles, obs, order, distance)
+            _observe(states[k], means[:, k - 1], velocities, goal, max_obstacles, obs, order,
+                     distance)
             for i in range(n_obs):
                 if not math.isfinite(obs[i]):
-                    return states, inputs, k
-            _mlp(obs, weights, biases, activations, parameters, squash, action_low,
-                 action_high, action)
+                    return k
+            _mlp(obs, values, layout, action, z, work)
             for i in range(m):
-                u = centre[i] + half_width[i] * np.float64(action[i])
+                u = values[map_at + i] + values[map_at + m + i] * np.float64(action[i])
                 if u < low[i]:
                     u = low[i]
                 if u > high[i]:
@@ -292,7 +425,7 @@ def _rollout(x0, u0, predictions, velocities, goal, max_obstacles, n_obs, A, B, 
             for j in range(m):
                 bu += B[i, j] * inputs[k, j]
             states[k + 1, i] = ax + bu
-    return states, inputs, 0
+    return 0
 
 
 # --------------------------------------------------------------------------- the maker
@@ -331,11 +464,12 @@ class CompiledRollout:
         self._network = network
         self._static = network if isinstance(network, ActorNetwork) else None
         current = self._current()
-        self._n_inputs = current.n_inputs
+        self._obs_shape = (current.n_inputs,)
         m = current.n_outputs
         self.centre = _vector(0.0 if centre is None else centre, m)
         self.half_width = _vector(1.0 if half_width is None else half_width, m)
         self._env_types: dict[type, bool] = {}
+        self._packed: tuple[ActorNetwork | None, Any, Any] = (None, None, None)
 
     def _current(self) -> ActorNetwork:
         return self._static if self._static is not None else self._network()
@@ -343,14 +477,26 @@ class CompiledRollout:
     def supports(self, env: Any) -> bool:
         """Whether this roll-out can run on ``env`` (see :func:`supports_env`) and its
         observation has the size the network takes."""
-        kind = type(env)
-        known = self._env_types.get(kind)
+        known = self._env_types.get(type(env))
         if known is None:
-            known = self._env_types[kind] = supports_env(env)
-        return known and env.observation_space.shape == (self._n_inputs,)
+            known = self._env_types[type(env)] = supports_env(env)
+        return known and env.observation_space.shape == self._obs_shape
+
+    def reference(self, env: Any, action: Any,
+                  horizon: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """``self(env, action, horizon)`` if :meth:`supports` ``env``, else ``None``."""
+        known = self._env_types.get(type(env))  # supports(), inlined: called every step
+        if known is None:
+            known = self._env_types[type(env)] = supports_env(env)
+        if not known or env.observation_space.shape != self._obs_shape:
+            return None
+        return self(env, action, horizon)
 
     def __call__(self, env: Any, action: Any, horizon: int) -> tuple[np.ndarray, np.ndarray]:
         """The roll-out from ``env``'s current state (``env`` a supported ``SafeNavEnv``).
+
+        The kernel checks the shapes itself (a status, then the error here): only what
+        it cannot take as an argument is checked before.
 
         Raises
         ------
@@ -360,49 +506,97 @@ class CompiledRollout:
         InvalidParameterError
             If ``horizon`` exceeds the predictions by more than one step.
         """
-        net = self._current()
+        net = self._static if self._static is not None else self._network()
+        packed_net, values, layout = self._packed
+        if net is not packed_net:  # a new export of live parameters, or the first call
+            values, layout = _pack(net, self.centre, self.half_width)
+            self._packed = (net, values, layout)
         A, B, _ = env.dynamics
         low, high = env.input_bounds
         predictions = env.predictions
-        velocities = env.obstacle_velocities
-        u0 = np.asarray(action, dtype=np.float64)
+        u0 = action
+        if type(u0) is not np.ndarray or u0.dtype.char not in "fd":  # float32 as it is
+            u0 = np.asarray(action, dtype=np.float64)
         if u0.shape != low.shape:
             if u0.size != low.size:
                 raise InvalidArrayError(
                     f"action must have {low.size} entries, got shape {u0.shape}")
             u0 = u0.reshape(low.shape)
-        n_obs = 6 + 5 * env.max_obstacles  # the SafeNavEnv layout the kernel writes
-        m = low.shape[0]
-        if (net.n_inputs != n_obs or net.n_outputs != m or B.shape != (4, m)
-                or A.shape != (4, 4) or env.ego_state.shape != (4,) or high.shape != (m,)
-                or predictions.shape[0] != velocities.shape[0] or predictions.shape[3] != 2):
+        steps = int(horizon)
+        if steps < 1:
+            self._raise(-2, env, net, horizon)
+        if not predictions.flags.c_contiguous:  # the kernel reads whole sample rows
+            predictions = np.ascontiguousarray(predictions)
+        states = np.empty((steps + 1, 4))  # fresh each call: a kept result never changes
+        inputs = np.empty((steps, low.shape[0]))
+        try:
+            status = _rollout(env.ego_state, u0, predictions, env.obstacle_velocities,
+                              env.goal, env.max_obstacles, A, B, low, high, values, layout,
+                              states, inputs)
+        except TypingError as error:  # an array of another dimension or dtype
+            raise InvalidArrayError(
+                f"the environment's arrays do not fit the compiled roll-out: {error}"
+            ) from error
+        if status:
+            self._raise(status, env, net, horizon)
+        return states, inputs
+
+    @staticmethod
+    def _raise(status: int, env: Any, net: ActorNetwork, horizon: Any) -> None:
+        """The error of a kernel status (see :func:`_rollout`)."""
+        if status == -1:
+            predictions, velocities = env.predictions, env.obstacle_velocities
             raise InvalidArrayError(
                 f"the network takes {net.n_inputs} inputs and gives {net.n_outputs} actions; "
-                f"the environment observes {n_obs} entries and takes {low.shape[0]} inputs, "
-                f"with predictions {predictions.shape} for {velocities.shape[0]} obstacles "
-                f"and the state {env.ego_state.shape}")
-        if not 1 <= horizon <= predictions.shape[2] + 1:
+                f"the environment observes {6 + 5 * env.max_obstacles} entries and takes "
+                f"{env.input_bounds[0].size} inputs, with predictions {predictions.shape} "
+                f"and velocities {velocities.shape} for the obstacles, the state "
+                f"{env.ego_state.shape}, the goal {env.goal.shape} and dynamics "
+                f"{env.dynamics[0].shape}, {env.dynamics[1].shape}")
+        if status == -2:
             raise InvalidParameterError(
-                f"horizon must be an integer in [1, {predictions.shape[2] + 1}] (one more "
-                f"than the prediction horizon), got {horizon!r}")
-        states, inputs, failed = _rollout(
-            env.ego_state, u0, predictions, velocities, env.goal,
-            env.max_obstacles, n_obs, A, B, low, high, int(horizon), net.weights,
-            net.biases, net.activations, net.parameters, net.squash, net.action_low,
-            net.action_high, self.centre, self.half_width,
-        )
-        if failed:
-            raise InvalidArrayError(
-                f"the policy roll-out's observation at look-ahead step {failed} is not "
-                "finite (NaN or infinite predictions or states)"
-            )
-        return states, inputs
+                f"horizon must be an integer in [1, {env.predictions.shape[2] + 1}] (one "
+                f"more than the prediction horizon), got {horizon!r}")
+        raise InvalidArrayError(
+            f"the policy roll-out's observation at look-ahead step {status} is not "
+            "finite (NaN or infinite predictions or states)")
 
 
 def _vector(value: Any, m: int) -> np.ndarray:
     array = np.array(np.broadcast_to(np.asarray(value, dtype=np.float64), (m,)))
     array.setflags(write=False)
     return array
+
+
+def _pack(net: ActorNetwork, centre: np.ndarray,
+          half_width: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The kernel's two network arguments (arrays: numba types tuples of arrays slowly
+    at every call, and each argument costs).
+
+    ``values`` (float64): per layer ``W_l^T`` row by row then ``b_l``; then the
+    activation parameters, the action box (float32 values, exact in float64), the
+    centre and the half-width of the map to m/s². ``layout`` (int64): row 0 the header
+    ``(layers, squash, parameters at, box at, map at, m)``, row ``1 + l`` layer ``l``'s
+    ``(inputs, outputs, W_l^T at, b_l at, activation code, 0)``.
+    """
+    parts, rows, start = [], [], 0
+    for weight, bias, code in zip(net.weights, net.biases, net.activations, strict=True):
+        n_in, n_out = weight.shape
+        rows.append((n_in, n_out, start, start + n_in * n_out, int(code), 0))
+        parts += [np.asarray(weight, dtype=np.float64).reshape(-1),
+                  np.asarray(bias, dtype=np.float64)]
+        start += n_in * n_out + n_out
+    m = net.n_outputs
+    header = (len(rows), int(net.squash), start, start + len(rows), start + len(rows) + 2 * m, m)
+    parts += [np.asarray(net.parameters, dtype=np.float64),
+              np.asarray(net.action_low, dtype=np.float32).astype(np.float64),
+              np.asarray(net.action_high, dtype=np.float32).astype(np.float64),
+              centre, half_width]
+    values = np.concatenate(parts)
+    layout = np.array([header, *rows], dtype=np.int64)
+    values.setflags(write=False)
+    layout.setflags(write=False)
+    return values, layout
 
 
 # --------------------------------------------------------------------------- exports
@@ -418,23 +612,23 @@ class _TorchNetwork:
         self._linears = linears
         self._params = [p for module, _ in linears for p in (module.weight, module.bias)]
         self._squash, self._low, self._high = squash, low, high
-        self._key: tuple | None = None
+        self._versions: list[int] | None = None
+        self._pointers: list[int] | None = None
         self._network: ActorNetwork | None = None
 
-    def _state(self) -> tuple | None:
-        try:
-            return tuple((p._version, p.data_ptr()) for p in self._params)
-        except AttributeError:  # pragma: no cover - a torch without version counters
-            return None
-
     def __call__(self) -> ActorNetwork:
-        key = self._state()
-        if key is None or key != self._key:
+        params = self._params
+        try:  # two list comprehensions: the cheapest way to read them (called every step)
+            versions = [p._version for p in params]
+        except AttributeError:  # pragma: no cover - a torch without version counters
+            versions = None
+        pointers = [p.data_ptr() for p in params]
+        if versions is None or versions != self._versions or pointers != self._pointers:
             layers = [(module.weight.detach().cpu().numpy().T, module.bias.detach().cpu().numpy(),
                        name, 0.0) for module, name in self._linears]
             self._network = ActorNetwork.from_layers(
                 layers, squash=self._squash, action_low=self._low, action_high=self._high)
-            self._key = key
+            self._versions, self._pointers = versions, pointers
         return self._network
 
 
@@ -531,6 +725,6 @@ def rollout_reference(
     compiled = policy._compiled_rollout
     if compiled is None:
         compiled = policy._compiled_rollout = compile_rollout(policy) or False
-    if compiled is False or not compiled.supports(env):
+    if compiled is False:
         return None
-    return compiled(env, action, horizon)
+    return compiled.reference(env, action, horizon)

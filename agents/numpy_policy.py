@@ -315,6 +315,9 @@ class _DeterministicActor:
         InvalidArrayError
             If an observation of the roll-out is not finite, as ``predict`` would.
         """
+        compiled = self._compiled_rollout
+        if compiled:  # made by an earlier call: straight to it
+            return compiled.reference(env, action, horizon)
         from agents.compiled_rollout import rollout_reference
 
         return rollout_reference(self, env, action, horizon)

@@ -337,3 +337,39 @@ def test_shapes_are_checked_before_the_kernel_runs(model):
     assert not compiled.supports(small.unwrapped)
     with pytest.raises(InvalidArrayError, match="takes 26 inputs"):
         compiled(small.unwrapped, np.zeros(2), 10)  # called directly, without supports()
+
+
+def test_the_kernel_checks_every_shape_and_type_it_is_given(model):
+    """The shapes are checked inside the kernel (a status, then the package's errors):
+    each misfit raises, none reads out of bounds; other dimensions or dtypes too."""
+    from agents.compiled_rollout import ActorNetwork
+
+    compiled = compile_rollout(NumpyPolicy.from_sb3(model))
+    env = gym.make("SafeNav/MultiObstacle-v0")
+    env.reset(seed=3)
+    base = env.unwrapped
+    states, inputs = compiled(base, np.ones(2), 10)
+    again = compiled(base, np.ones(2, dtype=np.float32), np.int64(10))  # as given: same bits
+    assert np.array_equal(states, again[0]) and np.array_equal(inputs, again[1])
+    with pytest.raises(InvalidParameterError, match="horizon"):
+        compiled(base, np.ones(2), 0)
+    misfits = {"obstacle_velocities": np.zeros((2, 2)),  # 3 obstacles predicted
+               "goal": np.zeros(3), "ego_state": np.zeros(5),
+               "predictions": np.zeros((3, 100, 10, 3))}
+    for name, value in misfits.items():
+        saved = getattr(base, name)
+        setattr(base, name, value)
+        with pytest.raises(InvalidArrayError, match="do not fit|the network takes"):
+            compiled(base, np.ones(2), 10)
+        setattr(base, name, saved)
+    saved = base.goal
+    base.goal = np.zeros((2, 1))  # another dimension: numba cannot take it
+    with pytest.raises(InvalidArrayError, match="do not fit"):
+        compiled(base, np.ones(2), 10)
+    base.goal = saved
+    assert np.array_equal(compiled(base, np.ones(2), 10)[0], states)
+    weights = (np.zeros((26, 8)), np.zeros((9, 2)))  # 8 outputs, then 9 inputs
+    with pytest.raises(InvalidArrayError, match="layer 1"):
+        ActorNetwork(weights, (np.zeros(8), np.zeros(2)), np.zeros(2, np.int64), np.zeros(2),
+                     False, np.zeros(2, np.float32), np.ones(2, np.float32))
+    env.close()
