@@ -160,11 +160,12 @@ class DAQPBackend:
         self.problem = problem
         self._settings = daqp_settings(solver_settings)
         if iteration_budget is not None and (
-                isinstance(iteration_budget, bool) or not isinstance(iteration_budget, int)
+                isinstance(iteration_budget, bool)
+                or not isinstance(iteration_budget, (int, np.integer))
                 or iteration_budget < 1):
             raise InvalidParameterError(
                 f"iteration_budget must be None or an integer >= 1, got {iteration_budget!r}")
-        self._budget = iteration_budget
+        self._budget = None if iteration_budget is None else int(iteration_budget)
         self._warm_start = bool(warm_start)
         self.qp = CondensedQP(problem)
         nu = self.qp.nu

@@ -41,6 +41,7 @@ import numpy as np
 from filters.errors import InvalidParameterError
 from filters.mpc.backends.daqp import DAQPBackend
 from filters.mpc.backends.piqp import PIQPBackend
+from filters.mpc.filter import SLACK_TOLERANCE
 from filters.mpc.problem import MPCProblem
 from filters.mpc.result import QPSolution, StepData
 
@@ -54,8 +55,6 @@ ITERATION_BUDGET = 250
 #: PIQP directly. DAQP took 10-60 iterations per violated row on the scaling grid's
 #: recovery QPs (up to 330 iterations with 6 violated rows, 450-1700 with 10-40).
 RETRY_ROWS = 8
-#: A slack above this (m, or m/s² for input rows) counts as a violated row.
-_VIOLATED = 1e-6
 
 
 class ActiveSetThenInteriorPoint:
@@ -74,14 +73,11 @@ class ActiveSetThenInteriorPoint:
     name = "daqp+piqp"
 
     def __init__(self, problem: MPCProblem, *, iteration_budget: int = ITERATION_BUDGET) -> None:
-        if isinstance(iteration_budget, bool) or not isinstance(
-                iteration_budget, (int, np.integer)) or iteration_budget < 1:
-            raise InvalidParameterError(
-                f"iteration_budget must be an integer >= 1, got {iteration_budget!r}")
+        if iteration_budget is None:  # DAQPBackend checks the rest
+            raise InvalidParameterError("iteration_budget must be an integer >= 1, got None")
+        self.active_set = DAQPBackend(problem, lazy=True, iteration_budget=iteration_budget)
         self.problem = problem
         self.iteration_budget = int(iteration_budget)
-        self.active_set = DAQPBackend(problem, lazy=True,
-                                      iteration_budget=self.iteration_budget)
         self.interior_point = PIQPBackend(problem)
         self._skip_active_set = False
         #: Which back end answered the last solve (``"daqp"``, ``"piqp"`` or ``""``).
@@ -110,10 +106,10 @@ class ActiveSetThenInteriorPoint:
 
 
 def _violated_rows(solution: QPSolution) -> int:
-    """Soft rows the answer violates (slack above :data:`_VIOLATED`)."""
+    """Soft rows the answer violates (slack above the filter's ``SLACK_TOLERANCE``)."""
     count = 0
     for slack in (solution.halfspace_slack, solution.bound_slack):
         if slack is not None:
-            count += int(np.count_nonzero(slack > _VIOLATED))
+            count += int(np.count_nonzero(slack > SLACK_TOLERANCE))
     return count
 
