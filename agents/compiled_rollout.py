@@ -485,12 +485,7 @@ class CompiledRollout:
     def reference(self, env: Any, action: Any,
                   horizon: int) -> tuple[np.ndarray, np.ndarray] | None:
         """``self(env, action, horizon)`` if :meth:`supports` ``env``, else ``None``."""
-        known = self._env_types.get(type(env))  # supports(), inlined: called every step
-        if known is None:
-            known = self._env_types[type(env)] = supports_env(env)
-        if not known or env.observation_space.shape != self._obs_shape:
-            return None
-        return self(env, action, horizon)
+        return self(env, action, horizon) if self.supports(env) else None
 
     def __call__(self, env: Any, action: Any, horizon: int) -> tuple[np.ndarray, np.ndarray]:
         """The roll-out from ``env``'s current state (``env`` a supported ``SafeNavEnv``).
@@ -506,7 +501,7 @@ class CompiledRollout:
         InvalidParameterError
             If ``horizon`` exceeds the predictions by more than one step.
         """
-        net = self._static if self._static is not None else self._network()
+        net = self._current()
         packed_net, values, layout = self._packed
         if net is not packed_net:  # a new export of live parameters, or the first call
             values, layout = _pack(net, self.centre, self.half_width)
