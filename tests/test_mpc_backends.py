@@ -185,13 +185,14 @@ def test_piqp_settings_are_checked():
         make("piqp", 10, "trajectory", "hard", solver_settings=[("max_iter", 3)])
 
 
-def test_auto_picks_daqp_for_hard_qps_and_daqp_then_piqp_for_long_soft_ones():
+def test_auto_picks_daqp_for_hard_qps_and_daqp_then_an_interior_point_for_long_soft_ones():
     for horizon in (10, 20, 21, 40, 80):
         for mode in ("hard", "soft", "recovery"):
             mpc = make("auto", horizon, "trajectory", mode)
             long = horizon * 2 > AUTO_DAQP_MAX_INPUTS
             assert mpc.backend == ("daqp+piqp" if mode == "soft" and long else "daqp")
-            assert mpc.recovery_backend == ("daqp+piqp" if long else "daqp")
+            # the recovery QP (every row soft): the Riccati method; soft=True: PIQP
+            assert mpc.recovery_backend == ("daqp+riccati" if long else "daqp")
             assert auto_backend(mpc.problem) == mpc.backend
     assert AUTO_DAQP_MAX_INPUTS == 40
     assert make("auto", 80, "trajectory", "paper").recovery_backend is None
@@ -290,7 +291,8 @@ def test_daqp_iteration_limit_is_a_failure_not_an_exception():
 
 @pytest.mark.parametrize("mode", ["hard", "soft", "recovery"])
 def test_piqp_update_equals_rebuild(mode):
-    """A PIQP solver updated step after step answers as one set up for that step alone."""
+    """A PIQP solver updated step after step answers as one set up for that step alone
+    (to 1e-8 m/s²: piqp 0.7's update path differs from a fresh set-up by up to 2e-9)."""
     persistent = make("piqp", 20, "trajectory", mode, skip_feasible_reference=False)
     rng = np.random.default_rng([9, MODES.index(mode)])
     for _ in range(6):
@@ -300,7 +302,7 @@ def test_piqp_update_equals_rebuild(mode):
         rebuilt = solve(make("piqp", 20, "trajectory", mode, skip_feasible_reference=False),
                         case)
         assert updated.status == rebuilt.status
-        np.testing.assert_allclose(updated.inputs, rebuilt.inputs, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(updated.inputs, rebuilt.inputs, rtol=0, atol=1e-8)
 
 
 @pytest.mark.parametrize("horizon", [20, pytest.param(80, marks=pytest.mark.slow)])
