@@ -28,6 +28,7 @@ def test_bench_scaling_quick_runs_and_writes_table_csv_and_plot(tmp_path, capsys
     assert "| 1 | 5 | 20 |" in out and "| 3 | 5 | 20 |" in out
     assert ("per QP CPU clarabel / piqp | per QP iterations clarabel / piqp | "
             "CPU per iteration µs clarabel / piqp |") in out
+    assert "recovery QP alone riccati (iterations, µs per iteration) |" in out
     with (tmp_path / "scaling.csv").open() as handle:
         rows = list(csv.DictReader(handle))
     assert [(r["n_obstacles"], r["horizon"], r["n_samples"]) for r in rows] == [
@@ -41,7 +42,8 @@ def test_bench_scaling_quick_runs_and_writes_table_csv_and_plot(tmp_path, capsys
         assert sum(int(s.split(":")[1]) for s in row["statuses"].split()) == 6
         assert float(row["agreement"]) >= 0.5  # ours and CVXPY mostly agree on the status
         assert float(row["max_input_difference"]) < 1e-3
-        for name in ("clarabel", "piqp"):  # the hard QP alone, with its iterations
+        # the hard QP alone (clarabel, piqp) and the recovery QP alone (riccati)
+        for name in ("clarabel", "piqp", "riccati"):
             per_qp, iterations = float(row[f"{name}_per_qp_ms"]), float(
                 row[f"{name}_per_qp_iterations"])
             assert per_qp > 0 and iterations >= 1
@@ -98,7 +100,7 @@ def _point(n_obstacles: int, horizon: int, iterations: float, per_iteration_us: 
     from types import SimpleNamespace
 
     fields = {"n_obstacles": n_obstacles, "horizon": horizon, "n_samples": 100}
-    for name in ("clarabel", "piqp"):
+    for name in ("clarabel", "piqp", "riccati"):
         fields[f"{name}_per_qp_iterations"] = iterations
         fields[f"{name}_per_iteration_us"] = per_iteration_us
         fields[f"{name}_per_qp_cpu_ms"] = 1e-3 * iterations * per_iteration_us
@@ -126,8 +128,9 @@ def test_sparse_growth_splits_the_time_ratio_into_iterations_and_work_per_iterat
                 "iteration 4.00x (range 4.00x to 4.00x); log-log slope over T in "
                 "[20, 40, 80]: wall ")
     assert f"clarabel: {expected}" in line and f"piqp: {expected}" in line
+    assert f"riccati: {expected}" in line
     # CPU slopes {1, 1.5}; the wall slopes are larger
-    assert line.count("CPU 1.25 (range 1.00 to 1.50)") == 2
+    assert line.count("CPU 1.25 (range 1.00 to 1.50)") == 3
     wall_slope = float(line.split("wall ")[-1].split(" ")[0])
     assert wall_slope > 1.25
     assert "needs two horizons" in _sparse_growth([_point(3, 10, 8, 10), _point(3, 20, 8, 20)])

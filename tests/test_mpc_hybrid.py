@@ -1,10 +1,11 @@
-"""``backend="auto"``'s soft QPs of long horizons: DAQP within a budget, else PIQP.
+"""``backend="auto"``'s soft QPs of long horizons: DAQP within a budget, else an
+interior-point method (the Riccati one for the recovery QP, PIQP for ``soft=True``).
 
 :class:`filters.mpc.backends.hybrid.ActiveSetThenInteriorPoint` must return DAQP's
-answer bit for bit when DAQP finishes within the budget, PIQP's when it does not, go
-to PIQP directly after a strongly infeasible step and back to DAQP after a mildly
-infeasible one or a reset; and the filter that uses it must agree with the CVXPY
-reference. The instances are the scaling benchmark's strongly infeasible crossings
+answer bit for bit when DAQP finishes within the budget, the interior-point method's
+when it does not, go to it directly after a strongly infeasible step and back to DAQP
+after a mildly infeasible one or a reset; and the filter that uses it must agree with
+the CVXPY reference. The instances are the scaling benchmark's strongly infeasible crossings
 (the ``straight`` family at T = 40: the reference leaves the arena, 10 obstacles).
 """
 
@@ -29,6 +30,7 @@ from filters.mpc.backends.hybrid import (  # noqa: E402
     _violated_rows,
 )
 from filters.mpc.backends.piqp import PIQPBackend  # noqa: E402
+from filters.mpc.backends.riccati import RiccatiBackend  # noqa: E402
 from filters.mpc.result import StepData  # noqa: E402
 
 A, B, C = double_integrator()
@@ -60,18 +62,22 @@ def steps(episode) -> list[tuple[bool, StepData]]:
 def test_auto_builds_it_for_the_recovery_qp_of_long_horizons():
     mpc = MPCSafetyFilter(A, B, C, **filter_kwargs(T, K))
     assert isinstance(mpc._recovery, ActiveSetThenInteriorPoint)
-    assert mpc.recovery_backend == "daqp+piqp"
+    assert mpc.recovery_backend == "daqp+riccati"
+    assert isinstance(mpc._recovery.interior_point, RiccatiBackend)
+    soft = MPCSafetyFilter(A, B, C, soft=True, **filter_kwargs(T, K))  # arena rows hard
+    assert soft.backend == "daqp+piqp"
+    assert isinstance(soft._primary.interior_point, PIQPBackend)
     for bad in (0, -1, 1.5, True, None):
         with pytest.raises(InvalidParameterError, match="iteration_budget"):
             ActiveSetThenInteriorPoint(recovery_problem(), iteration_budget=bad)
 
 
-def test_within_the_budget_it_is_daqp_bit_for_bit_and_else_piqp(episode):
+def test_within_the_budget_it_is_daqp_bit_for_bit_and_else_the_interior_point(episode):
     problem = recovery_problem()
     roomy = ActiveSetThenInteriorPoint(problem, iteration_budget=10**6)
     daqp = DAQPBackend(problem, lazy=True)
     starved = ActiveSetThenInteriorPoint(problem, iteration_budget=1)
-    piqp = PIQPBackend(problem)
+    riccati = RiccatiBackend(problem)
     violated = 0
     for new, step in steps(episode):
         if new:
@@ -82,14 +88,15 @@ def test_within_the_budget_it_is_daqp_bit_for_bit_and_else_piqp(episode):
         assert roomy.last_used == "daqp" and ours.found and theirs.found
         np.testing.assert_array_equal(ours.inputs, theirs.inputs)
         assert ours.iterations == theirs.iterations
-        ours, theirs = starved.solve(step), piqp.solve(step)
-        assert starved.last_used == "piqp" and ours.found and theirs.found
-        np.testing.assert_allclose(ours.inputs, theirs.inputs, atol=1e-9)
+        ours, theirs = starved.solve(step), riccati.solve(step)
+        assert starved.last_used == "riccati" and ours.found and theirs.found
+        np.testing.assert_array_equal(ours.inputs, theirs.inputs)
         violated = max(violated, _violated_rows(theirs))
     assert violated > RETRY_ROWS  # the episode has strongly infeasible steps
 
 
-def test_a_strongly_infeasible_step_sends_the_next_to_piqp_until_few_rows_or_reset(episode):
+def test_a_strongly_infeasible_step_sends_the_next_to_the_interior_point_until_few_rows(
+        episode):
     hybrid = ActiveSetThenInteriorPoint(recovery_problem())
     calls = []
     solve = hybrid.active_set.solve
@@ -105,11 +112,11 @@ def test_a_strongly_infeasible_step_sends_the_next_to_piqp_until_few_rows_or_res
         assert answer.found
         tried_daqp = len(calls) > before
         assert tried_daqp == (not previous_skip)
-        if hybrid.last_used == "piqp":
+        if hybrid.last_used == "riccati":
             previous_skip = _violated_rows(answer) > RETRY_ROWS
         else:
             previous_skip = False
-    assert hybrid.last_used in ("daqp", "piqp")
+    assert hybrid.last_used in ("daqp", "riccati")
     # reset: DAQP first again
     hybrid.reset()
     before = len(calls)

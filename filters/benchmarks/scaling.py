@@ -69,6 +69,7 @@ import numpy as np
 from filters import Disc, FilterStatus, MPCSafetyFilter, safe_halfspaces
 from filters.benchmarks.filter_qp import RADIUS, SPEED, TS, double_integrator, filter_kwargs
 from filters.errors import InvalidParameterError
+from filters.mpc.backends.riccati import RiccatiBackend
 from filters.mpc.result import StepData
 
 __all__ = [
@@ -276,6 +277,12 @@ class ScalingPoint:
     piqp_per_qp_iterations: float = float("nan")
     piqp_per_iteration_us: float = float("nan")
     piqp_per_qp_solved: float = float("nan")
+    # the recovery QP (every row soft) alone at every step, by the Riccati back end
+    riccati_per_qp_ms: float = float("nan")
+    riccati_per_qp_cpu_ms: float = float("nan")
+    riccati_per_qp_iterations: float = float("nan")
+    riccati_per_iteration_us: float = float("nan")
+    riccati_per_qp_solved: float = float("nan")
 
     def as_row(self) -> dict:
         """Flat ``dict`` for CSV (statuses as ``name:count`` pairs)."""
@@ -384,6 +391,17 @@ def benchmark_point(
                 end_cpu, end = time.thread_time(), time.perf_counter()
                 per_qp[name].append((1e3 * (end - begin), 1e3 * (end_cpu - begin_cpu),
                                      solution.iterations, solution.found))
+    # The Riccati back end solves only QPs whose every row is soft: the recovery QP of
+    # each step, alone, in a pass of its own (the same kind of QP at every size).
+    riccati = RiccatiBackend(ours.problem.with_soft_rows({"halfspaces", "bounds"}))
+    riccati.solve(hard_steps[0])  # numba's first call loads the compiled kernel
+    riccati_timings = []
+    for step in hard_steps:
+        begin, begin_cpu = time.perf_counter(), time.thread_time()
+        solution = riccati.solve(step)
+        end_cpu, end = time.thread_time(), time.perf_counter()
+        riccati_timings.append((1e3 * (end - begin), 1e3 * (end_cpu - begin_cpu),
+                                solution.iterations, solution.found))
     between = [float(np.max(np.abs(a - b))) for a, b in zip(
         backend_inputs["daqp"], backend_inputs["clarabel"], strict=True)
         if a is not None and b is not None]
@@ -402,6 +420,7 @@ def benchmark_point(
         piqp_qp_ms=float(np.median(backend_ms["piqp"])),
         **_per_qp_fields("clarabel", per_qp["clarabel"]),
         **_per_qp_fields("piqp", per_qp["piqp"]),
+        **_per_qp_fields("riccati", riccati_timings),
         family=family,
         halfspaces_numpy_ms=float(np.median(numpy_ms)),
     )
@@ -409,7 +428,7 @@ def benchmark_point(
 
 def _per_qp_fields(name: str, timings: list[tuple[float, float, int, bool]]
                    ) -> dict[str, float]:
-    """The :class:`ScalingPoint` fields of one sparse back end's hard-QP pass.
+    """The :class:`ScalingPoint` fields of one back end's pass of single QPs.
 
     ``timings`` holds ``(wall time in ms, CPU time of the thread in ms, interior-point
     iterations, solved)`` per step; the time per iteration is each step's CPU time over
@@ -457,9 +476,10 @@ def format_scaling_table(points: Sequence[ScalingPoint]) -> str:
         "per QP clarabel | per QP piqp | per QP CPU clarabel / piqp | "
         "per QP iterations clarabel / piqp | "
         "CPU per iteration µs clarabel / piqp | hard QPs solved (clarabel) | "
+        "recovery QP alone riccati (iterations, µs per iteration) | "
         "max abs u_daqp - u_clarabel | "
         "statuses (ours) | same status |",
-        "|" + "---|" * 23,
+        "|" + "---|" * 24,
     ]
     for p in points:
         statuses = ", ".join(f"{k} {v}" for k, v in sorted(p.statuses.items()))
@@ -473,6 +493,8 @@ def format_scaling_table(points: Sequence[ScalingPoint]) -> str:
             f"{p.clarabel_per_qp_iterations:.0f} / {p.piqp_per_qp_iterations:.0f} | "
             f"{p.clarabel_per_iteration_us:.1f} / {p.piqp_per_iteration_us:.1f} | "
             f"{100 * p.clarabel_per_qp_solved:.0f}% | "
+            f"{p.riccati_per_qp_ms:.3f} ({p.riccati_per_qp_iterations:.0f}, "
+            f"{p.riccati_per_iteration_us:.1f}) | "
             f"{p.daqp_clarabel_difference:.1e} | {statuses} | "
             f"{100 * p.agreement:.0f}% |"
         )

@@ -36,6 +36,7 @@ from filters._validation import finite_array
 from filters.errors import InvalidParameterError, InvalidTypeError
 from filters.mpc import fast as fast_codes
 from filters.mpc._linalg import matvec_operator
+from filters.mpc.backends.riccati import every_row_soft
 from filters.mpc.checks import all_finite, finite_step_array, parse_halfspaces
 from filters.mpc.fast import FastHardStep, fast_path_applies
 from filters.mpc.problem import SOFT_ROWS, MPCProblem
@@ -61,8 +62,10 @@ BACKENDS = ("auto", "clarabel", "daqp", "piqp", "cvxpy")
 #: has at most this many inputs ``T m`` (DAQP's full, not lazy, QP), else with DAQP
 #: within an iteration budget and PIQP after it (see :func:`auto_backend`).
 AUTO_DAQP_MAX_INPUTS = 40
-#: The name of that combination (:mod:`filters.mpc.backends.hybrid`).
-HYBRID = "daqp+piqp"
+#: The names of that combination (:mod:`filters.mpc.backends.hybrid`): its
+#: interior-point method is the compiled Riccati one when every row is soft (the recovery
+#: QP), PIQP otherwise (``soft=True``: the arena rows stay hard).
+HYBRID, HYBRID_RICCATI = "daqp+piqp", "daqp+riccati"
 #: What to do when the hard QP fails.
 FALLBACKS = ("soft", "paper")
 #: Offset written in unused halfspace rows: the row reads ``0 @ y <= 1``.
@@ -93,22 +96,24 @@ def auto_backend(problem: MPCProblem) -> str:
       iterations.
     * A QP with soft rows (``soft=True``, and the recovery QP): ``"daqp"`` while
       :math:`T m \le 40` (:data:`AUTO_DAQP_MAX_INPUTS`, DAQP's full QP), else
-      ``"daqp+piqp"`` (:class:`~filters.mpc.backends.hybrid.ActiveSetThenInteriorPoint`):
-      DAQP's lazy QP within an iteration budget, PIQP (a sparse interior-point method)
-      when the budget runs out. Every violated soft row enters an active-set method's
+      (:class:`~filters.mpc.backends.hybrid.ActiveSetThenInteriorPoint`) DAQP's lazy QP
+      within an iteration budget, then an interior-point method when the budget runs
+      out: ``"daqp+riccati"`` when every row is soft (the recovery QP; the compiled
+      Riccati method of :mod:`filters.mpc.backends.riccati`), ``"daqp+piqp"`` otherwise
+      (PIQP, a sparse interior-point solver). Every violated soft row enters an active-set method's
       working set, one per iteration, while an interior-point method's ~20 iterations
       do not depend on how many rows end up violated: on the scaling grid's long
       horizons a step that violates a few rows took DAQP 0.8 ms and PIQP 7 ms, a strongly
       infeasible one that violates hundreds took DAQP thousands of iterations (up to
-      130 ms) and PIQP 2-7 ms. Neither alone is fast on both; the budget bounds what a
-      wrong first guess costs, and a run of strongly infeasible steps goes to PIQP
-      directly.
+      130 ms), PIQP 2-7 ms and the Riccati method 0.6-2.5 ms. Neither kind is fast on
+      both; the budget bounds what a wrong first guess costs, and a run of strongly
+      infeasible steps goes to the interior-point method directly.
 
     The measurements behind both rules are printed by ``safe-nav bench --scaling``
     (columns for each explicit back end).
     """
     if problem.soft_rows and problem.horizon * problem.m > AUTO_DAQP_MAX_INPUTS:
-        return HYBRID
+        return HYBRID_RICCATI if every_row_soft(problem) else HYBRID
     return "daqp"
 
 
@@ -125,7 +130,7 @@ def _make_backend(name: str, problem: MPCProblem, settings: Mapping[str, Any] | 
         from filters.mpc.backends.piqp import PIQPBackend
 
         return PIQPBackend(problem, solver_settings=settings)
-    if name == HYBRID:
+    if name in (HYBRID, HYBRID_RICCATI):
         from filters.mpc.backends.hybrid import ActiveSetThenInteriorPoint
 
         return ActiveSetThenInteriorPoint(problem)  # only "auto" without settings builds it
@@ -195,8 +200,9 @@ class MPCSafetyFilter:
         last plan, then brake).
     backend
         ``"auto"`` (default: DAQP for the hard QP; for QPs with soft rows DAQP while
-        ``T m <= 40``, else ``"daqp+piqp"``, DAQP within an iteration budget and PIQP
-        after it; see :func:`auto_backend`), ``"daqp"`` (the
+        ``T m <= 40``, else DAQP within an iteration budget and an interior-point method
+        after it, ``"daqp+riccati"`` for the recovery QP and ``"daqp+piqp"`` for
+        ``soft=True``; see :func:`auto_backend`), ``"daqp"`` (the
         whitened condensed QP, dual active set, lazy rows for long horizons; soft rows as
         DAQP soft constraints), ``"clarabel"`` (the sparse QP built once), ``"piqp"``
         (the same sparse QP in PIQP) or ``"cvxpy"`` (the readable reference; imports

@@ -1,4 +1,4 @@
-r"""Soft QPs of long horizons: DAQP within an iteration budget, else PIQP.
+r"""Soft QPs of long horizons: DAQP within an iteration budget, else an interior-point method.
 
 A QP with soft rows (the recovery QP, and the primary QP of ``soft=True``) is the exact
 L1 penalty problem
@@ -16,17 +16,20 @@ how many soft rows the optimum violates, which is known only after the solve:
   every violated row ends in it: a step that violates a few rows takes tens of
   iterations and is far faster than any interior-point method, a strongly infeasible
   long-horizon step that violates hundreds takes hundreds to thousands;
-* an interior-point method (PIQP on the sparse QP of :mod:`filters.mpc.backends.piqp`)
-  takes about twenty iterations whatever the number of violated rows, each a sparse
-  factorisation that grows with the horizon and the rows.
+* an interior-point method takes about twenty iterations whatever the number of
+  violated rows, each linear in the horizon and the rows: the compiled Riccati method of
+  :mod:`filters.mpc.backends.riccati` when every row is soft (the recovery QP), PIQP on
+  the sparse QP of :mod:`filters.mpc.backends.piqp` otherwise (``soft=True``, whose
+  arena rows stay hard).
 
 :class:`ActiveSetThenInteriorPoint` therefore gives DAQP a budget of
 :data:`ITERATION_BUDGET` iterations over the relaxed QPs of one solve; a solve
-that runs out of it (or fails otherwise) is solved again by PIQP. In a closed loop an
-infeasible step is usually followed by another with as many violated rows, so after a
-PIQP answer that violates more than :data:`RETRY_ROWS` soft rows the next step goes to
-PIQP directly; the first step whose PIQP answer violates fewer goes back to DAQP, and
-so does every episode's first step (:meth:`reset`).
+that runs out of it (or fails otherwise) is solved again by the interior-point method.
+In a closed loop an infeasible step is usually followed by another with as many
+violated rows, so after an interior-point answer that violates more than
+:data:`RETRY_ROWS` soft rows the next step goes to it directly; the first step whose
+answer violates fewer goes back to DAQP, and so does every episode's first step
+(:meth:`reset`).
 
 Both solve the same QP, so the choice changes only the work and the answer within the
 solvers' tolerances (the back-end suite checks both against the CVXPY reference). The
@@ -41,6 +44,7 @@ import numpy as np
 from filters.errors import InvalidParameterError
 from filters.mpc.backends.daqp import DAQPBackend
 from filters.mpc.backends.piqp import PIQPBackend
+from filters.mpc.backends.riccati import RiccatiBackend, every_row_soft
 from filters.mpc.filter import SLACK_TOLERANCE
 from filters.mpc.problem import MPCProblem
 from filters.mpc.result import QPSolution, StepData
@@ -58,7 +62,11 @@ RETRY_ROWS = 8
 
 
 class ActiveSetThenInteriorPoint:
-    """A QP with soft rows: DAQP within :data:`ITERATION_BUDGET`, else PIQP (module docstring).
+    """A QP with soft rows: DAQP within :data:`ITERATION_BUDGET`, else an interior-point method.
+
+    The interior-point method is :class:`~filters.mpc.backends.riccati.RiccatiBackend`
+    when every row of ``problem`` is soft (:attr:`name` ``"daqp+riccati"``), else
+    :class:`~filters.mpc.backends.piqp.PIQPBackend` (``"daqp+piqp"``); module docstring.
 
     Parameters
     ----------
@@ -70,17 +78,21 @@ class ActiveSetThenInteriorPoint:
         ``>= 1``.
     """
 
-    name = "daqp+piqp"
-
     def __init__(self, problem: MPCProblem, *, iteration_budget: int = ITERATION_BUDGET) -> None:
         if iteration_budget is None:  # DAQPBackend checks the rest
             raise InvalidParameterError("iteration_budget must be an integer >= 1, got None")
         self.active_set = DAQPBackend(problem, lazy=True, iteration_budget=iteration_budget)
         self.problem = problem
         self.iteration_budget = int(iteration_budget)
-        self.interior_point = PIQPBackend(problem)
+        if every_row_soft(problem):
+            self.interior_point: RiccatiBackend | PIQPBackend = RiccatiBackend(problem)
+        else:
+            self.interior_point = PIQPBackend(problem)
+        #: ``"daqp+riccati"`` or ``"daqp+piqp"``.
+        self.name = f"daqp+{self.interior_point.name}"
         self._skip_active_set = False
-        #: Which back end answered the last solve (``"daqp"``, ``"piqp"`` or ``""``).
+        #: Which back end answered the last solve (``"daqp"``, ``"riccati"``, ``"piqp"``
+        #: or ``""``).
         self.last_used = ""
 
     def reset(self) -> None:
@@ -89,7 +101,7 @@ class ActiveSetThenInteriorPoint:
         self._skip_active_set = False
 
     def solve(self, step: StepData) -> QPSolution:
-        """DAQP within the budget, else PIQP; never raises on a failed solve."""
+        """DAQP within the budget, else the interior-point method; never raises on failure."""
         iterations, solve_time = 0, 0.0
         if not self._skip_active_set:
             first = self.active_set.solve(step)
@@ -98,7 +110,7 @@ class ActiveSetThenInteriorPoint:
                 return first
             iterations, solve_time = first.iterations, first.solve_time
         answer = self.interior_point.solve(step)
-        self.last_used = "piqp"
+        self.last_used = self.interior_point.name
         self._skip_active_set = answer.found and _violated_rows(answer) > RETRY_ROWS
         return QPSolution(answer.found, answer.status, answer.inputs, answer.halfspace_slack,
                           answer.bound_slack, iterations + answer.iterations,
