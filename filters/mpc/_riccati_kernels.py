@@ -309,28 +309,28 @@ def solve_soft_qp(A, B, R2, Q2, x0, u_ref, x_ref, lo, hi, ra, rt, rb, rho, toler
     Hx = np.empty((T + 1, n, n))
     Hu = np.empty((T, m, m))
     gx0 = np.zeros((T + 1, n))  # the Lagrangian's state gradient at the iterate
-    gx = np.zeros((T + 1, n))
+    gx = np.zeros((T + 1, n))  # the linear term of the LQ step
+    g_base = np.zeros((T + 1, n))  # the corrector's: gx0 + g_base + target g_target
+    g_target = np.zeros((T + 1, n))
     gu = np.empty((T, m))
     L = np.zeros((T, m, m))
     Mm = np.empty((T, m, n))
     Kk = np.empty((T, m, n))
-    du = np.empty((T, m))
-    dx = np.empty((T + 1, n))
+    du = np.zeros((T, m))
+    dx = np.zeros((T + 1, n))
     lam = np.empty(n)
     lam_new = np.empty(n)
     r_row = np.empty(rows)  # primal residual of the row
-    r_pen = np.empty(rows)  # rho - y - z
     i_ta = np.empty(rows)
     i_s = np.empty(rows)
     i_ya = np.empty(rows)
     i_zs = np.empty(rows)
     sigma = np.empty(rows)
-    beta = np.empty(rows)
-    dya = np.empty(rows)
-    dzs = np.empty(rows)
-    dta = np.empty(rows)
-    ds = np.empty(rows)
-    cross_a = np.zeros(rows)  # affine dt dy, the corrector's second-order term
+    dya = np.zeros(rows)
+    dzs = np.zeros(rows)
+    dta = np.zeros(rows)
+    ds = np.zeros(rows)
+    cross_a = np.zeros(rows)  # the predictor's dt dy, the corrector's second-order term
     cross_s = np.zeros(rows)
     rl = np.zeros((T, m))
     rh = np.zeros((T, m))
@@ -342,10 +342,25 @@ def solve_soft_qp(A, B, R2, Q2, x0, u_ref, x_ref, lo, hi, ra, rt, rb, rho, toler
     dyh = np.zeros((T, m))
     cross_l = np.zeros((T, m))
     cross_h = np.zeros((T, m))
-
     regularization = _REGULARIZATION / rho
+
+    # Three passes over the rows per iteration: (1) the step of the last iteration, the
+    # residuals, the Newton weights and the predictor's linear term; (2) the predictor's
+    # directions, and the corrector's linear term as a function of its centring target;
+    # (3) the corrector's directions and the step length.
+    alpha = 0.0  # the first pass (1) takes no step
     for iteration in range(max_iterations + 1):
-        # ---- residuals, the Newton weights and the Lagrangian's state gradient
+        # ---- pass (1)
+        for t in range(T):
+            for i in range(m):
+                u[t, i] += alpha * du[t, i]
+                if has_lo[i]:
+                    tl[t, i] += alpha * dtl[t, i]
+                    yl[t, i] += alpha * dyl[t, i]
+                if has_hi[i]:
+                    th[t, i] += alpha * dth[t, i]
+                    yh[t, i] += alpha * dyh[t, i]
+        _rollout(A, B, x0, u, x, nt, mt)
         res_p = 0.0
         res_d = 0.0
         gap = 0.0
@@ -358,33 +373,46 @@ def solve_soft_qp(A, B, R2, Q2, x0, u_ref, x_ref, lo, hi, ra, rt, rb, rho, toler
                     Hx[t, i, k] = Q2[t - 1, i, k]
                     acc += Q2[t - 1, i, k] * (x[t, k] - x_ref[t - 1, k])
                 gx0[t, i] = acc
+                gx[t, i] = acc
         for j in range(rows):
+            t_j = ta[j] + alpha * dta[j]
+            s_j = s[j] + alpha * ds[j]
+            y_j = ya[j] + alpha * dya[j]
+            z_j = zs[j] + alpha * dzs[j]
+            ta[j] = t_j
+            s[j] = s_j
+            ya[j] = y_j
+            zs[j] = z_j
             tj = rt[j]
-            acc = ta[j] - rb[j] - s[j]
+            acc = t_j - rb[j] - s_j
             for k in range(n):
                 acc += ra[j, k] * x[tj, k]
             r_row[j] = acc
-            r_pen[j] = rho - ya[j] - zs[j]
+            pen = rho - y_j - z_j
             res_p = max(res_p, abs(acc))
-            res_d = max(res_d, abs(r_pen[j]))
-            gap += ta[j] * ya[j] + s[j] * zs[j]
-            penalty += s[j]
+            res_d = max(res_d, abs(pen))
+            gap += t_j * y_j + s_j * z_j
+            penalty += s_j
             # four reciprocals from one division (divisions dominate this loop)
-            primal = ta[j] * s[j]
-            dual = ya[j] * zs[j]
+            primal = t_j * s_j
+            dual = y_j * z_j
             inverse = 1.0 / (primal * dual)
-            i_ta[j] = s[j] * dual * inverse
-            i_s[j] = ta[j] * dual * inverse
-            i_ya[j] = zs[j] * primal * inverse
-            i_zs[j] = ya[j] * primal * inverse
+            i_ta[j] = s_j * dual * inverse
+            i_s[j] = t_j * dual * inverse
+            iy = z_j * primal * inverse
+            iz = y_j * primal * inverse
+            i_ya[j] = iy
+            i_zs[j] = iz
             # sigma = 1 / (t / y + s / z + regularization)
-            w = dual / (ta[j] * zs[j] + s[j] * ya[j] + regularization * dual)
+            w = dual / (t_j * z_j + s_j * y_j + regularization * dual)
             sigma[j] = w
-            y = ya[j]
-            scale_d = max(scale_d, y * a_max[j])
+            scale_d = max(scale_d, y_j * a_max[j])
+            # the predictor's beta (target 0, no second-order term)
+            wb = w * (acc + s_j * (pen + z_j) * iz - t_j)
             for i in range(n):
                 a = ra[j, i]
-                gx0[tj, i] += y * a
+                gx0[tj, i] += y_j * a
+                gx[tj, i] += (y_j + wb) * a
                 if a != 0.0:
                     wa = w * a
                     for k in range(n):
@@ -440,23 +468,10 @@ def solve_soft_qp(A, B, R2, Q2, x0, u_ref, x_ref, lo, hi, ra, rt, rb, rho, toler
             return (ALMOST_SOLVED if loose else NUMERICAL), iteration
         mu = gap / n_pairs
 
-        # ---- predictor (affine, target 0), then corrector (Mehrotra's centring)
+        # ---- predictor (target 0), then corrector (Mehrotra's centring target)
         target = 0.0
-        alpha = 1.0
         for phase in range(2):
             corrector = 1.0 if phase == 1 else 0.0
-            for t in range(1, T + 1):
-                for i in range(n):
-                    gx[t, i] = gx0[t, i]
-            for j in range(rows):
-                ca = target - ta[j] * ya[j] - corrector * cross_a[j]
-                cs = target - s[j] * zs[j] - corrector * cross_s[j]
-                b = r_row[j] + (s[j] * r_pen[j] - cs) * i_zs[j] + ca * i_ya[j]
-                beta[j] = b
-                wb = sigma[j] * b
-                tj = rt[j]
-                for k in range(n):
-                    gx[tj, k] += wb * ra[j, k]
             for t in range(T):
                 for i in range(m):
                     acc = yh[t, i] - yl[t, i]
@@ -469,33 +484,62 @@ def solve_soft_qp(A, B, R2, Q2, x0, u_ref, x_ref, lo, hi, ra, rt, rb, rho, toler
                         ch = target - th[t, i] * yh[t, i] - corrector * cross_h[t, i]
                         acc += dh[t, i] * rh[t, i] + ch / th[t, i]
                     gu[t, i] = acc
+            if phase == 1:
+                for t in range(1, T + 1):
+                    for i in range(n):
+                        gx[t, i] = gx0[t, i] + g_base[t, i] + target * g_target[t, i]
             _solve(A, B, L, Mm, Kk, gx, gu, du, dx, nt, mt)
-            # the eliminated directions, the longest step, and (predictor) the sums of
-            # the complementarity after it: sum (t + a dt)(y + a dy)
+            # passes (2) and (3): the eliminated directions and the longest step
             worst = 0.0  # max of -dv / v: the step to the boundary is 1 / worst
-            sum_0 = 0.0
+            sum_0 = 0.0  # (predictor) sum (t + a dt)(y + a dy) = sum_0 + a sum_1 + a^2 sum_2
             sum_1 = 0.0
             sum_2 = 0.0
+            if phase == 0:
+                for t in range(1, T + 1):
+                    for i in range(n):
+                        g_base[t, i] = 0.0
+                        g_target[t, i] = 0.0
             for j in range(rows):
-                ca = target - ta[j] * ya[j] - corrector * cross_a[j]
-                cs = target - s[j] * zs[j] - corrector * cross_s[j]
-                acc = beta[j]
+                t_j = ta[j]
+                s_j = s[j]
+                y_j = ya[j]
+                z_j = zs[j]
+                iy = i_ya[j]
+                iz = i_zs[j]
+                w = sigma[j]
+                pen = rho - y_j - z_j
+                # beta = r + (s (rho - y - z) - c_s) / z + c_a / y, with
+                # c = target - t y - (corrector) cross
+                ca = target - t_j * y_j - corrector * cross_a[j]
+                cs = target - s_j * z_j - corrector * cross_s[j]
+                acc = r_row[j] + (s_j * pen - cs) * iz + ca * iy
                 tj = rt[j]
                 for k in range(n):
                     acc += ra[j, k] * dx[tj, k]
-                dy = sigma[j] * acc
-                dz = r_pen[j] - dy
-                dt = (ca - ta[j] * dy) * i_ya[j]
-                dsj = (cs - s[j] * dz) * i_zs[j]
+                dy = w * acc
+                dz = pen - dy
+                dt = (ca - t_j * dy) * iy
+                dsj = (cs - s_j * dz) * iz
                 dya[j] = dy
                 dzs[j] = dz
                 dta[j] = dt
                 ds[j] = dsj
-                worst = max(worst, -dt * i_ta[j], -dsj * i_s[j], -dy * i_ya[j], -dz * i_zs[j])
+                worst = max(worst, -dt * i_ta[j], -dsj * i_s[j], -dy * iy, -dz * iz)
                 if phase == 0:
-                    sum_0 += ta[j] * ya[j] + s[j] * zs[j]
-                    sum_1 += ta[j] * dy + ya[j] * dt + s[j] * dz + zs[j] * dsj
+                    sum_0 += t_j * y_j + s_j * z_j
+                    sum_1 += t_j * dy + y_j * dt + s_j * dz + z_j * dsj
                     sum_2 += dt * dy + dsj * dz
+                    xa = dt * dy
+                    xs = dsj * dz
+                    cross_a[j] = xa
+                    cross_s[j] = xs
+                    # the corrector's beta = base + target (1 / y - 1 / z)
+                    base = w * (r_row[j] + (s_j * pen + s_j * z_j + xs) * iz
+                                - (t_j * y_j + xa) * iy)
+                    slope = w * (iy - iz)
+                    for k in range(n):
+                        g_base[tj, k] += base * ra[j, k]
+                        g_target[tj, k] += slope * ra[j, k]
             for t in range(T):
                 for i in range(m):
                     if has_lo[i]:
@@ -509,6 +553,7 @@ def solve_soft_qp(A, B, R2, Q2, x0, u_ref, x_ref, lo, hi, ra, rt, rb, rho, toler
                             sum_0 += tl[t, i] * yl[t, i]
                             sum_1 += tl[t, i] * dy + yl[t, i] * dt
                             sum_2 += dt * dy
+                            cross_l[t, i] = dt * dy
                     if has_hi[i]:
                         ch = target - th[t, i] * yh[t, i] - corrector * cross_h[t, i]
                         dy = dh[t, i] * (rh[t, i] + du[t, i]) + ch / th[t, i]
@@ -520,34 +565,11 @@ def solve_soft_qp(A, B, R2, Q2, x0, u_ref, x_ref, lo, hi, ra, rt, rb, rho, toler
                             sum_0 += th[t, i] * yh[t, i]
                             sum_1 += th[t, i] * dy + yh[t, i] * dt
                             sum_2 += dt * dy
+                            cross_h[t, i] = dt * dy
             alpha = 1.0 if worst <= 1.0 else 1.0 / worst
             if phase == 0:
                 gap_affine = sum_0 + alpha * sum_1 + alpha * alpha * sum_2
                 ratio = max(gap_affine, 0.0) / gap
                 target = ratio * ratio * ratio * mu
-                for j in range(rows):
-                    cross_a[j] = dta[j] * dya[j]
-                    cross_s[j] = ds[j] * dzs[j]
-                for t in range(T):
-                    for i in range(m):
-                        cross_l[t, i] = dtl[t, i] * dyl[t, i]
-                        cross_h[t, i] = dth[t, i] * dyh[t, i]
-
-        # ---- step
         alpha = min(1.0, _STEP_FRACTION * alpha)
-        for j in range(rows):
-            ta[j] += alpha * dta[j]
-            s[j] += alpha * ds[j]
-            ya[j] += alpha * dya[j]
-            zs[j] += alpha * dzs[j]
-        for t in range(T):
-            for i in range(m):
-                u[t, i] += alpha * du[t, i]
-                if has_lo[i]:
-                    tl[t, i] += alpha * dtl[t, i]
-                    yl[t, i] += alpha * dyl[t, i]
-                if has_hi[i]:
-                    th[t, i] += alpha * dth[t, i]
-                    yh[t, i] += alpha * dyh[t, i]
-        _rollout(A, B, x0, u, x, nt, mt)
     return MAX_ITERATIONS, max_iterations
