@@ -196,3 +196,22 @@ def test_the_same_step_gives_the_same_bits():
     first, second = RiccatiBackend(problem).solve(step), RiccatiBackend(problem).solve(step)
     np.testing.assert_array_equal(first.inputs, second.inputs)
     assert first.iterations == second.iterations
+
+
+def test_without_rows_or_box_it_is_the_unconstrained_minimiser():
+    """No halfspace, arena or terminal row and a free input: the LQ optimum
+    :math:`u^\\circ = u^r + K (x^r - \\Phi x_0 - \\Gamma u^r)` of ``MPCProblem.gain``."""
+    T = 15
+    problem = MPCProblem(A, B, C, T, np.eye(2), 4.0 * np.eye(4), 25.0 * np.eye(4),
+                         soft_rows={"halfspaces", "bounds"})
+    assert every_row_soft(problem)
+    rng = np.random.default_rng(2)
+    step = StepData(rng.normal(size=4), rng.normal(size=(T, 4)), rng.normal(size=(T, 2)),
+                    np.zeros((0, T, 2)), np.zeros((0, T)))
+    answer = RiccatiBackend(problem).solve(step)
+    assert answer.found and answer.status == "Solved"
+    phi, gamma = problem.rollout
+    u_ref = step.ref_inputs.reshape(-1)
+    expected = u_ref + problem.gain @ (step.ref_states.reshape(-1) - phi @ step.x0
+                                       - gamma @ u_ref)
+    np.testing.assert_allclose(answer.inputs.reshape(-1), expected, atol=1e-9)

@@ -366,6 +366,7 @@ def solve_soft_qp(A, B, R2, Q2, x0, u_ref, x_ref, lo, hi, ra, rt, rb, rho, toler
         gap = 0.0
         scale_d = 1.0
         penalty = 0.0
+        checksum = 0.0
         for t in range(1, T + 1):
             for i in range(n):
                 acc = 0.0
@@ -388,6 +389,7 @@ def solve_soft_qp(A, B, R2, Q2, x0, u_ref, x_ref, lo, hi, ra, rt, rb, rho, toler
             for k in range(n):
                 acc += ra[j, k] * x[tj, k]
             r_row[j] = acc
+            checksum += acc
             pen = rho - y_j - z_j
             res_p = max(res_p, abs(acc))
             res_d = max(res_d, abs(pen))
@@ -445,6 +447,7 @@ def solve_soft_qp(A, B, R2, Q2, x0, u_ref, x_ref, lo, hi, ra, rt, rb, rho, toler
                     acc += B[k, i] * lam[k]
                 scale_d = max(scale_d, abs(direct), abs(acc - direct))
                 res_d = max(res_d, abs(acc))
+                checksum += acc  # max() would skip a NaN; a sum keeps it
             if t == 0:
                 break
             for i in range(n):
@@ -454,6 +457,8 @@ def solve_soft_qp(A, B, R2, Q2, x0, u_ref, x_ref, lo, hi, ra, rt, rb, rho, toler
                 lam_new[i] = acc
             for i in range(n):
                 lam[i] = lam_new[i]
+        if not (math.isfinite(checksum) and math.isfinite(gap) and math.isfinite(scale_d)):
+            return NUMERICAL, iteration
         objective = max(1.0, rho * penalty)
         if (res_p <= tolerance * scale_b and res_d <= tolerance * scale_d
                 and gap <= tolerance * objective):
@@ -462,8 +467,6 @@ def solve_soft_qp(A, B, R2, Q2, x0, u_ref, x_ref, lo, hi, ra, rt, rb, rho, toler
                  and gap <= _LOOSE * objective)
         if iteration == max_iterations:
             return (ALMOST_SOLVED if loose else MAX_ITERATIONS), iteration
-        if not (math.isfinite(res_p) and math.isfinite(res_d) and math.isfinite(gap)):
-            return NUMERICAL, iteration
         if not _factor(A, B, Hx, Hu, L, Mm, Kk, nt, mt):
             return (ALMOST_SOLVED if loose else NUMERICAL), iteration
         mu = gap / n_pairs
@@ -569,7 +572,7 @@ def solve_soft_qp(A, B, R2, Q2, x0, u_ref, x_ref, lo, hi, ra, rt, rb, rho, toler
             alpha = 1.0 if worst <= 1.0 else 1.0 / worst
             if phase == 0:
                 gap_affine = sum_0 + alpha * sum_1 + alpha * alpha * sum_2
-                ratio = max(gap_affine, 0.0) / gap
+                ratio = max(gap_affine, 0.0) / gap if gap > 0.0 else 0.0
                 target = ratio * ratio * ratio * mu
         alpha = min(1.0, _STEP_FRACTION * alpha)
     return MAX_ITERATIONS, max_iterations
