@@ -51,13 +51,16 @@ from filters.mpc.result import QPSolution, StepData
 
 __all__ = ["ITERATION_BUDGET", "RETRY_ROWS", "ActiveSetThenInteriorPoint"]
 
-#: DAQP iterations (over the relaxed QPs of one solve) before the QP goes to PIQP. On
-#: the scaling grid's recovery QPs one DAQP iteration cost 5-30 µs (T = 40-80) and one
-#: PIQP solve 2-7 ms, i.e. 250-800 DAQP iterations.
+#: DAQP iterations (over the relaxed QPs of one solve) before the QP goes to the
+#: interior-point method. On the scaling grid's recovery QPs one DAQP iteration cost
+#: 5-30 µs (T = 40-80), one PIQP solve 2-7 ms (250-800 DAQP iterations) and one Riccati
+#: solve 0.6-2.5 ms; budgets of 30, 80, 150 and 250 gave step times within the noise
+#: of each other (±15 %) at the T = 40 and 80 points of both instance families.
 ITERATION_BUDGET = 250
-#: After a PIQP answer that violates more soft rows than this, the next step goes to
-#: PIQP directly. DAQP took 10-60 iterations per violated row on the scaling grid's
-#: recovery QPs (up to 330 iterations with 6 violated rows, 450-1700 with 10-40).
+#: After an interior-point answer that violates more soft rows than this, the next step
+#: goes to the interior-point method directly. DAQP took 10-60 iterations per violated
+#: row on the scaling grid's recovery QPs (up to 330 iterations with 6 violated rows,
+#: 450-1700 with 10-40).
 RETRY_ROWS = 8
 
 
@@ -74,8 +77,8 @@ class ActiveSetThenInteriorPoint:
         The problem (with soft rows; a hard one works too, but the budget then only
         turns DAQP's infeasibility detection over to PIQP).
     iteration_budget
-        DAQP iterations (over the relaxed QPs of one solve) before PIQP takes over,
-        ``>= 1``.
+        DAQP iterations (over the relaxed QPs of one solve) before the interior-point
+        method takes over, ``>= 1``.
     """
 
     def __init__(self, problem: MPCProblem, *, iteration_budget: int = ITERATION_BUDGET) -> None:
