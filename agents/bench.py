@@ -493,6 +493,23 @@ def _sparse_growth(points: list) -> str:
     return "\n".join(lines)
 
 
+def _interleaved_growth(grid: Any, *, seed: int, family: str) -> str:
+    """:func:`filters.benchmarks.growth.benchmark_growth` from the grid's shortest horizon
+    >= 20 to its longest, at every obstacle count x N_s of ``grid``."""
+    from filters.benchmarks.growth import benchmark_growth, format_growth
+
+    horizons = sorted(h for h in grid.horizons if h >= 20)
+    if len(horizons) < 2:
+        return format_growth([])
+    ratios = []
+    for n_obstacles in grid.obstacles:
+        for n_samples in grid.samples:
+            ratios += benchmark_growth(n_obstacles, n_samples, short=horizons[0],
+                                       long=horizons[-1], steps=grid.steps, seed=seed,
+                                       family=family)
+    return format_growth(ratios)
+
+
 def benchmark_rollout_reference(
     horizon: int = 10, steps: int = 200, seed: int = 0, path: str | None = None
 ) -> dict[str, float]:
@@ -673,6 +690,7 @@ def run_scaling(
     if grid is None:
         grid = QUICK_GRID if quick else FULL_GRID
     points = benchmark_scaling(grid, seed=seed, progress=progress, family=family)
+    growth = _interleaved_growth(grid, seed=seed, family=family)
     ratios = np.array([p.ratio for p in points])
     qp_ratios = np.array([p.qp_ratio for p in points])
     work = np.array([p.n_obstacles * p.horizon * p.n_samples for p in points], dtype=float)
@@ -693,6 +711,7 @@ def run_scaling(
         f"lowest {ratios.min():.1f}x, median {np.median(ratios):.1f}x; "
         f"{int((ratios >= 10).sum())} of {len(points)} points >= 10x",
         _sparse_growth(points),
+        growth,
         f"halfspaces per sample processed (n x T x N_s): {per_sample_ns[largest]:.1f} "
         f"ns at the largest point (numpy reference {numpy_ns[largest]:.1f} ns, "
         f"{numpy_ns[largest] / per_sample_ns[largest]:.1f}x), {per_sample_ns.min():.1f} to "

@@ -134,3 +134,21 @@ def test_sparse_growth_splits_the_time_ratio_into_iterations_and_work_per_iterat
     wall_slope = float(line.split("wall ")[-1].split(" ")[0])
     assert wall_slope > 1.25
     assert "needs two horizons" in _sparse_growth([_point(3, 10, 8, 10), _point(3, 20, 8, 20)])
+
+
+def test_interleaved_growth_measures_every_backend_on_its_own_qp():
+    from filters.benchmarks.growth import BACKENDS, benchmark_growth, format_growth
+
+    ratios = benchmark_growth(3, 20, short=5, long=10, steps=4, repeats=1)
+    assert [(r.backend, r.qp) for r in ratios] == list(BACKENDS.items())
+    for r in ratios:
+        assert r.short_ms > 0 and r.long_ms > 0 and r.short_iterations >= 1
+        assert r.ratio == pytest.approx(r.long_ms / r.short_ms)
+        assert r.per_iteration_ratio > 0
+    text = format_growth(ratios)
+    assert "T = 5 and T = 10 solved alternately" in text and "riccati (recovery QP)" in text
+    assert "needs two horizons" in format_growth([])
+    with pytest.raises(InvalidParameterError, match="short < long"):
+        benchmark_growth(3, 20, short=10, long=10)
+    with pytest.raises(InvalidParameterError, match="repeats"):
+        benchmark_growth(3, 20, short=5, long=10, repeats=0)
