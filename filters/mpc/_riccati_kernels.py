@@ -55,19 +55,25 @@ _INITIAL_SLACK = 10.0
 _REGULARIZATION = 1e-7
 
 
+@njit(**_FLAGS, inline="always")
+def _advance(A, B, x, u, t, n, m):
+    """``x[t + 1] = A x[t] + B u[t]``."""
+    for i in range(n):
+        acc = 0.0
+        for k in range(n):
+            acc += A[i, k] * x[t, k]
+        for k in range(m):
+            acc += B[i, k] * u[t, k]
+        x[t + 1, i] = acc
+
+
 @njit(**_FLAGS)
 def _rollout(A, B, x0, u, x, nt, mt):
     """``x[t + 1] = A x[t] + B u[t]`` from ``x[0] = x0``."""
     n, m = len(nt), len(mt)
     x[0, :] = x0
     for t in range(u.shape[0]):
-        for i in range(n):
-            acc = 0.0
-            for k in range(n):
-                acc += A[i, k] * x[t, k]
-            for k in range(m):
-                acc += B[i, k] * u[t, k]
-            x[t + 1, i] = acc
+        _advance(A, B, x, u, t, n, m)
 
 
 @njit(**_FLAGS)
@@ -204,13 +210,7 @@ def _solve(A, B, L, M, K, gx, gu, du, dx, nt, mt):
             for k in range(n):
                 acc += K[t, i, k] * dx[t, k]
             du[t, i] = acc
-        for i in range(n):
-            acc = 0.0
-            for k in range(n):
-                acc += A[i, k] * dx[t, k]
-            for k in range(m):
-                acc += B[i, k] * du[t, k]
-            dx[t + 1, i] = acc
+        _advance(A, B, dx, du, t, n, m)
 
 
 @njit(**_FLAGS)
