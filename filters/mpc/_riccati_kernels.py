@@ -558,30 +558,27 @@ def solve_soft_qp(A, B, R2, Q2, x0, u_ref, x_ref, lo, hi, ra, rt, rb, rho, toler
                         g_target[tj, k] += slope * ra[j, k]
             for t in range(T):
                 for i in range(m):
-                    if has_lo[i]:
-                        cl = target - tl[t, i] * yl[t, i] - corrector * cross_l[t, i]
-                        dy = dl[t, i] * (rl[t, i] - du[t, i]) + cl / tl[t, i]
-                        dt = (cl - tl[t, i] * dy) / yl[t, i]
-                        dyl[t, i] = dy
-                        dtl[t, i] = dt
-                        worst = max(worst, -dt / tl[t, i], -dy / yl[t, i])
+                    # the lower bound moves against du (t = u - lo), the upper with it
+                    for side in range(2):
+                        if side == 0 and has_lo[i]:
+                            tb, yb, db, rb_, crb = tl, yl, dl, rl, cross_l
+                            dtb, dyb, move = dtl, dyl, -du[t, i]
+                        elif side == 1 and has_hi[i]:
+                            tb, yb, db, rb_, crb = th, yh, dh, rh, cross_h
+                            dtb, dyb, move = dth, dyh, du[t, i]
+                        else:
+                            continue
+                        c = target - tb[t, i] * yb[t, i] - corrector * crb[t, i]
+                        dy = db[t, i] * (rb_[t, i] + move) + c / tb[t, i]
+                        dt = (c - tb[t, i] * dy) / yb[t, i]
+                        dyb[t, i] = dy
+                        dtb[t, i] = dt
+                        worst = max(worst, -dt / tb[t, i], -dy / yb[t, i])
                         if phase == 0:
-                            sum_0 += tl[t, i] * yl[t, i]
-                            sum_1 += tl[t, i] * dy + yl[t, i] * dt
+                            sum_0 += tb[t, i] * yb[t, i]
+                            sum_1 += tb[t, i] * dy + yb[t, i] * dt
                             sum_2 += dt * dy
-                            cross_l[t, i] = dt * dy
-                    if has_hi[i]:
-                        ch = target - th[t, i] * yh[t, i] - corrector * cross_h[t, i]
-                        dy = dh[t, i] * (rh[t, i] + du[t, i]) + ch / th[t, i]
-                        dt = (ch - th[t, i] * dy) / yh[t, i]
-                        dyh[t, i] = dy
-                        dth[t, i] = dt
-                        worst = max(worst, -dt / th[t, i], -dy / yh[t, i])
-                        if phase == 0:
-                            sum_0 += th[t, i] * yh[t, i]
-                            sum_1 += th[t, i] * dy + yh[t, i] * dt
-                            sum_2 += dt * dy
-                            cross_h[t, i] = dt * dy
+                            crb[t, i] = dt * dy
             alpha = 1.0 if worst <= 1.0 else 1.0 / worst
             if phase == 0:
                 gap_affine = sum_0 + alpha * sum_1 + alpha * alpha * sum_2
