@@ -27,6 +27,7 @@ reference through SB3 against :class:`agents.NumpyPolicy` and
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -297,8 +298,13 @@ class TrainingThroughput:
         Steps per CPU second of this process (``time.process_time``), one per chunk.
     filter_us
         Wall time per filtered step in µs (medians over the chunks of the per-chunk
-        means): ``"reference"``, ``"halfspaces"``, ``"qp"`` (from the filter reports)
-        and ``"step"`` (the whole filtered training step, ``1 / rate``).
+        means): ``"reference"``, ``"halfspaces"``, ``"qp"`` (from the filter reports),
+        ``"qp_not_optimal"`` (the part of ``"qp"`` spent on the steps whose status is not
+        ``"optimal"``: the hard QP had no answer, the recovery QP or braking followed; 0
+        if absent) and ``"step"`` (the whole filtered training step, ``1 / rate``).
+    not_optimal_share
+        Median over the chunks of the share of filtered steps whose status is not
+        ``"optimal"`` (NaN if not measured).
     """
 
     chunk: int
@@ -307,6 +313,7 @@ class TrainingThroughput:
     plain_cpu: tuple[float, ...]
     filtered_cpu: tuple[float, ...]
     filter_us: dict[str, float]
+    not_optimal_share: float = math.nan
 
     @property
     def timesteps(self) -> int:
@@ -345,7 +352,7 @@ class TrainingThroughput:
         us = self.filter_us
         plain_us = 1e6 / float(np.median(self.plain_wall))
         rest = us["step"] - plain_us - us["reference"] - us["halfspaces"] - us["qp"]
-        return "\n".join([
+        lines = [
             f"(d) PPO training, RandomCrossing, 8 environments, {self.timesteps} steps of "
             f"each kind in {len(self.plain_wall)} alternating chunks of {self.chunk}, medians:",
             f"    plain    {np.median(self.plain_wall):6.0f} steps/s, "
@@ -357,26 +364,41 @@ class TrainingThroughput:
             f"    per step: plain {plain_us:.0f} us; filtered {us['step']:.0f} us = plain + "
             f"{us['step'] - plain_us:.0f} us: reference {us['reference']:.0f}, halfspaces "
             f"{us['halfspaces']:.0f}, QP {us['qp']:.0f}, the rest {rest:.0f}",
-        ])
+        ]
+        if not math.isnan(self.not_optimal_share):
+            lines.append(
+                f"    of the QP's {us['qp']:.0f} us: {us.get('qp_not_optimal', 0.0):.0f} on the "
+                f"{100 * self.not_optimal_share:.0f} % of steps not optimal (the hard QP had no "
+                f"answer: the recovery QP or braking followed)")
+        return "\n".join(lines)
 
 
 def _filter_clock() -> Any:
-    """An SB3 callback summing the filter reports' reference, halfspace and QP times."""
+    """An SB3 callback summing the filter reports' reference, halfspace and QP times (and
+    the QP time and count of the steps whose status is not ``"optimal"``)."""
     from stable_baselines3.common.callbacks import BaseCallback
 
     class FilterClock(BaseCallback):
         def __init__(self) -> None:
             super().__init__()
-            self.times = {"reference": 0.0, "halfspaces": 0.0, "qp": 0.0}
+            self.times = {"reference": 0.0, "halfspaces": 0.0, "qp": 0.0,
+                          "qp_not_optimal": 0.0}
+            self.reports = 0
+            self.not_optimal = 0
 
         def _on_step(self) -> bool:
             times = self.times
             for info in self.locals["infos"]:
                 report = info.get("filter")
                 if report is not None:
+                    qp = report.filter_time - report.halfspace_time
                     times["reference"] += report.reference_time
                     times["halfspaces"] += report.halfspace_time
-                    times["qp"] += report.filter_time - report.halfspace_time
+                    times["qp"] += qp
+                    self.reports += 1
+                    if report.status != "optimal":
+                        times["qp_not_optimal"] += qp
+                        self.not_optimal += 1
             return True
 
     return FilterClock()
@@ -407,6 +429,7 @@ def benchmark_training(timesteps: int = 20_480, chunk: int = 2048, seed: int = 0
                               progress_bar=False)[0] for kind in (False, True)}
     rates: dict[bool, list[tuple[float, float]]] = {False: [], True: []}
     parts: list[dict[str, float]] = []
+    shares: list[float] = []
     for _ in range(max(1, timesteps // chunk)):
         for filtered, model in models.items():
             clock = _filter_clock()
@@ -418,16 +441,17 @@ def benchmark_training(timesteps: int = 20_480, chunk: int = 2048, seed: int = 0
             rates[filtered].append((steps / wall, steps / cpu))
             if filtered:
                 parts.append({key: 1e6 * value / steps for key, value in clock.times.items()})
+                shares.append(clock.not_optimal / max(1, clock.reports))
     for model in models.values():
         model.get_env().close()
     filtered_wall = tuple(r[0] for r in rates[True])
     filter_us = {key: float(np.median([p[key] for p in parts]))
-                 for key in ("reference", "halfspaces", "qp")}
+                 for key in ("reference", "halfspaces", "qp", "qp_not_optimal")}
     filter_us["step"] = 1e6 / float(np.median(filtered_wall))
     return TrainingThroughput(
         chunk=chunk, plain_wall=tuple(r[0] for r in rates[False]), filtered_wall=filtered_wall,
         plain_cpu=tuple(r[1] for r in rates[False]), filtered_cpu=tuple(r[1] for r in rates[True]),
-        filter_us=filter_us,
+        filter_us=filter_us, not_optimal_share=float(np.median(shares)),
     )
 
 

@@ -108,7 +108,7 @@ def main() -> None:
           f"plain {plain:.0f} us, filtered {filtered:.0f} us (+{filtered - plain:.0f}); "
           f"ratio {plain / filtered:.3f}, median of the pairs {np.median(pairs):.3f}")
     print(f"  {'':18s} {'plain':>8s} {'filtered':>9s}")
-    for key in (*CLOCKED, "reference", "halfspaces", "qp"):
+    for key in (*CLOCKED, "reference", "halfspaces", "qp", "qp_not_optimal"):
         print(f"  {key:18s} {median(False, key):8.1f} {median(True, key):9.1f}")
     glue = [row["wrapper.step"] - row["_filter"] - row["env.step"] for row in rows[True]]
     inner = [row["_filter"] - row["reference"] - row["halfspaces"] - row["qp"]
