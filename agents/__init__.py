@@ -6,11 +6,12 @@
   numpy (deterministic ``predict`` about 10x faster; for the roll-out reference);
   :class:`TorchActorPolicy` — the same actions as SB3 bit for bit, several times faster;
   with either, the filter's roll-out reference runs in one compiled call
-  (:mod:`agents.compiled_rollout`).
+  (:mod:`agents.policies.compiled_rollout`).
 * :class:`MPCReferencePlanner` — the paper's obstacle-agnostic goal-tracking MPC.
 * :func:`evaluate` — Monte Carlo comparison of risk settings, one record per episode
-  (:mod:`agents.records`: specs, records, CSV; :mod:`agents.runner`: one episode;
-  :mod:`agents.executors`: process pool, Ray).
+  (:mod:`agents.evaluation.records`: specs, records, CSV;
+  :mod:`agents.evaluation.runner`: one episode;
+  :mod:`agents.evaluation.executors`: process pool, Ray).
 * :class:`SafetyMetricsCallback` (SB3 callback: safety metrics per rollout) and
   :class:`PPOLagrangian` (the constrained-RL baseline), imported on first use.
 
@@ -18,18 +19,18 @@ torch and Stable-Baselines3 are imported only when a PPO policy is trained or lo
 """
 
 from agents.errors import AgentsError, PolicyFileError, RunMismatchError
-from agents.evaluation import evaluate
-from agents.numpy_policy import NumpyPolicy, TorchActorPolicy, load_numpy_policy
+from agents.evaluation.evaluate import evaluate
+from agents.evaluation.records import EpisodeRecord, EpisodeSpec
+from agents.evaluation.runner import run_episode
+from agents.evaluation.summary import summarise
 from agents.planners import MPCReferencePlanner
-from agents.records import EpisodeRecord, EpisodeSpec
-from agents.runner import run_episode
-from agents.summary import summarise
-from agents.training import load_ppo, train_ppo
+from agents.policies.numpy_policy import NumpyPolicy, TorchActorPolicy, load_numpy_policy
+from agents.training.ppo import load_ppo, train_ppo
 
 _LAZY = {
-    "SafetyMetricsCallback": "agents.callbacks",
-    "SafetyEvalCallback": "agents.callbacks",
-    "PPOLagrangian": "agents.lagrangian",
+    "SafetyMetricsCallback": "agents.training.callbacks",
+    "SafetyEvalCallback": "agents.training.callbacks",
+    "PPOLagrangian": "agents.training.lagrangian",
 }
 """Names whose modules import Stable-Baselines3 (and torch): loaded on first access."""
 

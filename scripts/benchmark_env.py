@@ -12,7 +12,7 @@ import sys
 
 import numpy as np
 
-from safe_nav_env.benchmark import benchmark, normal_draws_per_second
+from benchmarks.env import benchmark, normal_draws_per_second
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,4 +1,6 @@
-"""Does a PPO planner reach its goal from near it? Unfiltered, no obstacles (agents.goal_reaching).
+"""Does a PPO planner reach its goal from near it? Unfiltered, no obstacles.
+
+See :mod:`agents.experiments.goal_reaching`.
 
     python scripts/goal_reaching.py                      # the shipped policy, 120 starts at rest
     python scripts/goal_reaching.py --policy my_ppo.zip --max-speed 3
@@ -13,8 +15,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from agents.goal_reaching import goal_reaching
-from agents.training import load_ppo
+from agents.experiments.goal_reaching import goal_reaching
+from agents.training.ppo import load_ppo
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -3,7 +3,7 @@
 Reads the per-episode CSVs that ``safe-nav evaluate --risks none dr_cvar`` wrote for
 each policy and draws one panel per scenario with a point per (policy, filtered or
 not): the collision rate (continuous time, Wilson 95 % interval) against the mean time
-to goal over the episodes that reached it (:func:`agents.pareto.plot_pareto`).
+to goal over the episodes that reached it (:func:`agents.experiments.pareto.plot_pareto`).
 
 Usage (the README's comparison, 300 episodes per cell)::
 
@@ -27,9 +27,9 @@ import sys
 from collections import defaultdict
 from pathlib import Path
 
-from agents.pareto import ParetoPoint, plot_pareto, point_from_summary
-from agents.records import read_records
-from agents.summary import summarise
+from agents.evaluation.records import read_records
+from agents.evaluation.summary import summarise
+from agents.experiments.pareto import ParetoPoint, plot_pareto, point_from_summary
 
 _FILTERS = {"none": "", "dr_cvar": " + DR-CVaR filter"}
 

@@ -13,7 +13,7 @@ The clip in ``docs/figures`` was made with::
 
 ``RecordVideo`` needs moviepy (``pip install 'safe-nav[video]'``; it is in ``dev`` too).
 GitHub shows a GIF inline in a README but not a committed mp4; ``--gif`` writes the
-same frames as a GIF (:func:`agents.plots.save_gif`) next to the mp4.
+same frames as a GIF (:func:`agents.evaluation.plots.save_gif`) next to the mp4.
 """
 
 from __future__ import annotations
@@ -112,8 +112,8 @@ def record_episode(
     """
     import gymnasium as gym
 
-    from agents.records import EpisodeSpec
-    from agents.runner import make_env
+    from agents.evaluation.records import EpisodeSpec
+    from agents.evaluation.runner import make_env
     from filters.errors import InvalidParameterError
 
     if max_steps is not None and (isinstance(max_steps, bool) or not isinstance(max_steps, int)
@@ -154,7 +154,7 @@ def record_episode(
     recorded.replace(path)
     gif_path = None
     if gif:
-        from agents.plots import RISK_LABELS, save_gif
+        from agents.evaluation.plots import RISK_LABELS, save_gif
 
         label = (f"{spec.scenario}, seed {spec.seed}, PPO + "
                  f"{RISK_LABELS.get(spec.risk, spec.risk)} filter")

@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import sys
 
-from agents.cli import main
+from agents.cli.main import main
 
 if __name__ == "__main__":
     sys.exit(main(["train", *sys.argv[1:]]))

@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from filters.benchmarks.filter_qp import double_integrator, filter_kwargs
+from benchmarks.filter_qp import double_integrator, filter_kwargs
 from filters.mpc import MPCSafetyFilter, stopping_terminal_set
 
 T = 10

@@ -1,0 +1,5 @@
+"""The ``safe-nav`` command line (``train``, ``evaluate``, ``reproduce``, ``bench``)."""
+
+from agents.cli.main import main
+
+__all__ = ["main"]

@@ -1,0 +1,542 @@
+"""The ``safe-nav`` command line: train, evaluate, reproduce, bench.
+
+Every subcommand is a thin layer over a plain function of :mod:`agents`, and
+:func:`main` takes ``argv`` so tests call it directly. Defaults run on the PPO
+policy shipped with the package, with no other set-up. ``safe-nav evaluate --help``
+shows every option with its default and unit.
+
+Exit codes (one line on stderr, no traceback):
+
+* 0 -- done;
+* 1 -- some episode failed (the CSV's ``error`` column says why; running the same
+  command again re-runs the failed episodes);
+* 2 -- a bad option or setting, a missing or corrupt policy file, an output path
+  that is a file, an output folder holding another run;
+* 130 -- Ctrl-C (the finished episodes are saved; the same command resumes).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from agents.evaluation.records import PAPER_SCENARIOS, PLANNERS, REFERENCES
+from filters.risk import PAPER_RISKS
+from filters.wrapper import FALLBACKS, OBJECTIVES, RISKS
+
+EXIT_FAILED_EPISODES = 1
+EXIT_BAD_INPUT = 2
+EXIT_INTERRUPTED = 130
+
+
+def _canonical_scenario(name: str, *, gym_id_ok: bool = False) -> str:
+    from safe_nav_env.errors import ScenarioError
+    from safe_nav_env.scenarios import env_id, scenario_name
+
+    try:
+        canonical = scenario_name(name, warn=False)
+    except ScenarioError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    if canonical != name and not (gym_id_ok and name == env_id(canonical)):
+        print(f"safe-nav: note: scenario {name!r} is called {canonical!r}; use {canonical!r}",
+              file=sys.stderr)
+    return canonical
+
+
+def scenario_id(name: str) -> str:
+    """The gym id of a scenario spelled ``HeadOn``, ``head_on`` or ``SafeNav/HeadOn-v0``."""
+    from safe_nav_env.scenarios import env_id
+
+    return env_id(_canonical_scenario(name, gym_id_ok=True))
+
+
+def scenario(name: str) -> str:
+    """The canonical name (``HeadOn``) of a scenario in any of its spellings."""
+    return _canonical_scenario(name)
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
+    return value
+
+
+def _non_negative_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
+    return value
+
+
+_seed = _non_negative_int
+
+
+def _number(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return value
+
+
+def _tail_mass(text: str) -> float:
+    value = _number(text)
+    if not 0.0 < value <= 1.0:
+        raise argparse.ArgumentTypeError(f"expected a tail mass in (0, 1], got {text!r}")
+    return value
+
+
+def _metres(text: str) -> float:
+    value = _number(text)
+    if value < 0.0:
+        raise argparse.ArgumentTypeError(f"expected a distance >= 0 (in m), got {text!r}")
+    return value
+
+
+def _noise(text: str) -> str:
+    from safe_nav_env import NOISE_PRESETS
+
+    if text and text not in NOISE_PRESETS:
+        raise argparse.ArgumentTypeError(
+            f"unknown noise preset {text!r}; choose one of {sorted(NOISE_PRESETS)} (or '' for "
+            "the scenario's own)")
+    return text
+
+
+def _policy(text: str) -> str:
+    from agents.errors import PolicyFileError
+    from agents.evaluation.runner import check_policy
+
+    if not text:  # the shipped policy: checked (and loaded) before the run, if the PPO runs
+        return text
+    try:
+        check_policy(text)
+    except PolicyFileError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
+
+
+def _output(text: str) -> Path:
+    path = Path(text)
+    for folder in (path, *path.parents):
+        if folder.exists():
+            if not folder.is_dir():
+                raise argparse.ArgumentTypeError(
+                    f"{text!r} cannot be an output folder: {folder} is a file")
+            break
+    return path
+
+
+def _option(text: str) -> tuple[str, Any]:
+    key, sep, raw = text.partition("=")
+    if not sep or not key:
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
+    try:
+        value = json.loads(raw)
+    except json.JSONDecodeError:
+        value = raw
+    return key, value
+
+
+class _Parser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line (no usage block)."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+_FORMAT = dict(formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(
+        prog="safe-nav",
+        description="DR-CVaR safety filtering of learned motion planners.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    train = sub.add_parser(
+        "train", help="train a PPO reference planner (plain, filter in the loop, or Lagrangian)",
+        description="Train PPO on a SafeNav scenario and print its safety metrics (episode "
+        "collision rate in continuous time, episode cost, goal rate, filter intervention and "
+        "statuses) after every rollout; they are also written to <output>.metrics.csv.")
+    train.add_argument("--env-id", type=scenario_id, default="SafeNav/RandomCrossing-v0")
+    train.add_argument("--timesteps", type=_positive_int, default=400_000)
+    train.add_argument("--seed", type=_non_negative_int, default=0)
+    train.add_argument("--n-envs", type=_positive_int, default=8)
+    train.add_argument("--vec-env", choices=("dummy", "subproc"), default="dummy",
+                       help="in-process environments (default) or one process each")
+    train.add_argument("--output", type=Path, default=Path("runs/ppo_random_crossing.zip"))
+    train.add_argument("--filter", choices=[r for r in RISKS if r != "none"], default=None,
+                       help="train with the safety filter in the loop (safe exploration)")
+    train.add_argument("--alpha", type=float, default=None,
+                       help="filter: CVaR tail mass in (0, 1] (default: the wrapper's)")
+    train.add_argument("--delta", type=float, default=None,
+                       help="filter: risk bound on the intrusion depth, m (default: the wrapper's)")
+    train.add_argument("--epsilon", type=float, default=None,
+                       help="filter: Wasserstein radius, m (default: the wrapper's)")
+    train.add_argument("--objective", choices=OBJECTIVES, default=None,
+                       help="filter objective (default: the wrapper's choice for the planner)")
+    train.add_argument("--fallback", choices=FALLBACKS, default=None,
+                       help="filter fallback on an infeasible QP (default: the wrapper's)")
+    train.add_argument("--reference", choices=("default", "rollout"), default="default",
+                       help="filter reference: the wrapper's, or the policy being trained "
+                       "rolled out over the horizon")
+    train.add_argument("--filter-option", action="append", default=[], metavar="KEY=VALUE",
+                       help="any other keyword of SafetyFilterWrapper; VALUE is read as JSON "
+                       "(numbers, true/false, lists), else as a string; repeatable")
+    train.add_argument("--intervention-penalty", type=float, default=0.0,
+                       help="filter: reward penalty per (m/s^2)^2 of ||u_safe - u_ref||^2")
+    train.add_argument("--lagrangian", action="store_true",
+                       help="train PPO-Lagrangian (cost: the continuous-time collision indicator)")
+    train.add_argument("--cost-limit", type=float, default=0.0,
+                       help="PPO-Lagrangian: allowed mean episode cost (default 0)")
+    train.add_argument("--lambda-lr", type=float, default=0.05,
+                       help="PPO-Lagrangian: dual step size of the multiplier")
+    train.add_argument("--eval-freq", type=_non_negative_int, default=0,
+                       help="evaluate every N steps on held-out seeds (0: off); saves the best "
+                       "model to <output>_best/")
+    train.add_argument("--eval-episodes", type=_positive_int, default=20)
+    train.add_argument("--tensorboard", type=str, default=None, metavar="DIR",
+                       help="write TensorBoard event files to DIR (pip install 'safe-nav[train]')")
+    train.add_argument("--env-option", type=_option, action="append", default=[],
+                       metavar="KEY=VALUE", dest="env_options",
+                       help="gym.make keyword of the training environments (VALUE as JSON, else "
+                       "a string), e.g. random_start=0.5 or time_penalty=0.05; repeatable")
+    train.add_argument("--physical-actions", action="store_true",
+                       help="let the learner act on the ±10 m/s² box instead of [-1, 1] (as the "
+                       "shipped policy was trained)")
+    train.add_argument("--quiet", action="store_true", help="do not print the metrics table")
+    train.add_argument("--no-progress", action="store_true")
+
+    evaluate = sub.add_parser("evaluate", help="Monte Carlo: filtered vs unfiltered policies",
+                              **_FORMAT)
+    _add_evaluation_arguments(evaluate, episodes=300)
+    evaluate.add_argument("--sweep", action="store_true",
+                          help="sweep epsilon and delta (DR-CVaR) and plot collisions vs "
+                          "deviation (writes sweep.csv, sweep.md, figures/sweep.png)")
+    evaluate.add_argument("--epsilons", type=_metres, nargs="+", default=[0.0, 0.05, 0.1, 0.2],
+                          help="--sweep: Wasserstein radii, in m (>= 0)")
+    evaluate.add_argument("--deltas", type=_metres, nargs="+", default=[0.0, 0.1, 0.2],
+                          help="--sweep: risk bounds, in m (>= 0)")
+    from agents.experiments.stress import STRESS_METHODS
+    from safe_nav_env.stress import STRESS_SUITE
+
+    evaluate.add_argument("--suite", choices=("scenarios", "stress"), default="scenarios",
+                          help="scenarios: --scenarios x --risks; stress: the stress suite "
+                          "(--cases x --methods, output default results/stress)")
+    evaluate.add_argument("--cases", choices=list(STRESS_SUITE), nargs="+",
+                          default=list(STRESS_SUITE), help="--suite stress: the cases")
+    evaluate.add_argument("--methods", choices=list(STRESS_METHODS), nargs="+",
+                          default=list(STRESS_METHODS),
+                          help="--suite stress: the methods (dr_cvar: fixed --epsilon; "
+                          "dr_cvar_auto: epsilon='auto')")
+
+    reproduce = sub.add_parser("reproduce", help="reproduce the paper's figures and tables",
+                               **_FORMAT)
+    reproduce.add_argument("--episodes", type=_positive_int, default=300,
+                           help="Monte Carlo episodes per scenario and risk (>= 1)")
+    reproduce.add_argument("--workers", type=_positive_int, default=2,
+                           help="local worker processes (>= 1)")
+    reproduce.add_argument("--seed", type=_seed, default=0,
+                           help="seed of the first episode (episode i uses seed + i)")
+    reproduce.add_argument("--output", type=_output, default=Path("results/reproduce"),
+                           help="output folder")
+    reproduce.add_argument("--timing-repeats", type=_positive_int, default=100,
+                           help="repeats of each Table I timing (>= 1)")
+    reproduce.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+    bench = sub.add_parser("bench", help="speed benchmarks (ratios in one run)", **_FORMAT)
+    bench.add_argument("--steps", type=_positive_int, default=None,
+                       help="filter steps timed (default 500; --scaling: per grid point, 100)")
+    bench.add_argument("--repeats", type=_positive_int, default=100,
+                       help="repeats of each halfspace timing (>= 1)")
+    bench.add_argument("--scaling", action="store_true",
+                       help="scaling grid: obstacles x horizon x samples, ours vs CVXPY")
+    bench.add_argument("--quick", action="store_true", help="--scaling on a small subset")
+    bench.add_argument("--obstacles", type=_positive_int, nargs="+", default=None,
+                       help="--scaling: obstacle counts (default 1 3 10 20)")
+    bench.add_argument("--horizons", type=_positive_int, nargs="+", default=None,
+                       help="--scaling: horizons T in steps (default 10 20 40 80)")
+    bench.add_argument("--samples", type=_positive_int, nargs="+", default=None,
+                       help="--scaling: prediction samples N_s (default 100 1000)")
+    bench.add_argument("--seed", type=_seed, default=0, help="seed of the instances")
+    bench.add_argument("--output", type=Path, default=None,
+                       help="--scaling: folder for scaling.csv, scaling.md, scaling.png")
+    bench.add_argument("--no-plot", action="store_true", help="--scaling: no figure")
+    bench.add_argument("--family", choices=("straight", "goal"), default="straight",
+                       help="--scaling: instances whose reference runs straight on (the "
+                            "issue's grid) or stops at a goal inside the arena")
+    bench.add_argument("--no-policy", action="store_true",
+                       help="--scaling: skip the policy (SB3 vs numpy) timings")
+    bench.add_argument("--training", action="store_true",
+                       help="PPO training steps per second with the DR-CVaR filter in the "
+                       "loop against without it (interleaved runs, same process)")
+    bench.add_argument("--timesteps", type=_positive_int, default=20_480,
+                       help="--training: timed steps of each kind (default 20480)")
+    bench.add_argument("--chunk", type=_positive_int, default=2048,
+                       help="--training: steps per alternating chunk (default 2048: one "
+                       "rollout and its update)")
+    return parser
+
+
+def _add_evaluation_arguments(parser: argparse.ArgumentParser, *, episodes: int) -> None:
+    parser.add_argument("--scenarios", type=scenario, nargs="+", default=list(PAPER_SCENARIOS),
+                        help="scenario names (HeadOn, Overtaking, Intersection, MultiObstacle, "
+                        "RandomCrossing)")
+    parser.add_argument("--risks", choices=RISKS, nargs="+",
+                        default=["none", *PAPER_RISKS],
+                        help="risk settings; none is the unfiltered planner (the default is "
+                        "the paper's comparison; gaussian_cc, moment_dr and conformal on "
+                        "request)")
+    parser.add_argument("--planner", choices=PLANNERS, default="ppo",
+                        help="reference planner: the PPO policy or the paper's "
+                        "obstacle-agnostic MPC")
+    parser.add_argument("--reference", choices=REFERENCES, default="rollout",
+                        help="PPO reference trajectory: roll the policy out on the predicted "
+                        "obstacle motion, or hold its action")
+    parser.add_argument("--policy", type=_policy, default="",
+                        help="PPO policy .zip (default: the shipped one)%(default).0s")
+    parser.add_argument("--episodes", type=_positive_int, default=episodes,
+                        help="episodes per scenario and risk (>= 1)")
+    parser.add_argument("--workers", type=_positive_int, default=2,
+                        help="local worker processes (>= 1; 1 runs in this process)")
+    parser.add_argument("--executor", choices=("process", "ray"), default="process",
+                        help="where episodes run: local processes or a Ray cluster")
+    parser.add_argument("--seed", type=_seed, default=0,
+                        help="seed of the first episode (episode i uses seed + i)")
+    parser.add_argument("--alpha", type=_tail_mass, default=0.2,
+                        help="CVaR tail mass, in (0, 1]")
+    parser.add_argument("--delta", type=_metres, default=0.1,
+                        help="risk bound on the intrusion depth, in m (>= 0)")
+    parser.add_argument("--epsilon", type=_metres, default=0.05,
+                        help="Wasserstein radius of DR-CVaR, in m (>= 0)")
+    parser.add_argument("--noise", type=_noise, default="",
+                        help="noise preset of the environment, e.g. authors_code (default: the "
+                        "scenario's own, as in the paper's text)%(default).0s")
+    parser.add_argument("--filter-option", type=_option, action="append", default=[],
+                        metavar="KEY=VALUE", dest="filter_options",
+                        help="further SafetyFilterWrapper keyword (VALUE as JSON, else a "
+                        "string), e.g. soft=true; repeatable (default: none)%(default).0s")
+    parser.add_argument("--env-option", type=_option, action="append", default=[],
+                        metavar="KEY=VALUE", dest="env_options",
+                        help="further gym.make keyword, e.g. n_samples=50; repeatable "
+                        "(default: none)%(default).0s")
+    parser.add_argument("--output", type=_output, default=Path("results/evaluate"),
+                        help="output folder (CSV, run key, summary, figures)")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="discard the results already in --output instead of resuming")
+    parser.add_argument("--no-plots", action="store_true", help="no figures")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``safe-nav``; returns the exit code (see the module docstring)."""
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as exc:  # --help (0) or a bad option (2, one line already printed)
+        return exc.code if isinstance(exc.code, int) else EXIT_BAD_INPUT
+    prog = f"safe-nav {args.command}"
+    try:
+        return _dispatch(args)
+    except KeyboardInterrupt as exc:
+        print(_interrupted_message(prog, exc, args), file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except _bad_input_errors() as exc:
+        print(f"{prog}: error: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}",
+              file=sys.stderr)
+        return EXIT_BAD_INPUT
+
+
+def _bad_input_errors() -> tuple[type[BaseException], ...]:
+    from agents.errors import AgentsError
+    from filters.errors import SafeNavError
+    from safe_nav_env.errors import SafeNavEnvError
+
+    return (AgentsError, SafeNavError, SafeNavEnvError)
+
+
+def _interrupted_message(prog: str, exc: KeyboardInterrupt, args: argparse.Namespace) -> str:
+    from agents.evaluation.evaluate import EvaluationInterrupted
+
+    if isinstance(exc, EvaluationInterrupted) and exc.csv_path is not None:
+        return (f"{prog}: interrupted: {exc.finished} of {exc.total} episodes finished, saved "
+                f"in {exc.csv_path}; run the same command again to resume")
+    where = f" in {args.output}" if getattr(args, "output", None) else ""
+    return (f"{prog}: interrupted; the finished episodes are saved{where}; run the same command "
+            "again to resume")
+
+
+def _dispatch(args: argparse.Namespace) -> int:
+    if args.command == "train":
+        return _train(args)
+    if args.command == "evaluate":
+        return _evaluate(args)
+    if args.command == "reproduce":
+        from agents.experiments.reproduce import reproduce
+
+        print(reproduce(output=args.output, episodes=args.episodes, workers=args.workers,
+                        seed=args.seed, timing_repeats=args.timing_repeats,
+                        progress=not args.no_progress))
+        return 0
+    if args.command == "bench":
+        if args.scaling:
+            return _bench_scaling(args)
+        if args.training:
+            from benchmarks.suite import benchmark_training
+
+            print(benchmark_training(args.timesteps, args.chunk, args.seed).format())
+            return 0
+        from benchmarks.suite import run_benchmarks
+
+        print(run_benchmarks(filter_steps=args.steps or 500, table_repeats=args.repeats,
+                             seed=args.seed))
+        return 0
+    return EXIT_BAD_INPUT  # pragma: no cover - argparse rejects unknown commands
+
+
+def _evaluate(args: argparse.Namespace) -> int:
+    from agents.evaluation.campaign import run_evaluation, run_sweep
+
+    common = dict(episodes=args.episodes, workers=args.workers, seed=args.seed,
+                  planner=args.planner, reference=args.reference, policy_path=args.policy,
+                  alpha=args.alpha, noise=args.noise, executor=args.executor,
+                  filter_options=dict(args.filter_options), env_options=dict(args.env_options),
+                  progress=not args.no_progress, overwrite=args.overwrite)
+    if args.suite == "stress":
+        from agents.experiments.stress import run_stress
+
+        clash = [flag for flag, given in (("--sweep", args.sweep), ("--noise", args.noise),
+                                          ("--scenarios", args.scenarios != list(PAPER_SCENARIOS)),
+                                          ("--risks", args.risks != ["none", *PAPER_RISKS]))
+                 if given]
+        if clash:
+            print(f"safe-nav evaluate: error: --suite stress sets the cases, methods and noise "
+                  f"itself; drop {', '.join(clash)} (use --cases/--methods)", file=sys.stderr)
+            return EXIT_BAD_INPUT
+        output = args.output if args.output != Path("results/evaluate") else Path(
+            "results/stress")
+        common.pop("noise")
+        outputs = run_stress(output, args.cases, args.methods, delta=args.delta,
+                             epsilon=args.epsilon, plots=not args.no_plots, **common)
+    elif args.sweep:
+        outputs = run_sweep(args.output, args.scenarios, epsilons=args.epsilons,
+                            deltas=args.deltas, **common)
+    else:
+        outputs = run_evaluation(args.output, args.scenarios, args.risks, delta=args.delta,
+                                 epsilon=args.epsilon, plots=not args.no_plots, **common)
+    print(outputs)
+    failed = outputs.failed
+    if failed:
+        first = failed[0]
+        print(f"safe-nav evaluate: error: {len(failed)} of {len(outputs.records)} episodes "
+              f"failed (first: {first.case or first.scenario} {first.risk} seed {first.seed}: "
+              f"{first.error.split(' | ')[0][:200]}); see the error column of "
+              f"{outputs.files['episodes']}; run the same command again to re-run them",
+              file=sys.stderr)
+        return EXIT_FAILED_EPISODES
+    return 0
+
+
+def _bench_scaling(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    from benchmarks.scaling import FULL_GRID, QUICK_GRID
+    from benchmarks.suite import run_scaling
+
+    grid = QUICK_GRID if args.quick else FULL_GRID
+    overrides = {name: tuple(values) for name, values in (
+        ("obstacles", args.obstacles), ("horizons", args.horizons), ("samples", args.samples))
+        if values}
+    if args.steps:
+        overrides["steps"] = max(2, args.steps)
+    grid = replace(grid, **overrides)
+    print(run_scaling(grid, seed=args.seed, output=args.output, plot=not args.no_plot,
+                      policy=not args.no_policy, family=args.family))
+    return 0
+
+
+def _filter_options(args: argparse.Namespace) -> dict:
+    """The SafetyFilterWrapper keywords given on the command line."""
+    import json
+
+    options: dict = {}
+    for text in args.filter_option:
+        key, sep, raw = text.partition("=")
+        if not sep or not key.isidentifier():
+            raise ValueError(f"--filter-option expects KEY=VALUE, got {text!r}")
+        try:
+            options[key] = json.loads(raw)
+        except json.JSONDecodeError:
+            options[key] = raw
+    for name in ("alpha", "delta", "epsilon", "objective", "fallback"):
+        value = getattr(args, name)
+        if value is not None:
+            options[name] = value
+    return options
+
+
+def _train(args: argparse.Namespace) -> int:
+    from agents.training.ppo import train_ppo
+
+    try:
+        options = _filter_options(args)
+    except ValueError as exc:
+        print(f"safe-nav train: error: {exc}", file=sys.stderr)
+        return 2
+    if args.filter is None and (options or args.reference != "default"
+                                or args.intervention_penalty):
+        print("safe-nav train: error: --alpha/--delta/--epsilon/--objective/--fallback/"
+              "--reference/--filter-option/--intervention-penalty need --filter",
+              file=sys.stderr)
+        return 2
+    if not args.lagrangian and (args.cost_limit != 0.0 or args.lambda_lr != 0.05):
+        print("safe-nav train: error: --cost-limit/--lambda-lr need --lagrangian",
+              file=sys.stderr)
+        return 2
+    from filters.errors import SafeNavError
+
+    filter_kwargs = {"risk": args.filter, **options} if args.filter else None
+    try:
+        _, report = train_ppo(
+            args.env_id, args.timesteps, args.seed, n_envs=args.n_envs,
+            env_kwargs=dict(args.env_options), filter_kwargs=filter_kwargs,
+            intervention_penalty=args.intervention_penalty, filter_reference=args.reference,
+            lagrangian=args.lagrangian,
+            cost_limit=args.cost_limit, lambda_lr=args.lambda_lr, eval_freq=args.eval_freq,
+            eval_episodes=args.eval_episodes, vec_env=args.vec_env,
+            tensorboard_log=args.tensorboard, print_metrics=not args.quiet,
+            normalise_actions=not args.physical_actions,
+            progress_bar=not args.no_progress, save_path=args.output,
+        )
+    except SafeNavError as exc:  # bad options, found before any training
+        print(f"safe-nav train: error: {exc}", file=sys.stderr)
+        return 2
+    print(f"trained {report.total_timesteps} steps in {report.wall_time:.1f} s "
+          f"({report.steps_per_second:.0f} steps/s); saved to {report.save_path}; "
+          f"metrics in {report.metrics_path}")
+    if report.safety:
+        print("last rollout: " + ", ".join(f"{k} {v:.3g}" for k, v in report.safety.items()))
+    if report.lagrange_multiplier is not None:
+        print(f"final Lagrange multiplier {report.lagrange_multiplier:.4g}")
+    if report.best_model_path is not None:
+        print(f"best model (evaluation return) in {report.best_model_path}")
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,332 @@
+"""Monte Carlo evaluation of filtered against unfiltered reference planners.
+
+An *episode* is one scenario, one risk setting, one planner and one seed. Episodes
+with the same seed see the same obstacle noise whatever the risk setting (the
+environment draws the same random numbers each step whatever the action), so
+risk settings are compared on common random numbers.
+
+:func:`evaluate` is the orchestration: it checks every setting and the policy file
+*before* anything runs (:func:`check_specs`), resumes from the results CSV of the
+same run (its run key must match: :func:`agents.evaluation.records.check_run_key`; failed rows
+are run again), runs the rest on an executor and writes each record as it finishes.
+Every episode returns an :class:`~agents.evaluation.records.EpisodeRecord`; a failing episode
+(an exception, a NaN) is recorded with ``error`` set instead of stopping the run.
+
+The parts live in :mod:`agents.evaluation.records` (specs, records, CSV, run keys),
+:mod:`agents.evaluation.runner` (one episode) and
+:mod:`agents.evaluation.executors` (process pool, Ray);
+their public names are re-exported here.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import fields, replace
+from pathlib import Path
+from typing import Any
+
+from agents.errors import OutputPathError, RecordsFileError
+from agents.evaluation.executors import Executor, make_executor
+from agents.evaluation.records import (
+    FILTER_STATUSES,
+    KEY_FIELDS,
+    PAPER_SCENARIOS,
+    PLANNERS,
+    RECORD_FIELDS,
+    REFERENCES,
+    RISKS,
+    EpisodeRecord,
+    EpisodeSpec,
+    RecordWriter,
+    check_run_key,
+    read_records,
+    run_key,
+    run_key_path,
+    sort_records,
+    write_records,
+)
+from agents.evaluation.runner import (
+    Trajectory,
+    check_policy,
+    load_policy,
+    make_env,
+    run_episode,
+    run_spec,
+)
+from filters.errors import InvalidParameterError
+
+__all__ = [
+    "FILTER_STATUSES",
+    "KEY_FIELDS",
+    "PAPER_SCENARIOS",
+    "PLANNERS",
+    "RECORD_FIELDS",
+    "REFERENCES",
+    "RISKS",
+    "EpisodeRecord",
+    "EpisodeSpec",
+    "EvaluationInterrupted",
+    "RecordWriter",
+    "Trajectory",
+    "check_policy",
+    "check_specs",
+    "episode_specs",
+    "evaluate",
+    "make_env",
+    "read_records",
+    "run_episode",
+    "run_spec",
+    "run_specs",
+    "sort_records",
+]
+
+SPEC_OPTIONS = tuple(f.name for f in fields(EpisodeSpec)
+                     if f.name not in ("scenario", "risk", "seed", "policy_sha256"))
+"""Keywords of :func:`evaluate` that become fields of every :class:`EpisodeSpec`."""
+
+
+class EvaluationInterrupted(KeyboardInterrupt):
+    """Ctrl-C during :func:`evaluate`; the finished episodes are saved.
+
+    Attributes
+    ----------
+    finished, total
+        Episodes finished (and saved, if there is a CSV) and asked for.
+    csv_path
+        The results CSV, or ``None``.
+    """
+
+    def __init__(self, finished: int, total: int, csv_path: Path | None) -> None:
+        super().__init__(f"interrupted after {finished} of {total} episodes")
+        self.finished, self.total, self.csv_path = finished, total, csv_path
+
+
+def episode_specs(
+    scenarios: Sequence[str],
+    risks: Sequence[str],
+    episodes: int,
+    seed: int = 0,
+    **spec_kwargs: Any,
+) -> list[EpisodeSpec]:
+    """Every (scenario, risk, episode) combination; episode ``i`` uses seed ``seed + i``.
+
+    Raises
+    ------
+    InvalidParameterError
+        For an unknown risk, planner, reference, noise preset or keyword, or
+        ``episodes < 1``.
+    ScenarioError
+        For an unknown scenario.
+    """
+    unknown = sorted(set(spec_kwargs) - set(SPEC_OPTIONS))
+    if unknown:
+        raise InvalidParameterError(f"unknown episode setting(s) {unknown}; expected some of "
+                                    f"{list(SPEC_OPTIONS)}")
+    for risk in risks:
+        if risk not in RISKS:
+            raise InvalidParameterError(f"risk must be one of {RISKS}, got {risk!r}")
+    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
+        raise InvalidParameterError(f"episodes must be an integer >= 1, got {episodes!r}")
+    return [EpisodeSpec(scenario=s, risk=r, seed=seed + i, **spec_kwargs)
+            for s in scenarios for r in risks for i in range(episodes)]
+
+
+def check_specs(specs: Sequence[EpisodeSpec]) -> list[EpisodeSpec]:
+    """Check every setting before anything runs; return the specs with the policy's hash.
+
+    Loads each PPO policy once (a missing or corrupt file fails here, not in every
+    episode) and builds the filtered environment of each distinct setting once, so
+    that the filter's and the environment's own validation run up front.
+
+    Raises
+    ------
+    PolicyFileError
+        If a policy file is missing, corrupt or does not load.
+    InvalidParameterError, ScenarioError, ConfigError
+        For a setting the filter or the environment rejects.
+    """
+    hashes: dict[str, str] = {}
+    checked = []
+    built: set[tuple] = set()
+    for spec in specs:
+        if spec.planner == "ppo":
+            if spec.policy_path not in hashes:
+                _, hashes[spec.policy_path] = load_policy(spec.policy_path)
+            if spec.policy_sha256 and spec.policy_sha256 != hashes[spec.policy_path]:
+                raise InvalidParameterError(
+                    f"policy_sha256 {spec.policy_sha256[:12]}... does not match the file "
+                    f"{spec.policy_path or 'shipped'} ({hashes[spec.policy_path][:12]}...)")
+            spec = replace(spec, policy_sha256=hashes[spec.policy_path])
+        setting = replace(spec, seed=0).key()
+        if setting not in built:
+            env, _ = make_env(spec)
+            env.close()
+            built.add(setting)
+        checked.append(spec)
+    return checked
+
+
+def run_specs(
+    specs: Sequence[EpisodeSpec],
+    *,
+    workers: int = 1,
+    executor: str | Executor = "process",
+    on_record: Any = None,
+):
+    """Run episodes, yielding records as they finish (order of completion).
+
+    ``executor="process"`` spreads them over ``workers`` local processes
+    (``workers=1`` runs in this process); ``executor="ray"`` submits them as Ray
+    tasks; an :class:`~agents.evaluation.executors.Executor` instance is used as is (and left
+    open, so its workers serve the next call too).
+    """
+    own = not isinstance(executor, Executor)
+    runner = make_executor(executor, workers) if own else executor
+    try:
+        for record in runner.run(specs):
+            if on_record is not None:
+                on_record(record)
+            yield record
+    except BaseException:
+        if own:
+            runner.terminate()
+        raise
+    if own:
+        runner.close()
+
+
+def _output_csv(csv_path: str | Path) -> Path:
+    path = Path(csv_path)
+    for folder in (path.parent, *path.parent.parents):
+        if folder.exists():
+            if not folder.is_dir():
+                raise OutputPathError(f"output folder {folder} is a file, not a folder; "
+                                      "choose another --output")
+            break
+    if path.exists() and not path.is_file():
+        raise OutputPathError(f"results file {path} is a folder")
+    return path
+
+
+def _resume(path: Path, specs: Sequence[EpisodeSpec], key: dict[str, Any],
+            overwrite: bool) -> list[EpisodeRecord]:
+    """The finished records of ``specs`` in ``path``; drops its failed rows from the file."""
+    if overwrite:
+        for old in (path, run_key_path(path)):
+            if old.exists():
+                old.unlink()
+    check_run_key(path, key)
+    if not (path.exists() and path.stat().st_size):
+        return []
+    try:
+        stored = read_records(path)
+    except RecordsFileError as exc:
+        raise RecordsFileError(f"{exc}; use another output folder or --overwrite") from None
+    latest: dict[tuple, EpisodeRecord] = {}
+    for record in stored:
+        latest[record.key()] = record
+    kept = [r for r in latest.values() if not r.error]
+    if len(kept) != len(stored):  # failed or repeated rows: rewrite without them
+        write_records(path, kept)
+    wanted = {spec.key() for spec in specs}
+    return [r for r in kept if r.key() in wanted]
+
+
+def evaluate(
+    scenarios: Sequence[str] = PAPER_SCENARIOS,
+    risks: Sequence[str] = RISKS,
+    *,
+    episodes: int = 100,
+    seed: int = 0,
+    workers: int = 1,
+    executor: str | Executor = "process",
+    csv_path: str | Path | None = None,
+    progress: bool = True,
+    overwrite: bool = False,
+    specs: Sequence[EpisodeSpec] | None = None,
+    vary: Sequence[str] = (),
+    **spec_kwargs: Any,
+) -> list[EpisodeRecord]:
+    """Run the Monte Carlo comparison of risk settings and return every episode's record.
+
+    Parameters
+    ----------
+    scenarios
+        Scenario names (``"HeadOn"``, ...; gym ids are accepted with a warning).
+    risks
+        Risk settings, ``"none"`` being the unfiltered planner.
+    episodes
+        Episodes per (scenario, risk); episode ``i`` uses seed ``seed + i``.
+    workers
+        Local worker processes (``executor="process"``).
+    executor
+        ``"process"`` (default), ``"ray"``, or an :class:`~agents.evaluation.executors.Executor`
+        to reuse (a sweep passes one, so its worker pool serves every grid point).
+    csv_path
+        If given, records are appended there as they finish, and the finished episodes
+        of the same run are not run again (an interrupted run resumes; failed rows are
+        run again). The run key (``<csv stem>.run.json``) must match.
+    progress
+        Show a progress bar.
+    overwrite
+        Delete the CSV and its run key first.
+    specs
+        Run these episodes instead of the (scenarios x risks x episodes) grid.
+    vary
+        Key fields besides scenario, risk and seed that vary within the run (see
+        :func:`agents.evaluation.records.run_key`).
+    **spec_kwargs
+        ``planner``, ``reference``, ``alpha``, ``delta``, ``epsilon``, ``policy_path``,
+        ``noise``, ``filter_options``, ``env_options`` (see :class:`EpisodeSpec`).
+
+    Returns
+    -------
+    list of EpisodeRecord
+        Sorted by scenario, risk and seed, whatever the order they finished in, so the
+        result does not depend on the number of workers.
+
+    Raises
+    ------
+    PolicyFileError, InvalidParameterError, ScenarioError, ConfigError
+        For a bad setting or policy, before any episode runs.
+    RunMismatchError, RecordsFileError, OutputPathError
+        If ``csv_path`` holds another run's results or cannot be written.
+    EvaluationInterrupted
+        On Ctrl-C, after saving the finished episodes.
+    """
+    if specs is None:
+        specs = episode_specs(scenarios, risks, episodes, seed, **spec_kwargs)
+    elif spec_kwargs:
+        raise InvalidParameterError(f"pass either specs or settings, got both ({spec_kwargs})")
+    specs = check_specs(specs)
+    done: list[EpisodeRecord] = []
+    writer = None
+    path = None
+    if csv_path is not None:
+        path = _output_csv(csv_path)
+        done = _resume(path, specs, run_key(specs, vary=vary), overwrite)
+        finished = {r.key() for r in done}
+        todo = [spec for spec in specs if spec.key() not in finished]
+        writer = RecordWriter(path)
+    else:
+        todo = list(specs)
+    records = list(done)
+    bar = None
+    try:
+        iterator = run_specs(todo, workers=workers, executor=executor, on_record=writer)
+        if progress and todo:
+            from tqdm.auto import tqdm
+
+            bar = tqdm(iterator, total=len(todo), desc="episodes", unit="ep")
+            iterator = bar
+        for record in iterator:
+            records.append(record)
+    except KeyboardInterrupt as exc:
+        raise EvaluationInterrupted(len(records), len(specs), path) from exc
+    finally:
+        if bar is not None:
+            bar.close()
+        if writer is not None:
+            writer.close()
+    return sort_records(records)
+

@@ -1,0 +1,583 @@
+"""Figures of an evaluation: the paper's Fig. 2-5 and a few more, saved as PNG/GIF.
+
+All functions take plain data (records, trajectories, summary rows), draw with
+matplotlib's Agg backend, save to ``path`` and return it. matplotlib is imported
+inside the functions only, never when :mod:`agents.evaluation.plots` is imported.
+
+Trajectories are read duck-typed: ``ego`` (steps+1, 2), ``obstacles``
+(steps+1, n, 2), ``obstacle_radii`` (n,), ``ego_radius`` and ``goal``
+(:class:`agents.evaluation.evaluate.Trajectory` has them). A trajectory that also carries
+``ego_velocities`` (steps+1, 2), ``inputs`` (steps, 2) and ``dt`` (as
+:class:`agents.experiments.reproduce.EncounterRecord` does) gets its collisions located in
+continuous time exactly (:func:`step_clearance`); without them the ego is taken on
+the chord between its samples, which is off the true arc by at most
+``dt² a_max / 8`` (0.05 m at 10 m/s², dt = 0.2 s) and is labelled so.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from agents.evaluation.evaluate import EpisodeRecord, Trajectory
+from agents.evaluation.summary import RISK_ORDER, SummaryRow, short_name
+from filters.errors import InvalidArrayError, InvalidParameterError
+from filters.wrapper import FALLBACK_STATUSES
+
+RISK_COLORS = {"none": "tab:gray", "mean": "tab:red", "cvar": "tab:blue", "dr_cvar": "tab:green"}
+"""The paper's colours: red mean, blue CVaR, green DR-CVaR (grey: unfiltered)."""
+RISK_LABELS = {"none": "unfiltered", "mean": "mean", "cvar": "CVaR", "dr_cvar": "DR-CVaR"}
+
+GIF_LEGEND = (
+    ("ego", (31, 119, 180)),
+    ("obstacles", (0, 0, 0)),
+    ("prediction samples", (150, 150, 150)),
+    ("safe halfspace (step 1)", (44, 160, 44)),
+    ("goal", (44, 160, 44)),
+)
+"""Legend of the environment's frames (colours of :mod:`safe_nav_env.rendering`)."""
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(fig, path: str | Path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120, bbox_inches="tight")
+    _pyplot().close(fig)
+    return path
+
+
+def _arena(ax, bounds=((-5.0, -5.0), (5.0, 5.0))) -> None:
+    (x0, y0), (x1, y1) = bounds
+    ax.set_xlim(x0, x1)
+    ax.set_ylim(y0, y1)
+    ax.set_aspect("equal")
+    ax.grid(alpha=0.3)
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+
+
+# ---------------------------------------------------------------------------- clearance
+@dataclass(frozen=True)
+class StepClearance:
+    """Closest approach of the ego and one obstacle during one step.
+
+    Attributes
+    ----------
+    clearance
+        :math:`\\min_{s \\in [0, dt]} \\|y(s) - p(s)\\| - r_A - r_O`, in m.
+    closest
+        The time ``s`` of that minimum within the step, in s.
+    contact
+        The first ``s`` at which the clearance reaches 0 (``nan`` if it stays > 0), in s.
+    """
+
+    clearance: float
+    closest: float
+    contact: float
+
+
+def step_clearance(
+    ego_position: np.ndarray,
+    ego_velocity: np.ndarray,
+    ego_input: np.ndarray,
+    obstacle_start: np.ndarray,
+    obstacle_end: np.ndarray,
+    *,
+    radius_sum: float,
+    dt: float,
+) -> StepClearance:
+    r"""Exact minimum clearance over one step: ego on its arc, obstacle on its chord.
+
+    .. math::
+        \Delta(s) = (p - q_0) + s\,(v - (q_1 - q_0)/dt) + \tfrac{s^2}{2} u,
+        \qquad s \in [0, dt]
+
+    :math:`\|\Delta(s)\|^2` is a quartic in s; its minimum is at an end point or at a
+    real root of its cubic derivative, and the first contact is the smallest root
+    of :math:`\|\Delta(s)\|^2 = (r_A + r_O)^2` in the step.
+
+    Parameters
+    ----------
+    ego_position, ego_velocity, ego_input
+        Ego position (m), velocity (m/s) and the input held over the step (m/s²).
+    obstacle_start, obstacle_end
+        Obstacle positions at the start and the end of the step, in m.
+    radius_sum
+        :math:`r_A + r_O`, in m, ``>= 0``.
+    dt
+        Step length, in s, ``> 0``.
+
+    Raises
+    ------
+    InvalidArrayError
+        If a vector is not finite.
+    InvalidParameterError
+        If ``dt <= 0`` or ``radius_sum < 0``.
+    """
+    vectors = [np.asarray(v, dtype=float) for v in
+               (ego_position, ego_velocity, ego_input, obstacle_start, obstacle_end)]
+    if not all(np.all(np.isfinite(v)) for v in vectors):
+        raise InvalidArrayError(f"step_clearance needs finite vectors, got {vectors}")
+    if not (math.isfinite(dt) and dt > 0):
+        raise InvalidParameterError(f"dt must be finite and > 0 (s), got {dt!r}")
+    if not (math.isfinite(radius_sum) and radius_sum >= 0):
+        raise InvalidParameterError(f"radius_sum must be finite and >= 0 (m), got {radius_sum!r}")
+    p, v, u, q0, q1 = vectors
+    d0, d1, d2 = p - q0, v - (q1 - q0) / dt, 0.5 * u
+    # ||d0 + d1 s + d2 s²||² = c4 s⁴ + c3 s³ + c2 s² + c1 s + c0
+    quartic = np.array([d2 @ d2, 2 * d1 @ d2, d1 @ d1 + 2 * d0 @ d2, 2 * d0 @ d1, d0 @ d0])
+    derivative = np.polyder(quartic)
+    candidates = [0.0, dt] + [float(r.real) for r in _roots(derivative)
+                              if abs(r.imag) < 1e-9 and 0.0 < r.real < dt]
+    values = [np.polyval(quartic, s) for s in candidates]
+    best = int(np.argmin(values))
+    closest = candidates[best]
+    clearance = math.sqrt(max(values[best], 0.0)) - radius_sum
+    contact = math.nan
+    if clearance <= 0.0:
+        if np.polyval(quartic, 0.0) <= radius_sum**2:
+            contact = 0.0
+        else:
+            shifted = quartic.copy()
+            shifted[-1] -= radius_sum**2
+            roots = [float(r.real) for r in _roots(shifted)
+                     if abs(r.imag) < 1e-7 and -1e-12 <= r.real <= closest + 1e-12]
+            contact = min(roots) if roots else closest
+    return StepClearance(clearance=clearance, closest=closest, contact=contact)
+
+
+def _roots(coefficients: np.ndarray) -> np.ndarray:
+    scale = np.max(np.abs(coefficients))
+    if scale == 0.0:
+        return np.zeros(0)
+    trimmed = np.trim_zeros(np.where(np.abs(coefficients) <= 1e-14 * scale, 0.0, coefficients),
+                            "f")
+    return np.roots(trimmed) if trimmed.size > 1 else np.zeros(0)
+
+
+@dataclass(frozen=True)
+class CollisionMark:
+    """Where and when the ego first touches one obstacle in an episode.
+
+    ``step`` is the 1-based step during which contact happens; ``time`` the
+    contact time from the episode start, in s; positions at that instant, in m;
+    ``exact`` is ``False`` when the ego was taken on the chord between its samples.
+    """
+
+    obstacle: int
+    step: int
+    time: float
+    ego_position: np.ndarray
+    obstacle_position: np.ndarray
+    clearance: float
+    exact: bool
+
+
+def find_collisions(trajectory: Any, *, dt: float | None = None) -> list[CollisionMark]:
+    """First contact of the ego with each obstacle, in continuous time.
+
+    Uses ``trajectory.ego_velocities``, ``.inputs`` and ``.dt`` when present (exact);
+    otherwise the ego is taken on the chord between its samples (``exact=False``)
+    with step length ``dt`` (default ``trajectory.dt``, else 0.2 s).
+    ``clearance`` is the deepest clearance of that step, in m.
+    """
+    ego = np.asarray(trajectory.ego, dtype=float)
+    obstacles = np.asarray(trajectory.obstacles, dtype=float)
+    if obstacles.ndim != 3 or obstacles.shape[0] != ego.shape[0]:
+        raise InvalidArrayError(f"obstacles must have shape ({ego.shape[0]}, n, 2), got "
+                                f"{obstacles.shape}")
+    radii = np.asarray(trajectory.obstacle_radii, dtype=float) + float(trajectory.ego_radius)
+    velocities = getattr(trajectory, "ego_velocities", None)
+    inputs = getattr(trajectory, "inputs", None)
+    step_length = float(dt if dt is not None else getattr(trajectory, "dt", 0.2))
+    exact = velocities is not None and inputs is not None
+    marks = []
+    for i in range(obstacles.shape[1]):
+        for k in range(ego.shape[0] - 1):
+            if exact:
+                v, u = np.asarray(velocities[k], float), np.asarray(inputs[k], float)
+            else:
+                v, u = (ego[k + 1] - ego[k]) / step_length, np.zeros(2)
+            result = step_clearance(ego[k], v, u, obstacles[k, i], obstacles[k + 1, i],
+                                    radius_sum=float(radii[i]), dt=step_length)
+            if result.clearance <= 0.0:
+                s = result.contact
+                marks.append(CollisionMark(
+                    obstacle=i, step=k + 1, time=k * step_length + s,
+                    ego_position=ego[k] + s * v + 0.5 * s * s * u,
+                    obstacle_position=obstacles[k, i]
+                    + (s / step_length) * (obstacles[k + 1, i] - obstacles[k, i]),
+                    clearance=result.clearance, exact=exact))
+                break
+    return marks
+
+
+# ---------------------------------------------------------------------------- figures
+def plot_trajectories(
+    trajectories: Mapping[str, Any], path: str | Path, *, title: str = "", every: int = 5,
+    bounds: tuple[tuple[float, float], tuple[float, float]] | None = None,
+) -> Path:
+    """Ego paths of one seed under each risk setting, obstacles in black (Fig. 4, left).
+
+    ``bounds`` ``((x_min, y_min), (x_max, y_max))`` in m; default: the paths, the
+    discs and the goal with a 0.5 m margin. The discs (ego in the risk's colour,
+    obstacles in black) are drawn to scale at every ``every``-th sample and at the end.
+    Each first contact with an obstacle (:func:`find_collisions`) is marked with an
+    ``x`` at the ego's centre, both discs drawn at that instant with a thick outline,
+    and the contact time.
+    """
+    if every < 1:
+        raise InvalidParameterError(f"every must be >= 1, got {every!r}")
+    plt = _pyplot()
+    if bounds is None:
+        bounds = _fit_bounds(trajectories.values())
+    (x0, y0), (x1, y1) = bounds
+    width = 7.0
+    fig, ax = plt.subplots(figsize=(width, max(3.0, min(8.0, width * (y1 - y0) / (x1 - x0)))))
+    _arena(ax, bounds)
+    drawn_obstacles = False
+    collision_label = None
+    for risk in sorted(trajectories, key=lambda r: RISK_ORDER.get(r, 9)):
+        traj = trajectories[risk]
+        color = RISK_COLORS.get(risk, "k")
+        ego = np.asarray(traj.ego)
+        instants = sorted(set(range(0, len(ego), every)) | {len(ego) - 1})
+        ax.plot(ego[:, 0], ego[:, 1], "-o", ms=2, color=color,
+                label=RISK_LABELS.get(risk, risk))
+        for t in instants:
+            ax.add_patch(plt.Circle(ego[t], traj.ego_radius, facecolor=color, alpha=0.12,
+                                    edgecolor=color, lw=0.6))
+        if not drawn_obstacles and traj.obstacles.size:
+            for i in range(traj.obstacles.shape[1]):
+                path_i = traj.obstacles[:, i]
+                ax.plot(path_i[:, 0], path_i[:, 1], "-", color="k", lw=1)
+                for t in instants:
+                    ax.add_patch(plt.Circle(path_i[t], traj.obstacle_radii[i], facecolor="k",
+                                            alpha=0.12, edgecolor="k", lw=0.6))
+            ax.plot(*traj.goal, "k*", ms=12, label="goal")
+            drawn_obstacles = True
+        for mark in find_collisions(traj):
+            collision_label = ("collision (continuous time)" if mark.exact
+                               else "collision (ego on chord, ±dt²a/8)")
+            ax.add_patch(plt.Circle(mark.ego_position, traj.ego_radius, fill=False,
+                                    edgecolor=color, lw=2.0, gid="collision-ego-disc"))
+            ax.add_patch(plt.Circle(mark.obstacle_position, traj.obstacle_radii[mark.obstacle],
+                                    fill=False, edgecolor="k", lw=2.0,
+                                    gid="collision-obstacle-disc"))
+            ax.plot(*mark.ego_position, "x", color="crimson", ms=10, mew=2.5,
+                    gid="collision-marker")
+            ax.annotate(f"t = {mark.time:.2f} s", mark.ego_position, fontsize=7,
+                        color=color, textcoords="offset points", xytext=(6, 6))
+    if collision_label is not None:
+        ax.plot([], [], "x", color="crimson", ms=8, mew=2, label=collision_label)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
+    ax.set_title(title)
+    return _save(fig, path)
+
+
+def _fit_bounds(trajectories: Any, margin: float = 0.5) -> tuple[tuple[float, float], ...]:
+    points = []
+    for traj in trajectories:
+        reach = max([float(traj.ego_radius)] + list(np.asarray(traj.obstacle_radii, float)))
+        points.append(np.asarray(traj.ego, float).reshape(-1, 2))
+        points.append(np.asarray(traj.obstacles, float).reshape(-1, 2))
+        points.append(np.asarray(traj.goal, float).reshape(1, 2))
+    if not points:
+        return ((-5.0, -5.0), (5.0, 5.0))
+    cloud = np.concatenate(points)
+    cloud = cloud[np.all(np.isfinite(cloud), axis=1)]
+    pad = margin + reach
+    low, high = cloud.min(axis=0) - pad, cloud.max(axis=0) + pad
+    return (tuple(low.tolist()), tuple(high.tolist()))
+
+
+def plot_distance_boxplots(records: Sequence[EpisodeRecord], path: str | Path) -> Path:
+    """Box plots of the minimum distance to collision per risk, one panel per scenario.
+
+    The paper's Fig. 4, right column.
+    """
+    plt = _pyplot()
+    scenarios = sorted({r.scenario for r in records})
+    fig, axes = plt.subplots(1, len(scenarios), figsize=(3.2 * len(scenarios), 3.6),
+                             squeeze=False, sharey=True)
+    for ax, scenario in zip(axes[0], scenarios, strict=True):
+        risks = sorted({r.risk for r in records if r.scenario == scenario},
+                       key=lambda r: RISK_ORDER.get(r, 9))
+        data = [[r.min_distance for r in records
+                 if r.scenario == scenario and r.risk == risk and not r.error
+                 and np.isfinite(r.min_distance)] for risk in risks]
+        boxes = ax.boxplot(data, patch_artist=True, whis=(0, 100))
+        for patch, risk in zip(boxes["boxes"], risks, strict=True):
+            patch.set_facecolor(RISK_COLORS.get(risk, "w"))
+            patch.set_alpha(0.6)
+        ax.set_xticks(range(1, len(risks) + 1), [RISK_LABELS.get(r, r) for r in risks],
+                      rotation=30)
+        ax.axhline(0.0, color="k", lw=1, ls="--")
+        ax.set_title(short_name(scenario))
+        ax.grid(alpha=0.3, axis="y")
+    axes[0][0].set_ylabel("min distance to collision (m)")
+    return _save(fig, path)
+
+
+def plot_window_boxplots(
+    distances: Mapping[str, Mapping[str, np.ndarray]],
+    windows: Mapping[str, tuple[int, int]],
+    path: str | Path,
+    *,
+    dt: float = 0.2,
+    title: str = "",
+) -> Path:
+    """Per-step box plots of the sampled distance to collision in each scenario's window.
+
+    The paper's Fig. 4, bottom row: for every sample ``k`` of the window, one box
+    per risk over the episodes (and the obstacles) of the distance at ``k``.
+
+    Parameters
+    ----------
+    distances
+        ``distances[scenario][risk]``: array (episodes, samples) of the minimum over
+        the obstacles of the sampled distance to collision at each sample, in m.
+    windows
+        ``windows[scenario] = (first, last)``: sample indices, both included.
+    """
+    plt = _pyplot()
+    scenarios = list(distances)
+    fig, axes = plt.subplots(1, len(scenarios), figsize=(3.6 * len(scenarios), 3.6),
+                             squeeze=False)
+    for ax, scenario in zip(axes[0], scenarios, strict=True):
+        first, last = windows[scenario]
+        risks = sorted(distances[scenario], key=lambda r: RISK_ORDER.get(r, 9))
+        width = 0.8 / max(1, len(risks))
+        steps = np.arange(first, last + 1)
+        for j, risk in enumerate(risks):
+            values = np.asarray(distances[scenario][risk], dtype=float)
+            data = [values[np.isfinite(values[:, k]), k] if k < values.shape[1] else []
+                    for k in steps]
+            positions = np.arange(len(steps)) + (j - (len(risks) - 1) / 2) * width
+            boxes = ax.boxplot(data, positions=positions, widths=width * 0.9,
+                               patch_artist=True, whis=(0, 100), manage_ticks=False)
+            for patch in boxes["boxes"]:
+                patch.set_facecolor(RISK_COLORS.get(risk, "w"))
+                patch.set_alpha(0.6)
+            ax.plot([], [], "s", color=RISK_COLORS.get(risk, "w"),
+                    label=RISK_LABELS.get(risk, risk))
+        ax.set_xticks(range(len(steps)), [f"{k}\n{k * dt:.1f} s" for k in steps])
+        ax.axhline(0.0, color="k", lw=1, ls="--")
+        ax.set_title(f"{short_name(scenario)}: samples {first}-{last}")
+        ax.set_xlabel("sample (time)")
+        ax.grid(alpha=0.3, axis="y")
+    axes[0][0].set_ylabel("sampled distance to collision (m)")
+    axes[0][-1].legend(fontsize=7)
+    if title:
+        fig.suptitle(title, y=1.04)
+    return _save(fig, path)
+
+
+def plot_collision_rates(
+    rows: Sequence[SummaryRow], path: str | Path, *, ylabel: str = "collision rate",
+) -> Path:
+    """Collision rate per scenario and risk with Wilson 95 % intervals.
+
+    Every bar is outlined and labelled with its count, e.g. ``"3/300"``; a 0 % bar
+    is drawn as a thick line at 0 (gid ``"zero-bar"``) so it cannot be mistaken for
+    a missing one.
+    """
+    plt = _pyplot()
+    scenarios = sorted({r.scenario for r in rows})
+    risks = sorted({r.risk for r in rows}, key=lambda r: RISK_ORDER.get(r, 9))
+    width = 0.8 / max(1, len(risks))
+    fig, ax = plt.subplots(figsize=(2.2 * len(scenarios) + 2, 3.8))
+    for j, risk in enumerate(risks):
+        color = RISK_COLORS.get(risk, "k")
+        xs, rates, low, high, labels = [], [], [], [], []
+        for i, scenario in enumerate(scenarios):
+            match = [r for r in rows if r.scenario == scenario and r.risk == risk]
+            if not match:
+                continue
+            row = match[0]
+            n = row.episodes - row.failed
+            rate = row.collision_rate if n else 0.0
+            xs.append(i + (j - (len(risks) - 1) / 2) * width)
+            rates.append(rate)
+            # Clipped at 0: the interval's ends carry rounding error at rates 0 and 1.
+            low.append(max(0.0, rate - row.collision_low) if n else 0.0)
+            high.append(max(0.0, row.collision_high - rate) if n else 0.0)
+            labels.append(f"{int(round(rate * n))}/{n}")
+        ax.bar(xs, rates, width, yerr=[low, high], capsize=3, color=color, alpha=0.8,
+               edgecolor=color, linewidth=1.2, label=RISK_LABELS.get(risk, risk))
+        for x, rate, text, top in zip(xs, rates, labels, high, strict=True):
+            if rate == 0.0:
+                ax.plot([x - 0.45 * width, x + 0.45 * width], [0.0, 0.0], color=color, lw=4,
+                        solid_capstyle="butt", clip_on=False, zorder=5, gid="zero-bar",
+                        label=f"_zero {risk} {text}")
+            ax.text(x, rate + top + 0.02, text, ha="center", va="bottom", fontsize=6,
+                    rotation=90, gid="bar-count")
+    ax.set_xticks(range(len(scenarios)), [short_name(s) for s in scenarios])
+    ax.set_ylabel(ylabel)
+    ax.set_ylim(0, 1.18)
+    ax.set_yticks(np.linspace(0, 1, 6))
+    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=len(risks),
+              frameon=False)
+    ax.grid(alpha=0.3, axis="y")
+    return _save(fig, path)
+
+
+def plot_safe_polytopes(
+    trajectory: Trajectory | Any, path: str | Path, *, every: int = 3,
+    bounds=((-5.0, -5.0), (5.0, 5.0)), title: str = "",
+) -> Path:
+    """Ego and obstacle paths with the safe polytope of every ``every``-th step (Fig. 5).
+
+    The polytope at step t is the intersection of the first-step halfspaces of all
+    obstacles computed at t, clipped to the arena.
+    """
+    from filters.plotting import safe_polygon
+
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(7, 5))
+    _arena(ax, bounds)
+    low, high = np.asarray(bounds[0]), np.asarray(bounds[1])
+    for t in range(0, len(trajectory.halfspaces), every):
+        normals, offsets = trajectory.halfspaces[t]
+        polygon = safe_polygon(normals[:, 0], offsets[:, 0], (low, high))
+        if len(polygon) >= 3:
+            ax.fill(polygon[:, 0], polygon[:, 1], color="tab:green", alpha=0.08)
+            ax.plot(*np.vstack([polygon, polygon[:1]]).T, color="tab:green", lw=0.6, alpha=0.6)
+    ego = trajectory.ego
+    ax.plot(ego[:, 0], ego[:, 1], "-o", color="tab:blue", ms=3, label="ego")
+    for t in range(0, len(ego), every):
+        ax.add_patch(plt.Circle(ego[t], trajectory.ego_radius, color="tab:blue", alpha=0.15))
+    colors = plt.cm.autumn(np.linspace(0, 0.8, max(1, trajectory.obstacles.shape[1])))
+    for i in range(trajectory.obstacles.shape[1]):
+        path_i = trajectory.obstacles[:, i]
+        ax.plot(path_i[:, 0], path_i[:, 1], "-", color=colors[i], label=f"obstacle {i + 1}")
+        for t in range(0, len(path_i), every):
+            ax.add_patch(plt.Circle(path_i[t], trajectory.obstacle_radii[i], color=colors[i],
+                                    alpha=0.15))
+    fallback = [t + 1 for t, s in enumerate(trajectory.statuses) if s in FALLBACK_STATUSES]
+    if fallback:
+        ax.plot(ego[fallback, 0], ego[fallback, 1], "kx", ms=8, label="fallback step")
+    ax.plot(*trajectory.goal, "k*", ms=12, label="goal")
+    ax.legend(fontsize=7, loc="best")
+    ax.set_title(title)
+    return _save(fig, path)
+
+
+def save_gif(
+    frames: Sequence[np.ndarray],
+    path: str | Path,
+    fps: int = 5,
+    *,
+    label: str = "",
+    legend: Sequence[tuple[str, tuple[int, int, int]]] = GIF_LEGEND,
+) -> Path:
+    """Write RGB frames (H, W, 3) uint8 as an animated GIF (Pillow, a matplotlib dependency).
+
+    A banner is added under every frame with ``label`` (e.g. the risk setting:
+    ``"DR-CVaR (alpha 0.2, eps 0.05 m)"``) and the colour legend ``legend``
+    (``(text, (r, g, b))`` pairs; by default the environment's colours).
+
+    Raises
+    ------
+    InvalidParameterError
+        If there are no frames or ``fps < 1``.
+    InvalidArrayError
+        If the frames are not (H, W, 3) arrays of one size.
+    """
+    from PIL import Image, ImageDraw, ImageFont
+
+    if len(frames) == 0:
+        raise InvalidParameterError("save_gif needs at least one frame, got none")
+    if fps < 1:
+        raise InvalidParameterError(f"fps must be >= 1, got {fps!r}")
+    arrays = [np.asarray(f) for f in frames]
+    shape = arrays[0].shape
+    if len(shape) != 3 or shape[2] != 3 or any(a.shape != shape for a in arrays):
+        raise InvalidArrayError(f"frames must all have shape (H, W, 3), got {shape} and "
+                                f"{sorted({a.shape for a in arrays})}")
+    height, width = shape[:2]
+    size = max(10, width // 45)
+    try:
+        font = ImageFont.load_default(size=size)
+    except TypeError:  # Pillow < 10.1: the fixed bitmap font
+        font = ImageFont.load_default()
+    line = int(1.4 * max(size if hasattr(font, "size") else 0, font.getbbox("Ag")[3]))
+    banner = _gif_banner(width, line, label, legend, font, Image, ImageDraw)
+    images = []
+    for array in arrays:
+        image = Image.new("RGB", (width, height + banner.height), "white")
+        image.paste(Image.fromarray(array.astype(np.uint8)), (0, 0))
+        image.paste(banner, (0, height))
+        images.append(image)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    images[0].save(path, save_all=True, append_images=images[1:], duration=int(1000 / fps),
+                   loop=0)
+    return path
+
+
+def _gif_banner(width, line, label, legend, font, Image, ImageDraw):
+    """The white strip under each GIF frame: the label, then the legend entries."""
+    swatch = line // 2
+    rows: list[list[tuple[str, tuple[int, int, int]]]] = [[]]
+    x = 8
+    for text, color in legend:
+        size = swatch + 6 + int(font.getlength(text)) + 16
+        if x + size > width and rows[-1]:
+            rows.append([])
+            x = 8
+        rows[-1].append((text, color))
+        x += size
+    height = line * (len(rows) + (1 if label else 0)) + 8
+    banner = Image.new("RGB", (width, height), "white")
+    draw = ImageDraw.Draw(banner)
+    y = 4
+    if label:
+        draw.text((8, y), label, fill=(0, 0, 0), font=font)
+        y += line
+    for row in rows:
+        x = 8
+        for text, color in row:
+            draw.ellipse((x, y + 2, x + swatch, y + 2 + swatch), fill=tuple(color))
+            x += swatch + 6
+            draw.text((x, y), text, fill=(0, 0, 0), font=font)
+            x += int(font.getlength(text)) + 16
+        y += line
+    return banner
+
+
+def plot_sweep(points: Sequence[dict], path: str | Path) -> Path:
+    """Collision rate against mean intervention for an epsilon/delta sweep.
+
+    ``points`` are dicts with ``epsilon``, ``delta``, ``collision_rate``,
+    ``mean_intervention`` (and optionally ``goal_rate``).
+    """
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(5.5, 4))
+    deltas = sorted({p["delta"] for p in points})
+    for delta in deltas:
+        pts = sorted((p for p in points if p["delta"] == delta), key=lambda p: p["epsilon"])
+        ax.plot([p["mean_intervention"] for p in pts], [p["collision_rate"] for p in pts],
+                "-o", label=f"δ = {delta:g}")
+        for p in pts:
+            ax.annotate(f"ε={p['epsilon']:g}", (p["mean_intervention"], p["collision_rate"]),
+                        fontsize=7, textcoords="offset points", xytext=(3, 3))
+    ax.set_xlabel("mean intervention ||u_safe - u_ref|| (m/s²)")
+    ax.set_ylabel("collision rate")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    return _save(fig, path)

@@ -1,0 +1,595 @@
+"""One episode: build the filtered environment, run the planner through it, record it.
+
+:func:`run_episode` never raises for a failure inside the episode: the record's
+``error`` says what went wrong (like ``diffrax``'s ``throw=False``), so a Monte
+Carlo run keeps going. :func:`check_policy` and :func:`load_policy` are the checks
+an evaluation makes *before* anything runs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+import time
+import traceback
+import zipfile
+from collections import Counter, OrderedDict
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from agents.errors import PolicyFileError
+from agents.evaluation.records import (
+    FILTER_STATUSES,
+    EpisodeRecord,
+    EpisodeSpec,
+    file_sha256,
+    package_version,
+)
+from agents.experiments.audit import encode_losses
+from filters.errors import InvalidParameterError
+from filters.wrapper import FALLBACK_STATUSES, NOMINAL_STATUSES
+
+__all__ = ["EpisodeStats", "Trajectory", "TrajectoryRecorder", "check_policy",
+           "clear_env_cache", "collision_cause", "load_policy", "make_env", "policy_file",
+           "run_episode", "run_spec"]
+
+FALLBACK_WINDOW = 2
+"""A collision is blamed on a fallback if one ran this many steps before it, or at it."""
+
+
+def collision_cause(collisions: Sequence[bool], sampled_collisions: Sequence[bool],
+                    statuses: Sequence[str]) -> str:
+    """Why an episode's first continuous-time collision happened.
+
+    Parameters
+    ----------
+    collisions, sampled_collisions, statuses
+        Per step ``t = 1..S``: the continuous-time collision flag over the step, the
+        collision flag at its end sample, and the filter's status at the step.
+
+    Returns
+    -------
+    str
+        ``""`` (no collision), ``"fallback"`` (a status that is not nominal, i.e. neither
+        "optimal" nor the unfiltered pass-through, at the first colliding step or in the
+        :data:`FALLBACK_WINDOW` steps before it),
+        ``"inter_sample"`` (the ego overlaps an obstacle only between two samples) or
+        ``"noise"`` (after nominal steps, at a sample: the realised motion went beyond
+        the risk margin).
+    """
+    if not any(collisions):
+        return ""
+    first = list(collisions).index(True)
+    window = statuses[max(0, first - FALLBACK_WINDOW):first + 1]
+    if any(status not in NOMINAL_STATUSES for status in window):
+        return "fallback"
+    if not sampled_collisions[first]:
+        return "inter_sample"
+    return "noise"
+
+
+@dataclass
+class Trajectory:
+    """Positions of one episode, for plots: ego (steps+1, 2), obstacles (steps+1, k, 2).
+
+    ``collisions[t]`` is the continuous-time collision flag of step ``t + 1``
+    (``info["collision"]``), ``statuses[t]`` the filter's status at that step.
+    """
+
+    ego: np.ndarray
+    obstacles: np.ndarray
+    obstacle_radii: np.ndarray
+    ego_radius: float
+    goal: np.ndarray
+    halfspaces: list[tuple[np.ndarray, np.ndarray]]
+    statuses: list[str]
+    frames: list[np.ndarray]
+    collisions: list[bool] = field(default_factory=list)
+
+
+# ---------------------------------------------------------------------------- policies
+def policy_file(policy_path: str | Path = "") -> Path:
+    """The PPO policy file of ``policy_path`` (the shipped one if empty)."""
+    if not policy_path:
+        return _pretrained_policy_path()
+    return Path(policy_path)
+
+
+@functools.cache
+def _pretrained_policy_path() -> Path:
+    from agents.training.ppo import pretrained_policy_path
+
+    return pretrained_policy_path()  # importlib.resources: about 1 ms a call, 4 per episode
+
+
+_SHA_CACHE: dict[tuple[str, int, int], str] = {}
+
+
+def check_policy(policy_path: str | Path = "") -> str:
+    """Check that a PPO policy file exists and is a zip; return the SHA-256 of its content.
+
+    Raises
+    ------
+    PolicyFileError
+        If the file is missing, is a folder, or is not a zip archive (a
+        Stable-Baselines3 policy is one).
+    """
+    path = policy_file(policy_path)
+    if not path.exists():
+        raise PolicyFileError(f"no PPO policy file at {path}")
+    if not path.is_file():
+        raise PolicyFileError(f"the PPO policy {path} is not a file")
+    stat = path.stat()
+    cache_key = (str(path.resolve()), stat.st_mtime_ns, stat.st_size)
+    if cache_key not in _SHA_CACHE:
+        if not zipfile.is_zipfile(path):
+            raise PolicyFileError(f"the PPO policy {path} is not a Stable-Baselines3 .zip file "
+                                  "(corrupt or of another kind)")
+        _SHA_CACHE[cache_key] = file_sha256(path)
+    return _SHA_CACHE[cache_key]
+
+
+_POLICY_CACHE: dict[tuple[str, str], Any] = {}
+
+
+def load_policy(policy_path: str | Path = "", *, sha256: str = "") -> tuple[Any, str]:
+    """Load a PPO policy (cached per process); return it and the SHA-256 of its file.
+
+    Parameters
+    ----------
+    policy_path
+        The policy's ``.zip``; empty for the one shipped with the package.
+    sha256
+        If given, the file's content must have this hash (it may not change during a run).
+
+    Raises
+    ------
+    PolicyFileError
+        If the file is missing or corrupt, does not load, or has another hash.
+    """
+    sha = check_policy(policy_path)
+    if sha256 and sha != sha256:
+        raise PolicyFileError(f"the PPO policy {policy_file(policy_path)} changed during the "
+                              f"run (SHA-256 {sha[:12]}..., expected {sha256[:12]}...)")
+    key = (str(policy_file(policy_path).resolve()), sha)
+    if key not in _POLICY_CACHE:
+        from agents.policies.numpy_policy import TorchActorPolicy, UnsupportedPolicyError
+        from agents.training.ppo import load_ppo, set_torch_threads
+
+        set_torch_threads(1)
+        try:
+            model = load_ppo(policy_file(policy_path))
+        except Exception as exc:  # noqa: BLE001 - SB3/torch/zip raise many kinds
+            raise PolicyFileError(f"cannot load the PPO policy {policy_file(policy_path)} "
+                                  f"({type(exc).__name__}: {exc})".replace("\n", " ")) from exc
+        try:  # the same actions bit for bit, without SB3's per-call overhead
+            _POLICY_CACHE[key] = TorchActorPolicy.from_sb3(model)
+        except UnsupportedPolicyError:
+            _POLICY_CACHE[key] = model
+    return _POLICY_CACHE[key], sha
+
+
+def _load_planner(spec: EpisodeSpec, env: Any) -> tuple[Any, str]:
+    if spec.planner == "mpc":
+        from agents.planners import MPCReferencePlanner
+
+        return MPCReferencePlanner.from_env(env), ""
+    return load_policy(spec.policy_path, sha256=spec.policy_sha256)
+
+
+# ---------------------------------------------------------------------------- environment
+def _unknown_keyword(exc: TypeError, what: str) -> InvalidParameterError | None:
+    message = str(exc)
+    if "unexpected keyword argument" in message:
+        return InvalidParameterError(f"{what}: {message}")
+    return None
+
+
+def make_env(spec: EpisodeSpec, *, render_mode: str | None = None, policy: Any = None,
+             env_kwargs: dict[str, Any] | None = None) -> tuple[Any, Any]:
+    """The filtered (or pass-through) environment of an episode and its planner.
+
+    Parameters
+    ----------
+    spec
+        The episode.
+    render_mode
+        Passed to ``gym.make``.
+    policy
+        A planner to use instead of the spec's (``predict(obs, deterministic=True)``).
+    env_kwargs
+        Further ``gym.make`` keywords that are not recorded (e.g. ``scenario=`` of
+        ``"Custom"``); the recorded ones are ``spec.env_options``.
+
+    Raises
+    ------
+    InvalidParameterError, ScenarioError, ConfigError, PolicyFileError
+        If a setting is invalid or the policy does not load.
+    """
+    import gymnasium as gym
+
+    from filters import SafetyFilterWrapper
+    from safe_nav_env import env_id
+
+    kwargs = {**spec.env_kwargs(), **(env_kwargs or {})}
+    try:
+        env = gym.make(env_id(spec.scenario), render_mode=render_mode, **kwargs)
+    except TypeError as exc:
+        raise (_unknown_keyword(exc, "env_options") or exc) from exc
+    try:
+        if policy is not None:
+            planner = policy
+        else:
+            planner, _ = _load_planner(spec, env)
+        filter_kwargs = spec.filter_kwargs()
+        # A PPO policy trained on the normalised view acts in [-1, 1]: it steps through
+        # NormalisedActions (outside the filter) and the roll-out reference gets m/s².
+        from agents.training.wrappers import (
+            NormalisedActions,
+            PhysicalUnitsPolicy,
+            is_normalised_policy,
+        )
+
+        normalised = spec.planner != "mpc" and is_normalised_policy(planner, env.action_space)
+        if spec.planner == "mpc":
+            filter_kwargs["reference"] = planner
+        elif spec.reference == "rollout":
+            filter_kwargs["policy"] = (PhysicalUnitsPolicy(planner, env.action_space)
+                                       if normalised else planner)
+        try:
+            wrapped = SafetyFilterWrapper(env, **filter_kwargs)
+        except TypeError as exc:
+            raise (_unknown_keyword(exc, "filter_options") or exc) from exc
+        if normalised:
+            wrapped = NormalisedActions(wrapped)
+    except BaseException:
+        env.close()
+        raise
+    return wrapped, planner
+
+
+# ---------------------------------------------------------------------------- reuse
+ENV_CACHE_SIZE = 4
+"""Filtered environments kept per process for :func:`run_episode` (one per setting)."""
+
+_ENV_CACHE: OrderedDict[EpisodeSpec, tuple[Any, Any]] = OrderedDict()
+
+
+def _reusable_env(spec: EpisodeSpec, sha: str) -> tuple[EpisodeSpec | None, Any, Any]:
+    """The filtered environment and planner of ``spec``'s setting, built once per process.
+
+    Building the environment and the MPC filter (``gym.make``, the QP's matrices, the
+    solver workspaces) costs more than a short episode. Episodes that differ only in
+    their seed share one environment: ``env.reset(seed=...)`` re-seeds and reloads the
+    scenario, and the wrapper's ``reset`` forgets the filter's plan, normals and
+    calibration, so the episode is the same as on a fresh environment (the test
+    ``test_reused_environment_gives_the_same_records`` checks this record by record).
+    ``sha`` is the policy file's SHA-256 now (part of the key: a changed file is
+    loaded again, and refused if ``spec.policy_sha256`` says otherwise). Returns the
+    cache key (``None`` if the environment is not reusable, see :func:`_resets_fully`),
+    the environment and the planner.
+    """
+    load_policy(spec.policy_path, sha256=spec.policy_sha256)  # cached; raises if changed
+    key = dataclasses.replace(spec, seed=0, policy_sha256=sha)
+    if key in _ENV_CACHE:
+        _ENV_CACHE.move_to_end(key)
+        env, planner = _ENV_CACHE[key]
+        return key, env, planner
+    env, planner = make_env(spec)
+    if not _resets_fully(env):
+        return None, env, planner  # used once and closed, like a fresh environment
+    _ENV_CACHE[key] = (env, planner)
+    while len(_ENV_CACHE) > ENV_CACHE_SIZE:
+        _ENV_CACHE.popitem(last=False)[1][0].close()
+    return key, env, planner
+
+
+def _resets_fully(env: Any) -> bool:
+    """Whether ``reset`` forgets everything an episode leaves in ``env``'s wrappers.
+
+    Not so for a filter whose online calibration (``risk="conformal"``,
+    ``epsilon="auto"``) carries over between episodes (``calibration_memory=
+    "persistent"``): a reused environment would make an episode depend on the ones run
+    before it in the process. With ``"episode"`` (the default) ``reset`` restores the
+    held-out calibrated state, as a fresh wrapper starts from.
+    """
+    layer = env
+    while layer is not None and layer is not getattr(layer, "unwrapped", None):
+        if (getattr(layer, "_calibration", None) is not None
+                and getattr(layer, "calibration_memory", "persistent") != "episode"):
+            return False
+        layer = getattr(layer, "env", None)
+    return True
+
+
+def clear_env_cache() -> None:
+    """Close and forget the environments :func:`run_episode` keeps for reuse."""
+    while _ENV_CACHE:
+        _ENV_CACHE.popitem()[1][0].close()
+
+
+@functools.cache
+def _package_version() -> str:
+    return package_version()  # reads the package metadata: once per process
+
+
+# ---------------------------------------------------------------------------- one episode
+def run_episode(
+    spec: EpisodeSpec,
+    *,
+    policy: Any = None,
+    record_trajectory: bool = False,
+    render: bool = False,
+    env_kwargs: dict[str, Any] | None = None,
+    reuse_env: bool = True,
+) -> tuple[EpisodeRecord, Trajectory | None]:
+    """Run one episode and summarise it; never raises for a failure inside the episode.
+
+    With ``reuse_env`` (and no ``policy``, ``env_kwargs`` or ``render``) the filtered
+    environment of the spec's setting is built once per process and reset for each
+    seed (see :func:`clear_env_cache`); the records are the same as with a fresh one.
+
+    Returns
+    -------
+    record : EpisodeRecord
+        ``error`` is non-empty if the episode failed (its partial statistics are kept).
+    trajectory : Trajectory or None
+        Positions and halfspaces, if ``record_trajectory``; with ``render`` also the
+        ``rgb_array`` frames (halfspaces drawn by the wrapper's render hook).
+    """
+    start = time.perf_counter()
+    stats = EpisodeStats()
+    trajectory = None
+    sha = ""
+    reuse = (reuse_env and policy is None and env_kwargs is None and not render
+             and spec.planner == "ppo")
+    cache_key = None
+    try:
+        if policy is None and spec.planner == "ppo":
+            sha = check_policy(spec.policy_path)
+        if reuse:
+            cache_key, env, planner = _reusable_env(spec, sha)
+        else:
+            env, planner = make_env(spec, policy=policy, env_kwargs=env_kwargs,
+                                    render_mode="rgb_array" if render else None)
+        failed = True
+        try:
+            obs, info = env.reset(seed=int(spec.seed))
+            base = env.unwrapped
+            stats.start(base, info, intersample=_intersample(env))
+            recorder = TrajectoryRecorder(env, render) if record_trajectory else None
+            done = False
+            while not done:
+                action, _ = planner.predict(obs, deterministic=True)
+                obs, reward, terminated, truncated, info = env.step(action)
+                if not np.all(np.isfinite(obs)):
+                    raise FloatingPointError(f"non-finite observation at step {stats.steps + 1}")
+                stats.step(base, reward, info)
+                if recorder is not None:
+                    recorder.record(info)
+                done = terminated or truncated
+            if recorder is not None:
+                trajectory = recorder.trajectory()
+            failed = False
+        finally:
+            if cache_key is None:
+                env.close()
+            elif failed:  # a half-run episode: do not reuse that environment
+                _ENV_CACHE.pop(cache_key, None)
+                env.close()
+        error = ""
+    except Exception as exc:  # noqa: BLE001 — a Monte Carlo run records failures
+        error = f"{type(exc).__name__}: {exc}".replace("\n", " ")[:500]
+        if not isinstance(exc, FloatingPointError | InvalidParameterError | PolicyFileError):
+            error += " | " + traceback.format_exc(limit=3).replace("\n", " ")[-300:]
+    record = EpisodeRecord(
+        scenario=spec.scenario, risk=spec.risk, seed=spec.seed, planner=spec.planner,
+        reference=spec.reference, alpha=spec.alpha, delta=spec.delta, epsilon=spec.epsilon,
+        noise=spec.noise, case=spec.case, filter_options=spec.filter_options,
+        env_options=spec.env_options, policy=_policy_name(spec, policy),
+        policy_sha256=spec.policy_sha256 or sha, version=_package_version(),
+        **stats.summary(), wall_time=time.perf_counter() - start, error=error)
+    return record, trajectory
+
+
+def _intersample(env: Any) -> bool:
+    """Whether the safety filter in ``env``'s wrapper stack adds inter-sample rows."""
+    from filters.wrapper import SafetyFilterWrapper
+
+    layer = env
+    while layer is not None and not isinstance(layer, SafetyFilterWrapper):
+        layer = getattr(layer, "env", None)
+    return bool(layer is not None and layer.intersample)
+
+
+def _policy_name(spec: EpisodeSpec, policy: Any) -> str:
+    """The policy column: the file that ran (the shipped one resolved), else ""."""
+    if spec.planner != "ppo":
+        return ""
+    if policy is not None:
+        return f"<{type(policy).__name__} object>"
+    return str(policy_file(spec.policy_path))
+
+
+def run_spec(spec: EpisodeSpec) -> EpisodeRecord:
+    """The record of one episode (what the executors run in their workers)."""
+    return run_episode(spec)[0]
+
+
+class TrajectoryRecorder:
+    """Collects an episode's positions, statuses, collisions, halfspaces and frames."""
+
+    def __init__(self, env: Any, render: bool) -> None:
+        self._env, self._base, self._render = env, env.unwrapped, render
+        self._ego: list[np.ndarray] = []
+        self._obstacles: list[np.ndarray] = []
+        self._statuses: list[str] = []
+        self._collisions: list[bool] = []
+        self._halfspaces: list[tuple[np.ndarray, np.ndarray]] = []
+        self._frames: list[np.ndarray] = []
+        self._snapshot()
+
+    def _snapshot(self) -> None:
+        self._ego.append(np.asarray(self._base.ego_state[:2], dtype=float).copy())
+        self._obstacles.append(np.asarray(self._base.obstacle_positions, dtype=float).copy())
+        if self._render:
+            self._frames.append(self._env.render())
+
+    def record(self, info: dict[str, Any]) -> None:
+        """After a step: the new positions, the collision flag and what the filter did."""
+        self._snapshot()
+        report = info["filter"]
+        self._statuses.append(report["status"])
+        self._collisions.append(bool(info.get("collision", False)))
+        if report["normals"] is not None:
+            self._halfspaces.append((np.asarray(report["normals"]),
+                                     np.asarray(report["offsets"])))
+
+    def trajectory(self) -> Trajectory:
+        base = self._base
+        return Trajectory(
+            ego=np.asarray(self._ego), obstacles=np.asarray(self._obstacles),
+            obstacle_radii=np.asarray(base.obstacle_radii, dtype=float).copy(),
+            ego_radius=float(base.ego_radius), goal=np.asarray(base.goal, dtype=float).copy(),
+            halfspaces=self._halfspaces, statuses=self._statuses, frames=self._frames,
+            collisions=self._collisions)
+
+
+class EpisodeStats:
+    """Accumulates the per-step quantities of an episode into the record's columns."""
+
+    def __init__(self) -> None:
+        self.steps = 0
+        self.min_distance = math.inf
+        self.min_swept_distance = math.inf
+        self.swept_reported = False
+        self.goal_time = math.nan
+        self.path_length = 0.0
+        self.interventions: list[float] = []
+        self.filter_times: list[float] = []
+        self.status_list: list[str] = []
+        self.collisions: list[bool] = []
+        self.sampled_collisions: list[bool] = []
+        self.first_error = ""
+        self.episode_return = 0.0
+        self.dt = 0.2
+        self._position = np.zeros(2)
+        self.intersample = False
+        self.audit: list[float] = []
+        self.audit_all: list[float] = []
+
+    def start(self, base: Any, info: dict[str, Any], *, intersample: bool = False) -> None:
+        self.dt = float(base.dt)
+        self.intersample = intersample
+        self._position = np.asarray(base.ego_state[:2], dtype=float).copy()
+        self._distance(info)
+
+    def _distance(self, info: dict[str, Any]) -> None:
+        distances = np.asarray(info.get("distance_to_collision", []), dtype=float)
+        if distances.size:
+            self.min_distance = min(self.min_distance, float(distances.min()))
+        if "min_swept_distance_to_collision" in info:
+            self.swept_reported = True
+            swept = float(info["min_swept_distance_to_collision"])
+            if not math.isnan(swept):
+                self.min_swept_distance = min(self.min_swept_distance, swept)
+
+    def step(self, base: Any, reward: float, info: dict[str, Any]) -> None:
+        self.steps += 1
+        self.episode_return += float(reward)
+        self._distance(info)
+        collision = bool(info.get("collision", False))
+        self.collisions.append(collision)
+        # Before the continuous-time environment, "collision" was the sampled flag.
+        self.sampled_collisions.append(bool(info.get("sampled_collision", collision)))
+        position = np.asarray(base.ego_state[:2], dtype=float)
+        self.path_length += float(np.linalg.norm(position - self._position))
+        self._position = position.copy()
+        if info.get("is_success", False) and math.isnan(self.goal_time):
+            self.goal_time = self.steps * self.dt
+        report = info["filter"]
+        self.status_list.append(str(report["status"]))
+        reason = str(report["error"]) if "error" in report.keys() else ""
+        if reason and not self.first_error:
+            self.first_error = f"step {self.steps}: {reason}".replace("\n", " ")[:300]
+        self.interventions.append(float(report["intervention"]))
+        self.filter_times.append(float(report["filter_time"]))
+        self._audit(base, report)
+
+    def _audit(self, base: Any, report: Any) -> None:
+        """The realised losses of the step's active first-step halfspaces.
+
+        See :mod:`agents.experiments.audit`.
+
+        ``base`` has already stepped: its obstacle positions are the realised ones at the
+        step the halfspaces' ``k = 1`` predicted. Steps without halfspaces or a plan
+        (pass-through, status ``"error"``) are not audited, nor are steps with
+        non-finite data (which the filter reports as ``"error"`` anyway).
+        """
+        names = report.keys()
+        if not all(name in names for name in ("normals", "offsets", "planned_states")):
+            return
+        normals, offsets, plan = report["normals"], report["offsets"], report["planned_states"]
+        if normals is None or offsets is None or plan is None or len(normals) == 0:
+            return
+        from agents.experiments.audit import first_step_losses
+        from filters.intersample import arc_margin
+
+        h = np.asarray(normals, dtype=float)[:, 0]
+        b = np.asarray(offsets, dtype=float)[:, 0]
+        realised = np.asarray(base.obstacle_positions, dtype=float)[: len(h)]
+        radii = float(base.ego_radius) + np.asarray(base.obstacle_radii, dtype=float)[: len(h)]
+        C = np.asarray(base.dynamics[2], dtype=float)
+        y1 = C @ np.asarray(plan, dtype=float)[1]
+        if not (np.all(np.isfinite(realised)) and np.all(np.isfinite(y1))
+                and np.all(np.isfinite(h)) and np.all(np.isfinite(b))):
+            return
+        margins = arc_margin(h, base.input_bounds, float(base.dt)) if self.intersample else 0.0
+        active, losses = first_step_losses(h, b, y1, realised, radii, margins=margins)
+        self.audit.extend(float(v) for v in losses[active])
+        self.audit_all.extend(float(v) for v in losses)
+
+    def collision_cause(self) -> str:
+        """Why the first continuous-time collision happened (see :class:`EpisodeRecord`)."""
+        return collision_cause(self.collisions, self.sampled_collisions, self.status_list)
+
+    def summary(self) -> dict[str, Any]:
+        """The record's columns that describe what happened."""
+        counts = Counter(self.status_list)
+        fallback = sum(counts[status] for status in FALLBACK_STATUSES)
+        interventions = np.asarray(self.interventions or [0.0])
+        times = np.asarray(self.filter_times or [0.0])
+        steps = max(1, self.steps)
+        swept = self.min_swept_distance if self.swept_reported else math.nan
+        return dict(
+            steps=self.steps,
+            collision=any(self.collisions),
+            collision_steps=sum(self.collisions),
+            first_collision_step=self.collisions.index(True) + 1 if any(self.collisions) else 0,
+            collision_cause=self.collision_cause(),
+            sampled_collision=any(self.sampled_collisions),
+            sampled_collision_steps=sum(self.sampled_collisions),
+            min_distance=self.min_distance if math.isfinite(self.min_distance) else math.nan,
+            min_swept_distance=swept if math.isfinite(swept) else math.nan,
+            goal_reached=not math.isnan(self.goal_time),
+            time_to_goal=self.goal_time,
+            path_length=self.path_length,
+            mean_intervention=float(interventions.mean()),
+            max_intervention=float(interventions.max()),
+            statuses=";".join(f"{s}:{c}" for s, c in sorted(counts.items())),
+            **{f"share_{status}": counts[status] / steps for status in FILTER_STATUSES},
+            fallback_steps=int(fallback),
+            first_error=self.first_error,
+            filter_time_median=float(np.median(times)),
+            filter_time_max=float(times.max()),
+            episode_return=self.episode_return,
+            audit_steps=len(self.audit),
+            audit_losses=encode_losses(self.audit),
+            audit_all_steps=len(self.audit_all),
+            audit_all_losses=encode_losses(self.audit_all),
+        )

@@ -1,0 +1,311 @@
+"""Summary statistics of evaluation records: the tables users read.
+
+Per (scenario, planner, risk): the collision rate in continuous time with a Wilson
+95 % confidence interval and the sampled one (the paper's), the worst and the CVaR
+(lower 10 % tail mean) of the minimum distance to collision, the goal rate and time
+to goal, the intervention size (how far the filter moved the reference planner's
+action), the filter's step time; then the share of steps with each filter status,
+the collisions by cause and the first reason the filter braked on bad data.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from agents.evaluation.records import AUTO, FILTER_STATUSES, RISKS, EpisodeRecord
+
+RISK_ORDER = {risk: i for i, risk in enumerate(RISKS)}
+"""Table order of the risk settings (:data:`filters.wrapper.RISKS`)."""
+
+COLLISION_CAUSES = ("fallback", "inter_sample", "noise")
+"""Values of :attr:`EpisodeRecord.collision_cause` for a collided episode."""
+
+
+def wilson_interval(successes: int, trials: int, z: float = 1.959964) -> tuple[float, float]:
+    """Wilson score interval of a binomial proportion (95 % by default).
+
+    .. math::
+        \\frac{\\hat p + z^2/2n \\pm z\\sqrt{\\hat p(1-\\hat p)/n + z^2/4n^2}}{1 + z^2/n}
+    """
+    if trials <= 0:
+        return (math.nan, math.nan)
+    p = successes / trials
+    denominator = 1.0 + z * z / trials
+    centre = (p + z * z / (2 * trials)) / denominator
+    half = z * math.sqrt(p * (1 - p) / trials + z * z / (4 * trials * trials)) / denominator
+    return (max(0.0, centre - half), min(1.0, centre + half))
+
+
+def lower_tail_mean(values: np.ndarray, fraction: float = 0.1) -> float:
+    """Mean of the lowest ``fraction`` of ``values`` (the CVaR of a distance, worst tail)."""
+    values = np.sort(np.asarray(values, dtype=float)[np.isfinite(values)])
+    if values.size == 0:
+        return math.nan
+    count = max(1, int(math.ceil(fraction * values.size)))
+    return float(values[:count].mean())
+
+
+@dataclass(frozen=True)
+class SummaryRow:
+    """Aggregate of the episodes of one (scenario, planner, risk)."""
+
+    scenario: str
+    planner: str
+    risk: str
+    episodes: int
+    failed: int
+    collision_rate: float
+    collision_low: float
+    collision_high: float
+    worst_distance: float
+    cvar_distance: float
+    goal_rate: float
+    time_to_goal: float
+    mean_intervention: float
+    fallback_share: float
+    filter_time_ms: float
+    sampled_collision_rate: float = math.nan
+    worst_swept_distance: float = math.nan
+    status_shares: tuple[tuple[str, float], ...] = ()
+    collision_causes: tuple[tuple[str, int], ...] = ()
+    first_error: str = ""
+    first_failure: str = ""
+    method: str = ""
+
+
+def method_label(risk: str, epsilon: float | str) -> str:
+    """The method's name in tables: the risk, ``"dr_cvar (eps=auto)"`` for the online radius."""
+    return f"{risk} (eps=auto)" if epsilon == AUTO else risk
+
+
+def _group(record: EpisodeRecord) -> tuple[str, str, str, bool]:
+    """(scenario or stress case, planner, risk, online radius?) of a record."""
+    return (record.case or record.scenario, record.planner, record.risk, record.epsilon == AUTO)
+
+
+def summarise(records: Iterable[EpisodeRecord]) -> list[SummaryRow]:
+    """One :class:`SummaryRow` per (scenario, planner, risk), in a stable order.
+
+    A stress-suite record counts under its case (``record.case``) as the scenario, and
+    ``epsilon="auto"`` is a method of its own (``method`` ``"dr_cvar (eps=auto)"``).
+    """
+    groups: dict[tuple[str, str, str, bool], list[EpisodeRecord]] = defaultdict(list)
+    for record in records:
+        groups[_group(record)].append(record)
+    rows = []
+    for (scenario, planner, risk, auto), group in sorted(
+        groups.items(), key=lambda item: (item[0][0], item[0][1],
+                                           RISK_ORDER.get(item[0][2], len(RISK_ORDER)),
+                                           item[0][3])
+    ):
+        ok = [r for r in group if not r.error]
+        n = len(ok)
+        collisions = sum(r.collision for r in ok)
+        low, high = wilson_interval(collisions, n)
+        distances = np.array([r.min_distance for r in ok], dtype=float)
+        times = [r.time_to_goal for r in ok if r.goal_reached]
+        steps = sum(r.steps for r in ok)
+        swept = np.array([r.min_swept_distance for r in ok], dtype=float)
+        shares = tuple(
+            (status, sum(getattr(r, f"share_{status}") * r.steps for r in ok) / steps)
+            for status in FILTER_STATUSES) if steps else ()
+        causes = tuple((cause, sum(r.collision_cause == cause for r in ok))
+                       for cause in COLLISION_CAUSES)
+        errors = [f"seed {r.seed}, {r.first_error}" for r in ok if r.first_error]
+        failures = [f"seed {r.seed}: {r.error}" for r in group if r.error]
+        rows.append(SummaryRow(
+            scenario=scenario, planner=planner, risk=risk, episodes=len(group),
+            failed=len(group) - n,
+            collision_rate=collisions / n if n else math.nan,
+            collision_low=low, collision_high=high,
+            worst_distance=float(np.nanmin(distances)) if n else math.nan,
+            cvar_distance=lower_tail_mean(distances),
+            goal_rate=sum(r.goal_reached for r in ok) / n if n else math.nan,
+            time_to_goal=float(np.mean(times)) if times else math.nan,
+            mean_intervention=float(np.mean([r.mean_intervention for r in ok])) if n else math.nan,
+            fallback_share=sum(r.fallback_steps for r in ok) / steps if steps else math.nan,
+            filter_time_ms=1e3 * float(np.median([r.filter_time_median for r in ok]))
+            if n else math.nan,
+            sampled_collision_rate=sum(r.sampled_collision for r in ok) / n if n else math.nan,
+            worst_swept_distance=(float(np.nanmin(swept)) if n and np.isfinite(swept).any()
+                                  else math.nan),
+            status_shares=shares, collision_causes=causes,
+            first_error=errors[0] if errors else "",
+            first_failure=failures[0][:200] if failures else "",
+            method=method_label(risk, AUTO if auto else 0.0),
+        ))
+    return rows
+
+
+def short_name(scenario: str) -> str:
+    """``"SafeNav/HeadOn-v0"`` -> ``"HeadOn"``."""
+    return scenario.split("/")[-1].rsplit("-v", 1)[0]
+
+
+def markdown_table(rows: Sequence[SummaryRow]) -> str:
+    """The summary as a Markdown table (collisions in continuous time unless "sampled")."""
+    header = ("| scenario | planner | risk | episodes | collision rate [95 % CI] | "
+              "sampled collision rate | worst distance (m) | worst swept distance (m) | "
+              "CVaR10 distance (m) | goal rate | time to goal (s) | "
+              "mean intervention (m/s²) | fallback steps | filter time (ms) |")
+    lines = [header, "|" + "---|" * 14]
+    for r in rows:
+        failed = f" ({r.failed} failed)" if r.failed else ""
+        lines.append(
+            f"| {short_name(r.scenario)} | {r.planner} | {r.method or r.risk} | "
+            f"{r.episodes}{failed} | "
+            f"{r.collision_rate:.1%} [{r.collision_low:.1%}, {r.collision_high:.1%}] | "
+            f"{r.sampled_collision_rate:.1%} | "
+            f"{r.worst_distance:.3f} | {r.worst_swept_distance:.3f} | {r.cvar_distance:.3f} | "
+            f"{r.goal_rate:.1%} | "
+            f"{r.time_to_goal:.2f} | {r.mean_intervention:.3f} | {r.fallback_share:.1%} | "
+            f"{r.filter_time_ms:.2f} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def status_table(rows: Sequence[SummaryRow]) -> str:
+    """Share of steps per filter status, collisions by cause, first bad-data reason."""
+    header = ("| scenario | planner | risk | " + " | ".join(FILTER_STATUSES) + " | "
+              "collisions by cause (" + " / ".join(COLLISION_CAUSES) + ") | first error |")
+    lines = [header, "|" + "---|" * (len(FILTER_STATUSES) + 5)]
+    for r in rows:
+        shares = dict(r.status_shares)
+        causes = dict(r.collision_causes)
+        cells = " | ".join(f"{shares[s]:.1%}" if s in shares and r.risk != "none" else "-"
+                           for s in FILTER_STATUSES)  # "none": every step is a passthrough
+        cause_cell = " / ".join(str(causes.get(c, 0)) for c in COLLISION_CAUSES)
+        reason = (r.first_error or r.first_failure or "").replace("|", "/")
+        lines.append(f"| {short_name(r.scenario)} | {r.planner} | {r.method or r.risk} | {cells} | "
+                     f"{cause_cell} | {reason} |")
+    return "\n".join(lines) + "\n"
+
+
+# ---------------------------------------------------------------------------- guarantee audit
+@dataclass(frozen=True)
+class AuditRow:
+    """The guarantee audit of one (scenario or case, planner, method).
+
+    See :mod:`agents.experiments.audit`.
+
+    Attributes
+    ----------
+    scenario, planner, risk, method
+        As in :class:`SummaryRow`.
+    promise
+        ``"mean"``, ``"cvar"`` or ``"chance"`` (:data:`agents.experiments.audit.PROMISES`).
+    active
+        :class:`agents.experiments.audit.AuditResult` of the pooled losses of the *active*
+        first-step halfspaces (the audit the issue asks for).
+    all
+        The same over every first-step halfspace, active or not (far more steps: the
+        offset's promise is about the obstacle's law, whatever the ego does).
+    """
+
+    scenario: str
+    planner: str
+    risk: str
+    method: str
+    promise: str
+    active: Any
+    all: Any
+
+
+def audit_rows(records: Iterable[EpisodeRecord]) -> list[AuditRow]:
+    """Pool the records' audit losses per (scenario or case, planner, method).
+
+    Unfiltered runs (``risk="none"``, no halfspaces) and failed episodes are left out.
+    Each group's ``alpha`` and ``delta`` are its records' (a group mixing several
+    raises :class:`~filters.errors.InvalidParameterError`).
+    """
+    from agents.experiments.audit import PROMISES, audit_losses, decode_losses
+    from filters.errors import InvalidParameterError
+
+    groups: dict[tuple[str, str, str, bool], list[EpisodeRecord]] = defaultdict(list)
+    for record in records:
+        if record.risk != "none" and not record.error:
+            groups[_group(record)].append(record)
+    rows = []
+    for (scenario, planner, risk, auto), group in sorted(
+        groups.items(), key=lambda item: (item[0][0], item[0][1],
+                                           RISK_ORDER.get(item[0][2], len(RISK_ORDER)),
+                                           item[0][3])
+    ):
+        settings = {(r.alpha, r.delta) for r in group}
+        if len(settings) > 1:
+            raise InvalidParameterError(
+                f"the audit pools one (alpha, delta) per method; {scenario} {risk} has "
+                f"{sorted(settings)}")
+        alpha, delta = settings.pop()
+        pooled = {column: audit_losses([], groups=[decode_losses(getattr(r, column))
+                                                   for r in group], alpha=alpha, delta=delta)
+                  for column in ("audit_losses", "audit_all_losses")}
+        rows.append(AuditRow(
+            scenario=scenario, planner=planner, risk=risk,
+            method=method_label(risk, AUTO if auto else 0.0), promise=PROMISES[risk],
+            active=pooled["audit_losses"], all=pooled["audit_all_losses"],
+        ))
+    return rows
+
+
+_PROMISE_TEXT = {"mean": "E ℓ ≤ δ", "cvar": "CVaR_α ℓ ≤ δ", "chance": "P(ℓ > δ) ≤ α"}
+
+
+def _audit_cells(result: Any, promise: str) -> list[str]:
+    """n, mean, CVaR, P(loss > delta) [CI], verdict; the promised quantity in bold."""
+    if result.n == 0:
+        return ["0", "-", "-", "-", "-"]
+
+    def bold(text: str, kind: str) -> str:
+        return f"**{text}**" if kind == promise else text
+
+    def interval(value: float, low: float, high: float) -> str:
+        return f"{value:.3f}" + ("" if math.isnan(low) else f" [{low:.3f}, {high:.3f}]")
+
+    rate = (f"{result.violation_rate:.1%} [{result.violation_low:.1%}, "
+            f"{result.violation_high:.1%}]")
+    return [str(result.n),
+            bold(interval(result.mean_loss, result.mean_low, result.mean_high), "mean"),
+            bold(interval(result.cvar_loss, result.cvar_low, result.cvar_high), "cvar"),
+            bold(rate, "chance"), result.verdict(promise)]
+
+
+def audit_table(rows: Sequence[AuditRow]) -> str:
+    """The guarantee audit as Markdown: each method's promise against the realised losses.
+
+    Two pools side by side: the active first-step halfspaces, and all of them. The
+    promised quantity is in bold; the verdict is
+    :meth:`agents.experiments.audit.AuditResult.verdict`.
+    """
+    pool = ["n", "mean ℓ (m)", "CVaR_α ℓ (m)", "P(ℓ > δ) [95 % CI]", "verdict"]
+    header = ("| scenario | planner | method | promise | α | δ (m) | "
+              + " | ".join(f"active: {c}" for c in pool) + " | "
+              + " | ".join(f"all: {c}" for c in pool) + " |")
+    lines = [header, "|" + "---|" * (6 + 2 * len(pool))]
+    for r in rows:
+        cells = [short_name(r.scenario), r.planner, r.method, _PROMISE_TEXT[r.promise],
+                 f"{r.active.alpha:g}", f"{r.active.delta:g}",
+                 *_audit_cells(r.active, r.promise), *_audit_cells(r.all, r.promise)]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+AUDIT_NOTE = (
+    "Loss ℓ = b + r − h·p of each obstacle's step-1 halfspace h·y ≤ b (r = r_A + r_O), at "
+    "the obstacle's realised position p one step later: the intrusion depth the risk bounds "
+    "(DESIGN.md section 1). *active*: the steps where the applied plan's step-1 position lay "
+    "within the inter-sample bow margin + 1 mm of the offset, or beyond it "
+    "(agents/experiments/audit.py); *all*: every step-1 halfspace, active or not. "
+    "The promised quantity is in bold. Intervals (95 %): Wilson for P(ℓ > δ), which "
+    "treats the steps as independent (successive steps of an episode are not, so it is "
+    "optimistic); a cluster "
+    "bootstrap over episodes (1000 replicates, seed 0) for the mean and the CVaR. Verdict: "
+    "held if the point estimate meets the bound, violated if the whole interval lies "
+    "beyond it, else within noise.\n")
+"""Explanation printed under the audit table."""

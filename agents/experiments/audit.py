@@ -1,0 +1,340 @@
+r"""The guarantee audit: did each risk formulation's promise hold on what really happened?
+
+Every risk formulation of :mod:`filters.risk` makes a promise about the *loss* of
+DESIGN.md section 1, the intrusion depth
+
+.. math::
+
+    \ell(p) = h \cdot y_\text{boundary} + r - h \cdot p = b + r - h \cdot p,
+
+of an obstacle at position :math:`p` past the safe halfspace :math:`h \cdot y \le b`
+(:math:`r = r_A + r_O` for two discs; :math:`\ell > 0` means that an ego on the
+halfspace's boundary would overlap the obstacle by :math:`\ell`). The offset
+:math:`b` is chosen from the *predicted* samples so that
+
+* ``mean``: :math:`\mathbb E\,\ell \le \delta`;
+* ``cvar``, ``dr_cvar``: :math:`\mathrm{CVaR}_\alpha(\ell) \le \delta` (DR-CVaR: for
+  every law in the Wasserstein ball around the samples);
+* ``gaussian_cc``, ``moment_dr``, ``conformal``: :math:`P(\ell > \delta) \le \alpha`
+  (under a Gaussian fit; for every law with the samples' mean and covariance; with
+  conformal marginal coverage).
+
+The audit replaces the predicted law by the *realised* one: for the first-step
+halfspace (look-ahead ``k = 1``) of each obstacle it evaluates :math:`\ell` at the
+obstacle's realised position one step later, and pools those losses over the steps
+where the halfspace was **active**:
+
+.. math::
+
+    b - h \cdot y_1 \le m(h) + \text{tol},
+
+with :math:`y_1 = C x_1` the applied plan's position at ``k = 1``, :math:`m(h)` the
+inter-sample bow margin of :func:`filters.intersample.arc_margin` when the filter adds
+the inter-sample rows (its step-1 end row is :math:`h \cdot y_1 \le b - m(h)`; 0
+without them) and ``tol`` = :data:`AUDIT_TOLERANCE` (1 mm, far above the QP solver's
+tolerance). A step where the plan violates the halfspace (soft mode) counts as active
+too. The promise matters only where it binds: an inactive halfspace is far from the
+ego, whatever its loss.
+
+Steps are pooled over episodes. The losses of successive steps of one episode are
+correlated, so the Wilson interval of the violation frequency (which assumes
+independent trials) is optimistic; the mean and the CVaR get a *cluster* bootstrap
+interval instead (:func:`cluster_bootstrap`: episodes, not steps, are resampled), which
+respects that correlation.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from agents.errors import RecordsFileError
+from filters.errors import InvalidArrayError, InvalidParameterError
+from filters.risk import empirical_cvar
+
+__all__ = [
+    "AUDIT_TOLERANCE",
+    "PROMISES",
+    "AuditResult",
+    "audit_losses",
+    "cluster_bootstrap",
+    "decode_losses",
+    "encode_losses",
+    "first_step_losses",
+]
+
+AUDIT_TOLERANCE = 1e-3
+"""How close (m) the plan's step-1 position must come to a halfspace's tightest row
+for that halfspace to count as active (see the module docstring)."""
+
+PROMISES: dict[str, str] = {
+    "mean": "mean",
+    "cvar": "cvar",
+    "dr_cvar": "cvar",
+    "gaussian_cc": "chance",
+    "moment_dr": "chance",
+    "conformal": "chance",
+}
+"""What each risk promises about the loss: ``"mean"`` (E ℓ <= δ), ``"cvar"``
+(CVaR_α ℓ <= δ) or ``"chance"`` (P(ℓ > δ) <= α)."""
+
+_DECIMALS = 4
+"""Decimals (m) of a loss in the records' ``audit_losses`` columns: 0.1 mm."""
+
+
+def first_step_losses(
+    normals: np.ndarray,
+    offsets: np.ndarray,
+    planned_position: np.ndarray,
+    realised_positions: np.ndarray,
+    radii: np.ndarray,
+    *,
+    margins: np.ndarray | float = 0.0,
+    tolerance: float = AUDIT_TOLERANCE,
+) -> tuple[np.ndarray, np.ndarray]:
+    r"""Which first-step halfspaces were active, and the realised loss of each obstacle.
+
+    Parameters
+    ----------
+    normals
+        Unit normals of the step-1 halfspaces, ``(k, d)``.
+    offsets
+        Their offsets :math:`b`, ``(k,)``, in m; safe side ``normals @ y <= offsets``.
+    planned_position
+        :math:`y_1`, the applied plan's ego position at step 1, ``(d,)``, in m.
+    realised_positions
+        The obstacles' realised positions at that step, ``(k, d)``, in m.
+    radii
+        :math:`r = S_O(h) + S_{-A}(h)` per obstacle (``r_A + r_O`` for discs), ``(k,)``.
+    margins
+        The inter-sample bow margin :math:`m(h)` per obstacle (``(k,)`` or a scalar), m.
+    tolerance
+        ``tol`` of the activity test, in m (>= 0).
+
+    Returns
+    -------
+    active : numpy.ndarray of bool, shape (k,)
+        :math:`b - h \cdot y_1 \le m + \text{tol}`.
+    losses : numpy.ndarray, shape (k,)
+        :math:`\ell = b + r - h \cdot p_\text{realised}`, in m (for every obstacle).
+
+    Raises
+    ------
+    InvalidArrayError
+        On inconsistent shapes or non-finite values.
+    InvalidParameterError
+        If ``tolerance`` is negative or not finite.
+    """
+    h = np.asarray(normals, dtype=float)
+    b = np.asarray(offsets, dtype=float)
+    y = np.asarray(planned_position, dtype=float)
+    p = np.asarray(realised_positions, dtype=float)
+    r = np.asarray(radii, dtype=float)
+    if h.ndim != 2:
+        raise InvalidArrayError(f"normals must have shape (k, d), got {h.shape}")
+    k, d = h.shape
+    for name, array, shape in (("offsets", b, (k,)), ("planned_position", y, (d,)),
+                               ("realised_positions", p, (k, d)), ("radii", r, (k,))):
+        if array.shape != shape:
+            raise InvalidArrayError(f"{name} must have shape {shape} (normals are {h.shape}), "
+                                    f"got {array.shape}")
+    m = np.broadcast_to(np.asarray(margins, dtype=float), (k,))
+    for name, array in (("normals", h), ("offsets", b), ("planned_position", y),
+                        ("realised_positions", p), ("radii", r), ("margins", m)):
+        if not np.all(np.isfinite(array)):
+            raise InvalidArrayError(f"{name} must be finite, got {array}")
+    if isinstance(tolerance, bool) or not (math.isfinite(tolerance) and tolerance >= 0.0):
+        raise InvalidParameterError(f"tolerance must be a finite number >= 0 (m), "
+                                    f"got {tolerance!r}")
+    active = b - h @ y <= m + tolerance
+    losses = b + r - np.einsum("kd,kd->k", h, p)
+    return active, losses
+
+
+@dataclass(frozen=True)
+class AuditResult:
+    """The realised losses of one (case, method), against the method's promise.
+
+    Attributes
+    ----------
+    n
+        Active obstacle-steps pooled.
+    alpha, delta
+        The method's tail mass / violation probability and risk bound (m).
+    mean_loss, cvar_loss
+        Empirical mean and :math:`\\mathrm{CVaR}_\\alpha` of the realised loss, in m
+        (NaN when ``n = 0``).
+    violations
+        Active steps with :math:`\\ell > \\delta`.
+    violation_rate, violation_low, violation_high
+        ``violations / n`` and its Wilson 95 % interval.
+    mean_low, mean_high, cvar_low, cvar_high
+        95 % cluster-bootstrap intervals of the mean and the CVaR (episodes resampled;
+        NaN when the losses were not given per episode).
+    """
+
+    n: int
+    alpha: float
+    delta: float
+    mean_loss: float
+    cvar_loss: float
+    violations: int
+    violation_rate: float
+    violation_low: float
+    violation_high: float
+    mean_low: float = math.nan
+    mean_high: float = math.nan
+    cvar_low: float = math.nan
+    cvar_high: float = math.nan
+
+    def verdict(self, promise: str) -> str:
+        """Whether the promise (see :data:`PROMISES`) held on the realised losses.
+
+        ``"held"`` if the point estimate meets the bound; ``"violated"`` if even the
+        95 % interval lies beyond it (Wilson for P(ℓ > δ), the cluster bootstrap for the
+        mean and the CVaR; without a bootstrap interval, the point estimate decides);
+        ``"within noise"`` if only the point estimate does; ``"-"`` for no data.
+        """
+        if self.n == 0:
+            return "-"
+        if promise == "chance":
+            value, bound, low = self.violation_rate, self.alpha, self.violation_low
+        elif promise == "mean":
+            value, bound, low = self.mean_loss, self.delta, self.mean_low
+        else:
+            value, bound, low = self.cvar_loss, self.delta, self.cvar_low
+        if value <= bound:
+            return "held"
+        return "within noise" if not math.isnan(low) and low <= bound else "violated"
+
+
+def cluster_bootstrap(
+    groups: Sequence[np.ndarray],
+    statistic: Callable[[np.ndarray], float],
+    *,
+    n_boot: int = 1000,
+    level: float = 0.95,
+    seed: int = 0,
+) -> tuple[float, float]:
+    """Percentile interval of ``statistic`` over the pooled values, resampling whole groups.
+
+    Each replicate draws ``len(groups)`` groups (episodes) with replacement from a
+    seeded ``numpy.random.Generator``, pools their values and evaluates ``statistic``;
+    the interval is the ``(1 - level)/2`` and ``(1 + level)/2`` quantiles of the
+    replicates (replicates with no values are skipped). Correlation *within* a group is
+    kept, which an interval over independent steps would ignore.
+
+    Returns
+    -------
+    (low, high)
+        NaN, NaN if no group has a value.
+    """
+    sizes = np.array([len(g) for g in groups], dtype=int)
+    if sizes.sum() == 0:
+        return (math.nan, math.nan)
+    rng = np.random.default_rng(seed)
+    values = np.concatenate([np.asarray(g, dtype=float) for g in groups])
+    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+    replicates = []
+    for _ in range(n_boot):
+        chosen = rng.integers(0, len(groups), len(groups))
+        chosen = chosen[sizes[chosen] > 0]
+        if chosen.size == 0:
+            continue
+        lengths = sizes[chosen]
+        before = np.cumsum(lengths) - lengths  # where each chosen group starts in the replicate
+        index = (np.arange(lengths.sum()) + np.repeat(starts[chosen] - before, lengths))
+        replicates.append(statistic(values[index]))
+    low, high = np.quantile(replicates, [(1 - level) / 2, (1 + level) / 2])
+    return (float(low), float(high))
+
+
+def audit_losses(losses: Sequence[float] | np.ndarray, *, alpha: float,
+                 delta: float, groups: Sequence[np.ndarray] | None = None,
+                 n_boot: int = 1000, seed: int = 0) -> AuditResult:
+    """Empirical mean, CVaR_α and violation frequency P(ℓ > δ) of realised losses.
+
+    Parameters
+    ----------
+    losses
+        Realised losses :math:`\\ell` of the active steps, in m (ignored when ``groups``
+        is given).
+    alpha
+        Tail mass of the CVaR and the allowed violation probability, in (0, 1].
+    delta
+        Risk bound, in m.
+    groups
+        The losses per episode; then they are pooled, and the mean and the CVaR get
+        cluster-bootstrap intervals (:func:`cluster_bootstrap`, ``n_boot`` replicates,
+        ``seed``).
+
+    Raises
+    ------
+    InvalidArrayError
+        If a loss is not finite.
+    InvalidParameterError
+        If ``alpha`` is outside (0, 1] or ``delta`` is not finite.
+    """
+    from agents.evaluation.summary import wilson_interval
+
+    if groups is not None:
+        groups = [np.asarray(g, dtype=float).reshape(-1) for g in groups]
+        losses = np.concatenate(groups) if groups else np.zeros(0)
+    x = np.asarray(losses, dtype=float).reshape(-1)
+    if not np.all(np.isfinite(x)):
+        raise InvalidArrayError("losses must be finite")
+    if isinstance(alpha, bool) or not 0.0 < float(alpha) <= 1.0:
+        raise InvalidParameterError(f"alpha must lie in (0, 1], got {alpha!r}")
+    if isinstance(delta, bool) or not math.isfinite(float(delta)):
+        raise InvalidParameterError(f"delta must be a finite number (m), got {delta!r}")
+    n = int(x.size)
+    violations = int(np.count_nonzero(x > delta))
+    low, high = wilson_interval(violations, n)
+    intervals: dict[str, float] = {}
+    if groups is not None and n:
+        intervals["mean_low"], intervals["mean_high"] = cluster_bootstrap(
+            groups, np.mean, n_boot=n_boot, seed=seed)
+        intervals["cvar_low"], intervals["cvar_high"] = cluster_bootstrap(
+            groups, lambda v: float(empirical_cvar(v, float(alpha))), n_boot=n_boot, seed=seed)
+    return AuditResult(
+        n=n, alpha=float(alpha), delta=float(delta),
+        mean_loss=float(x.mean()) if n else math.nan,
+        cvar_loss=float(empirical_cvar(x, float(alpha))) if n else math.nan,
+        violations=violations,
+        violation_rate=violations / n if n else math.nan,
+        violation_low=low, violation_high=high, **intervals,
+    )
+
+
+def encode_losses(losses: Iterable[float]) -> str:
+    """Losses as the records' ``audit_losses`` text: ``";"``-separated, rounded to 0.1 mm."""
+    return ";".join(_short(f"{float(v):.{_DECIMALS}f}") for v in losses)
+
+
+def _short(text: str) -> str:
+    """``"0.1000"`` -> ``"0.1"``, ``"-0.0000"`` -> ``"0"``."""
+    text = text.rstrip("0").rstrip(".") if "." in text else text
+    return "0" if text in ("-0", "") else text
+
+
+def decode_losses(text: str) -> np.ndarray:
+    """The losses of an ``audit_losses`` text (empty: none).
+
+    Raises
+    ------
+    RecordsFileError
+        If a field is not a finite number.
+    """
+    if not text:
+        return np.zeros(0)
+    try:
+        values = np.array([float(v) for v in text.split(";")])
+    except ValueError:
+        raise RecordsFileError(f"audit_losses must be ';'-separated numbers, got "
+                             f"{text[:80]!r}") from None
+    if not np.all(np.isfinite(values)):
+        raise RecordsFileError(f"audit_losses must be finite, got {text[:80]!r}")
+    return values

@@ -1,0 +1,638 @@
+"""The PPO actor in numpy: weights exported once, a forward pass in a few microseconds.
+
+The roll-out reference (:class:`filters.references.PolicyRolloutReference`) asks
+the policy for ``T - 1`` actions at every control step, one after the other (each
+depends on the state the previous one produced), so it cannot be batched. Through
+Stable-Baselines3 one ``model.predict`` call costs about 0.3 ms here (tensor
+conversion, ``no_grad``, distribution objects), more than the whole filter QP.
+:class:`NumpyPolicy` evaluates the same network with numpy:
+
+.. math::
+
+    z_0 = \\operatorname{flatten}(o), \\qquad
+    z_{l+1} = \\sigma_l(z_l W_l^\\top + b_l) \\ (\\text{policy\\_net}), \\qquad
+    \\mu = z_L W_a^\\top + b_a \\ (\\text{action\\_net}),
+
+    a = \\operatorname{clip}(\\mu, a_{low}, a_{high})
+    \\quad\\text{or, with } \\texttt{squash\\_output},\\quad
+    a = a_{low} + \\tfrac12(\\tanh\\mu + 1)(a_{high} - a_{low}),
+
+which is what ``model.predict(obs, deterministic=True)`` returns for a ``Box``
+action space (the mode of the Gaussian is its mean; SB3 clips it to the box, or
+un-squashes it when the policy squashes). Only the deterministic action exists
+here: ``deterministic=False`` raises.
+
+Precision. The weights are the float32 tensors of the model, evaluated in float64
+from the float32 observation (SB3 casts observations to float32 first), and the
+action is rounded once to float32. That is the exact value of the float32 network;
+torch's own float32 arithmetic differs from it by a few float32 rounding steps
+(measured on the shipped policy: up to 2.4e-6 m/s² on actions of magnitude 7.7,
+and torch's batched and single-observation calls differ from each other by as
+much). The test checks ``|a_numpy - a_torch| <= 1e-6 max(1, |a_torch|)``.
+
+Bit for bit. :class:`TorchActorPolicy` runs the torch kernels SB3's modules end up
+in (``addmm`` and the activations, on preallocated ``(1, n)`` float32 tensors) and
+skips the rest of ``predict`` (``nn.Module`` calls, tensor conversion checks,
+distribution objects): the very same actions, bit for bit, several times faster than
+``model.predict`` (:func:`benchmark_numpy_policy` times the three). It is the one to
+use where results must not change at all (per-episode evaluation records).
+
+The roll-out. Both classes also offer ``rollout_reference(env, action, horizon)``:
+the whole roll-out in one compiled kernel (:mod:`agents.policies.compiled_rollout`, the float64
+network as here), which :class:`~filters.references.PolicyRolloutReference` uses by
+default; with ``compiled=False`` (``SafetyFilterWrapper(compiled_rollout=False)``) it
+calls ``predict`` at every look-ahead step instead, and :class:`TorchActorPolicy` then
+gives SB3's roll-out bit for bit.
+
+Loading. :func:`load_numpy_policy` loads a PPO ``.zip`` with
+:func:`agents.load_ppo` (so torch and SB3 are still needed, once) and exports it;
+``load_ppo`` itself keeps returning the SB3 model (training, saving and
+stochastic actions need it). A :class:`NumpyPolicy` has SB3's ``predict``
+signature, so it can be passed wherever a policy is expected, e.g.
+``SafetyFilterWrapper(env, policy=load_numpy_policy())`` or
+``run_episode(spec, policy=...)``.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from filters.errors import InvalidArrayError, InvalidParameterError, InvalidTypeError
+
+__all__ = [
+    "NumpyPolicy",
+    "PolicyTiming",
+    "TorchActorPolicy",
+    "UnsupportedPolicyError",
+    "benchmark_numpy_policy",
+    "load_numpy_policy",
+]
+
+
+class UnsupportedPolicyError(InvalidTypeError):
+    """The SB3 policy has a part that :class:`NumpyPolicy` cannot export."""
+
+
+class _Activation:
+    """An in-place numpy activation ``z -> σ(z)``, with its name and parameter (the
+    leaky slope or the ELU alpha, else 0) for :mod:`agents.policies.compiled_rollout`."""
+
+    __slots__ = ("name", "parameter")
+
+    def __init__(self, name: str, parameter: float = 0.0) -> None:
+        self.name, self.parameter = name, float(parameter)
+
+    def __call__(self, z: np.ndarray) -> None:
+        if self.name == "tanh":
+            np.tanh(z, out=z)
+        elif self.name == "relu":
+            np.maximum(z, 0.0, out=z)
+        elif self.name == "leaky_relu":
+            np.copyto(z, np.where(z >= 0.0, z, self.parameter * z))
+        else:  # elu
+            np.copyto(z, np.where(z > 0.0, z, self.parameter * np.expm1(np.minimum(z, 0.0))))
+
+    def __repr__(self) -> str:
+        return f"_Activation({self.name!r}, {self.parameter})"
+
+
+_tanh = _Activation("tanh")
+_relu = _Activation("relu")
+
+
+def _leaky_relu(slope: float) -> _Activation:
+    return _Activation("leaky_relu", slope)
+
+
+def _elu(alpha: float) -> _Activation:
+    return _Activation("elu", alpha)
+
+
+def _activation(module: Any) -> Callable[[np.ndarray], None] | None:
+    """In-place numpy version of a torch activation module, or ``None`` if unknown."""
+    from torch import nn
+
+    kind = type(module)
+    if kind is nn.Tanh:
+        return _tanh
+    if kind is nn.ReLU:
+        return _relu
+    if kind is nn.LeakyReLU:
+        return _leaky_relu(float(module.negative_slope))
+    if kind is nn.ELU:
+        return _elu(float(module.alpha))
+    return None
+
+
+def _linear(module: Any) -> tuple[np.ndarray, np.ndarray]:
+    """``(W^T, b)`` of a torch ``Linear`` as read-only float64 arrays (``b = 0`` if absent)."""
+    weight = module.weight.detach().cpu().numpy().astype(np.float64).T.copy()
+    if module.bias is None:
+        bias = np.zeros(weight.shape[1])
+    else:
+        bias = module.bias.detach().cpu().numpy().astype(np.float64).copy()
+    weight.setflags(write=False)
+    bias.setflags(write=False)
+    return weight, bias
+
+
+Layer = tuple[np.ndarray, np.ndarray, Callable[[np.ndarray], None] | None]
+
+def _checked_actor_critic(model: Any) -> Any:
+    """The ``ActorCriticPolicy`` of ``model`` if its actor can be exported, else raise.
+
+    Raises
+    ------
+    UnsupportedPolicyError
+        Unless it is an ``ActorCriticPolicy`` with a flat ``Box`` observation space (not
+        an image), a ``FlattenExtractor`` and a ``Box`` action space.
+    """
+    from gymnasium import spaces
+    from stable_baselines3.common.policies import ActorCriticPolicy
+    from stable_baselines3.common.preprocessing import is_image_space
+    from stable_baselines3.common.torch_layers import FlattenExtractor
+
+    policy = getattr(model, "policy", model)
+    if not isinstance(policy, ActorCriticPolicy):
+        raise UnsupportedPolicyError(
+            "exporting a policy needs an SB3 ActorCriticPolicy (PPO or A2C with "
+            f"MlpPolicy) or a model holding one, got {type(policy).__name__}"
+        )
+    obs_space, action_space = policy.observation_space, policy.action_space
+    if not isinstance(obs_space, spaces.Box) or is_image_space(obs_space):
+        raise UnsupportedPolicyError(
+            f"only flat Box observation spaces (not images) are supported, got {obs_space}"
+        )
+    if not isinstance(action_space, spaces.Box):
+        raise UnsupportedPolicyError(
+            f"only Box action spaces are supported, got {action_space}"
+        )
+    extractor = policy.pi_features_extractor
+    if type(extractor) is not FlattenExtractor:
+        raise UnsupportedPolicyError(
+            "only the FlattenExtractor of MlpPolicy is supported, got "
+            f"{type(extractor).__name__}"
+        )
+    return policy
+
+
+
+class _DeterministicActor:
+    """SB3's ``predict`` for a ``Box`` action space, deterministic only (shared front end).
+
+    Subclasses implement ``_actions(rows)``: float32 observation rows ``(B, n)`` to
+    float32 actions ``(B, m)``, clipped (or un-squashed) as SB3 does.
+    """
+
+    def __init__(self, observation_space: Any, action_space: Any, squash_output: bool) -> None:
+        self.observation_space = observation_space
+        self.action_space = action_space
+        self.squash_output = bool(squash_output)
+        self._obs_shape = tuple(observation_space.shape)
+        self._n_inputs = int(np.prod(self._obs_shape, dtype=np.int64))
+        self._action_shape = tuple(action_space.shape)
+        self._low = np.asarray(action_space.low, dtype=np.float32).reshape(-1)
+        self._high = np.asarray(action_space.high, dtype=np.float32).reshape(-1)
+        self._compiled_rollout: Any = None  # made on first use (False: none)
+
+    def _actions(self, rows: np.ndarray) -> np.ndarray:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def _to_box(self, mean_or_squashed: np.ndarray) -> np.ndarray:
+        """SB3's last step on float32 network outputs: clip, or rescale ``tanh`` outputs."""
+        if self.squash_output:
+            return self._low + 0.5 * (mean_or_squashed + 1.0) * (self._high - self._low)
+        # np.clip's semantics on finite numbers at a third of its per-call cost
+        return np.minimum(np.maximum(mean_or_squashed, self._low), self._high)
+
+    def _inputs(self, observation: object) -> tuple[np.ndarray, bool]:
+        """Observation(s) as float32 rows ``(B, n)`` (as SB3 casts them) and whether batched."""
+        try:
+            obs = np.asarray(observation, dtype=np.float32)
+        except (TypeError, ValueError) as exc:
+            raise InvalidArrayError(
+                f"observation must be numeric, got {type(observation).__name__}"
+            ) from exc
+        if obs.shape == self._obs_shape:
+            batched = False
+        elif obs.shape[1:] == self._obs_shape:
+            batched = True
+        else:
+            raise InvalidArrayError(
+                f"observation must have shape {self._obs_shape} or (batch, "
+                f"{', '.join(map(str, self._obs_shape))}), got {obs.shape}"
+            )
+        rows = obs.reshape(-1, self._n_inputs)
+        # Float32 entries cannot overflow a float64 sum: it is finite iff every entry is.
+        if not math.isfinite(float(rows.sum(dtype=np.float64))):
+            bad = np.argwhere(~np.isfinite(obs))[0]
+            raise InvalidArrayError(
+                f"observation must be finite, got {obs[tuple(bad)]} at index "
+                f"{tuple(int(i) for i in bad)}"
+            )
+        return rows, batched
+
+    def predict(
+        self,
+        observation: object,
+        state: Any = None,
+        episode_start: Any = None,
+        deterministic: bool = True,
+    ) -> tuple[np.ndarray, Any]:
+        """Stable-Baselines3's ``predict``, deterministic only.
+
+        Parameters
+        ----------
+        observation
+            One observation (the observation space's shape) or a batch ``(B, ...)``.
+        state, episode_start
+            Ignored (no recurrent state); ``state`` is returned as given, as SB3 does.
+        deterministic
+            Must be true (the default here; SB3's default is ``False``).
+
+        Returns
+        -------
+        (numpy.ndarray, Any)
+            Float32 actions, shape of the action space (or ``(B, ...)`` for a batch),
+            clipped to the action box; and ``state``.
+
+        Raises
+        ------
+        InvalidParameterError
+            If ``deterministic`` is false.
+        InvalidArrayError
+            If the observation has the wrong shape or is not finite.
+        """
+        if not deterministic:
+            raise InvalidParameterError(
+                f"{type(self).__name__} computes the deterministic action only (the "
+                "Gaussian's mean); got deterministic=False: use the SB3 model for "
+                "stochastic actions"
+            )
+        rows, batched = self._inputs(observation)
+        actions = self._actions(rows)
+        if batched:
+            return actions.reshape((-1, *self._action_shape)), state
+        return actions.reshape(self._action_shape), state
+
+    def predict_batch(self, observations: object) -> np.ndarray:
+        """Deterministic actions of a batch ``(B, ...)`` of observations, shape ``(B, ...)``.
+
+        Raises
+        ------
+        InvalidArrayError
+            If ``observations`` is not a finite batch of observations.
+        """
+        rows, batched = self._inputs(observations)
+        if not batched:
+            raise InvalidArrayError(
+                f"observations must have shape (batch, {', '.join(map(str, self._obs_shape))}), "
+                f"got a single observation of shape {self._obs_shape}: use predict"
+            )
+        return self._actions(rows).reshape((-1, *self._action_shape))
+
+    def rollout_reference(
+        self, env: Any, action: Any, horizon: int
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """The policy roll-out reference in one compiled call, or ``None`` if unsupported.
+
+        What :class:`filters.references.PolicyRolloutReference` computes with this
+        policy's ``predict`` (states ``(T+1, n)``, inputs ``(T, m)``), by the kernel of
+        :mod:`agents.policies.compiled_rollout` (float64 network: equal to this policy's roll-out
+        to about 1e-6 m/s² per action). ``None`` when ``env`` (the filter's
+        ``env.unwrapped``) or this network is not one the kernel knows; the caller
+        then rolls out with ``predict``.
+
+        Raises
+        ------
+        InvalidArrayError
+            If an observation of the roll-out is not finite, as ``predict`` would.
+        """
+        compiled = self._compiled_rollout
+        if compiled:  # made by an earlier call: straight to it
+            return compiled.reference(env, action, horizon)
+        from agents.policies.compiled_rollout import rollout_reference
+
+        return rollout_reference(self, env, action, horizon)
+
+
+class NumpyPolicy(_DeterministicActor):
+    """Deterministic actor of a Stable-Baselines3 ``MlpPolicy`` (PPO/A2C), in numpy.
+
+    Build it with :meth:`from_sb3`. It holds no mutable state (the weights are
+    read-only arrays), so one instance can serve several environments or threads.
+
+    Attributes
+    ----------
+    observation_space, action_space
+        The model's Gymnasium spaces (``Box``).
+    layers
+        ``(W^T, b, activation)`` per affine layer, policy net then action net
+        (``activation`` is ``None`` for the action net).
+    squash_output
+        Whether the mean is squashed by ``tanh`` and rescaled to the box (gSDE) instead
+        of clipped.
+    """
+
+    def __init__(
+        self,
+        layers: list[Layer],
+        observation_space: Any,
+        action_space: Any,
+        *,
+        squash_output: bool = False,
+    ) -> None:
+        if not layers:
+            raise InvalidParameterError("a NumpyPolicy needs at least one affine layer, got none")
+        super().__init__(observation_space, action_space, squash_output)
+        self.layers = tuple(layers)
+        if layers[0][0].shape[0] != self._n_inputs:
+            raise InvalidArrayError(
+                f"the first layer takes {layers[0][0].shape[0]} inputs, but observations have "
+                f"{self._n_inputs} entries (shape {self._obs_shape})"
+            )
+        if layers[-1][0].shape[1] != self._low.size:
+            raise InvalidArrayError(
+                f"the action net gives {layers[-1][0].shape[1]} outputs, but the action space "
+                f"has {self._low.size} entries (shape {self._action_shape})"
+            )
+
+    @classmethod
+    def from_sb3(cls, model: Any) -> NumpyPolicy:
+        """Export the actor of an SB3 ``ActorCriticPolicy`` (or of a model holding one).
+
+        Parameters
+        ----------
+        model
+            A ``PPO``/``A2C`` model or its ``.policy``: an ``ActorCriticPolicy`` with a
+            ``FlattenExtractor`` (the ``MlpPolicy`` default), ``mlp_extractor.policy_net``
+            made of ``Linear`` layers and ``Tanh``/``ReLU``/``LeakyReLU``/``ELU``
+            activations, and a ``Box`` action space.
+
+        Raises
+        ------
+        UnsupportedPolicyError
+            For any other policy: an image or ``Dict`` observation space, another
+            features extractor, a non-``Box`` action space, an unknown layer.
+        """
+        from torch import nn
+
+        policy = _checked_actor_critic(model)
+        net = policy.mlp_extractor.policy_net
+        if not isinstance(net, nn.Sequential):
+            raise UnsupportedPolicyError(
+                f"mlp_extractor.policy_net must be an nn.Sequential, got {type(net).__name__}"
+            )
+        layers: list[Layer] = []
+        for index, module in enumerate(net):
+            if isinstance(module, nn.Linear):
+                layers.append((*_linear(module), None))
+                continue
+            activation = _activation(module)
+            if activation is None or not layers or layers[-1][2] is not None:
+                raise UnsupportedPolicyError(
+                    f"policy_net[{index}] = {module!r} is not supported: expected Linear "
+                    "layers, each followed by at most one Tanh, ReLU, LeakyReLU or ELU"
+                )
+            weight, bias, _ = layers[-1]
+            layers[-1] = (weight, bias, activation)
+        if not isinstance(policy.action_net, nn.Linear):
+            raise UnsupportedPolicyError(
+                f"action_net must be an nn.Linear, got {type(policy.action_net).__name__}"
+            )
+        layers.append((*_linear(policy.action_net), None))
+        return cls(layers, policy.observation_space, policy.action_space,
+                   squash_output=bool(policy.squash_output))
+
+    def _actions(self, rows: np.ndarray) -> np.ndarray:
+        """Float32 actions ``(B, m)`` of float32 observation rows ``(B, n)`` (float64 inside)."""
+        z = rows.astype(np.float64)
+        for weight, bias, activation in self.layers:
+            z = z @ weight
+            z += bias
+            if activation is not None:
+                activation(z)
+        if self.squash_output:
+            return self._to_box(np.tanh(z).astype(np.float32))
+        return self._to_box(z.astype(np.float32))
+
+
+class TorchActorPolicy(_DeterministicActor):
+    """The SB3 actor's own torch kernels, called without SB3's ``predict`` overhead.
+
+    Bit for bit the actions of ``model.predict(obs, deterministic=True)`` (the same
+    kernels on the same float32 tensors of the same shapes, then SB3's clip or
+    un-squash), at a fraction of its cost: use it where results must not change
+    (evaluation records), :class:`NumpyPolicy` where the last float32 bits may.
+    The parameters are shared with the model, not copied: later training changes them.
+
+    Fast path. For one observation and a ``policy_net`` of ``Linear`` layers with
+    ``Tanh``/``ReLU`` activations (the ``MlpPolicy`` default), the forward pass skips
+    ``nn.Module.__call__`` and runs the kernels ``nn.Linear`` ends up in for a
+    ``(1, n)`` batch, :math:`z_{l+1} = \\sigma_l(\\operatorname{addmm}(b_l, z_l, W_l^\\top))`,
+    on preallocated tensors (detached views of the parameters, so no autograd
+    bookkeeping). Any other network, or a batch, goes through the modules.
+    """
+
+    def __init__(self, policy: Any) -> None:
+        super().__init__(policy.observation_space, policy.action_space,
+                         bool(policy.squash_output))
+        policy.set_training_mode(False)  # as SB3's predict does (dropout, batch norm)
+        self._policy = policy
+        self._policy_net = policy.mlp_extractor.policy_net
+        self._action_net = policy.action_net
+        self._kernels = _single_row_forward(self._policy_net, self._action_net,
+                                            self._n_inputs, self.squash_output)
+
+    @classmethod
+    def from_sb3(cls, model: Any) -> TorchActorPolicy:
+        """Wrap the actor of an SB3 ``ActorCriticPolicy`` (or of a model holding one).
+
+        Any ``policy_net`` is accepted (it is called as it is).
+
+        Raises
+        ------
+        UnsupportedPolicyError
+            For an image or ``Dict`` observation space, another features extractor than
+            ``FlattenExtractor``, or a non-``Box`` action space.
+        """
+        return cls(_checked_actor_critic(model))
+
+    def _actions(self, rows: np.ndarray) -> np.ndarray:
+        if self._kernels is not None and rows.shape[0] == 1:
+            return self._to_box(self._kernels(rows))  # squashed inside, as below
+        import torch
+
+        with torch.inference_mode():
+            mean = self._action_net(self._policy_net(torch.from_numpy(np.array(rows))))
+            if self.squash_output:
+                mean = torch.tanh(mean)
+            return self._to_box(mean.numpy())
+
+
+class _SingleRowForward:
+    """``action_net(policy_net(x))`` for one float32 row, on preallocated tensors.
+
+    Each ``Linear`` runs ``torch.addmm(b, z, W.t(), out=buffer)``, the kernel that
+    ``torch.nn.functional.linear`` calls for a 2-D input with a bias; each activation
+    runs in place on that buffer (``torch.tanh(z, out=z)``, ``torch.relu_``), and a
+    final ``tanh`` squashes when the policy does. The parameters are detached views
+    (shared storage, ``requires_grad=False``), so no autograd graph is recorded and
+    training the model updates them. Returns a float32 ``(1, m)`` array that the next
+    call overwrites (the caller copies it: SB3's clip does).
+    """
+
+    def __init__(self, steps: list[tuple[Any, Any, str]], n_inputs: int, squash: bool) -> None:
+        import torch
+
+        self._torch = torch
+        self._input = torch.zeros((1, n_inputs), dtype=torch.float32)
+        self._input_np = self._input.numpy()
+        self._steps = []
+        for weight_t, bias, activation in steps:
+            out = torch.empty((1, weight_t.shape[1]), dtype=torch.float32)
+            self._steps.append((weight_t, bias, activation, out))
+        self._squash = squash
+        self._output_np = self._steps[-1][3].numpy()
+
+    def __call__(self, rows: np.ndarray) -> np.ndarray:
+        torch = self._torch
+        self._input_np[...] = rows
+        z = self._input
+        for weight_t, bias, activation, out in self._steps:
+            torch.addmm(bias, z, weight_t, out=out)
+            if activation == "tanh":
+                torch.tanh(out, out=out)
+            elif activation == "relu":
+                torch.relu_(out)
+            z = out
+        if self._squash:
+            torch.tanh(z, out=z)
+        return self._output_np  # a view of the last buffer: the next call overwrites it
+
+
+def _single_row_forward(
+    policy_net: Any, action_net: Any, n_inputs: int, squash: bool
+) -> _SingleRowForward | None:
+    """A :class:`_SingleRowForward` of the actor, or ``None`` if its layers are not plain.
+
+    Plain: ``policy_net`` an ``nn.Sequential`` of float32 ``Linear`` layers with biases,
+    each followed by at most one ``Tanh`` or ``ReLU``; ``action_net`` such a ``Linear``;
+    all on the CPU.
+    """
+    import torch
+    from torch import nn
+
+    if not isinstance(policy_net, nn.Sequential) or type(action_net) is not nn.Linear:
+        return None
+    steps: list[list[Any]] = []
+    for module in [*policy_net, action_net]:
+        if type(module) is nn.Linear:
+            if (module.bias is None or module.weight.dtype != torch.float32
+                    or module.weight.device.type != "cpu"):
+                return None
+            steps.append([module.weight.detach().t(), module.bias.detach(), ""])
+        elif type(module) in (nn.Tanh, nn.ReLU) and steps and not steps[-1][2]:
+            if type(module) is nn.ReLU and module.inplace:
+                return None
+            steps[-1][2] = "tanh" if type(module) is nn.Tanh else "relu"
+        else:
+            return None
+    if steps[-1][2] or steps[0][0].shape[0] != n_inputs:
+        return None
+    return _SingleRowForward([(w, b, act) for w, b, act in steps], n_inputs, squash)
+
+
+def load_numpy_policy(path: str | Path | None = None) -> NumpyPolicy:
+    """Load a PPO ``.zip`` (default: the shipped policy) and export its actor to numpy.
+
+    Raises
+    ------
+    FileNotFoundError
+        If ``path`` (or the shipped policy) does not exist.
+    UnsupportedPolicyError
+        If the policy cannot be exported (see :meth:`NumpyPolicy.from_sb3`).
+    """
+    from agents.training.ppo import load_ppo
+
+    return NumpyPolicy.from_sb3(load_ppo(path))
+
+
+@dataclass(frozen=True)
+class PolicyTiming:
+    """Per-call wall times (µs, medians) of one deterministic action, SB3 vs numpy."""
+
+    calls: int
+    sb3_us: float
+    numpy_us: float
+    ratio: float  # sb3 / numpy
+    torch_actor_us: float  # TorchActorPolicy, the bit-identical path
+    batch: int
+    sb3_batch_us: float  # one batched call of `batch` observations
+    numpy_batch_us: float
+    max_difference: float  # max |a_numpy - a_sb3| over the timed observations, m/s^2
+
+    def format(self) -> str:
+        return "\n".join([
+            f"policy forward, one observation, {self.calls} calls, medians: SB3 predict "
+            f"{self.sb3_us:.1f} us, NumpyPolicy {self.numpy_us:.1f} us "
+            f"({self.ratio:.1f}x faster); TorchActorPolicy (bit-identical to SB3) "
+            f"{self.torch_actor_us:.1f} us ({self.sb3_us / self.torch_actor_us:.1f}x)",
+            f"    batch of {self.batch}: SB3 {self.sb3_batch_us:.1f} us, NumpyPolicy "
+            f"{self.numpy_batch_us:.1f} us; max |a_numpy - a_sb3| = {self.max_difference:.2e}",
+        ])
+
+
+def benchmark_numpy_policy(
+    path: str | Path | None = None, *, calls: int = 2000, batch: int = 64, seed: int = 0
+) -> PolicyTiming:
+    """Time ``model.predict(obs, deterministic=True)`` against :class:`NumpyPolicy` and
+    :class:`TorchActorPolicy`.
+
+    The observations are standard-normal draws from ``numpy.random.default_rng(seed)``
+    (the network does not care where they come from); one torch thread, as in the
+    evaluation workers.
+    """
+    from agents.training.ppo import load_ppo, set_torch_threads
+
+    set_torch_threads(1)
+    model = load_ppo(path)
+    policy = NumpyPolicy.from_sb3(model)
+    actor = TorchActorPolicy.from_sb3(model)
+    rng = np.random.default_rng(seed)
+    observations = rng.standard_normal((calls, *policy._obs_shape)).astype(np.float32)
+    sb3_times, numpy_times, actor_times, difference = [], [], [], 0.0
+    for obs in observations:
+        begin = time.perf_counter()
+        torch_action, _ = model.predict(obs, deterministic=True)
+        middle = time.perf_counter()
+        numpy_action, _ = policy.predict(obs, deterministic=True)
+        end = time.perf_counter()
+        actor.predict(obs, deterministic=True)
+        sb3_times.append(middle - begin)
+        numpy_times.append(end - middle)
+        actor_times.append(time.perf_counter() - end)
+        difference = max(difference, float(np.max(np.abs(numpy_action - torch_action))))
+    sb3_batch, numpy_batch = [], []
+    for start in range(0, calls - batch + 1, batch):
+        rows = observations[start : start + batch]
+        begin = time.perf_counter()
+        model.predict(rows, deterministic=True)
+        middle = time.perf_counter()
+        policy.predict_batch(rows)
+        sb3_batch.append(middle - begin)
+        numpy_batch.append(time.perf_counter() - middle)
+    sb3_us, numpy_us = 1e6 * float(np.median(sb3_times)), 1e6 * float(np.median(numpy_times))
+    return PolicyTiming(
+        calls=calls, sb3_us=sb3_us, numpy_us=numpy_us, ratio=sb3_us / numpy_us,
+        torch_actor_us=1e6 * float(np.median(actor_times)), batch=batch,
+        sb3_batch_us=1e6 * float(np.median(sb3_batch)),
+        numpy_batch_us=1e6 * float(np.median(numpy_batch)), max_difference=difference,
+    )

@@ -1,0 +1,245 @@
+"""Safety metrics while training: Stable-Baselines3 callbacks.
+
+:class:`SafetyMetricsCallback` counts, over the episodes that end during each
+rollout (from the vector environment's ``infos`` and ``dones``; DummyVecEnv and
+SubprocVecEnv alike), and logs to SB3's logger (so to the stdout table, the
+CSV and TensorBoard, whichever the logger writes):
+
+=============================  ===================================================
+``safety/collision_rate``      share of episodes with a collision at any step
+                               (``info["collision"]``: continuous time)
+``safety/episode_cost``        mean over episodes of :math:`\\sum_t` ``info["cost"]``
+``safety/goal_rate``           share of episodes ending with ``info["is_success"]``
+``safety/episodes``            episodes that ended in the rollout
+``safety/intervention``        mean ``info["filter"].intervention`` (m/s²) over the
+                               rollout's filtered steps (logged when a filter runs)
+``safety/status_<name>``       share of the rollout's filtered steps with that
+                               filter status (``optimal``, ``soft``, ...)
+=============================  ===================================================
+
+:class:`SafetyEvalCallback` is SB3's ``EvalCallback`` (it saves the best model)
+with the same numbers under ``eval/``, on held-out seeds that are the same at
+every evaluation.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
+
+from agents.training.wrappers import report_field
+
+FILTER_STATUSES = ("optimal", "soft", "recovery", "shifted", "brake", "error", "passthrough")
+"""Filter statuses always logged (share 0 when absent), so the CSV columns are fixed;
+any other status seen is logged too."""
+
+
+@dataclass(frozen=True)
+class EpisodeSafety:
+    """What one finished episode did.
+
+    Attributes
+    ----------
+    collision
+        Some step had ``info["collision"]``.
+    cost
+        Sum of ``info["cost"]`` over the steps.
+    success
+        ``info["is_success"]`` at the last step.
+    steps
+        Episode length in steps.
+    intervention
+        Mean filter intervention over the episode's filtered steps, m/s² (0 without filter).
+    """
+
+    collision: bool
+    cost: float
+    success: bool
+    steps: int
+    intervention: float
+
+
+class SafetyTally:
+    """Per-environment accumulators over steps, closed into :class:`EpisodeSafety` at ``done``.
+
+    Parameters
+    ----------
+    n_envs
+        Number of environments of the vector environment.
+    """
+
+    def __init__(self, n_envs: int) -> None:
+        self.n_envs = int(n_envs)
+        self._cost = np.zeros(self.n_envs)
+        self._collision = np.zeros(self.n_envs, dtype=bool)
+        self._steps = np.zeros(self.n_envs, dtype=int)
+        self._intervention = np.zeros(self.n_envs)
+        self._filtered = np.zeros(self.n_envs, dtype=int)
+        self.episodes: list[EpisodeSafety] = []
+        self.statuses: Counter[str] = Counter()
+        self.intervention_sum = 0.0
+        self.filtered_steps = 0
+
+    def clear_window(self) -> None:
+        """Forget finished episodes and step counts (not the episodes in progress)."""
+        self.episodes = []
+        self.statuses = Counter()
+        self.intervention_sum = 0.0
+        self.filtered_steps = 0
+
+    def step(self, index: int, info: dict[str, Any], done: bool) -> EpisodeSafety | None:
+        """Add one step of environment ``index``; returns the episode if it ended."""
+        self._cost[index] += float(info.get("cost", 0.0))
+        self._collision[index] |= bool(info.get("collision", False))
+        self._steps[index] += 1
+        report = info.get("filter")
+        if report is not None:
+            value = float(report_field(report, "intervention"))
+            self._intervention[index] += value
+            self._filtered[index] += 1
+            self.intervention_sum += value
+            self.filtered_steps += 1
+            self.statuses[str(report_field(report, "status"))] += 1
+        if not done:
+            return None
+        filtered = self._filtered[index]
+        episode = EpisodeSafety(
+            collision=bool(self._collision[index]), cost=float(self._cost[index]),
+            success=bool(info.get("is_success", False)), steps=int(self._steps[index]),
+            intervention=float(self._intervention[index] / filtered) if filtered else 0.0,
+        )
+        self._cost[index], self._collision[index], self._steps[index] = 0.0, False, 0
+        self._intervention[index], self._filtered[index] = 0.0, 0
+        self.episodes.append(episode)
+        return episode
+
+    def metrics(self) -> dict[str, float]:
+        """The numbers of the current window (see the module docstring), keys without prefix."""
+        out: dict[str, float] = {"episodes": float(len(self.episodes))}
+        if self.episodes:
+            out["collision_rate"] = float(np.mean([e.collision for e in self.episodes]))
+            out["episode_cost"] = float(np.mean([e.cost for e in self.episodes]))
+            out["goal_rate"] = float(np.mean([e.success for e in self.episodes]))
+        if self.filtered_steps:
+            out["intervention"] = self.intervention_sum / self.filtered_steps
+            for status in sorted(set(FILTER_STATUSES) | set(self.statuses)):
+                out[f"status_{status}"] = self.statuses[status] / self.filtered_steps
+        return out
+
+
+def record_metrics(logger: Any, prefix: str, metrics: dict[str, float]) -> None:
+    """``logger.record(f"{prefix}/{key}", value)`` for every metric."""
+    for key, value in metrics.items():
+        logger.record(f"{prefix}/{key}", value)
+
+
+class SafetyMetricsCallback(BaseCallback):
+    """Log the safety of the training episodes at the end of every rollout.
+
+    Each rollout's numbers cover the episodes that *ended* in it (an episode that
+    spans two rollouts counts in the second) and the steps taken in it; see the
+    module docstring for the keys (prefix ``safety/``).
+
+    Parameters
+    ----------
+    verbose
+        SB3 verbosity (0: silent).
+
+    Attributes
+    ----------
+    history
+        Every finished episode, in order of completion (all rollouts).
+    rollout_metrics
+        One dict of metrics per rollout, as logged.
+    """
+
+    def __init__(self, verbose: int = 0) -> None:
+        super().__init__(verbose)
+        self.history: list[EpisodeSafety] = []
+        self.rollout_metrics: list[dict[str, float]] = []
+        self._tally: SafetyTally | None = None
+
+    def _on_training_start(self) -> None:
+        self._tally = SafetyTally(self.training_env.num_envs)
+
+    def _on_rollout_start(self) -> None:
+        if self._tally is not None:
+            self._tally.clear_window()
+
+    def _on_step(self) -> bool:
+        infos: Sequence[dict[str, Any]] = self.locals["infos"]
+        dones = self.locals["dones"]
+        tally = self._tally
+        if tally is None:  # pragma: no cover - SB3 always calls _on_training_start first
+            tally = self._tally = SafetyTally(len(infos))
+        for index, (info, done) in enumerate(zip(infos, dones, strict=True)):
+            episode = tally.step(index, info, bool(done))
+            if episode is not None:
+                self.history.append(episode)
+        return True
+
+    def _on_rollout_end(self) -> None:
+        if self._tally is None:  # pragma: no cover
+            return
+        metrics = self._tally.metrics()
+        self.rollout_metrics.append(metrics)
+        record_metrics(self.logger, "safety", metrics)
+
+
+class SafetyEvalCallback(EvalCallback):
+    """SB3's ``EvalCallback`` that also logs the safety metrics (prefix ``eval/``).
+
+    Every evaluation reseeds the evaluation environment with ``eval_seed`` first, so
+    that every evaluation runs the same held-out episodes (up to the policy's
+    actions). The best model by mean return is saved to ``best_model_save_path``.
+
+    Parameters
+    ----------
+    eval_env
+        The evaluation vector environment (same wrappers as the training one).
+    eval_seed
+        Seed of the evaluation episodes (keep it apart from the training seeds).
+    **kwargs
+        Passed to ``EvalCallback`` (``n_eval_episodes``, ``eval_freq`` in calls, ...).
+
+    Attributes
+    ----------
+    evaluations_safety
+        One dict of metrics per evaluation.
+    """
+
+    def __init__(self, eval_env: Any, *, eval_seed: int, **kwargs: Any) -> None:
+        super().__init__(eval_env, **kwargs)
+        self.eval_seed = int(eval_seed)
+        self.evaluations_safety: list[dict[str, float]] = []
+        self._eval_tally: SafetyTally | None = None
+
+    def _log_success_callback(self, locals_: dict[str, Any], globals_: dict[str, Any]) -> None:
+        super()._log_success_callback(locals_, globals_)
+        tally = self._eval_tally
+        if tally is None:  # pragma: no cover
+            return
+        if tally.step(int(locals_["i"]), locals_["info"], bool(locals_["done"])) is not None:
+            # Recorded as episodes end, so the values stand when EvalCallback dumps.
+            record_metrics(self.logger, "eval", tally.metrics())
+
+    def _on_step(self) -> bool:
+        evaluating = self.eval_freq > 0 and self.n_calls % self.eval_freq == 0
+        if evaluating:
+            self.eval_env.seed(self.eval_seed)
+            self._eval_tally = SafetyTally(self.eval_env.num_envs)
+        keep_going = super()._on_step()
+        if evaluating and self._eval_tally is not None:
+            self.evaluations_safety.append(self._eval_tally.metrics())
+        return keep_going
+
+
+__all__ = [
+    "FILTER_STATUSES", "EpisodeSafety", "SafetyEvalCallback", "SafetyMetricsCallback",
+    "SafetyTally", "record_metrics",
+]

@@ -1,0 +1,223 @@
+"""Wrappers for learners: episode cost for ``Monitor``, and a normalised action view.
+
+The stack :func:`agents.training.ppo.make_training_env` builds, inside out::
+
+    gym.make(id)                 physical units: accelerations in m/s², box [-10, 10]²
+    SafetyFilterWrapper          (optional) the filter, in physical units
+    EpisodeCostInfo              puts "episode_cost", ... into the episode's last info
+    Monitor(info_keywords=EPISODE_INFO_KEYS)   logs them with the return and the length
+    NormalisedActions            the learner's view: actions in [-1, 1]²
+
+:class:`NormalisedActions` sits *outside* the filter, so the filter still reads and
+writes physical accelerations; only the learner sees ``[-1, 1]`` (what
+Stable-Baselines3's ``check_env`` asks for). Policies trained on the physical box
+(the shipped one) still load and act: :func:`is_normalised_policy` tells the two
+apart from the policy's action space, and :class:`PhysicalUnitsPolicy` turns a
+normalised policy's answers back into m/s² where a physical action is needed (the
+filter's policy roll-out reference).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from filters.errors import InvalidParameterError, InvalidTypeError
+
+EPISODE_INFO_KEYS = ("episode_cost", "episode_collision", "episode_intervention")
+"""Keys :class:`EpisodeCostInfo` adds to the last info of an episode (pass them to
+``Monitor(info_keywords=...)``)."""
+
+
+class EpisodeCostInfo(gym.Wrapper):
+    """Sum ``info["cost"]`` over each episode and report it in the episode's last info.
+
+    At the step that ends an episode (``terminated or truncated``) the info gets
+
+    ``episode_cost``
+        :math:`\\sum_t c_t`, the sum of ``info["cost"]`` over the episode's steps (with
+        the environment's collision indicator: the number of steps in collision).
+    ``episode_collision``
+        Whether any step had ``info["collision"]`` (the environment reports it in
+        continuous time: the exact minimum clearance over each step).
+    ``episode_intervention``
+        Mean of ``info["filter"].intervention`` over the steps, in m/s², where a
+        safety filter reports one; 0.0 without a filter.
+
+    so that ``Monitor(env, info_keywords=EPISODE_INFO_KEYS)`` writes them next to the
+    episode's return.
+
+    Raises
+    ------
+    InvalidParameterError
+        (From :meth:`step`.) If ``info["cost"]`` is NaN or infinite.
+    """
+
+    def __init__(self, env: gym.Env) -> None:
+        super().__init__(env)
+        self._cost = 0.0
+        self._collision = False
+        self._intervention = 0.0
+        self._filtered_steps = 0
+
+    def reset(self, **kwargs: Any):
+        self._cost, self._collision = 0.0, False
+        self._intervention, self._filtered_steps = 0.0, 0
+        return self.env.reset(**kwargs)
+
+    def step(self, action: Any):
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        cost = float(info.get("cost", 0.0))
+        if not np.isfinite(cost):
+            raise InvalidParameterError(f"info['cost'] must be finite, got {cost!r}")
+        self._cost += cost
+        self._collision = self._collision or bool(info.get("collision", False))
+        report = info.get("filter")
+        if report is not None:
+            self._intervention += float(report_field(report, "intervention"))
+            self._filtered_steps += 1
+        if terminated or truncated:
+            info["episode_cost"] = self._cost
+            info["episode_collision"] = self._collision
+            info["episode_intervention"] = (
+                self._intervention / self._filtered_steps if self._filtered_steps else 0.0
+            )
+        return obs, reward, terminated, truncated, info
+
+
+def report_field(report: Any, name: str) -> Any:
+    """A field of ``info["filter"]``: a :class:`filters.wrapper.FilterReport` (attribute)
+    or a plain mapping (key)."""
+    try:  # one attribute lookup (hasattr + getattr would be two): this runs every step
+        return getattr(report, name)
+    except AttributeError:
+        return report[name]
+
+
+def _box_map(space: spaces.Space, what: str) -> tuple[np.ndarray, np.ndarray]:
+    """Centre and half width (float64) of a finite Box."""
+    if not isinstance(space, spaces.Box):
+        raise InvalidTypeError(f"{what} must be a gymnasium Box, got {space!r}")
+    low = np.asarray(space.low, dtype=np.float64)
+    high = np.asarray(space.high, dtype=np.float64)
+    if not (np.all(np.isfinite(low)) and np.all(np.isfinite(high)) and np.all(high > low)):
+        raise InvalidParameterError(
+            f"{what} must have finite bounds with high > low, got low={low}, high={high}"
+        )
+    return 0.5 * (high + low), 0.5 * (high - low)
+
+
+class NormalisedActions(gym.ActionWrapper):
+    """The learner's view of a Box action space: actions in ``[-1, 1]``.
+
+    .. math:: u = c + w \\odot a, \\qquad c = (u_{max} + u_{min})/2,\\quad
+              w = (u_{max} - u_{min})/2,
+
+    in float64. For the symmetric box ``[-10, 10]²`` of ``safe_nav_env``, c = 0 and
+    w = 10, so the physical action is exactly ``10 * a`` (m/s²). Out-of-range actions
+    are passed on (the environment and the filter clip to the physical box).
+    Place it outside :class:`filters.SafetyFilterWrapper`, so the filter works in
+    physical units.
+
+    Raises
+    ------
+    InvalidTypeError, InvalidParameterError
+        If the wrapped action space is not a Box with finite bounds.
+    """
+
+    def __init__(self, env: gym.Env) -> None:
+        super().__init__(env)
+        self.centre, self.half_width = _box_map(env.action_space, "the action space")
+        self.action_space = spaces.Box(-1.0, 1.0, shape=env.action_space.shape,
+                                       dtype=np.float32)
+
+    def action(self, action: Any) -> np.ndarray:
+        """Physical action (float64) of the normalised ``action``."""
+        return self.centre + self.half_width * np.asarray(action, dtype=np.float64)
+
+    def normalise(self, action: Any) -> np.ndarray:
+        """Inverse map: the normalised action (float64) of a physical ``action``."""
+        return (np.asarray(action, dtype=np.float64) - self.centre) / self.half_width
+
+
+def is_normalised_policy(policy: Any, physical_space: spaces.Space) -> bool:
+    """Whether ``policy`` acts in ``[-1, 1]`` (True) or in ``physical_space`` (False).
+
+    Decided from ``policy.action_space`` (every Stable-Baselines3 model has one);
+    an object without one (e.g. :class:`agents.MPCReferencePlanner`) is taken to
+    act in physical units.
+
+    Raises
+    ------
+    InvalidTypeError
+        If the policy's action space is neither ``[-1, 1]`` nor ``physical_space``.
+    """
+    space = getattr(policy, "action_space", None)
+    if space is None:
+        return False
+    if not isinstance(space, spaces.Box) or space.shape != physical_space.shape:
+        raise InvalidTypeError(
+            f"the policy's action space {space!r} does not match the environment's "
+            f"{physical_space!r}"
+        )
+    low, high = np.asarray(space.low, float), np.asarray(space.high, float)
+    if np.array_equal(low, -np.ones_like(low)) and np.array_equal(high, np.ones_like(high)):
+        return not (np.array_equal(physical_space.low, low)
+                    and np.array_equal(physical_space.high, high))
+    if np.array_equal(low, physical_space.low) and np.array_equal(high, physical_space.high):
+        return False
+    raise InvalidTypeError(
+        f"the policy acts in [{low}, {high}], neither [-1, 1] (normalised) nor the "
+        f"environment's box [{physical_space.low}, {physical_space.high}]"
+    )
+
+
+class PhysicalUnitsPolicy:
+    """A policy trained on :class:`NormalisedActions`, answering in physical units.
+
+    ``predict`` returns ``c + w * a`` (float64, as :class:`NormalisedActions`), so the
+    filter's policy roll-out reference (:class:`filters.references.PolicyRolloutReference`)
+    gets accelerations in m/s².
+
+    Parameters
+    ----------
+    policy
+        Anything with Stable-Baselines3's ``predict``, acting in ``[-1, 1]``.
+    physical_space
+        The environment's Box action space.
+    """
+
+    def __init__(self, policy: Any, physical_space: spaces.Space) -> None:
+        if not callable(getattr(policy, "predict", None)):
+            raise InvalidTypeError(f"policy must have a predict method, got {policy!r}")
+        self.policy = policy
+        self.centre, self.half_width = _box_map(physical_space, "physical_space")
+        self.action_space = physical_space
+        self._compiled_rollout: Any = None  # made on first use (False: none)
+
+    def predict(self, observation: Any, state: Any = None, episode_start: Any = None,
+                deterministic: bool = False) -> tuple[np.ndarray, Any]:
+        action, state = self.policy.predict(observation, state=state,
+                                            episode_start=episode_start,
+                                            deterministic=deterministic)
+        return self.centre + self.half_width * np.asarray(action, dtype=np.float64), state
+
+    def rollout_reference(
+        self, env: Any, action: Any, horizon: int
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """The roll-out reference in one compiled call, the map to m/s² included, or
+        ``None`` (see :meth:`agents.NumpyPolicy.rollout_reference`): when the wrapped
+        policy is a plain SB3 MLP actor (or its numpy or torch export) and ``env`` a
+        ``SafeNavEnv``."""
+        from agents.policies.compiled_rollout import rollout_reference
+
+        return rollout_reference(self, env, action, horizon)
+
+
+__all__ = [
+    "EPISODE_INFO_KEYS", "EpisodeCostInfo", "NormalisedActions", "PhysicalUnitsPolicy",
+    "is_normalised_policy", "report_field",
+]

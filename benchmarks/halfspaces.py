@@ -1,0 +1,266 @@
+"""Safe-halfspace computation times: the paper's Table I, and ours.
+
+Setup of Example 1 (Safaoui & Summers, Sec. II-C): ego reference
+:math:`y^r = (-0.9, -0.8)`, nominal obstacle :math:`p = (0.5, 0)`, margin
+:math:`r = 0.6` m (two discs of radius 0.3 m), samples from
+:math:`\\mathcal{N}(p, 0.01 I)`, :math:`\\alpha = 0.2`, :math:`\\delta = 0.1`,
+:math:`\\epsilon = 0.05`. For each sample count a fresh CVXPY problem is built
+and solved (Clarabel) ``repeats`` times with new samples, and we report CVXPY's
+compilation ("setup"), the solver's solve time and the wall-clock time of
+``problem.solve`` ("call"), in milliseconds, next to the paper's Table I (ECOS,
+2023 hardware). Our :func:`filters.halfspaces.safe_halfspaces` is timed for one
+obstacle at one step and for 3 obstacles x 10 steps in one call, with the default
+``backend="auto"`` (the compiled kernels) and, on the same data, the numpy reference
+(``backend="numpy"``).
+
+Usage::
+
+    from benchmarks.halfspaces import benchmark_table_one, format_table_one
+    print(format_table_one(benchmark_table_one()))
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from filters.geometry import Disc
+from filters.halfspaces import safe_halfspaces
+
+__all__ = [
+    "PAPER_TABLE_ONE",
+    "CvxpyTiming",
+    "OurTiming",
+    "TableOneResult",
+    "benchmark_table_one",
+    "format_table_one",
+]
+
+#: The paper's Table I: mean (solve, call) times in ms, keyed by (risk, N_s).
+PAPER_TABLE_ONE: dict[tuple[str, int], tuple[float, float]] = {
+    ("cvar", 50): (0.144, 2.23),
+    ("cvar", 500): (1.91, 4.32),
+    ("cvar", 1500): (5.98, 8.95),
+    ("dr_cvar", 50): (0.236, 9.10),
+    ("dr_cvar", 500): (2.58, 73.4),
+    ("dr_cvar", 1500): (8.53, 216.0),
+}
+
+_Y_REF = np.array([-0.9, -0.8])
+_OBSTACLE = np.array([0.5, 0.0])
+_RADIUS = 0.3
+_STD = 0.1  # N(p, 0.01 I)
+_ALPHA, _DELTA, _EPSILON = 0.2, 0.1, 0.05
+_GRID = (3, 10)  # obstacles x steps
+
+
+@dataclass(frozen=True)
+class CvxpyTiming:
+    """CVXPY times for one (risk, N_s) cell, in milliseconds.
+
+    ``*_mean`` and ``*_median`` are over the repeats; ``paper_solve`` and
+    ``paper_call`` are the paper's Table I means (NaN when the paper has no entry).
+    """
+
+    risk: str
+    n_samples: int
+    setup_mean: float
+    setup_median: float
+    solve_mean: float
+    solve_median: float
+    call_mean: float
+    call_median: float
+    paper_solve: float
+    paper_call: float
+
+
+@dataclass(frozen=True)
+class OurTiming:
+    """Median wall-clock times of :func:`safe_halfspaces`, in microseconds.
+
+    ``speedup`` is CVXPY's mean call time for ONE halfspace divided by our time for
+    all 3 x 10 halfspaces; ``speedup_same_work`` compares the same 30 halfspaces
+    (30 CVXPY calls against one of ours). ``numpy_grid_us`` is the numpy reference
+    (``backend="numpy"``) on the same 3 x 10 data, ``numpy_ratio`` its time over ours.
+    """
+
+    risk: str
+    n_samples: int
+    one_halfspace_us: float
+    grid_us: float
+    speedup: float
+    speedup_same_work: float
+    numpy_grid_us: float = float("nan")
+    numpy_ratio: float = float("nan")
+
+
+@dataclass(frozen=True)
+class TableOneResult:
+    """Result of :func:`benchmark_table_one`."""
+
+    cvxpy: tuple[CvxpyTiming, ...]
+    ours: tuple[OurTiming, ...]
+    formulation: str
+    repeats: int
+    seed: int
+
+
+def _normal() -> np.ndarray:
+    diff = _OBSTACLE - _Y_REF
+    return diff / np.linalg.norm(diff)
+
+
+def _time_cvxpy(
+    rng: np.random.Generator, risk: str, n_samples: int, repeats: int, formulation: str
+) -> CvxpyTiming:
+    from filters.halfspace_cvxpy import time_cvxpy_halfspace
+
+    times = (
+        np.array(
+            [
+                time_cvxpy_halfspace(
+                    rng.normal(_OBSTACLE, _STD, size=(n_samples, 2)),
+                    _normal(),
+                    2 * _RADIUS,
+                    risk,
+                    alpha=_ALPHA,
+                    delta=_DELTA,
+                    epsilon=_EPSILON,
+                    formulation=formulation,
+                )
+                for _ in range(repeats)
+            ]
+        )
+        * 1e3
+    )
+    mean, median = times.mean(axis=0), np.median(times, axis=0)
+    paper = PAPER_TABLE_ONE.get((risk, n_samples), (np.nan, np.nan))
+    return CvxpyTiming(
+        risk, n_samples, mean[0], median[0], mean[1], median[1], mean[2], median[2], *paper
+    )
+
+
+def _median_call_us(call: Callable[[], object], budget_s: float = 0.2) -> float:
+    """Median wall-clock time of ``call()`` in microseconds, over batches within ``budget_s``."""
+    call()  # warm-up
+    start = time.perf_counter()
+    call()
+    once = max(time.perf_counter() - start, 1e-7)
+    number = max(1, int(0.01 / once))
+    batches = max(5, min(50, int(budget_s / (once * number))))
+    samples = []
+    for _ in range(batches):
+        start = time.perf_counter()
+        for _ in range(number):
+            call()
+        samples.append((time.perf_counter() - start) / number)
+    return float(np.median(samples)) * 1e6
+
+
+def _time_ours(
+    rng: np.random.Generator, risk: str, n_samples: int, cvxpy_call_ms: float
+) -> OurTiming:
+    n_obstacles, horizon = _GRID
+    disc = Disc(_RADIUS)
+    options = dict(risk=risk, alpha=_ALPHA, delta=_DELTA, epsilon=_EPSILON, ego_shape=disc)
+    single = rng.normal(_OBSTACLE, _STD, size=(1, n_samples, 1, 2))
+    grid = rng.normal(_OBSTACLE, _STD, size=(n_obstacles, n_samples, horizon, 2))
+    y_one, y_grid = _Y_REF[None], np.tile(_Y_REF, (horizon, 1))
+    one = _median_call_us(lambda: safe_halfspaces(y_one, single, obstacle_shapes=[disc], **options))
+    shapes = [disc] * n_obstacles
+    full = _median_call_us(lambda: safe_halfspaces(y_grid, grid, obstacle_shapes=shapes, **options))
+    numpy_full = _median_call_us(
+        lambda: safe_halfspaces(y_grid, grid, obstacle_shapes=shapes, backend="numpy", **options)
+    )
+    per_call = cvxpy_call_ms * 1e3 / full
+    return OurTiming(risk, n_samples, one, full, per_call, per_call * n_obstacles * horizon,
+                     numpy_full, numpy_full / full)
+
+
+def benchmark_table_one(
+    sample_counts: Sequence[int] = (50, 500, 1500),
+    repeats: int = 20,
+    seed: int = 0,
+    *,
+    risks: Sequence[str] = ("cvar", "dr_cvar"),
+    formulation: str = "vectorized",
+) -> TableOneResult:
+    """Reproduce the paper's Table I and time :func:`safe_halfspaces` on the same setup.
+
+    Parameters
+    ----------
+    sample_counts
+        Numbers of samples :math:`N_s`.
+    repeats
+        Fresh CVXPY problems per (risk, :math:`N_s`) (the paper used 500). With the
+        default ``"vectorized"`` formulation the whole run takes a few seconds.
+    seed
+        Seed of the single :func:`numpy.random.default_rng` all samples come from.
+    risks
+        Risk metrics, among ``"mean"``, ``"cvar"``, ``"dr_cvar"``.
+    formulation
+        CVXPY formulation, ``"vectorized"`` or ``"paper"`` (eq. (6) per sample, as the
+        authors' code; about 4 s per DR-CVaR problem at :math:`N_s = 1500` here,
+        so use few repeats).
+
+    Returns
+    -------
+    TableOneResult
+        CVXPY timings (ms) with the paper's numbers alongside, and ours (µs) with the
+        speed-up ratios.
+
+    Raises
+    ------
+    InvalidParameterError
+        For an unknown risk or formulation.
+    """
+    rng = np.random.default_rng(seed)
+    cvxpy_rows, our_rows = [], []
+    for risk in risks:
+        for n_samples in sample_counts:
+            row = _time_cvxpy(rng, risk, int(n_samples), repeats, formulation)
+            cvxpy_rows.append(row)
+            our_rows.append(_time_ours(rng, risk, int(n_samples), row.call_mean))
+    return TableOneResult(tuple(cvxpy_rows), tuple(our_rows), formulation, repeats, seed)
+
+
+def _mean_median(mean: float, median: float) -> str:
+    return f"{mean:.3g} / {median:.3g}".rjust(20)
+
+
+def format_table_one(result: TableOneResult) -> str:
+    """Plain-text rendering of :func:`benchmark_table_one`'s result."""
+    lines = [
+        f"Table I: one safe halfspace with CVXPY ({result.formulation}) + Clarabel, "
+        f"ms, mean / median over {result.repeats} fresh problems (seed {result.seed})",
+        f"{'risk':<8}{'N_s':>6}{'setup':>20}{'solve':>20}{'call':>20}"
+        f"{'paper solve':>13}{'paper call':>12}",
+    ]
+    for row in result.cvxpy:
+        cells = [
+            _mean_median(row.setup_mean, row.setup_median),
+            _mean_median(row.solve_mean, row.solve_median),
+            _mean_median(row.call_mean, row.call_median),
+        ]
+        lines.append(
+            f"{row.risk:<8}{row.n_samples:>6}{''.join(cells)}"
+            f"{row.paper_solve:>13.3g}{row.paper_call:>12.3g}"
+        )
+    lines += [
+        "",
+        "Ours: safe_halfspaces, median wall-clock µs (one call; compiled kernels, and the "
+        "numpy reference on the same data)",
+        f"{'risk':<8}{'N_s':>6}{'1 x 1':>10}{'3 x 10':>10}"
+        f"{'CVXPY call / ours(3x10)':>26}{'30 calls / ours(3x10)':>24}"
+        f"{'numpy 3 x 10':>14}{'numpy / ours':>14}",
+    ]
+    for row in result.ours:
+        lines.append(
+            f"{row.risk:<8}{row.n_samples:>6}{row.one_halfspace_us:>10.1f}{row.grid_us:>10.1f}"
+            f"{row.speedup:>25.0f}x{row.speedup_same_work:>23.0f}x"
+            f"{row.numpy_grid_us:>14.1f}{row.numpy_ratio:>13.1f}x"
+        )
+    return "\n".join(lines)

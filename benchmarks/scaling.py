@@ -1,0 +1,566 @@
+"""How the filter step scales: obstacles x horizon x samples, ours against CVXPY compiled once.
+
+For every grid point ``(n_obstacles, T, N_s)`` (default: {1, 3, 10, 20} x {10, 20,
+40, 80} x {100, 1000}) the same recorded instances are solved by
+
+* ours: :func:`filters.safe_halfspaces` (DR-CVaR, the paper's defaults; the compiled
+  kernels of :mod:`filters.kernels`) on the ``N_s`` prediction samples, then
+  :meth:`filters.MPCSafetyFilter.solve` (built once per grid point), timed separately;
+  the *step* is their sum, what a control loop pays; the numpy reference of the
+  halfspaces (``backend="numpy"``) is timed on the same instances in a pass of its own;
+* the reference: the same QP (the same halfspaces) in CVXPY, built once with
+  Parameters (DPP) and compiled by its first solve, which is timed apart.
+
+Instances are made as in :mod:`benchmarks.filter_qp`: the paper's double
+integrator (Ts = 0.2 s) crosses the arena from the left at 1.5 m/s with a
+straight-line reference while obstacles start ahead of it with random headings
+and speeds up to 1 m/s, so that they cross its path and some halfspace rows are
+active. Beyond 3 obstacles their starting area widens with their number (see
+:func:`obstacle_area`) so that each keeps about as much room. Predictions are the
+nominal constant-velocity positions plus N(0, 0.01 I) samples at each step (the
+paper's model). The fast filter drives the ego, so the episodes have active rows,
+the occasional infeasible step and the fallbacks that follow; an episode ends at
+the far side, after 40 steps, on a collision, or when the filter had to brake (as
+an environment episode would end). The statuses are reported with the times.
+
+Two instance families (``family=``):
+
+* ``"straight"`` (the default, the grid issue 12 measured): the reference runs on at
+  1.5 m/s for the whole horizon, 24 m at T = 80, far outside the [-5, 5] m arena, and
+  the constant-velocity obstacle predictions leave it too; most long-horizon QPs are
+  then infeasible (the recovery QP is solved too), and their recovery QPs violate
+  hundreds of rows;
+* ``"goal"``: the same episodes, but the reference stops at a goal inside the arena
+  (x = 4.5 m on the ego's lane): the long-horizon QPs a real planner would send.
+
+Ours is the default ``backend="auto"`` (DAQP for the hard QP; DAQP or PIQP for the
+recovery QP, by size; the point reports which); each explicit back end (``"daqp"``,
+``"clarabel"``, ``"piqp"``) then solves
+the same recorded halfspaces in a pass of its own, so that the table shows them all
+and how far their inputs are apart; the sparse back ends (Clarabel, PIQP) then also time
+their hard QP alone at every step, in one more pass each ("per QP": one kind of QP at
+every size, so that its growth with T is the back end's, not that of the share of
+recovery QPs; a pass of its own, so that the recovery QP the filter pass just solved does
+not evict its data from the caches between steps), with its median interior-point
+iterations, its median time per iteration and the share of hard QPs it solved (the
+growth with T splits into iterations, a property of the instances, and the work per
+iteration, the back end's). Besides the wall time, that pass records the CPU time of the
+thread (``time.thread_time``): on a machine whose cores are shared, a QP that takes
+milliseconds is more often preempted mid-solve than one that takes a tenth of that, so
+its wall-time median grows faster with T than its work; the time per iteration is CPU
+time. The filters are timed in
+separate passes over the same instances (interleaved, each evicts the other's data from
+the caches). Every number is a median over the steps of one run; the ratios compare
+numbers of the same run.
+"""
+
+from __future__ import annotations
+
+import csv
+import importlib
+import time
+from collections import Counter
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+
+import numpy as np
+
+from benchmarks.filter_qp import RADIUS, SPEED, TS, double_integrator, filter_kwargs
+from filters import Disc, FilterStatus, MPCSafetyFilter, safe_halfspaces
+from filters.errors import InvalidParameterError
+from filters.mpc.backends.riccati import RiccatiBackend
+from filters.mpc.result import StepData
+
+__all__ = [
+    "FAMILIES",
+    "FULL_GRID",
+    "QUICK_GRID",
+    "ScalingGrid",
+    "ScalingPoint",
+    "benchmark_point",
+    "benchmark_scaling",
+    "cvxpy_filter_class",
+    "format_scaling_table",
+    "make_scaling_instances",
+    "obstacle_area",
+    "plot_scaling",
+    "write_scaling_csv",
+]
+
+PREDICTION_STD = 0.1  # m per axis, the paper's N(0, 0.01 I) prediction noise
+GOAL_X = 4.5  # m, where the "goal" reference stops
+#: Instance families of :func:`make_scaling_instances` (module docstring).
+FAMILIES = ("straight", "goal")
+EPISODE_STEPS = 40  # steps per crossing episode (8 s)
+
+
+@dataclass(frozen=True)
+class ScalingGrid:
+    """The grid of problem sizes, and how many filter steps are timed at each point."""
+
+    obstacles: tuple[int, ...] = (1, 3, 10, 20)
+    horizons: tuple[int, ...] = (10, 20, 40, 80)
+    samples: tuple[int, ...] = (100, 1000)
+    steps: int = 100
+
+    def __post_init__(self) -> None:
+        for name in ("obstacles", "horizons", "samples"):
+            values = getattr(self, name)
+            if not values or any(int(v) != v or v < 1 for v in values):
+                raise InvalidParameterError(
+                    f"ScalingGrid.{name} must be a non-empty tuple of integers >= 1, "
+                    f"got {values!r}"
+                )
+        if int(self.steps) != self.steps or self.steps < 2:
+            raise InvalidParameterError(
+                f"ScalingGrid.steps must be an integer >= 2, got {self.steps!r}"
+            )
+
+    @property
+    def points(self) -> list[tuple[int, int, int]]:
+        """``(n_obstacles, T, N_s)`` in the order they are run."""
+        return [(n, t, s) for n in self.obstacles for t in self.horizons for s in self.samples]
+
+
+FULL_GRID = ScalingGrid()
+"""The issue's grid: {1, 3, 10, 20} obstacles x T in {10, 20, 40, 80} x N_s in {100, 1000}."""
+
+QUICK_GRID = ScalingGrid(obstacles=(1, 3, 10), horizons=(10, 40), samples=(100,), steps=30)
+"""A subset that runs in well under a minute."""
+
+
+def cvxpy_filter_class() -> type:
+    """The CVXPY reference filter class, wherever the package keeps it.
+
+    ``filters.mpc.backends.cvxpy`` (the back-end package) first, then the older
+    module ``filters.mpc_cvxpy``.
+    """
+    for module_name in ("filters.mpc.backends.cvxpy", "filters.mpc_cvxpy"):
+        try:
+            module = importlib.import_module(module_name)
+        except ImportError:
+            continue
+        if hasattr(module, "CVXPYSafetyFilter"):
+            return module.CVXPYSafetyFilter
+    raise ImportError(
+        "CVXPYSafetyFilter found neither in filters.mpc.backends.cvxpy nor in filters.mpc_cvxpy"
+    )
+
+
+@dataclass(frozen=True)
+class Instance:
+    """One control step: state, reference (T+1, 4) and prediction samples (n, N_s, T, 2)."""
+
+    x0: np.ndarray
+    reference_states: np.ndarray
+    samples: np.ndarray
+    new_episode: bool
+
+
+def _reference(x: np.ndarray, lane: float, horizon: int, kind: str = "straight") -> np.ndarray:
+    """Straight-line reference at :data:`SPEED` along +x on the ego's lane; row 0 is ``x``.
+
+    ``kind="goal"``: it stops at ``x =`` :data:`GOAL_X` (zero velocity from there on).
+    """
+    reference = np.empty((horizon + 1, 4))
+    reference[:, 0] = x[0] + SPEED * TS * np.arange(horizon + 1)
+    reference[:, 1] = lane
+    reference[:, 2:] = (SPEED, 0.0)
+    if kind == "goal":
+        stopped = reference[:, 0] >= GOAL_X
+        reference[stopped, 0] = max(GOAL_X, x[0])
+        reference[stopped, 2] = 0.0
+    reference[0] = x
+    return reference
+
+
+def obstacle_area(n_obstacles: int) -> tuple[float, float, float]:
+    """``(x_low, x_high, y_half)`` in m: obstacles start in ``[x_low, x_high] x [-y_half, y_half]``.
+
+    :mod:`benchmarks.filter_qp`'s ``[-2, 3] x [-1.5, 1.5]`` up to 3 obstacles,
+    widened beyond so that each obstacle keeps about as much room.
+    """
+    scale = max(1.0, n_obstacles / 3.0)
+    return -2.0, min(4.5, -2.0 + 5.0 * np.sqrt(scale)), min(4.5, 1.5 * np.sqrt(scale))
+
+
+def make_scaling_instances(
+    n_steps: int, n_obstacles: int, horizon: int, n_samples: int, rng: np.random.Generator,
+    *, family: str = "straight",
+) -> list[Instance]:
+    """Crossing episodes with the fast DR-CVaR filter in the loop; record each step's data.
+
+    The episode set-up is :func:`benchmarks.filter_qp.make_instances`'s, with
+    real prediction samples instead of its fixed risk margins, and an obstacle area
+    that widens with the number of obstacles (see the module docstring). ``family`` is
+    one of :data:`FAMILIES`; both draw the same random numbers.
+
+    Raises
+    ------
+    InvalidParameterError
+        If ``family`` is not one of :data:`FAMILIES`.
+    """
+    if family not in FAMILIES:
+        raise InvalidParameterError(f"family must be one of {FAMILIES}, got {family!r}")
+    A, B, C = double_integrator()
+    mpc = MPCSafetyFilter(A, B, C, **filter_kwargs(horizon, n_obstacles))
+    ego_shape, shapes = Disc(RADIUS), [Disc(RADIUS)] * n_obstacles
+    steps = np.arange(1, horizon + 1)[:, None] * TS  # (T, 1), s
+    x_low, x_high, y_half = obstacle_area(n_obstacles)
+    instances: list[Instance] = []
+    new_episode = True
+    while len(instances) < n_steps:
+        if new_episode:
+            mpc.reset()
+            x = np.array([-4.5, rng.uniform(-1.0, 1.0), SPEED, 0.0])
+            lane = x[1]
+            obstacles = np.column_stack(
+                [rng.uniform(x_low, x_high, n_obstacles), rng.uniform(-y_half, y_half, n_obstacles)]
+            )
+            speed = rng.uniform(0.0, 1.0, n_obstacles)
+            heading = rng.uniform(0.0, 2.0 * np.pi, n_obstacles)
+            velocities = speed[:, None] * np.column_stack([np.cos(heading), np.sin(heading)])
+            step_in_episode = 0
+        reference_states = _reference(x, lane, horizon, family)
+        nominal = obstacles[:, None, :] + velocities[:, None, :] * steps[None]  # (n, T, 2)
+        samples = nominal[:, None] + PREDICTION_STD * rng.standard_normal(
+            (n_obstacles, n_samples, horizon, 2))
+        instances.append(Instance(x.copy(), reference_states, samples, new_episode))
+        hs = safe_halfspaces(reference_states[1:, :2], samples, ego_shape=ego_shape,
+                             obstacle_shapes=shapes, risk="dr_cvar", ego_velocity=x[2:])
+        result = mpc.solve(x, reference_states, hs)
+        x = A @ x + B @ result.inputs[0]
+        obstacles = obstacles + TS * velocities
+        step_in_episode += 1
+        clearance = np.min(np.linalg.norm(obstacles - x[:2], axis=-1), initial=np.inf)
+        # An episode ends as the environment's do: at the goal side, on a collision, or
+        # (here) when the filter had to brake; so the steps are those of a working loop.
+        new_episode = (step_in_episode >= EPISODE_STEPS or x[0] > 4.5
+                       or clearance < 2 * RADIUS or result.status == FilterStatus.BRAKE)
+    return instances
+
+
+@dataclass(frozen=True)
+class ScalingPoint:
+    """Medians (ms) at one grid point, ours and CVXPY on the same instances."""
+
+    n_obstacles: int
+    horizon: int
+    n_samples: int
+    steps: int
+    halfspaces_ms: float
+    qp_ms: float
+    step_ms: float  # halfspaces + QP, per step
+    step_p90_ms: float
+    cvxpy_ms: float  # the same QP in CVXPY compiled once (Clarabel), per step
+    cvxpy_compile_ms: float  # its first solve (canonicalisation), not in cvxpy_ms
+    ratio: float  # cvxpy_ms / step_ms: CVXPY's QP alone against our whole step
+    qp_ratio: float  # cvxpy_ms / qp_ms
+    agreement: float  # share of steps with the same status
+    max_input_difference: float  # m/s^2, over the steps where both were optimal
+    statuses: dict[str, int] = field(default_factory=dict)  # ours
+    backend: str = ""  # what backend="auto" picked (hard QP, and recovery QP if other)
+    daqp_qp_ms: float = float("nan")  # backend="daqp", QP (solve call) median
+    clarabel_qp_ms: float = float("nan")  # backend="clarabel", QP median
+    daqp_clarabel_difference: float = float("nan")  # max |u_daqp - u_clarabel|, both optimal
+    clarabel_per_qp_ms: float = float("nan")  # backend="clarabel": its hard QP alone
+    piqp_qp_ms: float = float("nan")  # backend="piqp", QP median
+    piqp_per_qp_ms: float = float("nan")  # backend="piqp": its hard QP alone
+    family: str = "straight"  # instance family (FAMILIES)
+    halfspaces_numpy_ms: float = float("nan")  # the numpy reference, same instances
+    clarabel_per_qp_cpu_ms: float = float("nan")  # its hard QP alone: CPU time of the thread
+    clarabel_per_qp_iterations: float = float("nan")  # its hard QP alone: median iterations
+    clarabel_per_iteration_us: float = float("nan")  # median of (CPU time / iterations), µs
+    clarabel_per_qp_solved: float = float("nan")  # share of the hard QPs it solved
+    piqp_per_qp_cpu_ms: float = float("nan")
+    piqp_per_qp_iterations: float = float("nan")
+    piqp_per_iteration_us: float = float("nan")
+    piqp_per_qp_solved: float = float("nan")
+    # the recovery QP (every row soft) alone at every step, by the Riccati back end
+    riccati_per_qp_ms: float = float("nan")
+    riccati_per_qp_cpu_ms: float = float("nan")
+    riccati_per_qp_iterations: float = float("nan")
+    riccati_per_iteration_us: float = float("nan")
+    riccati_per_qp_solved: float = float("nan")
+
+    def as_row(self) -> dict:
+        """Flat ``dict`` for CSV (statuses as ``name:count`` pairs)."""
+        row = asdict(self)
+        row["statuses"] = " ".join(f"{k}:{v}" for k, v in sorted(self.statuses.items()))
+        return row
+
+
+def benchmark_point(
+    n_obstacles: int, horizon: int, n_samples: int, *, steps: int = 100, seed: int = 0,
+    family: str = "straight",
+) -> ScalingPoint:
+    """Time halfspaces, QP, step and the CVXPY reference at one grid point.
+
+    Parameters
+    ----------
+    n_obstacles, horizon, n_samples
+        Obstacles, MPC horizon ``T`` and prediction samples ``N_s`` per obstacle and step.
+    steps
+        Filter steps (recorded instances) timed.
+    seed
+        Seed of the ``numpy.random.Generator`` that draws the episodes and samples.
+    family
+        Instance family, one of :data:`FAMILIES`.
+    """
+    rng = np.random.default_rng([seed, n_obstacles, horizon, n_samples])
+    instances = make_scaling_instances(steps, n_obstacles, horizon, n_samples, rng,
+                                       family=family)
+    A, B, C = double_integrator()
+    kwargs = filter_kwargs(horizon, n_obstacles)
+    ego_shape, shapes = Disc(RADIUS), [Disc(RADIUS)] * n_obstacles
+
+    ours = MPCSafetyFilter(A, B, C, **kwargs)  # backend="auto"
+    for instance in instances[: min(20, len(instances))]:  # build the lazily made QPs
+        if instance.new_episode:
+            ours.reset()
+        hs = safe_halfspaces(instance.reference_states[1:, :2], instance.samples,
+                             ego_shape=ego_shape, obstacle_shapes=shapes, risk="dr_cvar",
+                             ego_velocity=instance.x0[2:])
+        ours.solve(instance.x0, instance.reference_states, hs)
+    halfspace_ms, qp_ms, step_ms, recorded, results = [], [], [], [], []
+    for instance in instances:
+        if instance.new_episode:
+            ours.reset()
+        begin = time.perf_counter()
+        hs = safe_halfspaces(instance.reference_states[1:, :2], instance.samples,
+                             ego_shape=ego_shape, obstacle_shapes=shapes, risk="dr_cvar",
+                             ego_velocity=instance.x0[2:])
+        middle = time.perf_counter()
+        result = ours.solve(instance.x0, instance.reference_states, hs)
+        end = time.perf_counter()
+        halfspace_ms.append(1e3 * (middle - begin))
+        qp_ms.append(1e3 * (end - middle))
+        step_ms.append(1e3 * (end - begin))
+        recorded.append(hs)
+        results.append(result)
+
+    numpy_ms = []
+    for instance in instances:
+        begin = time.perf_counter()
+        safe_halfspaces(instance.reference_states[1:, :2], instance.samples, ego_shape=ego_shape,
+                        obstacle_shapes=shapes, risk="dr_cvar", ego_velocity=instance.x0[2:],
+                        backend="numpy")
+        numpy_ms.append(1e3 * (time.perf_counter() - begin))
+
+    reference = cvxpy_filter_class()(A, B, C, **kwargs)
+    first = instances[0]
+    begin = time.perf_counter()
+    reference.solve(first.x0, first.reference_states, recorded[0])
+    compile_ms = 1e3 * (time.perf_counter() - begin)
+    cvxpy_ms, same, difference = [], 0, 0.0
+    statuses: Counter[str] = Counter()
+    for instance, hs, fast in zip(instances, recorded, results, strict=True):
+        if instance.new_episode:
+            reference.reset()
+        begin = time.perf_counter()
+        slow = reference.solve(instance.x0, instance.reference_states, hs)
+        cvxpy_ms.append(1e3 * (time.perf_counter() - begin))
+        statuses[fast.status.value] += 1
+        same += fast.status == slow.status
+        if fast.status == slow.status == FilterStatus.OPTIMAL:
+            difference = max(difference, float(np.max(np.abs(fast.inputs - slow.inputs))))
+
+    backend_ms: dict[str, list[float]] = {}
+    backend_inputs: dict[str, list] = {}
+    per_qp: dict[str, list[tuple[float, float, int, bool]]] = {"clarabel": [], "piqp": []}
+    zero_inputs = np.zeros((horizon, B.shape[1]))
+    hard_steps = [StepData(instance.x0, instance.reference_states[1:], zero_inputs,
+                           np.asarray(hs.normals), np.asarray(hs.offsets))
+                  for instance, hs in zip(instances, recorded, strict=True)]
+    for name in ("daqp", "clarabel", "piqp"):
+        explicit = MPCSafetyFilter(A, B, C, backend=name, **kwargs)
+        backend_ms[name], backend_inputs[name] = [], []
+        for instance, hs in zip(instances, recorded, strict=True):
+            if instance.new_episode:
+                explicit.reset()
+            begin = time.perf_counter()
+            answer = explicit.solve(instance.x0, instance.reference_states, hs)
+            backend_ms[name].append(1e3 * (time.perf_counter() - begin))
+            backend_inputs[name].append(
+                answer.inputs if answer.status == FilterStatus.OPTIMAL else None)
+        if name in per_qp:  # the hard QP alone, the same QP at every step, in a pass of its own
+            for step in hard_steps:
+                begin, begin_cpu = time.perf_counter(), time.thread_time()
+                solution = explicit._primary.solve(step)
+                end_cpu, end = time.thread_time(), time.perf_counter()
+                per_qp[name].append((1e3 * (end - begin), 1e3 * (end_cpu - begin_cpu),
+                                     solution.iterations, solution.found))
+    # The Riccati back end solves only QPs whose every row is soft: the recovery QP of
+    # each step, alone, in a pass of its own (the same kind of QP at every size).
+    riccati = RiccatiBackend(ours.problem.with_soft_rows({"halfspaces", "bounds"}))
+    riccati.solve(hard_steps[0])  # numba's first call loads the compiled kernel
+    riccati_timings = []
+    for step in hard_steps:
+        begin, begin_cpu = time.perf_counter(), time.thread_time()
+        solution = riccati.solve(step)
+        end_cpu, end = time.thread_time(), time.perf_counter()
+        riccati_timings.append((1e3 * (end - begin), 1e3 * (end_cpu - begin_cpu),
+                                solution.iterations, solution.found))
+    between = [float(np.max(np.abs(a - b))) for a, b in zip(
+        backend_inputs["daqp"], backend_inputs["clarabel"], strict=True)
+        if a is not None and b is not None]
+
+    step, qp, cvxpy_median = (float(np.median(v)) for v in (step_ms, qp_ms, cvxpy_ms))
+    return ScalingPoint(
+        n_obstacles=n_obstacles, horizon=horizon, n_samples=n_samples, steps=len(instances),
+        halfspaces_ms=float(np.median(halfspace_ms)), qp_ms=qp, step_ms=step,
+        step_p90_ms=float(np.percentile(step_ms, 90)), cvxpy_ms=cvxpy_median,
+        cvxpy_compile_ms=compile_ms, ratio=cvxpy_median / step, qp_ratio=cvxpy_median / qp,
+        agreement=same / len(instances), max_input_difference=difference,
+        statuses=dict(statuses), backend=_backend_label(ours),
+        daqp_qp_ms=float(np.median(backend_ms["daqp"])),
+        clarabel_qp_ms=float(np.median(backend_ms["clarabel"])),
+        daqp_clarabel_difference=max(between) if between else float("nan"),
+        piqp_qp_ms=float(np.median(backend_ms["piqp"])),
+        **_per_qp_fields("clarabel", per_qp["clarabel"]),
+        **_per_qp_fields("piqp", per_qp["piqp"]),
+        **_per_qp_fields("riccati", riccati_timings),
+        family=family,
+        halfspaces_numpy_ms=float(np.median(numpy_ms)),
+    )
+
+
+def _per_qp_fields(name: str, timings: list[tuple[float, float, int, bool]]
+                   ) -> dict[str, float]:
+    """The :class:`ScalingPoint` fields of one back end's pass of single QPs.
+
+    ``timings`` holds ``(wall time in ms, CPU time of the thread in ms, interior-point
+    iterations, solved)`` per step; the time per iteration is each step's CPU time over
+    its iterations (at least one).
+    """
+    keys = ("per_qp_ms", "per_qp_cpu_ms", "per_qp_iterations", "per_iteration_us",
+            "per_qp_solved")
+    if not timings:
+        return {f"{name}_{key}": float("nan") for key in keys}
+    table = np.array(timings, dtype=float)  # (steps, 4)
+    wall, cpu, iterations, solved = table.T
+    values = (np.median(wall), np.median(cpu), np.median(iterations),
+              np.median(1e3 * cpu / np.maximum(iterations, 1.0)), np.mean(solved))
+    return {f"{name}_{key}": float(value) for key, value in zip(keys, values, strict=True)}
+
+
+def _backend_label(mpc: MPCSafetyFilter) -> str:
+    """``"daqp"``, or ``"daqp/clarabel"`` when the recovery QP has another back end."""
+    recovery = mpc.recovery_backend
+    return mpc.backend if recovery in (None, mpc.backend) else f"{mpc.backend}/{recovery}"
+
+
+def benchmark_scaling(
+    grid: ScalingGrid = FULL_GRID, *, seed: int = 0, progress: bool = False,
+    family: str = "straight",
+) -> list[ScalingPoint]:
+    """Run :func:`benchmark_point` at every point of ``grid`` (see the module docstring)."""
+    points = []
+    for n_obstacles, horizon, n_samples in grid.points:
+        point = benchmark_point(n_obstacles, horizon, n_samples, steps=grid.steps, seed=seed,
+                                family=family)
+        if progress:
+            print(f"  obstacles {n_obstacles:>2}, T {horizon:>2}, N_s {n_samples:>4}: step "
+                  f"{point.step_ms:.3f} ms, CVXPY {point.cvxpy_ms:.3f} ms ({point.ratio:.1f}x)",
+                  flush=True)
+        points.append(point)
+    return points
+
+
+def format_scaling_table(points: Sequence[ScalingPoint]) -> str:
+    """The ratio table in markdown (medians in ms; ratios of the same run)."""
+    lines = [
+        "| obstacles | T | N_s | halfspaces | halfspaces numpy | QP | step | CVXPY QP | "
+        "CVXPY / step | CVXPY / QP | auto picks | QP daqp | QP clarabel | QP piqp | "
+        "per QP clarabel | per QP piqp | per QP CPU clarabel / piqp | "
+        "per QP iterations clarabel / piqp | "
+        "CPU per iteration µs clarabel / piqp | hard QPs solved (clarabel) | "
+        "recovery QP alone riccati (iterations, µs per iteration) | "
+        "max abs u_daqp - u_clarabel | "
+        "statuses (ours) | same status |",
+        "|" + "---|" * 24,
+    ]
+    for p in points:
+        statuses = ", ".join(f"{k} {v}" for k, v in sorted(p.statuses.items()))
+        lines.append(
+            f"| {p.n_obstacles} | {p.horizon} | {p.n_samples} | {p.halfspaces_ms:.3f} | "
+            f"{p.halfspaces_numpy_ms:.3f} | {p.qp_ms:.3f} | {p.step_ms:.3f} | {p.cvxpy_ms:.2f} | "
+            f"{p.ratio:.1f}x | "
+            f"{p.qp_ratio:.1f}x | {p.backend} | {p.daqp_qp_ms:.3f} | {p.clarabel_qp_ms:.3f} | "
+            f"{p.piqp_qp_ms:.3f} | {p.clarabel_per_qp_ms:.3f} | {p.piqp_per_qp_ms:.3f} | "
+            f"{p.clarabel_per_qp_cpu_ms:.3f} / {p.piqp_per_qp_cpu_ms:.3f} | "
+            f"{p.clarabel_per_qp_iterations:.0f} / {p.piqp_per_qp_iterations:.0f} | "
+            f"{p.clarabel_per_iteration_us:.1f} / {p.piqp_per_iteration_us:.1f} | "
+            f"{100 * p.clarabel_per_qp_solved:.0f}% | "
+            f"{p.riccati_per_qp_ms:.3f} ({p.riccati_per_qp_iterations:.0f}, "
+            f"{p.riccati_per_iteration_us:.1f}) | "
+            f"{p.daqp_clarabel_difference:.1e} | {statuses} | "
+            f"{100 * p.agreement:.0f}% |"
+        )
+    return "\n".join(lines)
+
+
+def write_scaling_csv(points: Sequence[ScalingPoint], path: str | Path) -> Path:
+    """One row per grid point (the fields of :class:`ScalingPoint`)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=[f.name for f in fields(ScalingPoint)])
+        writer.writeheader()
+        for point in points:
+            writer.writerow(point.as_row())
+    return path
+
+
+def plot_scaling(points: Sequence[ScalingPoint], path: str | Path) -> Path:
+    """Log-log plot of time against problem size, saved to ``path`` (PNG/SVG/PDF).
+
+    Left: our QP, our whole step and CVXPY's QP against the horizon ``T``, one colour
+    per obstacle count (at the smallest ``N_s``). Right: the halfspaces against the
+    number of samples processed, ``n_obstacles * T * N_s``, with a slope-1 guide
+    (linear work) through the larger half of the points.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2))
+    n_samples = min(p.n_samples for p in points)
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for index, n_obstacles in enumerate(sorted({p.n_obstacles for p in points})):
+        row = sorted((p for p in points if p.n_obstacles == n_obstacles
+                      and p.n_samples == n_samples), key=lambda p: p.horizon)
+        horizons = [p.horizon for p in row]
+        colour = colours[index % len(colours)]
+        left.plot(horizons, [p.cvxpy_ms for p in row], "--", color=colour, marker="s",
+                  label=f"{n_obstacles} obst.: CVXPY QP")
+        left.plot(horizons, [p.step_ms for p in row], "-", color=colour, marker="o",
+                  label=f"{n_obstacles} obst.: our step")
+        left.plot(horizons, [p.qp_ms for p in row], ":", color=colour, marker=".")
+    left.set(xscale="log", yscale="log", xlabel="horizon T (steps)", ylabel="time per step (ms)",
+             title=f"filter step vs CVXPY compiled once (N_s = {n_samples}; dotted: our QP)")
+    all_horizons = sorted({p.horizon for p in points})
+    left.set_xticks(all_horizons, [str(h) for h in all_horizons])
+    left.minorticks_off()
+    left.legend(fontsize=7, ncol=2)
+    left.grid(True, which="both", alpha=0.3)
+    work = np.array([p.n_obstacles * p.horizon * p.n_samples for p in points], dtype=float)
+    times = np.array([p.halfspaces_ms for p in points])
+    right.scatter(work, times, c=[colours[sorted({q.n_obstacles for q in points}).index(
+        p.n_obstacles) % len(colours)] for p in points], s=18)
+    guide = np.array([work.min(), work.max()])
+    large = work >= np.median(work)  # fixed costs dominate the small sizes
+    anchor = float(np.median(times[large] / work[large]))
+    right.plot(guide, anchor * guide, "k--", lw=1, label="slope 1 (linear work)")
+    right.set(xscale="log", yscale="log", xlabel="samples processed, n_obstacles x T x N_s",
+              ylabel="halfspaces time (ms)", title="DR-CVaR halfspaces")
+    right.legend(fontsize=8)
+    right.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path

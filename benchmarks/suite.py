@@ -1,0 +1,761 @@
+"""``safe-nav bench``: every speed target, measured as ratios in one run.
+
+These machines are shared and noisy, so every number is a median and every target
+is a ratio against a reference measured in the same run:
+
+(a) the paper's Table I: one CVaR / DR-CVaR halfspace with CVXPY (setup, solve,
+    call) at N_s = 50, 500, 1500, against our closed form for all 3 x 10 halfspaces;
+(b) one full filter step (halfspaces + QP) on the multi-obstacle scenario
+    (3 obstacles, T = 10, N_s = 100) against the same QP in CVXPY built once with
+    Parameters, and the QP alone on synthetic instances; ours is the default
+    ``backend="auto"``, and each explicit back end (DAQP, Clarabel, PIQP) is timed on the
+    same steps too;
+(c) the unfiltered environment's steps per second;
+(d) ``safe-nav bench --training`` (:func:`benchmark_training`): PPO training steps per
+    second with the DR-CVaR filter in the loop against without it, interleaved runs.
+
+(b) also times the policy roll-out reference (:func:`benchmark_rollout_reference`: the
+compiled kernel against the per-step ``predict`` loops) against the QP of the same run,
+and both step by step in the evaluation's control loop (:func:`benchmark_control_loop`).
+
+``safe-nav bench --scaling`` (:func:`run_scaling`) times the filter step on the grid
+obstacles x horizon x samples against CVXPY compiled once (see
+:mod:`benchmarks.scaling`), and the policy forward pass and roll-out
+reference through SB3 against :class:`agents.NumpyPolicy` and
+:class:`agents.TorchActorPolicy`.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from benchmarks.scaling import ScalingGrid
+
+
+def halfspace_timing_table(
+    sample_counts: Sequence[int] = (50, 500, 1500), repeats: int = 100, seed: int = 0
+) -> dict:
+    """Table I as nested dicts (ms): ``cvxpy[risk][N_s] = {setup, solve, call}`` (means)
+    and ``ours[N_s]`` = our DR-CVaR time for one halfspace; ``result`` is the raw
+    :class:`benchmarks.halfspaces.TableOneResult`."""
+    from benchmarks.halfspaces import benchmark_table_one
+
+    result = benchmark_table_one(sample_counts, repeats, seed)
+    cvxpy: dict[str, dict[int, dict[str, float]]] = {}
+    for row in result.cvxpy:
+        cvxpy.setdefault(row.risk, {})[row.n_samples] = {
+            "setup": row.setup_mean, "solve": row.solve_mean, "call": row.call_mean}
+    ours = {row.n_samples: row.one_halfspace_us / 1e3 for row in result.ours
+            if row.risk == "dr_cvar"}
+    return {"cvxpy": cvxpy, "ours": ours, "result": result}
+
+
+@dataclass(frozen=True)
+class FilterStepBenchmark:
+    """Per-step times (ms, medians) of the full filter on a real scenario."""
+
+    steps: int
+    halfspaces_ms: float
+    qp_ms: float
+    step_ms: float
+    step_p90_ms: float
+    cvxpy_qp_ms: float
+    ratio: float  # CVXPY QP alone / our full step (halfspaces + QP)
+    qp_steps: int  # steps where ours needed a QP (the rest: feasible-reference shortcut)
+    step_qp_ms: float  # our full step, median over the qp_steps
+    cvxpy_qp_steps_ms: float  # CVXPY, median over the same qp_steps
+    statuses: dict[str, int]
+    variant: str = "the paper's filter"
+    backend: str = ""  # what backend="auto" (ours) picked
+    backend_qp_ms: dict[str, float] | None = None  # explicit back ends, same steps
+    backend_step_ms: dict[str, float] | None = None  # halfspaces + that QP, per step
+    backend_difference: dict[str, float] | None = None  # max |u - u_clarabel|, both solved
+    halfspaces_numpy_ms: float = float("nan")  # the numpy reference, same steps
+
+    def format(self) -> str:
+        statuses = ", ".join(f"{k} {v}" for k, v in sorted(self.statuses.items()))
+        return "\n".join([
+            f"(b) one filter step, {self.variant}, MultiObstacle (3 obstacles, T = 10, "
+            f"N_s = 100), {self.steps} steps, medians:",
+            f"    ours: halfspaces {self.halfspaces_ms:.3f} ms + QP {self.qp_ms:.3f} ms = "
+            f"step {self.step_ms:.3f} ms (p90 {self.step_p90_ms:.3f} ms)",
+            f"    halfspaces (filters.step_rows, as the wrapper): compiled kernels "
+            f"{self.halfspaces_ms:.3f} ms, numpy reference {self.halfspaces_numpy_ms:.3f} ms "
+            f"on the same steps ({self.halfspaces_numpy_ms / self.halfspaces_ms:.1f}x)",
+            f"    CVXPY QP built once with Parameters (Clarabel): {self.cvxpy_qp_ms:.3f} ms",
+            f"    ratio CVXPY QP / our whole step: {self.ratio:.1f}x   (target >= 10x, "
+            f"step < 1 ms)",
+            f"    steps that needed a QP ({self.qp_steps}; the others were answered by the "
+            f"feasible-reference shortcut): ours {self.step_qp_ms:.3f} ms, CVXPY "
+            f"{self.cvxpy_qp_steps_ms:.3f} ms, ratio "
+            f"{self.cvxpy_qp_steps_ms / self.step_qp_ms:.1f}x",
+            f"    statuses: {statuses}",
+            *self._backend_lines(),
+        ])
+
+    def _backend_lines(self) -> list[str]:
+        if not self.backend_qp_ms:
+            return []
+        lines = [f"    backend=\"auto\" picked {self.backend!r}; each back end on the same "
+                 "steps (QP = the solve call; step = halfspaces + QP):"]
+        for name, qp in self.backend_qp_ms.items():
+            step = self.backend_step_ms[name]
+            lines.append(
+                f"      {name:<9} QP {qp:.3f} ms, step {step:.3f} ms, CVXPY QP / step "
+                f"{self.cvxpy_qp_ms / step:.1f}x, max |u - u_clarabel| "
+                f"{self.backend_difference[name]:.1e} m/s^2")
+        return lines
+
+
+def benchmark_filter_step(n_steps: int = 500, seed: int = 0, *,
+                          continuous: bool = False) -> FilterStepBenchmark:
+    """Time the full DR-CVaR filter step along real MultiObstacle episodes.
+
+    ``continuous=False`` times the paper's filter (the halfspaces at the samples, hard
+    QP); ``continuous=True`` the wrapper's default one: the inter-sample rows of
+    :func:`filters.intersample_rows` (twice the rows), the terminal set and the soft
+    recovery, the same in both solvers.
+
+    The reference is the paper's obstacle-agnostic MPC plan; the applied action is
+    ours, so the episode follows the filtered trajectory, as in a real control loop.
+    The CVXPY QP is then solved on the very same data, in a second pass (run
+    interleaved, each solver evicts the other's data from the caches and both
+    look slower than in a loop of their own). The halfspaces are the wrapper's
+    (:func:`filters.step_rows.step_rows`: the compiled kernels); a further pass times
+    the numpy reference (``backend="numpy"``) on the same steps.
+    """
+    import gymnasium as gym
+
+    import safe_nav_env  # noqa: F401
+    from agents.planners import MPCReferencePlanner
+    from filters import CVXPYSafetyFilter, Disc, MPCSafetyFilter, stopping_terminal_set
+    from filters.step_rows import step_rows
+
+    env = gym.make("SafeNav/MultiObstacle-v0", n_samples=100, horizon=10)
+    base = env.unwrapped
+    A, B, C = base.dynamics
+    planner = MPCReferencePlanner.from_env(env)
+    weights = dict(horizon=10, Q=4.0 * np.eye(4), Q_terminal=25.0 * np.eye(4), R=np.eye(2),
+                   input_bounds=base.input_bounds, position_bounds=base.position_bounds,
+                   n_obstacles=6 if continuous else 3)
+    if continuous:
+        weights.update(fallback="soft", terminal_set=stopping_terminal_set(
+            base.dt, base.input_bounds, base.position_bounds))
+    ours = MPCSafetyFilter(A, B, C, **weights)  # backend="auto"
+    halfspace_ms, qp_ms, step_ms, needed_qp = [], [], [], []
+    instances = []
+    inputs = []  # the halfspaces' inputs of every step, for the numpy reference's pass
+    statuses: dict[str, int] = {}
+    episode = 0
+    while len(step_ms) < n_steps:
+        env.reset(seed=seed + episode)
+        ours.reset()
+        episode += 1
+        done = False
+        instances.append(None)  # episode boundary: reset the reference filter too
+        ego_shape = Disc(base.ego_radius)  # built once per episode, as the wrapper does
+        obstacle_shapes = [Disc(r) for r in base.obstacle_radii]
+        while not done and len(step_ms) < n_steps:
+            x0 = np.asarray(base.ego_state, dtype=float)
+            ref_states, ref_inputs = planner.plan(x0, base.goal)
+            predictions = base.predictions
+            begin = time.perf_counter()
+            rows = step_rows(
+                ref_states[1:] @ C.T, predictions, horizon=10, ego_shape=ego_shape,
+                obstacle_shapes=obstacle_shapes, risk="dr_cvar", alpha=0.2, delta=0.1,
+                epsilon=0.05, ego_velocity=x0[2:],
+                input_bounds=base.input_bounds if continuous else None, dt=float(base.dt))
+            hs = (rows.normals, rows.offsets)
+            middle = time.perf_counter()
+            result = ours.solve(x0, ref_states, hs, reference_inputs=ref_inputs)
+            end = time.perf_counter()
+            halfspace_ms.append(1e3 * (middle - begin))
+            qp_ms.append(1e3 * (end - middle))
+            step_ms.append(1e3 * (end - begin))
+            needed_qp.append(ours.last_qp_solves > 0)
+            instances.append((x0, ref_states, hs, ref_inputs))
+            inputs.append((ref_states[1:] @ C.T, np.array(predictions), x0[2:],
+                           ego_shape, obstacle_shapes))
+            statuses[result.status.value] = statuses.get(result.status.value, 0) + 1
+            _, _, terminated, truncated, _ = env.step(result.inputs[0].astype(np.float32))
+            done = terminated or truncated
+    numpy_ms = []
+    for origins, predictions, velocity, ego_shape, obstacle_shapes in inputs:
+        begin = time.perf_counter()
+        step_rows(origins, predictions, horizon=10, ego_shape=ego_shape,
+                  obstacle_shapes=obstacle_shapes, risk="dr_cvar", alpha=0.2, delta=0.1,
+                  epsilon=0.05, ego_velocity=velocity,
+                  input_bounds=base.input_bounds if continuous else None, dt=float(base.dt),
+                  backend="numpy")
+        numpy_ms.append(1e3 * (time.perf_counter() - begin))
+    backend_qp: dict[str, list[float]] = {}
+    backend_inputs: dict[str, list] = {}
+    for name in ("daqp", "clarabel", "piqp"):
+        explicit = MPCSafetyFilter(A, B, C, backend=name, **weights)
+        backend_qp[name], backend_inputs[name] = [], []
+        for instance in instances:
+            if instance is None:
+                explicit.reset()
+                continue
+            x0, ref_states, hs, ref_inputs = instance
+            begin = time.perf_counter()
+            answer = explicit.solve(x0, ref_states, hs, reference_inputs=ref_inputs)
+            backend_qp[name].append(1e3 * (time.perf_counter() - begin))
+            backend_inputs[name].append(answer.inputs if answer.solved else None)
+    difference = {}
+    for name in backend_inputs:
+        gaps = [float(np.max(np.abs(a - b))) for a, b in zip(
+            backend_inputs[name], backend_inputs["clarabel"], strict=True)
+            if a is not None and b is not None]
+        difference[name] = max(gaps) if gaps else float("nan")
+    halfspaces_each = np.asarray(halfspace_ms)
+    reference = CVXPYSafetyFilter(A, B, C, **weights)
+    cvxpy_ms = []
+    for instance in instances:
+        if instance is None:
+            reference.reset()
+            continue
+        x0, ref_states, hs, ref_inputs = instance
+        begin = time.perf_counter()
+        reference.solve(x0, ref_states, hs, reference_inputs=ref_inputs)
+        cvxpy_ms.append(1e3 * (time.perf_counter() - begin))
+    env.close()
+    step = float(np.median(step_ms))
+    mask = np.asarray(needed_qp)
+    steps_qp = np.asarray(step_ms)[mask] if mask.any() else np.asarray([np.nan])
+    cvxpy_qp = np.asarray(cvxpy_ms)[mask] if mask.any() else np.asarray([np.nan])
+    return FilterStepBenchmark(
+        steps=len(step_ms), halfspaces_ms=float(np.median(halfspace_ms)),
+        qp_ms=float(np.median(qp_ms)), step_ms=step,
+        step_p90_ms=float(np.percentile(step_ms, 90)), cvxpy_qp_ms=float(np.median(cvxpy_ms)),
+        ratio=float(np.median(cvxpy_ms)) / step, qp_steps=int(mask.sum()),
+        step_qp_ms=float(np.median(steps_qp)), cvxpy_qp_steps_ms=float(np.median(cvxpy_qp)),
+        statuses=statuses, backend=ours.backend,
+        backend_qp_ms={name: float(np.median(v)) for name, v in backend_qp.items()},
+        backend_step_ms={name: float(np.median(halfspaces_each + np.asarray(v)))
+                         for name, v in backend_qp.items()},
+        backend_difference=difference, halfspaces_numpy_ms=float(np.median(numpy_ms)),
+        variant="the continuous-time filter (inter-sample rows, terminal set, recovery)"
+        if continuous else "the paper's filter")
+
+
+def run_benchmarks(filter_steps: int = 500, table_repeats: int = 100, seed: int = 0,
+                   env_steps: int = 3000) -> str:
+    """Run (a), (b) and (c) and return the printed report."""
+    import platform
+
+    from benchmarks.env import benchmark as env_benchmark
+    from benchmarks.filter_qp import benchmark_filter_qp, format_filter_qp
+    from benchmarks.halfspaces import format_table_one
+
+    parts = [f"python {platform.python_version()}, numpy {np.__version__}, "
+             f"{platform.machine()}; medians; ratios measured in this run"]
+    table = halfspace_timing_table((50, 500, 1500), table_repeats, seed)
+    parts.append("(a) " + format_table_one(table["result"]))
+    parts.append(benchmark_filter_step(filter_steps, seed).format())
+    continuous = benchmark_filter_step(filter_steps, seed, continuous=True)
+    parts.append(continuous.format())
+    rollout = benchmark_rollout_reference(steps=filter_steps, seed=seed)
+    parts.append("    " + format_rollout_reference(rollout) + "\n"
+                 f"    compiled roll-out / the continuous-time filter's QP above: "
+                 f"{rollout['compiled']:.3f} / {continuous.qp_ms:.3f} ms = "
+                 f"{rollout['compiled'] / continuous.qp_ms:.2f}   (target <= 1)\n"
+                 + benchmark_control_loop(filter_steps, seed).format())
+    parts.append("    QP alone on synthetic instances:\n" + format_filter_qp(
+        benchmark_filter_qp(n_steps=filter_steps, seed=seed)))
+    rates = env_benchmark(n_steps=env_steps, repeats=3, seed=seed)
+    parts.append("(c) unfiltered environment, gym.make, N_s = 100, T = 10:\n" + "\n".join(
+        f"    {env_id:<28} {rate:8.0f} steps/s" for env_id, rate in rates.items()))
+    return "\n\n".join(parts)
+
+
+# --------------------------------------------------------------------------- --training
+
+
+@dataclass(frozen=True)
+class TrainingThroughput:
+    """PPO training steps per second without and with the DR-CVaR filter in the loop.
+
+    Two models train side by side in one process, in alternating chunks (a plain chunk,
+    a filtered chunk, ...; a chunk is one rollout and its update with the defaults), so
+    both see the same load on a shared machine; every rate is ``chunk / time``.
+
+    Attributes
+    ----------
+    chunk
+        Steps per chunk (summed over the environments).
+    plain_wall, filtered_wall
+        Steps per wall second, one per chunk.
+    plain_cpu, filtered_cpu
+        Steps per CPU second of this process (``time.process_time``), one per chunk.
+    filter_us
+        Wall time per filtered step in µs (medians over the chunks of the per-chunk
+        means): ``"reference"``, ``"halfspaces"``, ``"qp"`` (from the filter reports),
+        ``"qp_not_optimal"`` (the part of ``"qp"`` spent on the steps whose status is not
+        ``"optimal"``: the hard QP had no answer, the recovery QP or braking followed; 0
+        if absent) and ``"step"`` (the whole filtered training step, ``1 / rate``).
+    not_optimal_share
+        Median over the chunks of the share of filtered steps whose status is not
+        ``"optimal"`` (NaN if not measured).
+    """
+
+    chunk: int
+    plain_wall: tuple[float, ...]
+    filtered_wall: tuple[float, ...]
+    plain_cpu: tuple[float, ...]
+    filtered_cpu: tuple[float, ...]
+    filter_us: dict[str, float]
+    not_optimal_share: float = math.nan
+
+    @property
+    def timesteps(self) -> int:
+        """Timed steps of each kind."""
+        return self.chunk * len(self.plain_wall)
+
+    @property
+    def ratio(self) -> float:
+        """Median filtered over median plain steps per wall second."""
+        return float(np.median(self.filtered_wall) / np.median(self.plain_wall))
+
+    @property
+    def cpu_ratio(self) -> float:
+        """Median filtered over median plain steps per CPU second."""
+        return float(np.median(self.filtered_cpu) / np.median(self.plain_cpu))
+
+    @property
+    def pair_ratio(self) -> float:
+        """Median over the back-to-back pairs of filtered over plain wall rate."""
+        return float(np.median(np.asarray(self.filtered_wall) / np.asarray(self.plain_wall)))
+
+    def projected_ratio(self, speedups: dict[str, float]) -> float:
+        """The ratio if the halfspaces and the QP were ``speedups`` times faster.
+
+        .. math:: t' = t - t_h - t_q + t_h / s_h + t_q / s_q
+
+        per filtered step (wall, the filter reports' times), against the same plain rate.
+        A projection, not a measurement: the rest of the step is taken as it was.
+        """
+        t = 1e-6 * self.filter_us["step"]
+        h, q = 1e-6 * self.filter_us["halfspaces"], 1e-6 * self.filter_us["qp"]
+        projected = t - h - q + h / speedups["halfspaces"] + q / speedups["qp"]
+        return float(1.0 / projected / np.median(self.plain_wall))
+
+    def format(self) -> str:
+        us = self.filter_us
+        plain_us = 1e6 / float(np.median(self.plain_wall))
+        rest = us["step"] - plain_us - us["reference"] - us["halfspaces"] - us["qp"]
+        lines = [
+            f"(d) PPO training, RandomCrossing, 8 environments, {self.timesteps} steps of "
+            f"each kind in {len(self.plain_wall)} alternating chunks of {self.chunk}, medians:",
+            f"    plain    {np.median(self.plain_wall):6.0f} steps/s, "
+            f"{np.median(self.plain_cpu):6.0f} per CPU s",
+            f"    dr_cvar  {np.median(self.filtered_wall):6.0f} steps/s, "
+            f"{np.median(self.filtered_cpu):6.0f} per CPU s",
+            f"    ratio filtered / plain: {self.ratio:.2f} (wall), {self.cpu_ratio:.2f} (CPU), "
+            f"{self.pair_ratio:.2f} (median of the pairs)   (target >= 0.70)",
+            f"    per step: plain {plain_us:.0f} us; filtered {us['step']:.0f} us = plain + "
+            f"{us['step'] - plain_us:.0f} us: reference {us['reference']:.0f}, halfspaces "
+            f"{us['halfspaces']:.0f}, QP {us['qp']:.0f}, the rest {rest:.0f}",
+        ]
+        if not math.isnan(self.not_optimal_share):
+            lines.append(
+                f"    of the QP's {us['qp']:.0f} us: {us.get('qp_not_optimal', 0.0):.0f} on the "
+                f"{100 * self.not_optimal_share:.0f} % of steps not optimal (the hard QP had no "
+                f"answer: the recovery QP or braking followed)")
+        return "\n".join(lines)
+
+
+def _filter_clock() -> Any:
+    """An SB3 callback summing the filter reports' reference, halfspace and QP times (and
+    the QP time and count of the steps whose status is not ``"optimal"``)."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class FilterClock(BaseCallback):
+        def __init__(self) -> None:
+            super().__init__()
+            self.times = {"reference": 0.0, "halfspaces": 0.0, "qp": 0.0,
+                          "qp_not_optimal": 0.0}
+            self.reports = 0
+            self.not_optimal = 0
+
+        def _on_step(self) -> bool:
+            times = self.times
+            for info in self.locals["infos"]:
+                report = info.get("filter")
+                if report is not None:
+                    qp = report.filter_time - report.halfspace_time
+                    times["reference"] += report.reference_time
+                    times["halfspaces"] += report.halfspace_time
+                    times["qp"] += qp
+                    self.reports += 1
+                    if report.status != "optimal":
+                        times["qp_not_optimal"] += qp
+                        self.not_optimal += 1
+            return True
+
+    return FilterClock()
+
+
+def benchmark_training(timesteps: int = 20_480, chunk: int = 2048, seed: int = 0, *,
+                       filter_kwargs: dict | None = None,
+                       warmup_steps: int = 2048) -> TrainingThroughput:
+    """Training steps per second with and without the filter, in alternating chunks.
+
+    What ``safe-nav train`` runs without and with ``--filter dr_cvar``
+    (:func:`agents.train_ppo` defaults: RandomCrossing, 8 in-process environments, the
+    held-action reference): both models are made (and warmed up: imports, numba
+    caches, first allocations) by ``train_ppo(total_timesteps=warmup_steps)``, then
+    trained on ``chunk`` steps at a time, plain and filtered in turn, until each has
+    ``timesteps`` timed steps. A chunk of 2048 steps is one rollout and its PPO update.
+
+    Parameters
+    ----------
+    filter_kwargs
+        The filter's keywords (default ``{"risk": "dr_cvar"}``: the wrapper's defaults).
+    """
+    from agents.training.ppo import train_ppo
+
+    filter_kwargs = {"risk": "dr_cvar"} if filter_kwargs is None else dict(filter_kwargs)
+    models = {kind: train_ppo(total_timesteps=max(1, warmup_steps), seed=seed,
+                              filter_kwargs=filter_kwargs if kind else None,
+                              progress_bar=False)[0] for kind in (False, True)}
+    rates: dict[bool, list[tuple[float, float]]] = {False: [], True: []}
+    parts: list[dict[str, float]] = []
+    shares: list[float] = []
+    for _ in range(max(1, timesteps // chunk)):
+        for filtered, model in models.items():
+            clock = _filter_clock()
+            before = model.num_timesteps
+            wall, cpu = time.perf_counter(), time.process_time()
+            model.learn(chunk, reset_num_timesteps=False, callback=clock)
+            wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+            steps = model.num_timesteps - before
+            rates[filtered].append((steps / wall, steps / cpu))
+            if filtered:
+                parts.append({key: 1e6 * value / steps for key, value in clock.times.items()})
+                shares.append(clock.not_optimal / max(1, clock.reports))
+    for model in models.values():
+        model.get_env().close()
+    filtered_wall = tuple(r[0] for r in rates[True])
+    filter_us = {key: float(np.median([p[key] for p in parts]))
+                 for key in ("reference", "halfspaces", "qp", "qp_not_optimal")}
+    filter_us["step"] = 1e6 / float(np.median(filtered_wall))
+    return TrainingThroughput(
+        chunk=chunk, plain_wall=tuple(r[0] for r in rates[False]), filtered_wall=filtered_wall,
+        plain_cpu=tuple(r[1] for r in rates[False]), filtered_cpu=tuple(r[1] for r in rates[True]),
+        filter_us=filter_us, not_optimal_share=float(np.median(shares)),
+    )
+
+
+# --------------------------------------------------------------------------- --scaling
+def _sparse_growth(points: list) -> str:
+    """How the sparse back ends' time per QP grows from the shortest horizon >= 20 to the
+    longest, over the obstacle counts x N_s of ``points`` (medians, with the ranges):
+    Clarabel's and PIQP's on the hard QP alone, the Riccati method's on the recovery QP
+    alone (the QP it solves: every row soft), each at every step.
+
+    Per back end: the plain wall-time ratio (the issue's criterion: at most the horizon
+    ratio for linear growth), the same ratio of the CPU time of the thread (what the
+    back end computes, without the waits of a busy machine), split into its two factors,
+    the ratio of the median iteration counts (a property of the instances) and the ratio
+    of the median CPU times per iteration (the back end's work); and the slopes of
+    least-squares fits of log time against log T over every horizon >= 20 (1 for linear
+    growth), which use the middle horizons too.
+    """
+    horizons = sorted({p.horizon for p in points if p.horizon >= 20})
+    if len(horizons) < 2:
+        return "sparse back ends' growth: needs two horizons >= 20"
+    short, long = horizons[0], horizons[-1]
+    series: dict[tuple[int, int], dict[int, object]] = {}
+    for p in points:
+        if p.horizon >= 20:
+            series.setdefault((p.n_obstacles, p.n_samples), {})[p.horizon] = p
+
+    def spread(values: list[float], unit: str = "x") -> str:
+        array = np.array(values, dtype=float)
+        return (f"{np.median(array):.2f}{unit} (range {array.min():.2f}{unit} to "
+                f"{array.max():.2f}{unit})")
+
+    def slope(by_horizon: dict, field: str) -> float:
+        ts = sorted(by_horizon)
+        return float(np.polyfit(np.log(ts), np.log([getattr(by_horizon[t], field)
+                                                    for t in ts]), 1)[0])
+
+    lines = [f"sparse back ends, one QP alone (clarabel, piqp: the hard QP; riccati: the "
+             f"recovery QP), T = {long} over T = {short} (horizon ratio "
+             f"{long / short:.0f}; linear growth: at most {long / short:.0f}x, slope 1), "
+             f"medians over {len(series)} obstacle counts x N_s:"]
+    for name in ("clarabel", "piqp", "riccati"):
+        fields = {key: f"{name}_{key}" for key in (
+            "per_qp_ms", "per_qp_cpu_ms", "per_qp_iterations", "per_iteration_us")}
+        ratios: dict[str, list[float]] = {key: [] for key in fields}
+        slopes: dict[str, list[float]] = {"per_qp_ms": [], "per_qp_cpu_ms": []}
+        for by_horizon in series.values():
+            if short in by_horizon and long in by_horizon:
+                for key, field in fields.items():
+                    ratios[key].append(getattr(by_horizon[long], field)
+                                       / getattr(by_horizon[short], field))
+            if len(by_horizon) >= 2:
+                for key in slopes:
+                    slopes[key].append(slope(by_horizon, fields[key]))
+        if not ratios["per_qp_ms"]:
+            continue
+        lines.append(
+            f"  {name}: wall time {spread(ratios['per_qp_ms'])}; CPU time "
+            f"{spread(ratios['per_qp_cpu_ms'])}, its factors: iterations "
+            f"{spread(ratios['per_qp_iterations'])}, CPU time per iteration "
+            f"{spread(ratios['per_iteration_us'])}; log-log slope over T in {horizons}: "
+            f"wall {spread(slopes['per_qp_ms'], '')}, CPU {spread(slopes['per_qp_cpu_ms'], '')}")
+    return "\n".join(lines)
+
+
+def _interleaved_growth(grid: Any, *, seed: int, family: str) -> str:
+    """:func:`benchmarks.growth.benchmark_growth` from the grid's shortest horizon
+    >= 20 to its longest, at every obstacle count x N_s of ``grid``."""
+    from benchmarks.growth import benchmark_growth, format_growth
+
+    horizons = sorted(h for h in grid.horizons if h >= 20)
+    if len(horizons) < 2:
+        return format_growth([])
+    ratios = []
+    for n_obstacles in grid.obstacles:
+        for n_samples in grid.samples:
+            ratios += benchmark_growth(n_obstacles, n_samples, short=horizons[0],
+                                       long=horizons[-1], steps=grid.steps, seed=seed,
+                                       family=family)
+    return format_growth(ratios)
+
+
+def benchmark_rollout_reference(
+    horizon: int = 10, steps: int = 200, seed: int = 0, path: str | None = None
+) -> dict[str, float]:
+    """Median wall time (ms) of one roll-out reference (``T - 1`` policy calls) per step.
+
+    On the states of unfiltered MultiObstacle episodes of the shipped PPO policy (recorded
+    first, then replayed to each maker in a loop of its own: the same states for all),
+    :class:`filters.references.PolicyRolloutReference` with: ``"sb3"`` the SB3
+    model's ``predict`` at each look-ahead step; ``"numpy"`` and ``"torch_actor"`` the
+    :class:`agents.NumpyPolicy` and :class:`agents.TorchActorPolicy` exports called the
+    same way (``compiled=False``); ``"compiled"`` the whole roll-out in one kernel
+    (:mod:`agents.policies.compiled_rollout`, what ``safe-nav evaluate`` runs); ``"hold"`` the
+    held-action reference, for scale.
+    """
+    import gymnasium as gym
+
+    import safe_nav_env  # noqa: F401
+    from agents.policies.numpy_policy import NumpyPolicy, TorchActorPolicy
+    from agents.training.ppo import load_ppo, set_torch_threads
+    from filters.references import PolicyRolloutReference, hold_action_reference
+
+    set_torch_threads(1)
+    model = load_ppo(path)
+    actor = TorchActorPolicy.from_sb3(model)
+    makers = {"sb3": PolicyRolloutReference(model),
+              "numpy": PolicyRolloutReference(NumpyPolicy.from_sb3(model), compiled=False),
+              "torch_actor": PolicyRolloutReference(actor, compiled=False),
+              "compiled": PolicyRolloutReference(actor),
+              "hold": hold_action_reference}
+    env = gym.make("SafeNav/MultiObstacle-v0", horizon=horizon)
+    base = env.unwrapped
+    fields = ("ego_state", "predictions", "obstacle_positions", "obstacle_velocities")
+    situations = []  # what a reference maker reads, recorded along the episodes
+    episode, done = 0, True
+    for _ in range(steps):
+        if done:
+            obs, _ = env.reset(seed=seed + episode)
+            episode += 1
+        action, _ = model.predict(obs, deterministic=True)
+        situations.append(({name: getattr(base, name) for name in fields}, action))
+        obs, _, terminated, truncated, _ = env.step(action)
+        done = terminated or truncated
+    times: dict[str, list[float]] = {}
+    for name, maker in makers.items():  # each in a loop of its own, as a control loop runs
+        maker(base, situations[0][1], horizon)  # first call: numba's cache, torch's kernels
+        times[name] = []
+        for state, action in situations:
+            for field, value in state.items():
+                setattr(base, field, value)
+            begin = time.perf_counter()
+            maker(base, action, horizon)
+            times[name].append(1e3 * (time.perf_counter() - begin))
+    env.close()
+    return {name: float(np.median(values)) for name, values in times.items()}
+
+
+@dataclass(frozen=True)
+class ControlLoopTiming:
+    """Per-step wall times (ms, medians) of the filter in ``safe-nav evaluate``'s loop."""
+
+    steps: int
+    reference_ms: float  # the reference maker (the compiled roll-out here)
+    halfspaces_ms: float
+    qp_ms: float
+    wrapper_ms: float  # the whole SafetyFilterWrapper.step, environment step included
+    ratio: float  # median over the steps of reference / QP time
+
+    def format(self) -> str:
+        return (
+            f"    in the control loop (MultiObstacle, the shipped PPO planner, roll-out "
+            f"reference, DR-CVaR, the wrapper's defaults), {self.steps} steps, medians: "
+            f"reference {self.reference_ms:.3f} ms, halfspaces {self.halfspaces_ms:.3f} ms, "
+            f"QP {self.qp_ms:.3f} ms, whole wrapper step {self.wrapper_ms:.3f} ms; "
+            f"reference / QP {self.ratio:.2f} (median of the per-step ratios; target <= 1)"
+        )
+
+
+def benchmark_control_loop(steps: int = 500, seed: int = 0) -> ControlLoopTiming:
+    """The roll-out reference against the QP, step by step, in the evaluation's loop.
+
+    ``SafetyFilterWrapper(env, policy=TorchActorPolicy)`` as ``safe-nav evaluate`` builds
+    it, driven by the same actor; the times are the filter reports' (reference, halfspaces,
+    QP = ``filter_time - halfspace_time``), so all are measured on the same steps.
+    """
+    import gymnasium as gym
+
+    import safe_nav_env  # noqa: F401
+    from agents.policies.numpy_policy import TorchActorPolicy
+    from agents.training.ppo import load_ppo, set_torch_threads
+    from filters import SafetyFilterWrapper
+
+    set_torch_threads(1)
+    actor = TorchActorPolicy.from_sb3(load_ppo())
+    env = SafetyFilterWrapper(gym.make("SafeNav/MultiObstacle-v0"), policy=actor)
+    rows, wrapper = [], []
+    episode, done = 0, True
+    while len(rows) < steps:
+        if done:
+            obs, _ = env.reset(seed=seed + episode)
+            episode += 1
+        action, _ = actor.predict(obs)
+        begin = time.perf_counter()
+        obs, _, terminated, truncated, info = env.step(action)
+        wrapper.append(time.perf_counter() - begin)
+        report = info["filter"]
+        rows.append((report.reference_time, report.halfspace_time,
+                     report.filter_time - report.halfspace_time))
+        done = terminated or truncated
+    env.close()
+    times = 1e3 * np.asarray(rows)
+    return ControlLoopTiming(
+        steps=len(rows), reference_ms=float(np.median(times[:, 0])),
+        halfspaces_ms=float(np.median(times[:, 1])), qp_ms=float(np.median(times[:, 2])),
+        wrapper_ms=1e3 * float(np.median(wrapper)),
+        ratio=float(np.median(times[:, 0] / times[:, 2])),
+    )
+
+
+def format_rollout_reference(rollout: dict[str, float], horizon: int = 10) -> str:
+    """The roll-out timings of :func:`benchmark_rollout_reference` as one paragraph."""
+    compiled = rollout["compiled"]
+    return (
+        f"roll-out reference, T = {horizon} ({horizon - 1} policy calls), MultiObstacle, "
+        f"medians: SB3 predict {rollout['sb3']:.3f} ms, NumpyPolicy.predict "
+        f"{rollout['numpy']:.3f} ms, TorchActorPolicy.predict {rollout['torch_actor']:.3f} "
+        f"ms, compiled kernel {compiled:.3f} ms ({rollout['sb3'] / compiled:.0f}x SB3, "
+        f"{rollout['torch_actor'] / compiled:.1f}x TorchActorPolicy); the held action "
+        f"{rollout['hold']:.4f} ms"
+    )
+
+
+def run_scaling(
+    grid: ScalingGrid | None = None,
+    *,
+    quick: bool = False,
+    seed: int = 0,
+    output: str | Path | None = None,
+    plot: bool = True,
+    policy: bool = True,
+    progress: bool = True,
+    family: str = "straight",
+) -> str:
+    """``safe-nav bench --scaling``: the scaling table (markdown), CSV and log-log plot.
+
+    Parameters
+    ----------
+    grid
+        A :class:`benchmarks.scaling.ScalingGrid`; default the full grid, or
+        :data:`~benchmarks.scaling.QUICK_GRID` with ``quick``.
+    output
+        Folder for ``scaling.csv``, ``scaling.md`` and ``scaling.png``; ``None`` writes nothing.
+    plot
+        Write the plot (needs matplotlib) when ``output`` is given.
+    policy
+        Also time the policy forward pass and the roll-out reference: SB3's ``predict``
+        against :class:`agents.NumpyPolicy` and :class:`agents.TorchActorPolicy`.
+    family
+        Instance family (:data:`benchmarks.scaling.FAMILIES`): ``"straight"`` (the
+        issue's grid: the reference leaves the arena at long horizons) or ``"goal"`` (it
+        stops at a goal inside).
+
+    Returns
+    -------
+    str
+        The printed report.
+    """
+    import platform
+
+    from benchmarks.scaling import (
+        FULL_GRID,
+        QUICK_GRID,
+        benchmark_scaling,
+        format_scaling_table,
+        plot_scaling,
+        write_scaling_csv,
+    )
+
+    if grid is None:
+        grid = QUICK_GRID if quick else FULL_GRID
+    points = benchmark_scaling(grid, seed=seed, progress=progress, family=family)
+    growth = _interleaved_growth(grid, seed=seed, family=family)
+    ratios = np.array([p.ratio for p in points])
+    qp_ratios = np.array([p.qp_ratio for p in points])
+    work = np.array([p.n_obstacles * p.horizon * p.n_samples for p in points], dtype=float)
+    per_sample_ns = 1e6 * np.array([p.halfspaces_ms for p in points]) / work
+    numpy_ns = 1e6 * np.array([p.halfspaces_numpy_ms for p in points]) / work
+    largest = int(np.argmax(work))
+    parts = [
+        f"python {platform.python_version()}, numpy {np.__version__}, {platform.machine()}; "
+        f"grid obstacles {list(grid.obstacles)} x T {list(grid.horizons)} x N_s "
+        f"{list(grid.samples)}, {grid.steps} steps per point; instances {family!r}; medians "
+        "in ms; DR-CVaR; CVXPY = the same QP built once with Parameters (Clarabel), first "
+        "compile excluded",
+        format_scaling_table(points),
+        f"CVXPY QP / our QP (MPCSafetyFilter.solve against the same QP, the issue's "
+        f"comparison): lowest {qp_ratios.min():.1f}x, median {np.median(qp_ratios):.1f}x; "
+        f"{int((qp_ratios >= 10).sum())} of {len(points)} points >= 10x (the issue's target)",
+        f"CVXPY QP / our whole step (halfspaces + QP, which CVXPY's side does not compute): "
+        f"lowest {ratios.min():.1f}x, median {np.median(ratios):.1f}x; "
+        f"{int((ratios >= 10).sum())} of {len(points)} points >= 10x",
+        _sparse_growth(points),
+        growth,
+        f"halfspaces per sample processed (n x T x N_s): {per_sample_ns[largest]:.1f} "
+        f"ns at the largest point (numpy reference {numpy_ns[largest]:.1f} ns, "
+        f"{numpy_ns[largest] / per_sample_ns[largest]:.1f}x), {per_sample_ns.min():.1f} to "
+        f"{per_sample_ns.max():.1f} ns over the grid (fixed costs dominate the small points); "
+        f"numpy reference / compiled kernels: {np.min(numpy_ns / per_sample_ns):.1f}x to "
+        f"{np.max(numpy_ns / per_sample_ns):.1f}x",
+    ]
+    if policy:
+        from agents.policies.numpy_policy import benchmark_numpy_policy
+
+        parts.append(benchmark_numpy_policy(seed=seed).format())
+        parts.append(format_rollout_reference(benchmark_rollout_reference(seed=seed)))
+    report = "\n\n".join(parts)
+    if output is not None:
+        folder = Path(output)
+        folder.mkdir(parents=True, exist_ok=True)
+        write_scaling_csv(points, folder / "scaling.csv")
+        (folder / "scaling.md").write_text(report + "\n")
+        if plot:
+            plot_scaling(points, folder / "scaling.png")
+        report += f"\n\nwrote {folder / 'scaling.csv'}, {folder / 'scaling.md'}" + (
+            f", {folder / 'scaling.png'}" if plot else "")
+    return report

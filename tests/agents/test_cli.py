@@ -1,0 +1,236 @@
+"""The ``safe-nav`` command line, end to end into a temporary folder."""
+
+from __future__ import annotations
+
+import csv
+import shutil
+import zipfile
+
+import pytest
+
+import agents.evaluation.executors
+from agents.cli.main import main, scenario_id
+from agents.evaluation.evaluate import RECORD_FIELDS
+from agents.training.ppo import pretrained_policy_path
+
+TINY = ["--scenarios", "HeadOn", "--risks", "dr_cvar", "--episodes", "2", "--workers", "1",
+        "--no-plots", "--no-progress"]
+"""A tiny evaluation: one scenario, one risk, two episodes, in this process."""
+
+
+def _one_line(capsys) -> str:
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    return lines[0]
+
+
+def test_evaluate_writes_csv_summary_and_figures(tmp_path, capsys):
+    out = tmp_path / "eval"
+    code = main(["evaluate", "--scenarios", "HeadOn", "MultiObstacle", "--risks", "none",
+                 "dr_cvar", "--planner", "mpc", "--episodes", "2", "--workers", "1",
+                 "--output", str(out), "--no-progress"])
+    assert code == 0
+    rows = list(csv.DictReader((out / "episodes.csv").open()))
+    assert len(rows) == 2 * 2 * 2
+    assert tuple(rows[0]) == RECORD_FIELDS
+    summary = (out / "summary.md").read_text()
+    assert "obstacle-agnostic MPC" in summary and "safe-nav 0." in summary
+    assert "| HeadOn | mpc | dr_cvar | 2 |" in summary
+    assert "| MultiObstacle | mpc | none | 2 |" in summary
+    assert "## Guarantee audit" in summary and "| MultiObstacle | mpc | dr_cvar | CVaR_α ℓ ≤ δ |" \
+        in summary
+    for name in ("trajectories_HeadOn.png", "trajectories_MultiObstacle.png",
+                 "distance_boxplots.png", "collision_rates.png", "safe_polytopes.png",
+                 "episode.gif"):
+        assert (out / "figures" / name).stat().st_size > 1000, name
+    assert "episodes in" in capsys.readouterr().out
+
+
+def test_evaluate_with_the_shipped_policy_by_default(tmp_path):
+    out = tmp_path / "ppo"
+    assert main(["evaluate", "--scenarios", "Overtaking", "--risks", "none", "dr_cvar",
+                 "--episodes", "1", "--workers", "1", "--output", str(out), "--no-plots",
+                 "--no-progress"]) == 0
+    rows = list(csv.DictReader((out / "episodes.csv").open()))
+    assert {r["planner"] for r in rows} == {"ppo"}
+    assert all(r["error"] == "" for r in rows)
+    sha = rows[0]["policy_sha256"]
+    assert len(sha) == 64 and {r["policy_sha256"] for r in rows} == {sha}
+    summary = (out / "summary.md").read_text()
+    assert str(pretrained_policy_path()) in summary and sha in summary
+
+
+def test_sweep_writes_its_table_and_plot(tmp_path):
+    out = tmp_path / "sweep"
+    assert main(["evaluate", "--sweep", "--scenarios", "HeadOn", "--planner", "mpc",
+                 "--episodes", "1", "--workers", "1", "--epsilons", "0", "0.1",
+                 "--deltas", "0.1", "--output", str(out), "--no-progress"]) == 0
+    table = (out / "sweep.md").read_text()
+    assert table.count("\n| 0.1 |") == 2
+    assert (out / "figures" / "sweep.png").stat().st_size > 1000
+
+
+def test_reproduce_writes_the_report_and_figures(tmp_path):
+    out = tmp_path / "repro"
+    assert main(["reproduce", "--episodes", "1", "--workers", "1", "--timing-repeats", "2",
+                 "--output", str(out), "--no-progress"]) == 0
+    report = (out / "report.md").read_text()
+    for heading in ("Example 1", "Table I", "Monte Carlo", "Against the paper"):
+        assert heading in report
+    assert (out / "figures" / "example1_halfspaces.png").exists()
+    assert (out / "figures" / "halfspace_times.png").exists()
+    assert (out / "monte_carlo" / "figures" / "distance_boxplots.png").exists()
+    assert "b_DR-CVaR = b_CVaR - eps/alpha" in report
+
+
+@pytest.mark.parametrize(("option", "value"), [
+    ("--alpha", "2"), ("--alpha", "0"), ("--alpha", "nan"), ("--delta", "-1"),
+    ("--epsilon", "-0.05"), ("--epsilon", "inf"), ("--episodes", "0"), ("--workers", "0"),
+    ("--seed", "-1"), ("--noise", "pink"), ("--scenarios", "Roundabout"), ("--risks", "max"),
+    ("--epsilons", "-1"), ("--filter-option", "soft"),
+])
+def test_bad_options_are_rejected_at_parse_time_in_one_line(option, value, tmp_path, capsys):
+    code = main(["evaluate", *TINY, "--output", str(tmp_path / "out"), option, value])
+    assert code == 2
+    line = _one_line(capsys)
+    assert line.startswith("safe-nav evaluate: error: argument " + option)
+    assert repr(value) in line or value in line
+    assert not (tmp_path / "out").exists()  # nothing ran
+
+
+def test_reproduce_and_bench_options_are_checked_too(capsys):
+    assert main(["reproduce", "--episodes", "0"]) == 2
+    assert "--episodes" in _one_line(capsys)
+    assert main(["bench", "--steps", "-3"]) == 2
+    assert "--steps" in _one_line(capsys)
+
+
+def test_help_shows_defaults_and_units(capsys):
+    assert main(["evaluate", "--help"]) == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert "CVaR tail mass, in (0, 1] (default: 0.2)" in text
+    assert "in m (>= 0) (default: 0.1)" in text and "(default: 0.05)" in text
+    assert "(default: 300)" in text and "(default: the shipped one)" in text
+    for command in ("reproduce", "bench"):
+        assert main([command, "--help"]) == 0
+        assert "(default:" in capsys.readouterr().out
+
+
+def test_a_missing_or_corrupt_policy_fails_before_anything_runs(tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["evaluate", *TINY, "--policy", str(tmp_path / "missing.zip"),
+                 "--output", str(out)]) == 2
+    assert "no PPO policy file" in _one_line(capsys)
+    not_zip = tmp_path / "policy.zip"
+    not_zip.write_bytes(pretrained_policy_path().read_bytes()[:1000])  # truncated
+    assert main(["evaluate", *TINY, "--policy", str(not_zip), "--output", str(out)]) == 2
+    assert "not a Stable-Baselines3 .zip" in _one_line(capsys)
+    other_zip = tmp_path / "other.zip"
+    with zipfile.ZipFile(other_zip, "w") as archive:
+        archive.writestr("readme.txt", "not a policy")
+    assert main(["evaluate", *TINY, "--policy", str(other_zip), "--output", str(out)]) == 2
+    assert "cannot load the PPO policy" in _one_line(capsys)
+    assert not (out / "episodes.csv").exists()
+
+
+def test_an_output_path_that_is_a_file_is_refused(tmp_path, capsys):
+    target = tmp_path / "results"
+    target.write_text("not a folder")
+    for output in (target, target / "sub"):
+        assert main(["evaluate", *TINY, "--planner", "mpc", "--output", str(output)]) == 2
+        assert "is a file" in _one_line(capsys)
+
+
+def test_a_bad_filter_or_environment_setting_is_one_line(tmp_path, capsys):
+    out = str(tmp_path / "out")
+    assert main(["evaluate", *TINY, "--planner", "mpc", "--output", out,
+                 "--filter-option", "horizon=99"]) == 2
+    assert "horizon" in _one_line(capsys)
+    assert main(["evaluate", *TINY, "--planner", "mpc", "--output", out,
+                 "--filter-option", "bogus=1"]) == 2
+    assert "bogus" in _one_line(capsys)
+    assert main(["evaluate", *TINY, "--planner", "mpc", "--output", out,
+                 "--env-option", "n_samples=0"]) == 2
+    assert "n_samples" in _one_line(capsys)
+
+
+def test_a_failed_episode_exits_1_and_is_run_again_next_time(tmp_path, capsys, monkeypatch):
+    from agents.planners import MPCReferencePlanner
+
+    out = tmp_path / "out"
+    argv = ["evaluate", *TINY, "--planner", "mpc", "--output", str(out)]
+    real = MPCReferencePlanner.predict
+    monkeypatch.setattr(MPCReferencePlanner, "predict",
+                        lambda *a, **k: (_ for _ in ()).throw(RuntimeError("planner exploded")))
+    assert main(argv) == 1
+    line = _one_line(capsys)
+    assert "2 of 2 episodes failed" in line and "planner exploded" in line
+    rows = list(csv.DictReader((out / "episodes.csv").open()))
+    assert len(rows) == 2 and all("planner exploded" in r["error"] for r in rows)
+    assert "(2 failed)" in (out / "summary.md").read_text()
+    monkeypatch.setattr(MPCReferencePlanner, "predict", real)
+    assert main(argv) == 0  # failed rows are never reused: both run again
+    rows = list(csv.DictReader((out / "episodes.csv").open()))
+    assert len(rows) == 2 and all(r["error"] == "" for r in rows)
+
+
+def test_ctrl_c_saves_what_finished_and_the_same_command_resumes(tmp_path, capsys,
+                                                                 monkeypatch):
+    out = tmp_path / "out"
+    argv = ["evaluate", *TINY, "--planner", "mpc", "--episodes", "3", "--output", str(out)]
+    real = agents.evaluation.executors.run_spec
+    calls = []
+
+    def interrupted_after_two(spec):
+        calls.append(spec.seed)
+        if len(calls) > 2:
+            raise KeyboardInterrupt
+        return real(spec)
+
+    monkeypatch.setattr(agents.evaluation.executors, "run_spec", interrupted_after_two)
+    assert main(argv) == 130
+    line = _one_line(capsys)
+    assert "interrupted: 2 of 3 episodes finished" in line and "resume" in line
+    assert len(list(csv.DictReader((out / "episodes.csv").open()))) == 2
+    monkeypatch.setattr(agents.evaluation.executors, "run_spec", real)
+    ran = []
+    monkeypatch.setattr(agents.evaluation.executors, "run_spec", lambda spec: ran.append(spec.seed)
+                        or real(spec))
+    assert main(argv) == 0
+    assert ran == [2]  # only the missing episode
+    assert len(list(csv.DictReader((out / "episodes.csv").open()))) == 3
+
+
+def test_the_cache_refuses_another_policy_and_another_setting(tmp_path, capsys):
+    policy = tmp_path / "policy.zip"
+    shutil.copy(pretrained_policy_path(), policy)
+    out = tmp_path / "out"
+    argv = ["evaluate", "--scenarios", "Overtaking", "--risks", "none", "--episodes", "1",
+            "--workers", "1", "--no-plots", "--no-progress", "--output", str(out),
+            "--policy", str(policy)]
+    assert main(argv) == 0
+    capsys.readouterr()
+    with zipfile.ZipFile(policy, "a") as archive:  # same weights, other bytes
+        archive.comment = b"changed"
+    assert main(argv) == 2
+    line = _one_line(capsys)
+    assert "other settings" in line and "policy_sha256" in line and "--overwrite" in line
+    assert main([*argv, "--alpha", "0.5"]) == 2
+    assert "alpha 0.2 != 0.5" in _one_line(capsys)
+    assert main([*argv, "--overwrite"]) == 0
+    rows = list(csv.DictReader((out / "episodes.csv").open()))
+    assert len(rows) == 1
+
+
+def test_scenario_spellings_are_accepted_with_a_note(tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["evaluate", *TINY, "--planner", "mpc", "--output", str(out),
+                 "--scenarios", "head_on", "SafeNav/Overtaking-v0"]) == 0
+    err = capsys.readouterr().err
+    assert "'head_on' is called 'HeadOn'" in err
+    assert "'SafeNav/Overtaking-v0' is called 'Overtaking'" in err
+    rows = list(csv.DictReader((out / "episodes.csv").open()))
+    assert {r["scenario"] for r in rows} == {"HeadOn", "Overtaking"}
+    assert scenario_id("head_on") == scenario_id("HeadOn") == "SafeNav/HeadOn-v0"

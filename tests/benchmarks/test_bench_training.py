@@ -1,0 +1,55 @@
+"""``safe-nav bench --training``: the throughput ratio's bookkeeping (no timing asserts)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+
+from agents.cli.main import main
+from benchmarks.suite import TrainingThroughput, benchmark_training
+
+
+def test_training_benchmark_runs_both_kinds_and_reports_the_ratios():
+    result = benchmark_training(timesteps=2 * 2048, chunk=2048, warmup_steps=256)
+    assert result.timesteps == 4096 and len(result.plain_wall) == len(result.filtered_wall) == 2
+    assert all(r > 0 for r in (*result.plain_wall, *result.filtered_wall,
+                               *result.plain_cpu, *result.filtered_cpu))
+    # the filter reports were read: every part of a filtered step took some time
+    assert all(result.filter_us[key] > 0 for key in ("reference", "halfspaces", "qp"))
+    assert result.filter_us["step"] > result.filter_us["halfspaces"] + result.filter_us["qp"]
+    # the steps the hard QP could not answer: a share, and a part of the QP's time
+    assert 0.0 <= result.not_optimal_share <= 1.0
+    assert 0.0 <= result.filter_us["qp_not_optimal"] <= result.filter_us["qp"]
+    text = result.format()
+    assert "ratio filtered / plain" in text and "the rest" in text and "not optimal" in text
+
+
+def test_throughput_ratios_and_projection_follow_their_formulas():
+    result = TrainingThroughput(
+        chunk=100, plain_wall=(1000.0, 900.0, 1100.0), filtered_wall=(500.0, 450.0, 700.0),
+        plain_cpu=(2000.0, 2000.0, 2000.0), filtered_cpu=(1000.0, 1200.0, 800.0),
+        filter_us={"reference": 10.0, "halfspaces": 600.0, "qp": 300.0, "step": 2000.0})
+    assert result.timesteps == 300
+    assert "not optimal" not in result.format()  # the share was not measured: no line
+    measured = dataclasses.replace(result, not_optimal_share=0.25,
+                                   filter_us={**result.filter_us, "qp_not_optimal": 120.0})
+    assert "120 on the 25 % of steps not optimal" in measured.format()
+    assert result.ratio == pytest.approx(500.0 / 1000.0)
+    assert result.cpu_ratio == pytest.approx(0.5)
+    assert result.pair_ratio == pytest.approx(0.5)  # median of 0.5, 0.5, 0.636
+    # t' = 2000 - 600 - 300 + 600 / 3 + 300 / 1.5 = 1500 us -> 666.7 steps/s / 1000
+    assert result.projected_ratio({"halfspaces": 3.0, "qp": 1.5}) == pytest.approx(2 / 3)
+    assert result.projected_ratio({"halfspaces": 1.0, "qp": 1.0}) == pytest.approx(0.5)
+    faster = {"halfspaces": 3.0, "qp": 1.5}
+    assert result.projected_ratio({"halfspaces": 10.0, "qp": 10.0}) > result.projected_ratio(
+        faster)
+    # less of the step in the parts that get faster: less to gain
+    smaller = dataclasses.replace(result, filter_us={**result.filter_us, "qp": 0.0})
+    assert smaller.projected_ratio(faster) < result.projected_ratio(faster)
+
+
+def test_training_benchmark_options_are_checked(capsys):
+    assert main(["bench", "--training", "--timesteps", "0"]) == 2
+    assert main(["bench", "--training", "--chunk", "-1"]) == 2
+    assert "--chunk" in capsys.readouterr().err
