@@ -26,3 +26,10 @@ class RunMismatchError(AgentsError, ValueError):
 
 class OutputPathError(AgentsError, ValueError):
     """An output path cannot be used (e.g. a folder is asked for and a file is there)."""
+
+
+class WorkersLostError(AgentsError, RuntimeError):
+    """Evaluation workers (local processes, Ray nodes) keep dying or cannot be reached.
+
+    The episodes that finished are saved; running the same command again resumes.
+    """

@@ -9,7 +9,8 @@ Exit codes (one line on stderr, no traceback):
 
 * 0 -- done;
 * 1 -- some episode failed (the CSV's ``error`` column says why; running the same
-  command again re-runs the failed episodes);
+  command again re-runs the failed episodes), or the workers kept dying or the Ray
+  cluster could not be reached (the finished episodes are saved);
 * 2 -- a bad option or setting, a missing or corrupt policy file, an output path
   that is a file, an output folder holding another run;
 * 130 -- Ctrl-C (the finished episodes are saved; the same command resumes).
@@ -317,6 +318,10 @@ def _add_evaluation_arguments(parser: argparse.ArgumentParser, *, episodes: int)
                         help="local worker processes (>= 1; 1 runs in this process)")
     parser.add_argument("--executor", choices=("process", "ray"), default="process",
                         help="where episodes run: local processes or a Ray cluster")
+    parser.add_argument("--address", default=None, metavar="HOST:PORT",
+                        help="--executor ray: the cluster to run on, HOST:PORT of its head "
+                        "(ray start --head --port=PORT) or auto (the one started on this "
+                        "machine); default: RAY_ADDRESS if set, else a local Ray")
     parser.add_argument("--seed", type=_seed, default=0,
                         help="seed of the first episode (episode i uses seed + i)")
     parser.add_argument("--alpha", type=_tail_mass, default=0.2,
@@ -357,9 +362,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(_interrupted_message(prog, exc, args), file=sys.stderr)
         return EXIT_INTERRUPTED
     except _bad_input_errors() as exc:
+        from agents.errors import WorkersLostError
+
         print(f"{prog}: error: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}",
               file=sys.stderr)
-        return EXIT_BAD_INPUT
+        return EXIT_FAILED_EPISODES if isinstance(exc, WorkersLostError) else EXIT_BAD_INPUT
 
 
 def _bad_input_errors() -> tuple[type[BaseException], ...]:
@@ -410,11 +417,20 @@ def _dispatch(args: argparse.Namespace) -> int:
 
 
 def _evaluate(args: argparse.Namespace) -> int:
+    from agents.evaluation.executors import make_executor
+
+    # One executor for the whole command (its workers start once); closed on the way out,
+    # stopped at once on Ctrl-C or an error.
+    with make_executor(args.executor, args.workers, address=args.address) as executor:
+        return _evaluate_on(args, executor)
+
+
+def _evaluate_on(args: argparse.Namespace, executor: Any) -> int:
     from agents.evaluation.campaign import run_evaluation, run_sweep
 
     common = dict(episodes=args.episodes, workers=args.workers, seed=args.seed,
                   planner=args.planner, reference=args.reference, policy_path=args.policy,
-                  alpha=args.alpha, noise=args.noise, executor=args.executor,
+                  alpha=args.alpha, noise=args.noise, executor=executor,
                   filter_options=dict(args.filter_options), env_options=dict(args.env_options),
                   progress=not args.no_progress, overwrite=args.overwrite)
     if args.suite == "stress":

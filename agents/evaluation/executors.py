@@ -5,12 +5,16 @@ records as they finish (order of completion; :func:`agents.evaluation.evaluate.e
 sorts them). Executors keep their workers between calls to :meth:`Executor.run`
 until closed, so a sweep pays the start-up (spawn, imports, policy load) once.
 
-Episodes are seeded individually, so every executor gives the same records.
+Episodes are seeded individually, so every executor gives the same records, and an
+episode run again (its worker died) gives the same record too: a worker process killed
+mid-run or a Ray node lost costs the episodes it was running, which run again, and
+every episode is yielded exactly once.
 
-Ray (``--executor ray``, the ``ray`` extra): connects to the cluster named by
-``RAY_ADDRESS`` if set (``ray start --head`` on the head node, ``ray start
---address=...`` on the others, the project installed on every node), otherwise
-starts a local Ray instance.
+Ray (``--executor ray``, the ``ray`` extra): runs on the cluster at ``--address``
+(``HOST:PORT`` of a head started with ``ray start --head --port=PORT``, or ``auto``),
+else on the one named by ``RAY_ADDRESS`` if set, else starts a local Ray instance.
+Every node needs the project installed (``ray start --address=HEAD:PORT`` on the
+others); see docs/ray.md.
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ import sys
 from collections.abc import Iterator, Sequence
 from typing import Any
 
+from agents.errors import WorkersLostError
 from agents.evaluation.records import EpisodeRecord, EpisodeSpec
 from agents.evaluation.runner import run_spec
 from filters.errors import InvalidParameterError
@@ -83,44 +88,112 @@ class SerialExecutor(Executor):
 
 
 class ProcessExecutor(Executor):
-    """A pool of ``workers`` spawned processes, started at the first run and kept."""
+    """A pool of ``workers`` spawned processes, started at the first run and kept.
 
-    def __init__(self, workers: int) -> None:
+    A worker that dies mid-run (killed, out of memory) breaks the pool: the episodes
+    not yet returned are run again on a fresh pool (they are seeded, so they give
+    the same records), and every episode is yielded exactly once. The parent never
+    waits on a dead worker.
+
+    Parameters
+    ----------
+    workers
+        Worker processes (>= 1).
+    max_restarts
+        Fresh pools started in a row without an episode finishing in between before
+        :class:`~agents.errors.WorkersLostError` is raised (>= 0).
+    """
+
+    def __init__(self, workers: int, *, max_restarts: int = 3) -> None:
         if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
             raise InvalidParameterError(f"workers must be an integer >= 1, got {workers!r}")
+        if isinstance(max_restarts, bool) or not isinstance(max_restarts, int) \
+                or max_restarts < 0:
+            raise InvalidParameterError(
+                f"max_restarts must be an integer >= 0, got {max_restarts!r}")
         self.workers = workers
+        self.max_restarts = max_restarts
         self._pool: Any = None
         self.starts = 0
-        """How many times a pool was started (1 for a whole sweep)."""
+        """How many times a pool was started (1 for a whole sweep without faults)."""
+        self.restarts = 0
+        """How many of those starts replaced a pool broken by a lost worker."""
 
     def _ensure_pool(self) -> Any:
         if self._pool is None:
             import multiprocessing
+            from concurrent.futures import ProcessPoolExecutor
 
             context = multiprocessing.get_context("spawn")
-            self._pool = context.Pool(self.workers, initializer=worker_init)
+            self._pool = ProcessPoolExecutor(self.workers, mp_context=context,
+                                             initializer=worker_init)
             self.starts += 1
         return self._pool
 
+    def worker_pids(self) -> list[int]:
+        """Process ids of the pool's live workers (none before the first run)."""
+        if self._pool is None:
+            return []
+        return [p.pid for p in list(self._pool._processes.values()) if p.is_alive()]
+
     def run(self, specs: Sequence[EpisodeSpec]) -> Iterator[EpisodeRecord]:
-        specs = list(specs)
-        if not specs:
-            return
-        pool = self._ensure_pool()
-        # One episode per task: a record is saved as soon as it finishes (an episode
-        # takes 0.05-1 s, the round trip to a worker well under a millisecond).
-        yield from pool.imap_unordered(run_spec, specs, chunksize=1)
+        from concurrent.futures import FIRST_COMPLETED, wait
+        from concurrent.futures.process import BrokenProcessPool
+
+        pending = list(specs)[::-1]  # a stack: episodes are submitted in their order
+        # Two episodes per worker in flight: workers never wait for the parent, and a
+        # broken pool loses at most these (an episode takes 0.05-1 s, a round trip to
+        # a worker well under a millisecond).
+        in_flight: dict[Any, EpisodeSpec] = {}
+        lost_in_a_row = 0
+        try:
+            while pending or in_flight:
+                pool = self._ensure_pool()
+                while pending and len(in_flight) < 2 * self.workers:
+                    spec = pending.pop()
+                    in_flight[pool.submit(run_spec, spec)] = spec
+                done, _ = wait(in_flight, return_when=FIRST_COMPLETED)
+                if any(isinstance(f.exception(), BrokenProcessPool) for f in done):
+                    done, _ = wait(in_flight)  # a broken pool fails all its futures
+                lost = []
+                for future in done:
+                    spec = in_flight.pop(future)
+                    if isinstance(future.exception(), BrokenProcessPool):
+                        lost.append(spec)
+                        continue
+                    lost_in_a_row = 0
+                    yield future.result()  # run_spec records an episode's own errors
+                if lost:
+                    lost_in_a_row += 1
+                    pending.extend(lost)
+                    self._restart(lost_in_a_row, left=len(pending))
+        finally:
+            for future in in_flight:
+                future.cancel()
+
+    def _restart(self, lost_in_a_row: int, left: int) -> None:
+        """Drop the broken pool (the next round starts a fresh one), within the bound."""
+        self.terminate()
+        if lost_in_a_row > self.max_restarts:
+            raise WorkersLostError(
+                f"the worker pool broke {lost_in_a_row} times in a row without an episode "
+                f"finishing ({left} episodes left): a worker process keeps dying (out of "
+                "memory? killed?); the finished episodes are saved: run the same command "
+                "again to resume, or with --workers 1 to see the error")
+        self.restarts += 1
 
     def close(self) -> None:
         if self._pool is not None:
-            self._pool.close()
-            self._pool.join()
+            self._pool.shutdown(wait=True)
             self._pool = None
 
     def terminate(self) -> None:
+        """Kill the workers now; episodes running are lost."""
         if self._pool is not None:
-            self._pool.terminate()
-            self._pool.join()
+            for process in list(self._pool._processes.values()):
+                if process.is_alive():
+                    process.kill()
+            self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
 
 
@@ -132,62 +205,114 @@ def _ray_task(spec: EpisodeSpec) -> EpisodeRecord:
 class RayExecutor(Executor):
     """Episodes as Ray tasks, at most ``max_in_flight`` submitted at once.
 
+    A task whose worker or node dies is run again by Ray (``max_retries`` times; the
+    episodes are seeded, so a retry gives the same record), and each episode is
+    yielded once, when its task returns.
+
     Parameters
     ----------
     address
-        Ray cluster address; ``None`` uses ``RAY_ADDRESS`` or a running/local instance.
+        Ray cluster address, ``"HOST:PORT"`` (the head's GCS port, ``ray start --head
+        --port=PORT``) or ``"auto"`` (the cluster ``ray start`` started on this
+        machine); ``None`` uses ``RAY_ADDRESS`` if set, else starts a local Ray.
+        Ignored if Ray is already initialised in this process.
     max_in_flight
-        Bound on submitted tasks (bounded memory for big sweeps).
+        Bound on submitted tasks (bounded memory for big sweeps), >= 1.
+    max_retries
+        Runs of a task again after its worker process or node died, >= 0.
     """
 
-    def __init__(self, *, address: str | None = None, max_in_flight: int = 256) -> None:
+    def __init__(self, *, address: str | None = None, max_in_flight: int = 256,
+                 max_retries: int = 3) -> None:
         try:
             import ray
         except ImportError as exc:  # pragma: no cover - depends on the extra
             raise ImportError("--executor ray needs Ray: pip install -e '.[ray]'") from exc
+        for name, value, low in (("max_in_flight", max_in_flight, 1),
+                                 ("max_retries", max_retries, 0)):
+            if isinstance(value, bool) or not isinstance(value, int) or value < low:
+                raise InvalidParameterError(f"{name} must be an integer >= {low}, got "
+                                            f"{value!r}")
+        if address is not None and (not isinstance(address, str) or not address.strip()):
+            raise InvalidParameterError(f"address must be HOST:PORT or 'auto', got {address!r}")
         self._ray = ray
         self.address = address
-        self.max_in_flight = int(max_in_flight)
-        self._in_flight: list[Any] = []
+        self.max_in_flight = max_in_flight
+        self.max_retries = max_retries
+        self._in_flight: dict[Any, EpisodeSpec] = {}
+        self._initialised = False
+
+    def _ensure_ray(self) -> None:
+        ray = self._ray
+        if ray.is_initialized():
+            return
+        try:
+            ray.init(address=self.address, log_to_driver=False)
+        except ConnectionError as exc:
+            raise WorkersLostError(f"cannot connect to the Ray cluster at "
+                                   f"{self.address or 'RAY_ADDRESS'}: {exc}") from None
+        self._initialised = True
 
     def run(self, specs: Sequence[EpisodeSpec]) -> Iterator[EpisodeRecord]:
         ray = self._ray
-        if not ray.is_initialized():
-            ray.init(address=self.address, include_dashboard=False, log_to_driver=False)
-        task = ray.remote(num_cpus=1)(_ray_task)
+        self._ensure_ray()
+        task = ray.remote(num_cpus=1, max_retries=self.max_retries)(_ray_task)
         pending = list(specs)[::-1]
-        self._in_flight = []
+        self._in_flight = {}
         while pending or self._in_flight:
             while pending and len(self._in_flight) < self.max_in_flight:
-                self._in_flight.append(task.remote(pending.pop()))
-            done, self._in_flight = ray.wait(self._in_flight, num_returns=1)
-            yield from ray.get(done)
+                spec = pending.pop()
+                self._in_flight[task.remote(spec)] = spec
+            done, _ = ray.wait(list(self._in_flight), num_returns=1)
+            spec = self._in_flight.pop(done[0])
+            try:
+                record = ray.get(done[0])
+            except (ray.exceptions.WorkerCrashedError, ray.exceptions.NodeDiedError,
+                    ray.exceptions.ObjectLostError) as exc:
+                raise WorkersLostError(
+                    f"episode {spec.scenario} {spec.risk} seed {spec.seed} was lost "
+                    f"{self.max_retries + 1} times with its Ray worker or node "
+                    f"({type(exc).__name__}); the finished episodes are saved: run the "
+                    "same command again to resume") from exc
+            yield record
+
+    def close(self) -> None:
+        """Disconnect from Ray (and stop it if this executor started it)."""
+        if self._initialised:
+            self._ray.shutdown()
+            self._initialised = False
 
     def terminate(self) -> None:
         for ref in self._in_flight:
             self._ray.cancel(ref, force=True)
-        self._in_flight = []
+        self._in_flight = {}
+        self.close()
 
 
 def run_on_ray(specs: Sequence[EpisodeSpec], *, address: str | None = None,
                max_in_flight: int = 256) -> Iterator[EpisodeRecord]:
     """Yield the records of ``specs`` as their Ray tasks finish."""
-    yield from RayExecutor(address=address, max_in_flight=max_in_flight).run(specs)
+    with RayExecutor(address=address, max_in_flight=max_in_flight) as executor:
+        yield from executor.run(specs)
 
 
-def make_executor(kind: str = "process", workers: int = 1) -> Executor:
+def make_executor(kind: str = "process", workers: int = 1, *,
+                  address: str | None = None) -> Executor:
     """An executor: ``"process"`` with ``workers`` local processes (1: this process), or
-    ``"ray"``.
+    ``"ray"`` (on the cluster at ``address``, see :class:`RayExecutor`).
 
     Raises
     ------
     InvalidParameterError
-        For another ``kind`` or ``workers < 1``.
+        For another ``kind``, ``workers < 1``, or an ``address`` without ``"ray"``.
     """
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise InvalidParameterError(f"workers must be an integer >= 1, got {workers!r}")
     if kind == "ray":
-        return RayExecutor()
+        return RayExecutor(address=address)
     if kind != "process":
         raise InvalidParameterError(f"executor must be one of {EXECUTORS}, got {kind!r}")
+    if address is not None:
+        raise InvalidParameterError(f"a Ray address ({address!r}) needs the ray executor "
+                                    "(--executor ray)")
     return SerialExecutor() if workers == 1 else ProcessExecutor(workers)
