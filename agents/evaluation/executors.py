@@ -256,7 +256,10 @@ class RayExecutor(Executor):
     def run(self, specs: Sequence[EpisodeSpec]) -> Iterator[EpisodeRecord]:
         ray = self._ray
         self._ensure_ray()
-        task = ray.remote(num_cpus=1, max_retries=self.max_retries)(_ray_task)
+        # SPREAD: episodes go to every node (the default packs them on the driver's node
+        # first, leaving the others idle on a small cluster).
+        task = ray.remote(num_cpus=1, max_retries=self.max_retries,
+                          scheduling_strategy="SPREAD")(_ray_task)
         pending = list(specs)[::-1]
         self._in_flight = {}
         while pending or self._in_flight:
