@@ -249,8 +249,10 @@ class RayExecutor(Executor):
         try:
             ray.init(address=self.address, log_to_driver=False)
         except ConnectionError as exc:
-            raise WorkersLostError(f"cannot connect to the Ray cluster at "
-                                   f"{self.address or 'RAY_ADDRESS'}: {exc}") from None
+            raise WorkersLostError(
+                f"cannot connect to the Ray cluster at {self.address or 'RAY_ADDRESS'}: {exc} "
+                "(is it running? a cluster with token authentication, recent Ray's default, "
+                "also needs RAY_AUTH_MODE=token and its token: see docs/ray.md)") from None
         self._initialised = True
 
     def run(self, specs: Sequence[EpisodeSpec]) -> Iterator[EpisodeRecord]:
