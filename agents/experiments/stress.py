@@ -277,8 +277,8 @@ def run_stress(
 
         files["pareto"] = plot_pareto(
             _pareto_panels(rows, epsilon=epsilon), output / "figures" / "pareto.png",
-            title=f"stress suite: collision rate against time to goal ({planner}, hollow: "
-            "dominated)")
+            title=f"Stress suite, {planner} planner: collision rate (continuous time) against "
+            "time to goal, per filter risk")
     return EvaluationOutputs(records, rows, markdown, time.perf_counter() - start, files)
 
 
