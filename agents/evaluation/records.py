@@ -83,7 +83,8 @@ def options_json(options: Mapping[str, Any] | str | None, name: str = "options")
     ------
     InvalidParameterError
         If a key is not a string or a value is not a finite number, string, bool,
-        ``None`` or a (nested) list of them.
+        ``None`` or a (nested) list or string-keyed mapping of them (e.g. the
+        ``scenario`` of ``"Custom"``).
     """
     if options is None or options == "":
         return ""
@@ -102,6 +103,8 @@ def options_json(options: Mapping[str, Any] | str | None, name: str = "options")
             value = value.tolist()
         if isinstance(value, tuple | list):
             return [plain(v, f"{path}[{i}]") for i, v in enumerate(value)]
+        if isinstance(value, Mapping) and all(isinstance(key, str) for key in value):
+            return {key: plain(v, f"{path}[{key!r}]") for key, v in value.items()}
         if isinstance(value, np.generic):
             value = value.item()
         if value is None or isinstance(value, bool | str):
@@ -111,8 +114,8 @@ def options_json(options: Mapping[str, Any] | str | None, name: str = "options")
                 raise InvalidParameterError(f"{path} must be finite, got {value!r}")
             return value
         raise InvalidParameterError(
-            f"{path} must be a number, string, bool, None or a list of them (recorded in the "
-            f"CSV), got {value!r}")
+            f"{path} must be a number, string, bool, None or a list or mapping of them "
+            f"(recorded in the CSV), got {value!r}")
 
     for key in options:
         if not isinstance(key, str):
@@ -225,6 +228,10 @@ class EpisodeSpec:
                 raise InvalidParameterError(
                     f"noise must be '' or one of {sorted(NOISE_PRESETS)}, got {self.noise!r}")
         set_(self, "policy_path", str(self.policy_path or ""))
+        if self.planner == "mpc" and self.policy_path:  # it would be silently ignored
+            raise InvalidParameterError(
+                f"planner 'mpc' (the obstacle-agnostic MPC) uses no policy file, got policy_path "
+                f"{self.policy_path!r} (--policy): drop it, or use planner 'ppo'")
         set_(self, "filter_options", options_json(self.filter_options, "filter_options"))
         clash = sorted({"risk", "alpha", "delta", "epsilon"} & set(_options_dict(
             self.filter_options)))
@@ -233,6 +240,10 @@ class EpisodeSpec:
                 f"filter_options must not set {clash} (fields of the episode), got "
                 f"filter_options {self.filter_options}")
         set_(self, "env_options", options_json(self.env_options, "env_options"))
+        if self.scenario != CUSTOM and "scenario" in _options_dict(self.env_options):
+            raise InvalidParameterError(  # gym.make would silently replace the named one
+                f"env_options 'scenario' is for the scenario {CUSTOM!r} only, got it with "
+                f"scenario {self.scenario!r}")
 
     def filter_kwargs(self) -> dict[str, Any]:
         """Keywords of :class:`filters.SafetyFilterWrapper` (without the reference planner)."""
