@@ -29,7 +29,8 @@ ax.scatter(*samples.T, s=6, color="tab:gray", label="obstacle samples (100)")
 ax.add_patch(plt.Circle(y_ref, 0.3, fill=False, color="tab:blue"))
 ax.plot(*y_ref, "o", color="tab:blue", label="ego reference $y^r$ (disc r = 0.3 m)")
 t = np.linspace(-2.5, 2.5, 2)
-for (risk, extra), color in zip(settings, plt.cm.viridis(np.linspace(0, 0.9, len(settings)))):
+colors = plt.cm.viridis(np.linspace(0, 0.9, len(settings)))
+for (risk, extra), color in zip(settings, colors, strict=True):
     hs = safe_halfspaces(reference, points, ego_shape=Disc(0.3), obstacle_shapes=[Disc(0.3)],
                          risk=risk, alpha=0.2, delta=0.1, **extra)
     a, b = hs.normals[0, 0], hs.offsets[0, 0]

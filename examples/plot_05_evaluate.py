@@ -33,12 +33,15 @@ for j, risk in enumerate(risks):
     rate = np.array([rows[s, risk].collision_rate for s in scenarios])
     low = np.array([rows[s, risk].collision_low for s in scenarios])
     high = np.array([rows[s, risk].collision_high for s in scenarios])
-    ax.bar(x, 100 * rate, width, label=labels[risk],
-           yerr=100 * np.vstack([rate - low, high - rate]), capsize=3)
+    bars = ax.bar(x, 100 * rate, width, label=labels[risk],
+                  yerr=100 * np.vstack([rate - low, high - rate]), capsize=3)
+    counts = [f"{round(rows[s, risk].collision_rate * rows[s, risk].episodes)}"
+              f"/{rows[s, risk].episodes}" for s in scenarios]
+    ax.bar_label(bars, counts, fontsize=7, padding=2)  # collided / episodes, 0/20 too
 ax.set_xticks(np.arange(len(scenarios)), scenarios)
 ax.set_ylabel("collision rate (% of episodes)")
 ax.set_xlabel("scenario (20 episodes per bar, seeds 0-19)")
-ax.set_ylim(0, 105)
+ax.set_ylim(0, 112)
 ax.set_title("Shipped PPO planner: collision rate by filter risk (Wilson 95 % CI)")
 ax.legend(title="filter", fontsize=8)
 fig.tight_layout()
