@@ -132,5 +132,28 @@ def _move_paragraph_out_of_parameters(app, what, name, obj, options, lines):
             return
 
 
+# --- type hints spelled as in the code (np.ndarray, gym.Env) -> the projects' names ----
+_ALIASES = {
+    "np.ndarray": "numpy.ndarray",
+    "numpy.random._generator.Generator": "numpy.random.Generator",
+    "np.random.Generator": "numpy.random.Generator",
+    "gym.Env": "gymnasium.Env",
+    "gymnasium.core.Env": "gymnasium.Env",
+    "gym.Wrapper": "gymnasium.Wrapper",
+    "gymnasium.core.Wrapper": "gymnasium.Wrapper",
+}
+
+
+def _resolve_alias(app, env, node, contnode):
+    target = _ALIASES.get(node.get("reftarget", ""))
+    if target is None:
+        return None
+    from sphinx.ext.intersphinx import missing_reference
+
+    node["reftarget"] = target
+    return missing_reference(app, env, node, contnode)
+
+
 def setup(app):
     app.connect("autodoc-process-docstring", _move_paragraph_out_of_parameters, priority=400)
+    app.connect("missing-reference", _resolve_alias)
