@@ -1,4 +1,4 @@
-"""Sphinx extension: the CSV glossary table, generated from ``agents.evaluation.records.COLUMN_DOCS``.
+"""Sphinx extension: the CSV glossary, generated from ``agents.evaluation.records.COLUMN_DOCS``.
 
 On ``builder-inited`` it writes ``docs/_generated/csv_columns.md`` (gitignored), which
 ``glossary.md`` includes; the column list therefore cannot drift from the record
