@@ -100,38 +100,6 @@ suppress_warnings = ["config.cache"]  # sphinx_gallery_conf holds callables' rep
 
 
 
-# --- two docstrings with a free paragraph inside "Parameters" -------------------
-# numpydoc (and napoleon) read every unindented line of a Parameters section as a
-# parameter name, so a closing paragraph there renders as bogus parameters (and fails
-# -W). Until those docstrings move the paragraph out of the section (reported; the
-# modules are being moved right now), move it in front of "Parameters" here. Listed
-# by name so that no other docstring is touched.
-_PARAGRAPH_IN_PARAMETERS = {"NoiseModel", "MPCReferencePlanner"}
-
-
-def _move_paragraph_out_of_parameters(app, what, name, obj, options, lines):
-    if getattr(obj, "__qualname__", None) not in _PARAGRAPH_IN_PARAMETERS:
-        return
-    try:
-        start = lines.index("Parameters")
-    except ValueError:
-        return
-    end = next((i for i in range(start + 2, len(lines) - 1)
-                if lines[i + 1].strip() and set(lines[i + 1].strip()) == {"-"}), len(lines))
-    section = lines[start:end]
-    blanks = [i for i, line in enumerate(section) if not line.strip()]
-    # the free paragraph: after the section's last blank line that is followed by
-    # unindented text
-    for b in reversed(blanks):
-        tail = section[b + 1:]
-        if tail and not tail[0].startswith((" ", "\t")) and any(
-                line.strip() for line in tail) and not any(
-                line.startswith((" ", "\t")) for line in tail if line.strip()):
-            paragraph = [line for line in tail if line.strip()]
-            lines[start:end] = paragraph + [""] + section[:b] + [""]
-            return
-
-
 # --- type hints spelled as in the code (np.ndarray, gym.Env) -> the projects' names ----
 _ALIASES = {
     "np.ndarray": "numpy.ndarray",
@@ -155,5 +123,4 @@ def _resolve_alias(app, env, node, contnode):
 
 
 def setup(app):
-    app.connect("autodoc-process-docstring", _move_paragraph_out_of_parameters, priority=400)
     app.connect("missing-reference", _resolve_alias)
