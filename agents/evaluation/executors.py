@@ -134,7 +134,7 @@ class ProcessExecutor(Executor):
         """Process ids of the pool's live workers (none before the first run)."""
         if self._pool is None:
             return []
-        return [p.pid for p in list(self._pool._processes.values()) if p.is_alive()]
+        return [p.pid for p in list((self._pool._processes or {}).values()) if p.is_alive()]
 
     def run(self, specs: Sequence[EpisodeSpec]) -> Iterator[EpisodeRecord]:
         from concurrent.futures import FIRST_COMPLETED, wait
@@ -190,7 +190,7 @@ class ProcessExecutor(Executor):
     def terminate(self) -> None:
         """Kill the workers now; episodes running are lost."""
         if self._pool is not None:
-            for process in list(self._pool._processes.values()):
+            for process in list((self._pool._processes or {}).values()):
                 if process.is_alive():
                     process.kill()
             self._pool.shutdown(wait=True, cancel_futures=True)
