@@ -56,6 +56,18 @@ def time_limit(distance: float, speed: float = EGO_SPEED) -> float:
     return 1.5 * distance / speed + 4.0
 
 
+def _box(arena: Any) -> tuple[tuple[float, float], tuple[float, float]]:
+    try:
+        box = np.asarray(arena, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"arena must be ((x_min, y_min), (x_max, y_max)), got {arena!r}") from exc
+    if box.shape != (2, 2) or not np.isfinite(box).all() or np.any(box[0] >= box[1]):
+        raise ConfigError(
+            f"arena must be finite ((x_min, y_min), (x_max, y_max)) with min < max, got {arena!r}"
+        )
+    return (float(box[0, 0]), float(box[0, 1])), (float(box[1, 0]), float(box[1, 1]))
+
+
 class PedestrianEnv(SafeNavEnv):
     """Reach a goal across a recorded ETH/UCY scene among the people who walked there.
 
@@ -80,7 +92,7 @@ class PedestrianEnv(SafeNavEnv):
       in the packaged scenes), and the start step is drawn so the episode ends
       inside the recording when it is long enough.
     * **Arena** (``position_bounds``): the scene's walkable box, the 2 %-98 %
-      quantiles per axis of all recorded positions.
+      quantiles per axis of all recorded positions (a static map of the scene).
     * **Predictions** (``info["predictions"]``, ``(K, N_s, T, 2)``): the nominal
       ``predictor`` (``"constant_velocity"``, the last observed velocity, or
       ``"kalman"``) on each pedestrian's positions at steps ``<= t`` (its last
@@ -115,6 +127,11 @@ class PedestrianEnv(SafeNavEnv):
         Pedestrian disc radius, m (default 0.3).
     ego_speed
         Nominal ego speed, m/s, used for the time limit (default 1.5).
+    arena
+        ``((x_min, y_min), (x_max, y_max))`` in m; default the scene's walkable box.
+        The box is the scene's map, computed once from the whole recording; it is no
+        input of the predictions, but it does fix where starts and goals are drawn, so
+        comparing two recordings episode for episode needs the same ``arena``.
     **options
         The other :class:`~safe_nav_env.env.SafeNavEnv` options (``render_mode``,
         ``episode_length``, ``max_acceleration``, reward weights, ``goal_tolerance``,
@@ -141,6 +158,7 @@ class PedestrianEnv(SafeNavEnv):
         history_steps: int = 8,
         pedestrian_radius: float = PEDESTRIAN_RADIUS,
         ego_speed: float = EGO_SPEED,
+        arena: tuple[tuple[float, float], tuple[float, float]] | None = None,
         **options: Any,
     ) -> None:
         unsupported = sorted({"scenario", "noise", "pad_info", "random_start"} & set(options))
@@ -164,13 +182,14 @@ class PedestrianEnv(SafeNavEnv):
         self.scene: str = recording.name
         self.forecaster = Forecaster(predictor, dt, history_steps)
         self.residuals = residual_bank(self.scene, self.forecaster, horizon)
-        self.arena = recording.walkable_box()
+        self.arena = recording.walkable_box() if arena is None else _box(arena)
         self._replay = ReplayModel(
             recording, self.forecaster, self.residuals, max_obstacles=max_obstacles,
             radius=self.pedestrian_radius, arena=self.arena,
             ego_position=lambda: self.ego_state[:2],
         )
         self._episode: Scenario | None = None
+        self._start_step: int | None = None
         super().__init__(
             scenario=self._draw_scenario, n_samples=n_samples, horizon=horizon, dt=dt,
             max_obstacles=max_obstacles, pad_info=False, predictor=None, **options,
@@ -194,7 +213,9 @@ class PedestrianEnv(SafeNavEnv):
                 continue
             limit = time_limit(distance, self.ego_speed)
             steps = math.ceil(limit / self.dt - 1e-9)
-            start_step = int(rng.integers(0, max(0, self.recording.n_steps - 1 - steps) + 1))
+            start_step = self._start_step
+            if start_step is None:
+                start_step = int(rng.integers(0, max(0, self.recording.n_steps - 1 - steps) + 1))
             _, people = self._replay.pedestrians_at(start_step)
             if people.shape[0]:
                 gaps = np.hypot(*(people - start).T)
@@ -224,17 +245,38 @@ class PedestrianEnv(SafeNavEnv):
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
-        """Start an episode (see the class docstring); ``options`` is not used.
+        """Start an episode (see the class docstring).
+
+        Parameters
+        ----------
+        seed
+            Seeds :attr:`np_random`, the only source of randomness.
+        options
+            ``{"start_step": j}`` starts this episode at recording step ``j`` (the
+            ego start and goal are still drawn; the start is clear of the people
+            present at ``j``); default: drawn from the seed.
 
         Raises
         ------
         ConfigError
-            If ``options`` asks for another scenario.
+            If ``options`` asks for another scenario or holds a bad ``start_step``.
         """
-        if options and "scenario" in options:
+        options = dict(options or {})
+        if "scenario" in options:
             raise ConfigError("options['scenario'] does not apply; make a new environment "
                               "with scene=...")
-        return super().reset(seed=seed, options=options)
+        start_step = options.pop("start_step", None)
+        if start_step is not None and (
+            isinstance(start_step, bool)
+            or not isinstance(start_step, int | np.integer)
+            or not 0 <= start_step < self.recording.n_steps
+        ):
+            raise ConfigError(
+                f"options['start_step'] must be an integer in [0, {self.recording.n_steps - 1}] "
+                f"(a recording step), got {start_step!r}"
+            )
+        self._start_step = None if start_step is None else int(start_step)
+        return super().reset(seed=seed, options=options or None)
 
     # ---------------------------------------------------- observation and info
 

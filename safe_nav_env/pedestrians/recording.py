@@ -153,10 +153,12 @@ def parse_tracks(text: str, source: str = "<text>") -> np.ndarray:
         For an empty file (no data line) or a malformed line; the message names
         ``source``, the 1-based line number and the line's text.
     """
-    try:  # fast path; any doubt goes to the line-by-line check below, which names the line
-        table = np.loadtxt(io.StringIO(text), dtype=np.float64, comments=None, ndmin=2)
-    except ValueError:
-        table = None
+    table = None
+    if text.strip():  # fast path; any doubt goes to the line-by-line check, which names the line
+        try:
+            table = np.loadtxt(io.StringIO(text), dtype=np.float64, comments=None, ndmin=2)
+        except ValueError:
+            table = None
     if (
         table is not None
         and table.shape[0] > 0

@@ -1,0 +1,153 @@
+"""SafeNav/Pedestrians-v0: every scene steps, Gymnasium conformance, slots, determinism."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import safe_nav_env  # noqa: F401  (registers the ids)
+from safe_nav_env.errors import ConfigError
+from safe_nav_env.pedestrians import SCENES, PedestrianEnv, load_recording, time_limit
+from safe_nav_env.pedestrians.replay import PARK_DISTANCE
+
+pytestmark = pytest.mark.filterwarnings("ignore:.*normalized:UserWarning")
+
+ID = "SafeNav/Pedestrians-v0"
+
+
+def _actions(n: int, seed: int = 1) -> np.ndarray:
+    return np.random.default_rng(seed).uniform(-3.0, 3.0, (n, 2)).astype(np.float32)
+
+
+@pytest.mark.parametrize("scene", list(SCENES))
+def test_every_packaged_scene_makes_resets_and_steps(scene):
+    env = gym.make(ID, scene=scene)
+    obs, info = env.reset(seed=3)
+    base = env.unwrapped
+    k = base.max_obstacles
+    assert k == 8 and obs.shape == (6 + 5 * k,) and env.observation_space.contains(obs)
+    assert info["predictions"].shape == (k, 100, 10, 2)
+    low, high = base.position_bounds
+    assert np.all(low <= base.ego_state[:2]) and np.all(base.ego_state[:2] <= high)
+    assert np.hypot(*(base.goal - base.ego_state[:2])) >= 5.0
+    assert base.max_episode_steps == int(np.ceil(
+        time_limit(np.hypot(*(base.goal - base.ego_state[:2]))) / 0.2 - 1e-9))
+    for action in _actions(15):
+        obs, reward, terminated, truncated, info = env.step(action)
+        assert env.observation_space.contains(obs) and np.isfinite(reward)
+        present = info["obstacle_present"]
+        # Absent slots: infinitely far in info, parked (finite) for the filter, flag 0.
+        assert np.isinf(info["predictions"][~present]).all()
+        assert np.isinf(info["distance_to_collision"][~present]).all()
+        assert np.isfinite(info["predictions"][present]).all()
+        assert np.isfinite(base.predictions).all() and np.isfinite(base.obstacle_positions).all()
+        assert np.allclose(base.obstacle_positions[~present], high + PARK_DISTANCE)
+        flags = obs[6 + 4 :: 5]
+        assert flags.sum() == present.sum()
+        if terminated or truncated:
+            break
+
+
+def test_gymnasium_check_env_passes():
+    check_env(gym.make(ID, scene="zara1", render_mode="rgb_array").unwrapped)
+
+
+def test_a_file_path_is_a_scene(tmp_path):
+    lines = load_text("zara2").splitlines()[:3000]
+    path = tmp_path / "my_scene.txt"
+    path.write_text("\n".join(lines) + "\n")
+    env = gym.make(ID, scene=str(path), predictor="kalman")
+    env.reset(seed=0)
+    for action in _actions(5):
+        env.step(action)
+    assert env.unwrapped.scene == str(path)
+    assert env.unwrapped.residuals.scenes == tuple(SCENES)  # a user file: all six scenes
+
+
+def load_text(scene: str) -> str:
+    from safe_nav_env.pedestrians.recording import scene_path
+
+    return scene_path(scene).read_text()
+
+
+def _rollout(env: gym.Env, seed: int, steps: int) -> list[tuple]:
+    obs, info = env.reset(seed=seed)
+    out = [(obs, info["predictions"], info["obstacle_velocities"], info["pedestrian_index"])]
+    for action in _actions(steps):
+        obs, reward, terminated, truncated, info = env.step(action)
+        out.append((obs, info["predictions"], info["obstacle_velocities"],
+                    info["pedestrian_index"], reward, info["collision"]))
+    return out
+
+
+def test_same_seed_same_episode_and_another_seed_another():
+    first = _rollout(gym.make(ID, scene="students001"), 5, 10)
+    again = _rollout(gym.make(ID, scene="students001"), 5, 10)
+    other = _rollout(gym.make(ID, scene="students001"), 6, 10)
+    for a, b in zip(first, again, strict=True):
+        for x, y in zip(a, b, strict=True):
+            np.testing.assert_array_equal(x, y)
+    assert not np.array_equal(first[0][0], other[0][0])
+
+
+def test_slots_hold_the_nearest_present_pedestrians_and_keep_them():
+    env = gym.make(ID, scene="students003").unwrapped
+    env.reset(seed=2)
+    model = env._replay
+    previous = model.slots.copy()
+    for action in _actions(30):
+        env.step(action)
+        j = model.step_index
+        index, points = model.pedestrians_at(j)
+        held = model.slots[model.present]
+        assert model.present.sum() == min(env.max_obstacles, index.shape[0])
+        dist = np.hypot(*(points - env.ego_state[:2]).T)
+        outside = ~np.isin(index, held)
+        if outside.any():
+            assert dist[np.isin(index, held)].max() <= dist[outside].min()
+        for slot, ped in enumerate(previous):
+            if ped >= 0 and ped in held:
+                assert model.slots[slot] == ped  # kept its slot
+        # Each chord starts at the slot's own pedestrian's previous position.
+        for slot in np.flatnonzero(model.present):
+            ped = model.slots[slot]
+            before = env.recording.positions[j - 1, ped]
+            expected = before if np.isfinite(before).all() else env.recording.positions[j, ped]
+            np.testing.assert_array_equal(model.chord_starts[slot], expected)
+        previous = model.slots.copy()
+
+
+def test_a_collision_with_a_pedestrian_counts_while_the_ego_stands_still():
+    env = gym.make(ID, scene="students003", terminate_on_collision=True).unwrapped
+    env.reset(seed=0)
+    collided = False
+    for _ in range(env.max_episode_steps):  # brake to rest and stay there
+        v = env.ego_state[2:]
+        _, _, terminated, truncated, info = env.step(np.clip(-v / env.dt, -10, 10))
+        collided |= info["collision"]
+        if terminated or truncated:
+            break
+    assert info["min_swept_distance_to_collision"] <= info["min_distance_to_collision"]
+    assert collided == (info["collision"] and terminated)
+
+
+def test_options_that_do_not_apply_are_refused():
+    with pytest.raises(ConfigError, match="noise"):
+        PedestrianEnv("eth", noise="paper")
+    with pytest.raises(ConfigError, match="predictor"):
+        PedestrianEnv("eth", predictor="oracle")
+    with pytest.raises(ConfigError, match="dt"):
+        PedestrianEnv(load_recording("eth", dt=0.4), dt=0.2)
+
+
+def test_safety_filter_wrapper_wraps_and_steps():
+    filters = pytest.importorskip("filters")
+    env = filters.SafetyFilterWrapper(gym.make(ID, scene="eth"))
+    env.reset(seed=0)
+    for action in _actions(5):
+        _, _, terminated, truncated, info = env.step(action)
+        assert info["filter"].status != "error", info["filter"]
+        if terminated or truncated:
+            break
