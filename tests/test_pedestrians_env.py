@@ -119,18 +119,28 @@ def test_slots_hold_the_nearest_present_pedestrians_and_keep_them():
         previous = model.slots.copy()
 
 
-def test_a_collision_with_a_pedestrian_counts_while_the_ego_stands_still():
-    env = gym.make(ID, scene="students003", terminate_on_collision=True).unwrapped
-    env.reset(seed=0)
-    collided = False
-    for _ in range(env.max_episode_steps):  # brake to rest and stay there
-        v = env.ego_state[2:]
-        _, _, terminated, truncated, info = env.step(np.clip(-v / env.dt, -10, 10))
-        collided |= info["collision"]
+def test_a_pedestrian_walking_into_the_standing_ego_is_a_collision(tmp_path):
+    # One walker along y = 0 at 1 m/s (0.4 m per 10 frames), two people standing still.
+    lines = [f"{10 * f}\t1\t{0.4 * f:.2f}\t0.0" for f in range(31)]
+    lines += [f"{10 * f}\t{p}\t{x}\t{y}" for f in range(31) for p, x, y in ((2, 0, -4),
+                                                                         (3, 12, 4))]
+    path = tmp_path / "walker.txt"
+    path.write_text("\n".join(lines))
+    env = gym.make(ID, scene=str(path), terminate_on_collision=True).unwrapped
+    env.reset(seed=0, options={"start_step": 0})
+    env.ego_state = np.array([6.1, 0.0, 0.0, 0.0])  # at rest on the walker's line
+    steps = 0
+    while steps < 40:
+        _, _, terminated, truncated, info = env.step(np.zeros(2, np.float32))
+        steps += 1
+        assert np.array_equal(env.ego_state, [6.1, 0.0, 0.0, 0.0])
         if terminated or truncated:
             break
-    assert info["min_swept_distance_to_collision"] <= info["min_distance_to_collision"]
-    assert collided == (info["collision"] and terminated)
+    assert info["collision"] and info["cost"] == 1.0 and terminated
+    # Centres 0.6 m apart when the walker reaches x = 5.5 m, at 5.5 s: inside step 28.
+    assert steps == 28
+    walker = int(np.flatnonzero(env.recording.ids == 1.0)[0])
+    assert walker in info["pedestrian_index"]
 
 
 def test_options_that_do_not_apply_are_refused():

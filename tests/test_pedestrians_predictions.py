@@ -8,7 +8,7 @@ import pytest
 
 import safe_nav_env  # noqa: F401  (registers the ids)
 from safe_nav_env.pedestrians import SCENES, Forecaster, load_recording, residual_bank
-from safe_nav_env.pedestrians.forecast import KALMAN_SETTINGS, MOVING, STRATA
+from safe_nav_env.pedestrians.forecast import KALMAN_SETTINGS, MOVING, STRATA, headings
 from safe_nav_env.pedestrians.recording import parse_tracks, resample, scene_path
 from safe_nav_env.pedestrians.residuals import scene_residuals
 from safe_nav_env.predictors import ConstantVelocityKalman
@@ -123,7 +123,8 @@ def test_samples_are_nominal_plus_rotated_bank_rows():
     nominal = np.zeros((1, 10, 2))
     angle = 0.7
     frames = np.array([[[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]]])
-    samples = bank.sample(np.random.default_rng(3), nominal, np.array([MOVING]), frames, 50)
+    heading = headings(np.array([[np.cos(angle), np.sin(angle)]]) * 1.3, np.array([MOVING]))
+    samples = bank.sample(np.random.default_rng(3), nominal, np.array([MOVING]), heading, 50)
     u = np.random.default_rng(3).random((1, 50))
     rows = bank.residuals[MOVING][(u[0] * bank.residuals[MOVING].shape[0]).astype(int)]
     np.testing.assert_allclose(samples[0], rows @ frames[0].T, atol=1e-12)

@@ -25,7 +25,7 @@ Each forecast also carries a *stratum*, which selects the residual law
 (:mod:`safe_nav_env.pedestrians.residuals`): ``NEW`` (one observation, velocity
 unknown), ``STANDING`` (:math:`\\lVert \\hat v_t \\rVert <` :data:`STANDING_SPEED`) or
 ``MOVING``; and the heading frame ``(e, n)`` (unit velocity and its left normal)
-in which the residuals of a moving pedestrian are expressed.
+in which the residuals of a moving pedestrian are expressed (:func:`headings`).
 """
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ __all__ = [
     "STANDING_SPEED",
     "STRATA",
     "Forecaster",
-    "heading_frames",
+    "headings",
     "strata_of",
 ]
 
@@ -136,25 +136,23 @@ class Forecaster:
 
 
 def strata_of(velocities: np.ndarray, lengths: np.ndarray) -> np.ndarray:
-    """Stratum code per forecast from the velocity estimates ``(n, 2)`` and window lengths ``(n,)``."""
+    """Stratum code per forecast, from velocity estimates ``(n, 2)`` and window lengths ``(n,)``."""
     speed = np.hypot(velocities[:, 0], velocities[:, 1])
     codes = np.where(speed < STANDING_SPEED, STANDING, MOVING)
     return np.where(lengths <= 1, NEW, codes)
 
 
-def heading_frames(velocities: np.ndarray, strata: np.ndarray) -> np.ndarray:
-    """Rotation ``(n, 2, 2)`` from residual coordinates to the world, per forecast.
+def headings(velocities: np.ndarray, strata: np.ndarray) -> np.ndarray:
+    """Heading frame of each forecast as a unit complex number ``h = e_x + i e_y``, ``(n,)``.
 
-    Columns ``(e, n)``: the unit velocity and its left normal for ``MOVING``
-    forecasts, the world axes otherwise. A world residual ``r`` has coordinates
-    ``R^T r`` and back ``R c``.
+    ``e`` is the unit velocity for ``MOVING`` forecasts and the x axis (``h = 1``)
+    otherwise; the frame's second axis is the left normal ``i h``. A world residual
+    ``r = r_x + i r_y`` has frame coordinates ``conj(h) r`` (along, across) and back
+    ``h c``: the rotation ``R = [e, n]`` as a complex product.
     """
-    n = velocities.shape[0]
-    frames = np.broadcast_to(np.eye(2), (n, 2, 2)).copy()
+    h = np.ones(velocities.shape[0], dtype=np.complex128)
     moving = strata == MOVING
     if moving.any():
-        v = velocities[moving]
-        e = v / np.hypot(v[:, 0], v[:, 1])[:, None]
-        frames[moving, :, 0] = e
-        frames[moving, 0, 1], frames[moving, 1, 1] = -e[:, 1], e[:, 0]
-    return frames
+        v = velocities[moving, 0] + 1j * velocities[moving, 1]
+        h[moving] = v / np.abs(v)
+    return h

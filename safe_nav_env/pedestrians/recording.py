@@ -8,7 +8,8 @@ A raw file has one observation per line, whitespace (tab) separated,
 
 .. math::
 
-    p_i(t_j) = p_i(\\tau_a) + \\frac{t_j - \\tau_a}{\\tau_b - \\tau_a}\\,(p_i(\\tau_b) - p_i(\\tau_a)),
+    p_i(t_j) = p_i(\\tau_a)
+        + \\frac{t_j - \\tau_a}{\\tau_b - \\tau_a}\\,(p_i(\\tau_b) - p_i(\\tau_a)),
     \\qquad \\tau_a \\le t_j \\le \\tau_b,
 
 with ``τ_a, τ_b`` consecutive observed times of pedestrian ``i``. Pedestrian ``i``
@@ -26,7 +27,7 @@ from __future__ import annotations
 import io
 import math
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cache
 from importlib import resources
 from pathlib import Path
 
@@ -104,7 +105,9 @@ class Recording:
         """Positions of pedestrian ``index`` from its first to its last step, ``(n, 2)``, m."""
         return self.positions[self.first[index] : self.last[index] + 1, index]
 
-    def walkable_box(self, quantile: float = 0.02) -> tuple[tuple[float, float], tuple[float, float]]:
+    def walkable_box(
+        self, quantile: float = 0.02
+    ) -> tuple[tuple[float, float], tuple[float, float]]:
         """Box where people walk: per axis, the ``quantile`` and ``1 - quantile`` quantiles.
 
         The bounding box of all positions shrunk to drop the few far-out stretches of
@@ -280,7 +283,7 @@ def load_recording(scene: str | Path, *, dt: float = 0.2) -> Recording:
     return resample(parse_tracks(path.read_text(), str(path)), dt=float(dt), name=str(path))
 
 
-@lru_cache(maxsize=None)
+@cache
 def _packaged(name: str, dt: float) -> Recording:
     path = scene_path(name)
     return resample(parse_tracks(path.read_text(), str(path)), dt=dt, name=name)

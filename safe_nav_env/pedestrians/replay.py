@@ -30,7 +30,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from safe_nav_env.pedestrians.forecast import NEW, Forecaster, heading_frames, strata_of
+from safe_nav_env.pedestrians.forecast import NEW, Forecaster, headings, strata_of
 from safe_nav_env.pedestrians.recording import Recording
 from safe_nav_env.pedestrians.residuals import ResidualBank
 
@@ -153,8 +153,8 @@ class ReplayModel:
         point in every sample. ``law`` is unused.
         """
         nominal = self.forecaster.nominal(self._nominal_origin, self.velocities, horizon)
-        frames = heading_frames(self.velocities, self._strata)
-        samples = self.bank.sample(rng, nominal, self._strata, frames, n_samples)
+        heading = headings(self.velocities, self._strata)
+        samples = self.bank.sample(rng, nominal, self._strata, heading, n_samples)
         absent = ~self.present
         if absent.any():
             samples[absent] = self.parked
@@ -189,14 +189,27 @@ class ReplayModel:
         origins = self.starts.copy()
         lengths = np.zeros(self.n, dtype=np.int64)
         h = self.forecaster.history_steps
-        for slot in np.flatnonzero(present).tolist():
-            ped = int(self.slots[slot])
-            start = max(int(rec.first[ped]), j - h + 1)
-            window = rec.positions[start : j + 1, ped]  # steps <= j only
-            positions[slot] = window[-1]
-            chord[slot] = window[-2] if (window.shape[0] >= 2 and not first) else window[-1]
+        occupied = np.flatnonzero(present)
+        peds = self.slots[occupied]
+        # Window of each pedestrian: its positions at steps max(first, j - H + 1) .. j.
+        length = np.minimum(j - rec.first[peds] + 1, h)
+        lengths[occupied] = length
+        positions[occupied] = rec.positions[j, peds]
+        if not first and j >= 1:
+            moved = length >= 2  # present at j - 1 too: the chord starts there
+            chord[occupied] = np.where(moved[:, None], rec.positions[j - 1, peds],
+                                       positions[occupied])
+        else:
+            chord[occupied] = positions[occupied]
+        full = length == h
+        if full.any():  # one product for all the full windows, (2, m, 2)
+            window = rec.positions[j - h + 1 : j + 1][:, peds[full]]  # steps <= j only
+            estimate = np.tensordot(self.forecaster.weights[h], window, axes=(1, 0))
+            origins[occupied[full]], velocities[occupied[full]] = estimate[0], estimate[1]
+        for slot, ped, size in zip(occupied[~full].tolist(), peds[~full].tolist(),
+                                   length[~full].tolist(), strict=True):
+            window = rec.positions[j - size + 1 : j + 1, ped]  # steps <= j only
             origins[slot], velocities[slot] = self.forecaster.estimate(window)
-            lengths[slot] = window.shape[0]
         strata = np.where(present, strata_of(velocities, lengths), NEW)
         self.positions = positions
         self.chord_starts = chord

@@ -31,12 +31,12 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 
 from safe_nav_env.errors import ConfigError
-from safe_nav_env.pedestrians.forecast import STRATA, Forecaster, heading_frames, strata_of
+from safe_nav_env.pedestrians.forecast import STRATA, Forecaster, headings, strata_of
 from safe_nav_env.pedestrians.recording import SCENES, Recording, load_recording
 
 __all__ = ["ResidualBank", "residual_bank", "scene_residuals"]
@@ -48,7 +48,7 @@ def scene_residuals(recording: Recording, forecaster: Forecaster, horizon: int) 
     Uses, for each pedestrian and step ``t``, the window of its positions at steps
     ``max(first, t - H + 1) .. t`` only, and the positions ``t+1 .. t+T`` as truth.
     """
-    h, dt = forecaster.history_steps, forecaster.dt
+    h = forecaster.history_steps
     parts: list[list[np.ndarray]] = [[] for _ in STRATA]
     for i in range(recording.n_pedestrians):
         track = recording.track(i)
@@ -68,8 +68,9 @@ def scene_residuals(recording: Recording, forecaster: Forecaster, horizon: int) 
             positions[h - 1 :], velocities[h - 1 :] = forecaster.estimate_windows(windows)
         nominal = forecaster.nominal(positions, velocities, horizon)
         strata = strata_of(velocities, lengths)
-        frames = heading_frames(velocities, strata)
-        local = np.matmul(futures - nominal, frames)  # R^T r, row-wise
+        diff = futures - nominal
+        local = np.conj(headings(velocities, strata))[:, None] * (diff[..., 0] + 1j * diff[..., 1])
+        local = np.stack((local.real, local.imag), axis=-1)  # (along, across) = R^T r
         for code in range(len(STRATA)):
             rows = strata == code
             if rows.any():
@@ -102,20 +103,21 @@ class ResidualBank:
         return int(self.residuals[0].shape[1])
 
     def __post_init__(self) -> None:
-        # All strata in one contiguous (M_total, T * 2) table: one gather per step.
-        flat = np.concatenate([r.reshape(r.shape[0], -1) for r in self.residuals])
+        # All strata in one complex table (along + i across), (M_total, T) contiguous: one
+        # gather per step, and the rotation is one complex product.
+        table = np.concatenate([r[..., 0] + 1j * r[..., 1] for r in self.residuals])
         sizes = np.array([r.shape[0] for r in self.residuals], dtype=np.int64)
         offsets = np.concatenate(([0], np.cumsum(sizes)[:-1]))
-        object.__setattr__(self, "_flat", flat)
-        object.__setattr__(self, "_sizes", sizes)
-        object.__setattr__(self, "_offsets", offsets)
+        for name, value in (("_table", table), ("_sizes", sizes), ("_offsets", offsets)):
+            value.flags.writeable = False
+            object.__setattr__(self, name, value)
 
     def sample(
         self,
         rng: np.random.Generator,
         nominal: np.ndarray,
         strata: np.ndarray,
-        frames: np.ndarray,
+        heading: np.ndarray,
         n_samples: int,
     ) -> np.ndarray:
         """Prediction samples ``nominal + R e``, shape ``(n, N_s, T, 2)``, m.
@@ -124,11 +126,13 @@ class ResidualBank:
         ----------
         rng
             The only source of randomness: one ``rng.random((n, N_s))`` call; sample
-            ``j`` of forecast ``i`` takes residual row ``floor(u_ij M)`` of its stratum.
+            ``j`` of forecast ``i`` takes residual row ``floor(u_ij M)`` of its stratum
+            (``M`` rows).
         nominal
             Nominal trajectories ``(n, T', 2)`` with ``T' <= T``, m.
-        strata, frames
-            Stratum code ``(n,)`` and heading frame ``(n, 2, 2)`` of each forecast.
+        strata, heading
+            Stratum code ``(n,)`` and heading frame ``(n,)`` (unit complex numbers, see
+            :func:`~safe_nav_env.pedestrians.forecast.headings`) of each forecast.
         n_samples
             ``N_s``.
         """
@@ -140,16 +144,13 @@ class ResidualBank:
         uniform = rng.random((n, n_samples))
         rows = (uniform * self._sizes[strata][:, None]).astype(np.int64)
         rows += self._offsets[strata][:, None]
-        picked = np.take(self._flat, rows.ravel(), axis=0).reshape(n, n_samples, -1, 2)
-        along, across = picked[..., :horizon, 0], picked[..., :horizon, 1]
-        r = frames[:, None, None]  # (n, 1, 1, 2, 2): world = R e
-        out = np.empty((n, n_samples, horizon, 2))
-        np.multiply(r[..., 0, 0], along, out=out[..., 0])
-        out[..., 0] += r[..., 0, 1] * across
-        np.multiply(r[..., 1, 0], along, out=out[..., 1])
-        out[..., 1] += r[..., 1, 1] * across
-        out += nominal[:, None]
-        return out
+        picked = np.take(self._table, rows.ravel(), axis=0)
+        if horizon < self.horizon:
+            picked = picked[:, :horizon]
+        out = picked.reshape(n, n_samples, horizon)
+        out *= heading[:, None, None]  # R e
+        out += (nominal[..., 0] + 1j * nominal[..., 1])[:, None, :]
+        return out.view(np.float64).reshape(n, n_samples, horizon, 2)
 
 
 def _merge(scenes: tuple[str, ...], per_scene: list[list[np.ndarray]]) -> ResidualBank:
@@ -200,12 +201,12 @@ def residual_bank(
     return _merge(names, parts)
 
 
-@lru_cache(maxsize=None)
+@cache
 def _packaged_residuals(name: str, forecaster: Forecaster, horizon: int) -> list[np.ndarray]:
     return scene_residuals(load_recording(name, dt=forecaster.dt), forecaster, horizon)
 
 
-@lru_cache(maxsize=None)
+@cache
 def _packaged_bank(left_out: str, forecaster: Forecaster, horizon: int) -> ResidualBank:
     names = tuple(name for name in SCENES if name != left_out)
     return _merge(names, [_packaged_residuals(name, forecaster, horizon) for name in names])
