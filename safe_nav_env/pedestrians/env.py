@@ -238,7 +238,10 @@ class PedestrianEnv(SafeNavEnv):
         return self._episode
 
     def _load(self, scenario: Scenario | None) -> None:
-        if scenario is not None and scenario is self._episode:
+        if scenario is None:  # before the first reset: no obstacle, but the scene's arena
+            centre = tuple(0.5 * (np.asarray(self.arena[0]) + np.asarray(self.arena[1])))
+            scenario = Scenario(name="unset", ego_start=centre, goal=centre, arena=self.arena)
+        elif scenario is self._episode:
             self._model, self._model_scenario = self._replay, scenario
         super()._load(scenario)
 

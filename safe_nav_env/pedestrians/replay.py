@@ -149,15 +149,22 @@ class ReplayModel:
         """Prediction samples for steps ``j+1 .. j+T``, ``(K, N_s, T, 2)``, m.
 
         Nominal forecast from the window of positions up to ``j`` plus whole residual
-        trajectories drawn from the bank with ``rng``; absent slots get their parking
-        point in every sample. ``law`` is unused.
+        trajectories drawn from the bank with ``rng`` (for the occupied slots only);
+        absent slots get their parking point in every sample. ``law`` is unused.
         """
-        nominal = self.forecaster.nominal(self._nominal_origin, self.velocities, horizon)
-        heading = headings(self.velocities, self._strata)
-        samples = self.bank.sample(rng, nominal, self._strata, heading, n_samples)
-        absent = ~self.present
-        if absent.any():
-            samples[absent] = self.parked
+        present = self.present
+        if present.all():
+            rows = slice(None)
+        else:  # draw for the occupied slots only; the others are parked
+            rows = np.flatnonzero(present)
+        velocities, strata = self.velocities[rows], self._strata[rows]
+        nominal = self.forecaster.nominal(self._nominal_origin[rows], velocities, horizon)
+        drawn = self.bank.sample(rng, nominal, strata, headings(velocities, strata), n_samples)
+        if isinstance(rows, slice):
+            return drawn
+        samples = np.empty((self.n, int(n_samples), int(horizon), 2))
+        samples[:] = self.parked
+        samples[rows] = drawn
         return samples
 
     # -------------------------------------------------------------------- internals
