@@ -170,3 +170,24 @@ def test_safety_filter_wrapper_wraps_and_steps():
         assert info["filter"].status == "optimal", info["filter"]
         if terminated or truncated:
             break
+
+
+def test_id_is_registered_on_import_without_loading_the_scenes():
+    import subprocess
+    import sys
+
+    code = ("import sys, gymnasium as gym, safe_nav_env; "
+            "assert 'SafeNav/Pedestrians-v0' in gym.registry; "
+            "assert 'safe_nav_env.pedestrians' not in sys.modules")
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_vector_environments_stack_the_fixed_size_info():
+    envs = gym.make_vec(ID, num_envs=2, vectorization_mode="sync", scene="zara2")
+    obs, info = envs.reset(seed=0)
+    assert obs.shape == (2, 46)
+    for action in _actions(5):
+        obs, _, _, _, info = envs.step(np.stack([action, -action]))
+    assert info["predictions"].shape == (2, 8, 100, 10, 2)
+    assert info["obstacle_present"].shape == (2, 8)
+    envs.close()
