@@ -16,8 +16,17 @@ ENV_IDS: dict[str, str | None] = {
 The scenario's name is the id's: ``"SafeNav/HeadOn-v0"`` runs ``SCENARIOS["HeadOn"]``."""
 
 
+PEDESTRIANS_ID = "SafeNav/Pedestrians-v0"
+"""Id of the recorded-pedestrians environment (:mod:`safe_nav_env.pedestrians`), option
+``scene=`` (default ``"eth"``). Not in :data:`ENV_IDS`: it runs no
+:class:`~safe_nav_env.scenarios.Scenario`."""
+
+PEDESTRIANS_ENTRY_POINT = "safe_nav_env.pedestrians.env:PedestrianEnv"
+
+
 def register_envs() -> None:
-    """Register every id of :data:`ENV_IDS` (ids already registered are left alone).
+    """Register every id of :data:`ENV_IDS` and :data:`PEDESTRIANS_ID` (ids already
+    registered are left alone).
 
     The time limit is the environment's own (``episode_length``), so no
     ``max_episode_steps`` is registered; ``gym.make(..., max_episode_steps=n)``
@@ -28,3 +37,5 @@ def register_envs() -> None:
             continue
         kwargs = {} if scenario is None else {"scenario": scenario}
         gym.register(id=env_id_, entry_point=ENTRY_POINT, kwargs=kwargs)
+    if PEDESTRIANS_ID not in gym.registry:  # the scenes load at gym.make, not here
+        gym.register(id=PEDESTRIANS_ID, entry_point=PEDESTRIANS_ENTRY_POINT)
