@@ -15,6 +15,11 @@ ENV_IDS: dict[str, str | None] = {
 
 The scenario's name is the id's: ``"SafeNav/HeadOn-v0"`` runs ``SCENARIOS["HeadOn"]``."""
 
+SCENE_IDS: dict[str, str] = {
+    "SafeNav/Crowd-v0": "safe_nav_env.crowd.env:CrowdEnv",
+}
+"""Ids of the environments with scenes of their own, and their entry points."""
+
 
 def register_envs() -> None:
     """Register every id of :data:`ENV_IDS` (ids already registered are left alone).
@@ -28,3 +33,6 @@ def register_envs() -> None:
             continue
         kwargs = {} if scenario is None else {"scenario": scenario}
         gym.register(id=env_id_, entry_point=ENTRY_POINT, kwargs=kwargs)
+    for env_id_, entry_point in SCENE_IDS.items():
+        if env_id_ not in gym.registry:
+            gym.register(id=env_id_, entry_point=entry_point)
