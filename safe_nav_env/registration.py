@@ -4,21 +4,21 @@ from __future__ import annotations
 
 import gymnasium as gym
 
-from safe_nav_env.scenarios import CUSTOM, SCENARIO_NAMES, env_id
+from safe_nav_env.scenarios import CUSTOM, SCENARIO_NAMES, SCENES, env_id
 
 ENTRY_POINT = "safe_nav_env.env:SafeNavEnv"
 
 ENV_IDS: dict[str, str | None] = {
     env_id(name): (None if name == CUSTOM else name) for name in SCENARIO_NAMES
+    if name not in SCENES
 }
 """Registered ids and the scenario each uses (``None``: pass ``scenario=`` to ``gym.make``).
 
 The scenario's name is the id's: ``"SafeNav/HeadOn-v0"`` runs ``SCENARIOS["HeadOn"]``."""
 
-SCENE_IDS: dict[str, str] = {
-    "SafeNav/Crowd-v0": "safe_nav_env.crowd.env:CrowdEnv",
-}
-"""Ids of the environments with scenes of their own, and their entry points."""
+SCENE_IDS: dict[str, str] = {env_id(name): entry for name, entry in SCENES.items()}
+"""Ids of the environments with scenes of their own (:data:`~safe_nav_env.scenarios.SCENES`)
+and their entry points."""
 
 
 def register_envs() -> None:
