@@ -428,6 +428,9 @@ COLUMN_DOCS: dict[str, tuple[str, str]] = {
                           "(negative: overlap)"),
     "min_swept_distance": ("m", "Smallest clearance over the continuous-time path (negative: "
                                 "overlap; NaN if not reported)"),
+    "discomfort_steps": ("steps", "Steps whose sampled clearance to some obstacle was below "
+                                  "the environment's discomfort distance (0.2 m in "
+                                  "SafeNav/Crowd-v0; 0 where not reported)"),
     "goal_reached": ("bool", "Whether the ego reached its goal"),
     "time_to_goal": ("s", "Time at which the goal was reached (NaN if not reached)"),
     "path_length": ("m", "Length of the ego's path"),
