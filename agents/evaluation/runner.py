@@ -525,6 +525,7 @@ class EpisodeStats:
         self.min_distance = math.inf
         self.min_swept_distance = math.inf
         self.swept_reported = False
+        self.discomfort_steps = 0
         self.goal_time = math.nan
         self.path_length = 0.0
         self.interventions: list[float] = []
@@ -564,6 +565,7 @@ class EpisodeStats:
         self.collisions.append(collision)
         # Before the continuous-time environment, "collision" was the sampled flag.
         self.sampled_collisions.append(bool(info.get("sampled_collision", collision)))
+        self.discomfort_steps += bool(info.get("discomfort", False))
         position = np.asarray(base.ego_state[:2], dtype=float)
         self.path_length += float(np.linalg.norm(position - self._position))
         self._position = position.copy()
@@ -633,6 +635,7 @@ class EpisodeStats:
             sampled_collision_steps=sum(self.sampled_collisions),
             min_distance=self.min_distance if math.isfinite(self.min_distance) else math.nan,
             min_swept_distance=swept if math.isfinite(swept) else math.nan,
+            discomfort_steps=self.discomfort_steps,
             goal_reached=not math.isnan(self.goal_time),
             time_to_goal=self.goal_time,
             path_length=self.path_length,
