@@ -20,7 +20,6 @@ Output folder::
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from collections import defaultdict
@@ -34,7 +33,7 @@ from agents.evaluation.evaluate import evaluate
 from agents.evaluation.executors import Executor
 from agents.evaluation.records import EpisodeRecord, EpisodeSpec
 from agents.evaluation.summary import summarise, wilson_interval
-from filters.errors import InvalidParameterError
+from agents.experiments.scenes import scene_setting, scene_specs
 
 __all__ = ["CROWD_SETTINGS", "CrowdRow", "crowd_rows", "crowd_specs", "crowd_table",
            "run_crowd"]
@@ -57,34 +56,14 @@ CROWD_POLICY = "ppo_crowd.zip"
 
 def crowd_specs(settings: Sequence[str], risks: Sequence[str], *, episodes: int, seed: int,
                 **common: Any) -> list[EpisodeSpec]:
-    """One spec per (setting, risk, test case); ``common`` as :class:`EpisodeSpec` fields.
-
-    Raises
-    ------
-    InvalidParameterError
-        For an unknown setting or a non-positive episode count.
-    """
-    unknown = [s for s in settings if s not in CROWD_SETTINGS]
-    if unknown:
-        raise InvalidParameterError(f"unknown crowd settings {unknown}; choose from "
-                                    f"{list(CROWD_SETTINGS)}")
-    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
-        raise InvalidParameterError(f"episodes must be an integer >= 1, got {episodes!r}")
-    env_options = common.pop("env_options", "") or {}
-    if isinstance(env_options, str):
-        env_options = json.loads(env_options) if env_options else {}
-    return [EpisodeSpec(scenario="Crowd", risk=risk, seed=seed + i,
-                        env_options={**env_options, **CROWD_SETTINGS[setting]}, **common)
-            for setting in settings for risk in risks for i in range(episodes)]
+    """One spec per (setting, risk, test case) (:func:`agents.experiments.scenes.scene_specs`)."""
+    return scene_specs("Crowd", CROWD_SETTINGS, settings, risks, episodes=episodes, seed=seed,
+                       **common)
 
 
 def setting_of(record: EpisodeRecord) -> str:
     """The :data:`CROWD_SETTINGS` name of a record (from its environment options)."""
-    options = json.loads(record.env_options) if record.env_options else {}
-    for name, setting in CROWD_SETTINGS.items():
-        if all(options.get(key) == value for key, value in setting.items()):
-            return name
-    return record.env_options
+    return scene_setting(record, CROWD_SETTINGS)
 
 
 @dataclass(frozen=True)
