@@ -188,7 +188,7 @@ def run_crowd(
                         delta=delta, epsilon=epsilon, filter_options=filter_options or "",
                         env_options=env_options or "")
     start = time.perf_counter()
-    records = evaluate(specs=specs, workers=workers, executor=executor,
+    records = evaluate(specs=specs, vary=("env_options",), workers=workers, executor=executor,
                        csv_path=output / "episodes.csv", progress=progress,
                        overwrite=overwrite)
     wall = time.perf_counter() - start
