@@ -24,8 +24,8 @@ def test_the_table_has_a_row_per_scene_and_risk_with_its_metrics(tmp_path):
 
 
 def test_the_cli_runs_the_suite_with_its_scenes(tmp_path, capsys):
-    code = main(["evaluate", "--suite", "pedestrians", "--scenes", "hotel", "eth", "--risks", "none",
-                 "--planner", "mpc", "--episodes", "1", "--workers", "1", "--output",
+    code = main(["evaluate", "--suite", "pedestrians", "--scenes", "hotel", "eth", "--risks",
+                 "none", "--planner", "mpc", "--episodes", "1", "--workers", "1", "--output",
                  str(tmp_path), "--no-progress"])
     assert code == 0
     summary = (tmp_path / "summary.md").read_text()  # two scenes in one run
