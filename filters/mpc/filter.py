@@ -36,10 +36,24 @@ import scipy.linalg
 from filters._validation import finite_array
 from filters.errors import InvalidParameterError, InvalidTypeError
 from filters.mpc._linalg import matvec_operator
+from filters.mpc.backends import (
+    AUTO_DAQP_MAX_INPUTS,
+    BACKENDS,
+    REMOVED_BACKENDS,
+    auto_backend,
+    check_backend,
+    make_backend,
+)
 from filters.mpc.checks import all_finite, finite_step_array, parse_halfspaces
 from filters.mpc.problem import MPCProblem
 from filters.mpc.recovery import braking_gain, rollout_with_brake, shifted_plan
-from filters.mpc.result import FilterResult, FilterStatus, QPSolution, StepData
+from filters.mpc.result import (
+    FilterResult,
+    FilterStatus,
+    QPSolution,
+    StepData,
+    recovery_status,
+)
 
 __all__ = [
     "AUTO_DAQP_MAX_INPUTS",
@@ -54,16 +68,6 @@ __all__ = [
     "auto_backend",
 ]
 
-#: Back ends by name: DAQP (the fast default), Clarabel (the design card's solver) and
-#: CVXPY (the readable reference, for tests and benchmarks; imports CVXPY when built);
-#: ``"auto"`` picks DAQP or Clarabel per QP (see :func:`auto_backend`).
-BACKENDS = ("auto", "daqp", "clarabel", "cvxpy")
-#: Back-end names of earlier releases that are no longer accepted (a clear error names
-#: :data:`BACKENDS`).
-REMOVED_BACKENDS = ("piqp", "daqp+piqp", "daqp+riccati", "riccati", "hybrid")
-#: ``backend="auto"`` solves QPs with soft rows with DAQP while the condensed QP has at
-#: most this many inputs ``T m``, with Clarabel above (see :func:`auto_backend`).
-AUTO_DAQP_MAX_INPUTS = 40
 #: What to do when the hard QP fails.
 FALLBACKS = ("soft", "paper")
 #: Offset written in unused halfspace rows: the row reads ``0 @ y <= 1``.
@@ -80,43 +84,6 @@ INPUT_CLIP_TOLERANCE = 1e-4
 
 _NO_QP = "unconstrained optimum feasible (no QP needed)"
 _vecdot = getattr(np, "vecdot", None) or (lambda a, b: np.einsum("...d,...d->...", a, b))
-
-
-def auto_backend(problem: MPCProblem) -> str:
-    r"""The back end ``backend="auto"`` picks for one QP of the filter.
-
-    * A QP without soft rows (the hard QP): ``"daqp"`` at every size. DAQP solves the
-      whitened condensed QP (identity Hessian), and above
-      :data:`~filters.mpc.backends.daqp.LAZY_MIN_INPUTS` inputs with lazy (screened)
-      rows warm-started from the previous step, so its work grows with the rows that
-      matter, not with all of them; an infeasible hard QP is detected in a few
-      iterations.
-    * A QP with soft rows (``soft=True``, and the recovery QP): ``"daqp"`` while
-      :math:`T m \le` :data:`AUTO_DAQP_MAX_INPUTS`, else ``"clarabel"``. An active-set
-      method adds every violated soft row to its working set, one per iteration, so a
-      strongly infeasible long-horizon QP costs it hundreds of iterations, while an
-      interior-point method's iteration count hardly depends on how many rows end up
-      violated.
-
-    ``safe-nav bench --scaling`` prints the times of each explicit back end.
-    """
-    if problem.soft_rows and problem.horizon * problem.m > AUTO_DAQP_MAX_INPUTS:
-        return "clarabel"
-    return "daqp"
-
-
-def _make_backend(name: str, problem: MPCProblem, settings: Mapping[str, Any] | None) -> Any:
-    if name == "clarabel":
-        from filters.mpc.backends.clarabel import ClarabelBackend
-
-        return ClarabelBackend(problem, solver_settings=settings)
-    if name == "daqp":
-        from filters.mpc.backends.daqp import DAQPBackend
-
-        return DAQPBackend(problem, solver_settings=settings)
-    from filters.mpc.backends.cvxpy import CVXPYBackend  # imports cvxpy
-
-    return CVXPYBackend(problem, solver_settings=settings)
 
 
 class MPCSafetyFilter:
@@ -247,12 +214,7 @@ class MPCSafetyFilter:
                           stacklevel=2)
         if fallback not in FALLBACKS:
             raise InvalidParameterError(f"fallback must be one of {FALLBACKS}, got {fallback!r}")
-        if backend in REMOVED_BACKENDS:
-            raise InvalidParameterError(
-                f"backend {backend!r} was removed (one implementation of the filter step); "
-                f"use one of {BACKENDS} (\"auto\": DAQP, Clarabel for long soft QPs)")
-        if backend not in BACKENDS:
-            raise InvalidParameterError(f"backend must be one of {BACKENDS}, got {backend!r}")
+        check_backend(backend)
         problem = MPCProblem(
             A, B, C, horizon, R, Q, Q_terminal, objective=objective,
             later_input_weight=later_input_weight, input_bounds=input_bounds,
@@ -278,32 +240,18 @@ class MPCSafetyFilter:
             self._brake_gain = braking_gain(problem.A, problem.B, problem.C)
         else:
             self._brake_gain = finite_array("brake_gain", brake_gain, shape=(m, n))
-        self._primary = _make_backend(backend, problem, solver_settings)
+        self._primary = make_backend(backend, problem, solver_settings)
         self._recovery = None
         if fallback == "soft":
-            self._recovery = _make_backend(recovery_backend, recovery_problem, solver_settings)
+            self._recovery = make_backend(recovery_backend, recovery_problem, solver_settings)
         # Precomputed for the per-step checks (a few NumPy calls per step).
         phi, gamma = problem.rollout
         self._phi, self._gamma = matvec_operator(phi), matvec_operator(gamma)
         self._gain = matvec_operator(problem.gain)
-        # One product M @ [x0; u] - r gives the roll-out, the positions and the excess of
-        # every bound row (upper arena faces by step and axis, lower faces, terminal rows:
-        # the back ends' order): each small NumPy call costs microseconds, so few of them.
-        evaluation = problem.evaluation_map  # [x_0..x_T; C x_1..C x_T]
-        split = (T + 1) * n
-        positions = evaluation[split:].reshape(T, problem.d, -1)
-        y_low, y_high = problem.position_bounds
-        hi, lo = np.flatnonzero(np.isfinite(y_high)), np.flatnonzero(np.isfinite(y_low))
-        G, g = problem.terminal_set if problem.terminal_set is not None else (
-            np.zeros((0, n)), np.zeros(0))
-        last_state = evaluation[T * n : split]
-        rows = [evaluation, positions[:, hi].reshape(-1, evaluation.shape[1]),
-                -positions[:, lo].reshape(-1, evaluation.shape[1]), G @ last_state]
-        offsets = [np.zeros(split + T * problem.d), np.tile(y_high[hi], T),
-                   -np.tile(y_low[lo], T), g]
-        self._eval = matvec_operator(np.vstack(rows))
-        self._eval_offset = np.concatenate(offsets)
-        self._split = (split, split + T * problem.d)
+        # One product M @ [x0; u] - r: the roll-out, the positions, every bound row's excess.
+        evaluation, self._eval_offset = problem.check_map
+        self._eval = matvec_operator(evaluation)
+        self._split = ((T + 1) * n, (T + 1) * n + T * problem.d)
         # Block-diagonal weights of the cost (8) on the flattened deviations.
         self._R_block = matvec_operator(scipy.linalg.block_diag(*problem.input_weights))
         self._Q_block = matvec_operator(scipy.linalg.block_diag(*problem.state_weights))
@@ -323,7 +271,7 @@ class MPCSafetyFilter:
         self._plan: np.ndarray | None = None
         self._failures = 0
         self._qp_solves = 0
-        self._step: StepData | None = None  # the last QP step's data (for inspection)
+        self._step: StepData | None = None  # the last QP step's data, as the back ends take it
 
     # ------------------------------------------------------------------ properties
     @property
@@ -406,11 +354,8 @@ class MPCSafetyFilter:
     def _evaluate(
         self, x0: np.ndarray, inputs: np.ndarray, normals: np.ndarray, offsets: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Roll-out ``(T + 1, n)``, halfspace excess ``(k, T)``, bound-row excess (1-D).
-
-        Excess is ``lhs - rhs`` (<= 0: the row holds). Bound rows are ordered as in the
-        back ends: upper arena faces (by step, then axis), lower faces, terminal rows.
-        """
+        """Roll-out ``(T + 1, n)``, halfspace excess ``(k, T)``, bound-row excess (1-D, in
+        the order of :attr:`MPCProblem.check_map`); excess ``lhs - rhs`` <= 0: the row holds."""
         z = np.concatenate((x0, inputs.reshape(-1)), out=self._z)
         out = self._eval @ z - self._eval_offset
         split, end = self._split
@@ -435,8 +380,7 @@ class MPCSafetyFilter:
         raw = solution.inputs
         if not all_finite(raw):
             return "rejected: non-finite solution"
-        # A solver's answer may sit slightly outside the box: clip it, then check the rows
-        # on the clipped inputs.
+        # A solver's answer may sit slightly outside the box: clip, then check the rows.
         inputs = np.minimum(np.maximum(raw, self._u_low), self._u_high)
         clipped = 0.0 if (inputs == raw).all() else float(
             np.maximum.reduce(np.abs(inputs - raw), axis=None))
@@ -444,7 +388,6 @@ class MPCSafetyFilter:
             return f"rejected: input bound violated by {clipped:.3g}"
         states, halfspace, bounds = self._evaluate(x0, inputs, normals, offsets)
         k = normals.shape[0]
-        # Without a slack the allowance is 0 and x - 0.0 is x bit for bit: no subtraction.
         # The back end's slacks describe its own inputs: after a clip beyond the
         # feasibility tolerance they are stale, and a soft row is allowed the violation of
         # the clipped plan itself (the slack reported is recomputed from the plan anyway).
@@ -560,11 +503,6 @@ class MPCSafetyFilter:
         return self._recover(step, x0, normals, offsets, status_text, iterations, solve_time,
                              start)
 
-    @property
-    def _last_step(self) -> StepData | None:
-        """The last QP step's data as the back ends take them (for inspection and tests)."""
-        return self._step
-
     def _padded_step(self, x0: np.ndarray, ref_states: np.ndarray, ref_inputs: np.ndarray,
                      normals: np.ndarray, offsets: np.ndarray) -> StepData:
         """The back ends' step data: the halfspaces padded to ``n_obstacles`` rows."""
@@ -593,7 +531,7 @@ class MPCSafetyFilter:
                 inputs, states, halfspace, bounds = answer
                 self._plan = inputs
                 slack, bound_total = self._slack(halfspace), self._bound_total(bounds)
-                return self._result(_recovery_status(slack, bound_total), inputs, states,
+                return self._result(recovery_status(slack, bound_total), inputs, states,
                                     slack, bound_total, status_text,
                                     iterations, solve_time,
                                     self._cost(inputs, states, ref_states, ref_inputs), start)
@@ -622,7 +560,6 @@ class MPCSafetyFilter:
     def _cost(self, inputs: np.ndarray, states: np.ndarray, ref_states: np.ndarray,
               ref_inputs: np.ndarray) -> float:
         """:meth:`MPCProblem.cost` with the block-diagonal weights (two products)."""
-        # No reference inputs: u - 0.0 is u bit for bit, so no subtraction.
         du = inputs.reshape(-1) if ref_inputs is self._zero_inputs else (
             inputs - ref_inputs).reshape(-1)
         total = du @ (self._R_block @ du)
@@ -660,15 +597,3 @@ class MPCSafetyFilter:
             "consecutive_failures": self._failures, "bound_slack": bound_slack,
         })
         return result
-
-
-def _recovery_status(slack: np.ndarray, bound_total: float) -> FilterStatus:
-    """The status of an accepted recovery answer: ``"recovery"`` if it used arena or
-    terminal slack (``bound_total > 0``), ``"soft"`` if only halfspace slack (``slack``,
-    already zeroed below the tolerance), else ``"optimal"`` (the hard QP was feasible
-    after all: the exact penalty returned its solution)."""
-    if bound_total > 0.0:
-        return FilterStatus.RECOVERY
-    if slack.any():
-        return FilterStatus.SOFT
-    return FilterStatus.OPTIMAL

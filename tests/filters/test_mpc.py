@@ -153,7 +153,7 @@ def test_exact_penalty_recovery_qp_equals_the_hard_qp_when_feasible():
         hard = solve(mpc, instance)
         if hard.status is not FilterStatus.OPTIMAL:
             continue
-        step = mpc._last_step
+        step = mpc._step
         recovered = mpc._recovery.solve(step)
         assert recovered.found
         np.testing.assert_allclose(recovered.inputs, hard.inputs, atol=1e-5)
@@ -213,7 +213,7 @@ def test_answers_slightly_outside_the_input_box_are_clipped_and_checked(excess):
         result = solve(mpc, instance)
         if mpc.last_qp_solves < 2:
             continue  # the hard QP answered
-        plan = real(mpc._last_step).inputs
+        plan = real(mpc._step).inputs
         if plan is None or not np.any(np.abs(plan) >= 5.0 - 1e-9):
             continue
         saturated += 1
