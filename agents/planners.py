@@ -69,6 +69,11 @@ class MPCReferencePlanner:
     arena is not a constraint. It is solved exactly as a bounded linear least-squares
     problem (unconstrained least squares when that already satisfies the bounds).
 
+    It offers Stable-Baselines3's ``predict(observation, deterministic=True)`` so it
+    can stand wherever a PPO model does, and the reference-maker signature
+    ``planner(env, action, horizon) -> (states, inputs)`` so the safety filter can
+    track its whole plan rather than a held action.
+
     Parameters
     ----------
     dynamics
@@ -82,11 +87,6 @@ class MPCReferencePlanner:
         Scalar weights (times identity) or matrices, read in ``convention``.
     convention
         ``"quadratic"`` or ``"authors_code"`` (see above).
-
-    It offers Stable-Baselines3's ``predict(observation, deterministic=True)`` so it
-    can stand wherever a PPO model does, and the reference-maker signature
-    ``planner(env, action, horizon) -> (states, inputs)`` so the safety filter can
-    track its whole plan rather than a held action.
 
     Raises
     ------

@@ -494,17 +494,27 @@ def plot_scaling(points: Sequence[ScalingPoint], path: str | Path) -> Path:
                       and p.n_samples == n_samples), key=lambda p: p.horizon)
         horizons = [p.horizon for p in row]
         colour = colours[index % len(colours)]
-        left.plot(horizons, [p.cvxpy_ms for p in row], "--", color=colour, marker="s",
-                  label=f"{n_obstacles} obst.: CVXPY QP")
-        left.plot(horizons, [p.step_ms for p in row], "-", color=colour, marker="o",
-                  label=f"{n_obstacles} obst.: our step")
+        left.plot(horizons, [p.cvxpy_ms for p in row], "--", color=colour, marker="s")
+        left.plot(horizons, [p.step_ms for p in row], "-", color=colour, marker="o")
         left.plot(horizons, [p.qp_ms for p in row], ":", color=colour, marker=".")
-    left.set(xscale="log", yscale="log", xlabel="horizon T (steps)", ylabel="time per step (ms)",
-             title=f"filter step vs CVXPY compiled once (N_s = {n_samples}; dotted: our QP)")
+    left.set(xscale="log", yscale="log", xlabel="horizon T (steps)",
+             ylabel="median time per filter step (ms)",
+             title=f"Filter step against the same QP in CVXPY (N_s = {n_samples} samples)")
     all_horizons = sorted({p.horizon for p in points})
     left.set_xticks(all_horizons, [str(h) for h in all_horizons])
     left.minorticks_off()
-    left.legend(fontsize=7, ncol=2)
+    obstacle_counts = sorted({p.n_obstacles for p in points})
+    colour_key = [plt.Line2D([], [], color=colours[i % len(colours)], lw=6)
+                  for i in range(len(obstacle_counts))]
+    style_key = [plt.Line2D([], [], color="0.3", ls="--", marker="s"),
+                 plt.Line2D([], [], color="0.3", ls="-", marker="o"),
+                 plt.Line2D([], [], color="0.3", ls=":", marker=".")]
+    styles = left.legend(style_key, ["CVXPY QP, compiled once", "our whole step (halfspaces + QP)",
+                                     "our QP alone"], fontsize=7, loc="upper left")
+    left.add_artist(styles)
+    counts = [f"{n} obstacle{'s' if n != 1 else ''}" for n in obstacle_counts]
+    left.legend(colour_key, counts, fontsize=7,
+                loc="lower right")
     left.grid(True, which="both", alpha=0.3)
     work = np.array([p.n_obstacles * p.horizon * p.n_samples for p in points], dtype=float)
     times = np.array([p.halfspaces_ms for p in points])
@@ -514,9 +524,12 @@ def plot_scaling(points: Sequence[ScalingPoint], path: str | Path) -> Path:
     large = work >= np.median(work)  # fixed costs dominate the small sizes
     anchor = float(np.median(times[large] / work[large]))
     right.plot(guide, anchor * guide, "k--", lw=1, label="slope 1 (linear work)")
-    right.set(xscale="log", yscale="log", xlabel="samples processed, n_obstacles x T x N_s",
-              ylabel="halfspaces time (ms)", title="DR-CVaR halfspaces")
-    right.legend(fontsize=8)
+    right.set(xscale="log", yscale="log", xlabel="samples processed, n_obstacles × T × N_s",
+              ylabel="median time of all halfspaces of a step (ms)",
+              title="DR-CVaR halfspaces: time against work")
+    right.legend([*colour_key, right.lines[-1]],
+                 [*counts, "slope 1 (linear work)"],
+                 fontsize=7, loc="upper left")
     right.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=120)

@@ -28,7 +28,7 @@ import numpy as np
 
 from filters._validation import scalar_in_range
 from filters.calibration import OnlineCalibration
-from filters.errors import InvalidParameterError, InvalidTypeError
+from filters.errors import InvalidArrayError, InvalidParameterError, InvalidTypeError
 from filters.geometry import Disc
 from filters.halfspaces import Halfspaces
 from filters.kernels import WrapperRows, kernels_available
@@ -626,8 +626,16 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         return obs, info
 
     def step(self, action: Any):
+        """Filter ``action`` (accelerations in m/s², shape (2,)) and step the environment.
+
+        Raises
+        ------
+        InvalidArrayError
+            If ``action`` is not numeric or has another number of entries (a scalar is
+            not broadcast to both axes).
+        """
         low, high = self._unwrapped.input_bounds
-        raw = np.asarray(action, dtype=float).reshape(-1)
+        raw = _action_array(action, np.shape(low))
         # np.clip's result (NaN stays NaN) without its per-call overhead; a fresh array
         proposed = np.minimum(np.maximum(raw, low), high)
         proposed.setflags(write=False)
@@ -993,23 +1001,56 @@ def _count(name: str, value: object) -> int:
     return int(value)
 
 
+def _action_array(action: Any, shape: tuple[int, ...]) -> np.ndarray:
+    """``action`` as a flat float array of ``prod(shape)`` entries, else a clear error.
+
+    A scalar is not broadcast to every axis, and an action of another size is refused,
+    as the base environment's ``step`` does (NaN and infinite entries pass: the filter
+    answers them with its fallback).
+
+    Raises
+    ------
+    InvalidArrayError
+        If ``action`` is not numeric or does not have ``prod(shape)`` entries.
+    """
+    try:
+        raw = np.asarray(action, dtype=float).reshape(-1)
+    except (TypeError, ValueError) as exc:
+        raise InvalidArrayError(
+            f"action must be a numeric array of shape {shape} (accelerations in m/s²), "
+            f"got {action!r}") from exc
+    if raw.size != math.prod(shape):
+        raise InvalidArrayError(
+            f"action must have shape {shape} (one acceleration per axis, in m/s²), got shape "
+            f"{np.shape(action)}: {action!r}")
+    return raw
+
+
 def _check_no_action_wrapper(env: gym.Env) -> None:
     """Raise if a wrapper between ``env`` and its base environment changes actions.
 
     The filter computes the applied action in the base environment's units; a
     ``RescaleAction`` (or any ``ActionWrapper``) in between would transform it again.
+    The message says which order works: the action wrapper outside the filter.
     """
     base = env.unwrapped
     layer = env
     while layer is not base:
         changes_space = getattr(layer, "action_space", None) != base.action_space
         if isinstance(layer, gym.ActionWrapper) or changes_space:
+            name = type(layer).__name__
+            example = {"RescaleAction": "RescaleAction(SafetyFilterWrapper(env), -1.0, 1.0)",
+                       "ClipAction": "ClipAction(SafetyFilterWrapper(env))"}.get(
+                           name, f"{name}(SafetyFilterWrapper(env), ...)")
             raise InvalidTypeError(
-                f"{type(layer).__name__} sits between SafetyFilterWrapper and the base "
-                "environment and changes actions, so the filtered action would be "
-                "transformed again; wrap it outside instead: "
-                "RescaleAction(SafetyFilterWrapper(env), -1, 1)"
-            )
+                f"{name} sits between SafetyFilterWrapper and the base environment: put it "
+                f"outside the filter instead, {example}. Why: the filter checks and applies "
+                "its action in the base environment's physical units (m/s², clipped to the "
+                f"input bounds), so a wrapper below it would transform the checked action "
+                "again and the applied action would not be the one proved safe; above it, the "
+                "wrapper maps the policy's action to m/s² before the filter sees it"
+                + (" (SafetyFilterWrapper already clips to the input bounds, so ClipAction "
+                   "is not needed at all)" if name == "ClipAction" else ""))
         layer = layer.env
 
 

@@ -54,7 +54,10 @@ def _resolve_scenario(value: Any, path: str = "scenario") -> Scenario | Scenario
             )
         return SCENARIOS[value]
     if isinstance(value, Mapping):
-        return Scenario(**value)
+        try:
+            return Scenario(**value)
+        except TypeError as exc:  # a missing or unknown field
+            raise ScenarioError(f"{path}: {exc}; got fields {sorted(value)}") from exc
     if value is None:
         raise ConfigError(
             f"{path} is required: pass scenario=safe_nav_env.Scenario(...), a name in "
@@ -546,9 +549,13 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         try:
             u = np.asarray(action, dtype=np.float64).ravel()
         except (TypeError, ValueError) as exc:
-            raise InvalidActionError(f"action must be 2 accelerations, got {action!r}") from exc
-        if u.shape != (2,):
-            raise InvalidActionError(f"action must have 2 entries, got shape {np.shape(action)}")
+            raise InvalidActionError(
+                f"action must be 2 accelerations (a_x, a_y) in m/s², shape (2,), got {action!r}"
+            ) from exc
+        if u.shape != (2,):  # a scalar is not broadcast to both axes
+            raise InvalidActionError(
+                f"action must have shape (2,) (a_x, a_y in m/s²), got shape {np.shape(action)}: "
+                f"{action!r}")
         ux, uy = u.tolist()
         if not (math.isfinite(ux) and math.isfinite(uy)):
             raise InvalidActionError(f"action must be finite, got {action!r}")

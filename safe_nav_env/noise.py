@@ -323,6 +323,9 @@ def noise_law(value: Any, path: str = "law") -> _Law:
 class NoiseModel:
     """How the obstacles' predictions are sampled and how they really move.
 
+    Laws may also be given by name or as mappings (see :func:`noise_law`), so a
+    noise model can be written as plain data.
+
     Parameters
     ----------
     prediction
@@ -333,9 +336,6 @@ class NoiseModel:
         Laplace with the same mean and covariance as the prediction law, the paper's.
     n_samples
         Number of prediction samples per obstacle, ``N_s`` (default 100).
-
-    Laws may also be given by name or as mappings (see :func:`noise_law`), so a
-    noise model can be written as plain data.
 
     Raises
     ------

@@ -11,7 +11,7 @@ The clip in ``docs/figures`` was made with::
     python scripts/record_video.py --scenario RandomCrossing --seed 2 --gif \\
         --output docs/figures
 
-``RecordVideo`` needs moviepy (``pip install 'safe-nav[video]'``; it is in ``dev`` too).
+``RecordVideo`` needs moviepy: ``pip install -e '.[video]'`` (not in the default set-up).
 GitHub shows a GIF inline in a README but not a committed mp4; ``--gif`` writes the
 same frames as a GIF (:func:`agents.evaluation.plots.save_gif`) next to the mp4.
 """
@@ -166,6 +166,8 @@ def record_episode(
 
 
 def main(argv: list[str] | None = None) -> int:
+    from gymnasium.error import DependencyNotInstalled
+
     from agents.errors import PolicyFileError
     from filters.errors import InvalidParameterError
 
@@ -186,6 +188,10 @@ def main(argv: list[str] | None = None) -> int:
                              gif=args.gif, max_steps=args.max_steps)
     except (InvalidParameterError, PolicyFileError) as exc:
         print(f"record_video: error: {exc}", file=sys.stderr)
+        return 2
+    except (ImportError, DependencyNotInstalled) as exc:  # moviepy missing
+        print(f"record_video: error: RecordVideo needs moviepy, which is in the 'video' "
+              f"extra: pip install -e '.[video]' ({exc})", file=sys.stderr)
         return 2
     outcome = "collision" if rec.collided else ("goal" if rec.reached_goal else "no goal")
     print(f"{rec.video} ({rec.video.stat().st_size / 1e3:.0f} kB, {rec.frames} frames at "

@@ -25,9 +25,14 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from agents.evaluation.records import PAPER_SCENARIOS, PLANNERS, REFERENCES
+from agents.evaluation.records import PAPER_SCENARIOS, PLANNERS, REFERENCES, package_version
 from filters.risk import PAPER_RISKS
 from filters.wrapper import FALLBACKS, OBJECTIVES, RISKS
+
+_CUSTOM_EXAMPLE = ('{"name": "mine", "ego_start": [-4, 0], "goal": [4, 0], "obstacles": '
+                   '[{"start": [2, 0], "velocity": [-1, 0]}]}')
+"""A scenario of ``--scenarios Custom`` given on the command line (the fields of
+:class:`safe_nav_env.Scenario` as JSON)."""
 
 EXIT_FAILED_EPISODES = 1
 EXIT_BAD_INPUT = 2
@@ -167,6 +172,8 @@ def build_parser() -> argparse.ArgumentParser:
         prog="safe-nav",
         description="DR-CVaR safety filtering of learned motion planners.",
     )
+    parser.add_argument("--version", action="version", version=f"safe-nav {package_version()}",
+                        help="print the installed package's version and exit")
     sub = parser.add_subparsers(dest="command", required=True)
 
     train = sub.add_parser(
@@ -297,7 +304,9 @@ def build_parser() -> argparse.ArgumentParser:
 def _add_evaluation_arguments(parser: argparse.ArgumentParser, *, episodes: int) -> None:
     parser.add_argument("--scenarios", type=scenario, nargs="+", default=list(PAPER_SCENARIOS),
                         help="scenario names (HeadOn, Overtaking, Intersection, MultiObstacle, "
-                        "RandomCrossing)")
+                        "RandomCrossing; Custom with --env-option scenario=JSON, a "
+                        "safe_nav_env.Scenario's fields, e.g. "
+                        f"scenario='{_CUSTOM_EXAMPLE}')")
     parser.add_argument("--risks", choices=RISKS, nargs="+",
                         default=["none", *PAPER_RISKS],
                         help="risk settings; none is the unfiltered planner (the default is "
@@ -374,8 +383,9 @@ def _interrupted_message(prog: str, exc: KeyboardInterrupt, args: argparse.Names
     from agents.evaluation.evaluate import EvaluationInterrupted
 
     if isinstance(exc, EvaluationInterrupted) and exc.csv_path is not None:
-        return (f"{prog}: interrupted: {exc.finished} of {exc.total} episodes finished, saved "
-                f"in {exc.csv_path}; run the same command again to resume")
+        reused = f" ({exc.reused} of them reused from an earlier run)" if exc.reused else ""
+        return (f"{prog}: interrupted: {exc.finished} of {exc.total} episodes finished{reused}, "
+                f"saved in {exc.csv_path}; run the same command again to resume")
     where = f" in {args.output}" if getattr(args, "output", None) else ""
     return (f"{prog}: interrupted; the finished episodes are saved{where}; run the same command "
             "again to resume")
@@ -411,6 +421,15 @@ def _dispatch(args: argparse.Namespace) -> int:
 
 def _evaluate(args: argparse.Namespace) -> int:
     from agents.evaluation.campaign import run_evaluation, run_sweep
+    from safe_nav_env.scenarios import CUSTOM
+
+    if (args.suite == "scenarios" and CUSTOM in args.scenarios
+            and "scenario" not in dict(args.env_options)):
+        print(f"safe-nav evaluate: error: --scenarios {CUSTOM} needs its scenario: add "
+              f"--env-option scenario='{_CUSTOM_EXAMPLE}' (the fields of "
+              "safe_nav_env.Scenario as JSON) or --env-option scenario=HeadOn (a scenario "
+              "name)", file=sys.stderr)
+        return EXIT_BAD_INPUT
 
     common = dict(episodes=args.episodes, workers=args.workers, seed=args.seed,
                   planner=args.planner, reference=args.reference, policy_path=args.policy,

@@ -56,11 +56,17 @@ class EvaluationOutputs:
     markdown: str
     wall_time: float
     files: dict[str, Path] = field(default_factory=dict)
+    reused: int = 0
+    """Episodes read back from the results CSV of an earlier run, not run again."""
 
     def __str__(self) -> str:
         listing = "\n".join(f"  {name}: {path}" for name, path in self.files.items())
-        return (f"{self.markdown}\n{len(self.records)} episodes in {self.wall_time:.1f} s\n"
-                f"{listing}")
+        count = f"{len(self.records)} episodes"
+        if self.reused:
+            where = self.files.get("episodes", "the results CSV")
+            count += (f" ({self.reused} reused from {where}, {len(self.records) - self.reused} "
+                      "run now)")
+        return f"{self.markdown}\n{count} in {self.wall_time:.1f} s\n{listing}"
 
     @property
     def failed(self) -> list[EpisodeRecord]:
@@ -69,7 +75,11 @@ class EvaluationOutputs:
 
 
 def output_folder(output: str | Path) -> Path:
-    """Create the output folder ``output`` (and its parents).
+    """Check that ``output`` can be an output folder; return it as a path.
+
+    The folder (and its parents) is not made here but by the first file written into
+    it (the run key, once every setting is checked), so that a run failing before it
+    has anything to write leaves no empty folder behind.
 
     Raises
     ------
@@ -83,7 +93,6 @@ def output_folder(output: str | Path) -> Path:
                 raise OutputPathError(f"output folder {output} cannot be made: {folder} is a "
                                       "file; choose another --output")
             break
-    output.mkdir(parents=True, exist_ok=True)
     return output
 
 
@@ -169,7 +178,8 @@ def run_evaluation(
         sha = next((r.policy_sha256 for r in records if r.policy_sha256), "")
         files.update(make_figures(output / "figures", records, rows, scenarios, risks,
                                   seed=seed, spec_kwargs=dict(spec_kwargs, policy_sha256=sha)))
-    return EvaluationOutputs(records, rows, markdown, time.perf_counter() - start, files)
+    return EvaluationOutputs(records, rows, markdown, time.perf_counter() - start, files,
+                             reused=records.reused)
 
 
 def make_figures(
@@ -299,4 +309,5 @@ def run_sweep(
              "summary": output / "sweep.md",
              "sweep": plots.plot_sweep(points, output / "figures" / "sweep.png")}
     return EvaluationOutputs(all_records, summarise(all_records), markdown,
-                             time.perf_counter() - start, files)
+                             time.perf_counter() - start, files,
+                             reused=all_records.reused)

@@ -66,6 +66,7 @@ __all__ = [
     "EpisodeRecord",
     "EpisodeSpec",
     "EvaluationInterrupted",
+    "EvaluationRecords",
     "RecordWriter",
     "Trajectory",
     "check_policy",
@@ -94,11 +95,28 @@ class EvaluationInterrupted(KeyboardInterrupt):
         Episodes finished (and saved, if there is a CSV) and asked for.
     csv_path
         The results CSV, or ``None``.
+    reused
+        Of the finished episodes, those read back from the CSV (run before this call).
     """
 
-    def __init__(self, finished: int, total: int, csv_path: Path | None) -> None:
+    def __init__(self, finished: int, total: int, csv_path: Path | None,
+                 reused: int = 0) -> None:
         super().__init__(f"interrupted after {finished} of {total} episodes")
         self.finished, self.total, self.csv_path = finished, total, csv_path
+        self.reused = reused
+
+
+class EvaluationRecords(list):
+    """The records :func:`evaluate` returns: a list, and how many of them were reused.
+
+    Attributes
+    ----------
+    reused
+        Records of finished episodes read back from the results CSV (an earlier,
+        interrupted or shorter run of the same settings), not run again by this call.
+    """
+
+    reused: int = 0
 
 
 def episode_specs(
@@ -281,9 +299,10 @@ def evaluate(
 
     Returns
     -------
-    list of EpisodeRecord
-        Sorted by scenario, risk and seed, whatever the order they finished in, so the
-        result does not depend on the number of workers.
+    EvaluationRecords
+        A list of EpisodeRecord sorted by scenario, risk and seed, whatever the order they
+        finished in, so the result does not depend on the number of workers; its
+        ``reused`` attribute counts the records read back from ``csv_path``.
 
     Raises
     ------
@@ -322,11 +341,13 @@ def evaluate(
         for record in iterator:
             records.append(record)
     except KeyboardInterrupt as exc:
-        raise EvaluationInterrupted(len(records), len(specs), path) from exc
+        raise EvaluationInterrupted(len(records), len(specs), path, len(done)) from exc
     finally:
         if bar is not None:
             bar.close()
         if writer is not None:
             writer.close()
-    return sort_records(records)
+    result = EvaluationRecords(sort_records(records))
+    result.reused = len(done)
+    return result
 

@@ -257,14 +257,15 @@ def plot_trajectories(
         ego = np.asarray(traj.ego)
         instants = sorted(set(range(0, len(ego), every)) | {len(ego) - 1})
         ax.plot(ego[:, 0], ego[:, 1], "-o", ms=2, color=color,
-                label=RISK_LABELS.get(risk, risk))
+                label=f"ego, {RISK_LABELS.get(risk, risk)}")
         for t in instants:
             ax.add_patch(plt.Circle(ego[t], traj.ego_radius, facecolor=color, alpha=0.12,
                                     edgecolor=color, lw=0.6))
         if not drawn_obstacles and traj.obstacles.size:
             for i in range(traj.obstacles.shape[1]):
                 path_i = traj.obstacles[:, i]
-                ax.plot(path_i[:, 0], path_i[:, 1], "-", color="k", lw=1)
+                ax.plot(path_i[:, 0], path_i[:, 1], "-", color="k", lw=1,
+                        label="obstacles (realised paths)" if i == 0 else None)
                 for t in instants:
                     ax.add_patch(plt.Circle(path_i[t], traj.obstacle_radii[i], facecolor="k",
                                             alpha=0.12, edgecolor="k", lw=0.6))
@@ -281,11 +282,15 @@ def plot_trajectories(
             ax.plot(*mark.ego_position, "x", color="crimson", ms=10, mew=2.5,
                     gid="collision-marker")
             ax.annotate(f"t = {mark.time:.2f} s", mark.ego_position, fontsize=7,
-                        color=color, textcoords="offset points", xytext=(6, 6))
+                        color=color, textcoords="offset points", xytext=(8, -12),
+                        bbox=dict(boxstyle="round,pad=0.2", fc="white", ec="none", alpha=0.8))
     if collision_label is not None:
         ax.plot([], [], "x", color="crimson", ms=8, mew=2, label=collision_label)
+    dt = next((float(t.dt) for t in trajectories.values() if getattr(t, "dt", 0.0)), 0.0)
+    period = f"every {every} steps" + (f" ({every * dt:g} s)" if dt > 0.0 else "")
+    ax.plot([], [], "o", color="0.5", alpha=0.3, ms=10, label=f"discs to scale, {period}")
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
-    ax.set_title(title)
+    ax.set_title(title or "Ego paths with and without the safety filter")
     return _save(fig, path)
 
 
@@ -448,23 +453,29 @@ def plot_safe_polytopes(
     from filters.plotting import safe_polygon
 
     plt = _pyplot()
-    fig, ax = plt.subplots(figsize=(7, 5))
+    fig, ax = plt.subplots(figsize=(8.5, 5))
     _arena(ax, bounds)
     low, high = np.asarray(bounds[0]), np.asarray(bounds[1])
+    drawn = 0
     for t in range(0, len(trajectory.halfspaces), every):
         normals, offsets = trajectory.halfspaces[t]
         polygon = safe_polygon(normals[:, 0], offsets[:, 0], (low, high))
         if len(polygon) >= 3:
             ax.fill(polygon[:, 0], polygon[:, 1], color="tab:green", alpha=0.08)
-            ax.plot(*np.vstack([polygon, polygon[:1]]).T, color="tab:green", lw=0.6, alpha=0.6)
+            ax.plot(*np.vstack([polygon, polygon[:1]]).T, color="tab:green", lw=0.6, alpha=0.6,
+                    label=(f"safe polytope of the next position, every {every} steps"
+                           if drawn == 0 else None))
+            drawn += 1
     ego = trajectory.ego
-    ax.plot(ego[:, 0], ego[:, 1], "-o", color="tab:blue", ms=3, label="ego")
+    ax.plot(ego[:, 0], ego[:, 1], "-o", color="tab:blue", ms=3,
+            label="ego path (disc to scale)")
     for t in range(0, len(ego), every):
         ax.add_patch(plt.Circle(ego[t], trajectory.ego_radius, color="tab:blue", alpha=0.15))
     colors = plt.cm.autumn(np.linspace(0, 0.8, max(1, trajectory.obstacles.shape[1])))
     for i in range(trajectory.obstacles.shape[1]):
         path_i = trajectory.obstacles[:, i]
-        ax.plot(path_i[:, 0], path_i[:, 1], "-", color=colors[i], label=f"obstacle {i + 1}")
+        ax.plot(path_i[:, 0], path_i[:, 1], "-", color=colors[i],
+                label=f"obstacle {i + 1} (realised path)")
         for t in range(0, len(path_i), every):
             ax.add_patch(plt.Circle(path_i[t], trajectory.obstacle_radii[i], color=colors[i],
                                     alpha=0.15))
@@ -472,8 +483,8 @@ def plot_safe_polytopes(
     if fallback:
         ax.plot(ego[fallback, 0], ego[fallback, 1], "kx", ms=8, label="fallback step")
     ax.plot(*trajectory.goal, "k*", ms=12, label="goal")
-    ax.legend(fontsize=7, loc="best")
-    ax.set_title(title)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    ax.set_title(title or "Safe polytopes along a filtered episode")
     return _save(fig, path)
 
 
@@ -567,17 +578,19 @@ def plot_sweep(points: Sequence[dict], path: str | Path) -> Path:
     ``mean_intervention`` (and optionally ``goal_rate``).
     """
     plt = _pyplot()
-    fig, ax = plt.subplots(figsize=(5.5, 4))
+    fig, ax = plt.subplots(figsize=(6.5, 4.5))
     deltas = sorted({p["delta"] for p in points})
     for delta in deltas:
         pts = sorted((p for p in points if p["delta"] == delta), key=lambda p: p["epsilon"])
         ax.plot([p["mean_intervention"] for p in pts], [p["collision_rate"] for p in pts],
-                "-o", label=f"δ = {delta:g}")
+                "-o", label=f"δ = {delta:g} m")
         for p in pts:
-            ax.annotate(f"ε={p['epsilon']:g}", (p["mean_intervention"], p["collision_rate"]),
+            ax.annotate(f"ε={p['epsilon']:g} m", (p["mean_intervention"], p["collision_rate"]),
                         fontsize=7, textcoords="offset points", xytext=(3, 3))
-    ax.set_xlabel("mean intervention ||u_safe - u_ref|| (m/s²)")
-    ax.set_ylabel("collision rate")
+    ax.set_xlabel("mean intervention ‖u_safe − u_ref‖ per step (m/s²)")
+    ax.set_ylabel("collision rate (continuous time, share of episodes)")
+    ax.set_title("Safety against intervention: sweep of the Wasserstein radius ε (m)",
+                 fontsize=10)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, title="risk bound δ (m)", title_fontsize=8)
     return _save(fig, path)

@@ -83,7 +83,8 @@ def options_json(options: Mapping[str, Any] | str | None, name: str = "options")
     ------
     InvalidParameterError
         If a key is not a string or a value is not a finite number, string, bool,
-        ``None`` or a (nested) list of them.
+        ``None`` or a (nested) list or string-keyed mapping of them (e.g. the
+        ``scenario`` of ``"Custom"``).
     """
     if options is None or options == "":
         return ""
@@ -102,6 +103,8 @@ def options_json(options: Mapping[str, Any] | str | None, name: str = "options")
             value = value.tolist()
         if isinstance(value, tuple | list):
             return [plain(v, f"{path}[{i}]") for i, v in enumerate(value)]
+        if isinstance(value, Mapping) and all(isinstance(key, str) for key in value):
+            return {key: plain(v, f"{path}[{key!r}]") for key, v in value.items()}
         if isinstance(value, np.generic):
             value = value.item()
         if value is None or isinstance(value, bool | str):
@@ -111,8 +114,8 @@ def options_json(options: Mapping[str, Any] | str | None, name: str = "options")
                 raise InvalidParameterError(f"{path} must be finite, got {value!r}")
             return value
         raise InvalidParameterError(
-            f"{path} must be a number, string, bool, None or a list of them (recorded in the "
-            f"CSV), got {value!r}")
+            f"{path} must be a number, string, bool, None or a list or mapping of them "
+            f"(recorded in the CSV), got {value!r}")
 
     for key in options:
         if not isinstance(key, str):
@@ -225,6 +228,10 @@ class EpisodeSpec:
                 raise InvalidParameterError(
                     f"noise must be '' or one of {sorted(NOISE_PRESETS)}, got {self.noise!r}")
         set_(self, "policy_path", str(self.policy_path or ""))
+        if self.planner == "mpc" and self.policy_path:  # it would be silently ignored
+            raise InvalidParameterError(
+                f"planner 'mpc' (the obstacle-agnostic MPC) uses no policy file, got policy_path "
+                f"{self.policy_path!r} (--policy): drop it, or use planner 'ppo'")
         set_(self, "filter_options", options_json(self.filter_options, "filter_options"))
         clash = sorted({"risk", "alpha", "delta", "epsilon"} & set(_options_dict(
             self.filter_options)))
@@ -233,6 +240,10 @@ class EpisodeSpec:
                 f"filter_options must not set {clash} (fields of the episode), got "
                 f"filter_options {self.filter_options}")
         set_(self, "env_options", options_json(self.env_options, "env_options"))
+        if self.scenario != CUSTOM and "scenario" in _options_dict(self.env_options):
+            raise InvalidParameterError(  # gym.make would silently replace the named one
+                f"env_options 'scenario' is for the scenario {CUSTOM!r} only, got it with "
+                f"scenario {self.scenario!r}")
 
     def filter_kwargs(self) -> dict[str, Any]:
         """Keywords of :class:`filters.SafetyFilterWrapper` (without the reference planner)."""
@@ -374,6 +385,75 @@ class EpisodeRecord:
 
     def __hash__(self) -> int:
         return hash(self.key())
+
+
+COLUMN_DOCS: dict[str, tuple[str, str]] = {
+    "scenario": ("", "Canonical scenario name (HeadOn for SafeNav/HeadOn-v0); Custom for a "
+                     "stress case"),
+    "risk": ("", "Risk metric of the safe halfspaces; none is the unfiltered planner"),
+    "seed": ("", "Seed of env.reset: the obstacles' noise and any random scenario data"),
+    "planner": ("", "Reference planner: ppo (the policy) or mpc (the paper's obstacle-agnostic "
+                    "MPC)"),
+    "reference": ("", "How a PPO proposal becomes a reference: rollout (the policy rolled out "
+                      "on the predicted mean motion) or hold (the action held)"),
+    "alpha": ("1", "Tail mass α of CVaR and DR-CVaR (α = 1 gives the mean)"),
+    "delta": ("m", "Risk bound δ on the intrusion depth"),
+    "epsilon": ("m", "Wasserstein radius ε of DR-CVaR, or auto (estimated online)"),
+    "noise": ("", "Noise preset of the environment (e.g. authors_code); empty for the "
+                  "scenario's own"),
+    "case": ("", "Stress-suite case (e.g. heavy_tail); empty outside the stress suite"),
+    "filter_options": ("", "Further SafetyFilterWrapper keywords, as canonical JSON"),
+    "env_options": ("", "Further gym.make keywords, as canonical JSON"),
+    "policy": ("", "PPO policy file that ran; empty for the shipped one or the MPC planner"),
+    "policy_sha256": ("", "SHA-256 of the policy file's content"),
+    "version": ("", "Version of the safe-nav package that ran the episode"),
+    "steps": ("steps", "Environment steps of the episode (0.2 s each by default)"),
+    "collision": ("bool", "Whether the ego collided, in continuous time (exact clearance over "
+                          "each step)"),
+    "collision_steps": ("steps", "Steps with a continuous-time collision"),
+    "first_collision_step": ("step", "First step with a continuous-time collision (1-based; "
+                                     "0: none)"),
+    "collision_cause": ("", "For a collided episode: fallback (a non-optimal filter status at "
+                            "the colliding step or the two before), inter_sample (overlap only "
+                            "between samples) or noise (noise beyond the margin); else empty"),
+    "sampled_collision": ("bool", "Whether the ego collided at the sample instants (the "
+                                  "paper's statistic)"),
+    "sampled_collision_steps": ("steps", "Steps with a collision at the sample instants"),
+    "min_distance": ("m", "Smallest clearance to any obstacle at the sample instants "
+                          "(negative: overlap)"),
+    "min_swept_distance": ("m", "Smallest clearance over the continuous-time path (negative: "
+                                "overlap; NaN if not reported)"),
+    "goal_reached": ("bool", "Whether the ego reached its goal"),
+    "time_to_goal": ("s", "Time at which the goal was reached (NaN if not reached)"),
+    "path_length": ("m", "Length of the ego's path"),
+    "mean_intervention": ("m/s²", "Mean of ||u_applied - u_proposed|| over the steps"),
+    "max_intervention": ("m/s²", "Largest ||u_applied - u_proposed|| over the steps"),
+    "statuses": ("", "Filter status counts, e.g. optimal:38;soft:2"),
+    "share_optimal": ("1", "Share of the steps whose QP was solved as posed"),
+    "share_soft": ("1", "Share of the steps answered by the exact-penalty QP with halfspace "
+                        "slack"),
+    "share_recovery": ("1", "Share of the steps answered by the recovery QP with arena slack"),
+    "share_shifted": ("1", "Share of the steps that applied the last optimal plan, shifted "
+                           "(the paper's fallback)"),
+    "share_brake": ("1", "Share of the steps that braked (last resort)"),
+    "share_error": ("1", "Share of the steps that braked on bad data (NaN action or "
+                         "predictions)"),
+    "fallback_steps": ("steps", "Steps with the paper's fallbacks shifted or brake"),
+    "first_error": ("", "The first step's reason for braking on bad data, e.g. step 3: NaN "
+                        "action"),
+    "filter_time_median": ("s", "Median time of one filter step (halfspaces + QP)"),
+    "filter_time_max": ("s", "Largest time of one filter step"),
+    "episode_return": ("1", "Sum of the environment's rewards over the episode"),
+    "audit_steps": ("count", "Active first-step halfspaces (obstacle-steps) in the guarantee "
+                             "audit"),
+    "audit_losses": ("m", "Their realised losses, ';'-separated, rounded to 0.1 mm"),
+    "audit_all_steps": ("count", "Every first-step halfspace in the audit, active or not"),
+    "audit_all_losses": ("m", "Their realised losses, ';'-separated, rounded to 0.1 mm"),
+    "wall_time": ("s", "Wall-clock time of the episode"),
+    "error": ("", "Why the episode failed (an exception); empty if it ran"),
+}
+"""Unit and meaning of every CSV column (:data:`RECORD_FIELDS`), for the docs' glossary.
+Units: ``""`` for labels and text, ``"1"`` for dimensionless numbers and shares."""
 
 
 def _same(a: Any, b: Any) -> bool:

@@ -75,10 +75,38 @@ def collision_cause(collisions: Sequence[bool], sampled_collisions: Sequence[boo
 
 @dataclass
 class Trajectory:
-    """Positions of one episode, for plots: ego (steps+1, 2), obstacles (steps+1, k, 2).
+    """What one episode did, step by step (``S`` steps, ``n`` obstacles), for plots and reports.
 
-    ``collisions[t]`` is the continuous-time collision flag of step ``t + 1``
-    (``info["collision"]``), ``statuses[t]`` the filter's status at that step.
+    Attributes
+    ----------
+    ego
+        (S+1, 2) ego positions at the samples, in m.
+    obstacles
+        (S+1, n, 2) realised obstacle positions, in m.
+    obstacle_radii, ego_radius, goal
+        Radii (m) and the goal position (m) of the episode.
+    halfspaces
+        Per step with halfspaces, ``(normals (n, T, 2), offsets (n, T))``.
+    statuses
+        The filter's status at each step 1..S.
+    frames
+        ``rgb_array`` frames, if rendered.
+    collisions
+        ``collisions[t]``: the continuous-time collision flag of step ``t + 1``
+        (``info["collision"]``).
+    ego_states
+        (S+1, 4) ego states ``[p, v]`` (m, m/s).
+    inputs
+        (S, 2) applied accelerations, in m/s².
+    distances
+        (S+1, n) sampled distances to collision, in m (``info["distance_to_collision"]``).
+    swept
+        (S, n) minimum clearance over each step, in m (continuous time,
+        ``info["swept_distance_to_collision"]``).
+    filter_times
+        (S,) the filter's time per step, in s.
+    dt
+        Sampling time, in s.
     """
 
     ego: np.ndarray
@@ -90,6 +118,12 @@ class Trajectory:
     statuses: list[str]
     frames: list[np.ndarray]
     collisions: list[bool] = field(default_factory=list)
+    ego_states: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
+    inputs: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    distances: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    swept: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    filter_times: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    dt: float = 0.0
 
 
 # ---------------------------------------------------------------------------- policies
@@ -201,7 +235,8 @@ def make_env(spec: EpisodeSpec, *, render_mode: str | None = None, policy: Any =
     render_mode
         Passed to ``gym.make``.
     policy
-        A planner to use instead of the spec's (``predict(obs, deterministic=True)``).
+        A planner to use instead of the spec's (``predict(obs, deterministic=True)``),
+        or a function ``env -> planner`` called with the new environment.
     env_kwargs
         Further ``gym.make`` keywords that are not recorded (e.g. ``scenario=`` of
         ``"Custom"``); the recorded ones are ``spec.env_options``.
@@ -223,7 +258,7 @@ def make_env(spec: EpisodeSpec, *, render_mode: str | None = None, policy: Any =
         raise (_unknown_keyword(exc, "env_options") or exc) from exc
     try:
         if policy is not None:
-            planner = policy
+            planner = policy if hasattr(policy, "predict") else policy(env)
         else:
             planner, _ = _load_planner(spec, env)
         filter_kwargs = spec.filter_kwargs()
@@ -339,12 +374,14 @@ def run_episode(
     record : EpisodeRecord
         ``error`` is non-empty if the episode failed (its partial statistics are kept).
     trajectory : Trajectory or None
-        Positions and halfspaces, if ``record_trajectory``; with ``render`` also the
-        ``rgb_array`` frames (halfspaces drawn by the wrapper's render hook).
+        States, clearances and halfspaces, if ``record_trajectory`` (up to the failure,
+        if the episode failed); with ``render`` also the ``rgb_array`` frames
+        (halfspaces drawn by the wrapper's render hook).
     """
     start = time.perf_counter()
     stats = EpisodeStats()
     trajectory = None
+    recorder = None
     sha = ""
     reuse = (reuse_env and policy is None and env_kwargs is None and not render
              and spec.planner == "ppo")
@@ -362,7 +399,7 @@ def run_episode(
             obs, info = env.reset(seed=int(spec.seed))
             base = env.unwrapped
             stats.start(base, info, intersample=_intersample(env))
-            recorder = TrajectoryRecorder(env, render) if record_trajectory else None
+            recorder = TrajectoryRecorder(env, render, info) if record_trajectory else None
             done = False
             while not done:
                 action, _ = planner.predict(obs, deterministic=True)
@@ -373,8 +410,6 @@ def run_episode(
                 if recorder is not None:
                     recorder.record(info)
                 done = terminated or truncated
-            if recorder is not None:
-                trajectory = recorder.trajectory()
             failed = False
         finally:
             if cache_key is None:
@@ -387,6 +422,8 @@ def run_episode(
         error = f"{type(exc).__name__}: {exc}".replace("\n", " ")[:500]
         if not isinstance(exc, FloatingPointError | InvalidParameterError | PolicyFileError):
             error += " | " + traceback.format_exc(limit=3).replace("\n", " ")[-300:]
+    if recorder is not None:  # also after a failure: the partial data are kept
+        trajectory = recorder.trajectory()
     record = EpisodeRecord(
         scenario=spec.scenario, risk=spec.risk, seed=spec.seed, planner=spec.planner,
         reference=spec.reference, alpha=spec.alpha, delta=spec.delta, epsilon=spec.epsilon,
@@ -422,42 +459,62 @@ def run_spec(spec: EpisodeSpec) -> EpisodeRecord:
 
 
 class TrajectoryRecorder:
-    """Collects an episode's positions, statuses, collisions, halfspaces and frames."""
+    """Collects an episode's states, distances, statuses, collisions, halfspaces and frames."""
 
-    def __init__(self, env: Any, render: bool) -> None:
+    def __init__(self, env: Any, render: bool, info: dict[str, Any]) -> None:
         self._env, self._base, self._render = env, env.unwrapped, render
-        self._ego: list[np.ndarray] = []
+        self._states: list[np.ndarray] = []
         self._obstacles: list[np.ndarray] = []
+        self._distances: list[np.ndarray] = []
+        self._inputs: list[np.ndarray] = []
+        self._swept: list[np.ndarray] = []
+        self._filter_times: list[float] = []
         self._statuses: list[str] = []
         self._collisions: list[bool] = []
         self._halfspaces: list[tuple[np.ndarray, np.ndarray]] = []
         self._frames: list[np.ndarray] = []
-        self._snapshot()
+        self._snapshot(info)
 
-    def _snapshot(self) -> None:
-        self._ego.append(np.asarray(self._base.ego_state[:2], dtype=float).copy())
+    def _snapshot(self, info: dict[str, Any]) -> None:
+        self._states.append(np.asarray(self._base.ego_state, dtype=float).copy())
         self._obstacles.append(np.asarray(self._base.obstacle_positions, dtype=float).copy())
+        self._distances.append(np.asarray(info["distance_to_collision"], dtype=float).copy())
         if self._render:
             self._frames.append(self._env.render())
 
     def record(self, info: dict[str, Any]) -> None:
-        """After a step: the new positions, the collision flag and what the filter did."""
-        self._snapshot()
+        """After a step: the new state and positions, the clearances and what the filter did."""
+        self._snapshot(info)
         report = info["filter"]
-        self._statuses.append(report["status"])
+        self._inputs.append(np.asarray(report["applied_action"], dtype=float).copy())
+        if "swept_distance_to_collision" not in info:
+            raise KeyError("the environment does not report "
+                           "info['swept_distance_to_collision'] (continuous time)")
+        self._swept.append(np.asarray(info["swept_distance_to_collision"], dtype=float).copy())
+        self._filter_times.append(float(report["filter_time"]))
+        self._statuses.append(str(report["status"]))
         self._collisions.append(bool(info.get("collision", False)))
         if report["normals"] is not None:
-            self._halfspaces.append((np.asarray(report["normals"]),
-                                     np.asarray(report["offsets"])))
+            self._halfspaces.append((np.asarray(report["normals"]).copy(),
+                                     np.asarray(report["offsets"]).copy()))
 
     def trajectory(self) -> Trajectory:
         base = self._base
+        n = len(base.obstacle_radii)
+
+        def stack(rows: list, shape: tuple[int, ...]) -> np.ndarray:
+            return np.asarray(rows, dtype=float).reshape((len(rows), *shape))
+
+        states = stack(self._states, (4,))
         return Trajectory(
-            ego=np.asarray(self._ego), obstacles=np.asarray(self._obstacles),
+            ego=states[:, :2].copy(), obstacles=stack(self._obstacles, (n, 2)),
             obstacle_radii=np.asarray(base.obstacle_radii, dtype=float).copy(),
             ego_radius=float(base.ego_radius), goal=np.asarray(base.goal, dtype=float).copy(),
             halfspaces=self._halfspaces, statuses=self._statuses, frames=self._frames,
-            collisions=self._collisions)
+            collisions=self._collisions, ego_states=states,
+            inputs=stack(self._inputs, (2,)), distances=stack(self._distances, (n,)),
+            swept=stack(self._swept, (n,)),
+            filter_times=np.asarray(self._filter_times, dtype=float), dt=float(base.dt))
 
 
 class EpisodeStats:

@@ -77,6 +77,7 @@ class SummaryRow:
     first_error: str = ""
     first_failure: str = ""
     method: str = ""
+    arrivals: int = 0
 
 
 def method_label(risk: str, epsilon: float | str) -> str:
@@ -138,7 +139,7 @@ def summarise(records: Iterable[EpisodeRecord]) -> list[SummaryRow]:
             status_shares=shares, collision_causes=causes,
             first_error=errors[0] if errors else "",
             first_failure=failures[0][:200] if failures else "",
-            method=method_label(risk, AUTO if auto else 0.0),
+            method=method_label(risk, AUTO if auto else 0.0), arrivals=len(times),
         ))
     return rows
 
@@ -146,6 +147,14 @@ def summarise(records: Iterable[EpisodeRecord]) -> list[SummaryRow]:
 def short_name(scenario: str) -> str:
     """``"SafeNav/HeadOn-v0"`` -> ``"HeadOn"``."""
     return scenario.split("/")[-1].rsplit("-v", 1)[0]
+
+
+def time_to_goal_cell(row: SummaryRow) -> str:
+    """The time to goal in s (mean over the episodes that arrived), or a dash and the
+    count of arrivals when none did (the mean of nothing is not a number to print)."""
+    if row.arrivals and math.isfinite(row.time_to_goal):
+        return f"{row.time_to_goal:.2f}"
+    return f"- ({row.arrivals} arrived)"
 
 
 def markdown_table(rows: Sequence[SummaryRow]) -> str:
@@ -164,7 +173,7 @@ def markdown_table(rows: Sequence[SummaryRow]) -> str:
             f"{r.sampled_collision_rate:.1%} | "
             f"{r.worst_distance:.3f} | {r.worst_swept_distance:.3f} | {r.cvar_distance:.3f} | "
             f"{r.goal_rate:.1%} | "
-            f"{r.time_to_goal:.2f} | {r.mean_intervention:.3f} | {r.fallback_share:.1%} | "
+            f"{time_to_goal_cell(r)} | {r.mean_intervention:.3f} | {r.fallback_share:.1%} | "
             f"{r.filter_time_ms:.2f} |"
         )
     return "\n".join(lines) + "\n"

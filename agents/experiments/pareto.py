@@ -174,14 +174,24 @@ def plot_pareto(
         ax.set_title(f"{name} ({'/'.join(map(str, n))} episodes per method)", fontsize=10)
         ax.set_xlabel(xlabel, fontsize=8)
         ax.set_ylabel(ylabel, fontsize=8)
-        ax.set_ylim(-0.02, 1.02)
+        # Zoom on the rates that occur (small rates stay readable), never past [0, 1].
+        highs = [wilson_interval(p.collisions, p.n)[1] for p in points]
+        ax.set_ylim(-0.02, min(1.02, 1.25 * max(highs) + 0.03))
+        ax.margins(x=0.12)
+        times = [p.time_to_goal for p in points if not math.isnan(p.time_to_goal)]
+        if times and max(times) - min(times) < 0.2:  # a few samples apart: widen to 0.2 s
+            middle = 0.5 * (max(times) + min(times))
+            ax.set_xlim(middle - 0.15, middle + 0.15)
         ax.grid(alpha=0.3)
     handles = [plt.Line2D([], [], color=style[label][0], marker=style[label][1], ls="")
                for label in labels]
+    handles += [plt.Line2D([], [], color="0.3", marker="o", ls=""),
+                plt.Line2D([], [], color="0.3", marker="o", mfc="white", ls="")]
+    labels = [*labels, "filled: Pareto-optimal (no other method safer and faster)",
+              "hollow: dominated"]
     fig.legend(handles, labels, loc="lower center", ncol=min(4, len(labels)), fontsize=8,
                frameon=False, bbox_to_anchor=(0.5, -0.02 - 0.03 * math.ceil(len(labels) / 4)))
-    fig.suptitle(title or "collision rate against time to goal (hollow: dominated)",
-                 fontsize=11)
+    fig.suptitle(title or "Collision rate against time to goal, per method", fontsize=11)
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

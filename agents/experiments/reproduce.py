@@ -60,10 +60,11 @@ from typing import Any
 import numpy as np
 
 from agents.evaluation.records import PAPER_SCENARIOS as PAPER_SCENARIO_NAMES
+from agents.evaluation.records import EpisodeSpec
 from agents.evaluation.summary import SummaryRow, short_name, wilson_interval
 from agents.planners import AUTHORS_CODE_PLANNER
 from filters.errors import InvalidArrayError, InvalidParameterError
-from safe_nav_env.scenarios import env_id
+from safe_nav_env.scenarios import env_id, scenario_name
 
 PAPER_SCENARIOS = tuple(env_id(name) for name in PAPER_SCENARIO_NAMES)
 """The paper's four scenarios by gym id (reproduce's encounters are keyed by gym id)."""
@@ -397,116 +398,118 @@ class EncounterRecord:
         return collision_cause(swept, sampled, list(self.statuses))
 
 
-def _planner(preset: ReproductionPreset, env: Any):
+class _PresetPlanner:
+    """The preset's obstacle-agnostic planner: the agent and the filter's reference maker.
+
+    With ``zero_inputs`` the reference inputs are zero, so the wrapper's input cost
+    ``(u - u_ref)' R (u - u_ref)`` is the paper's ``u' R u`` (Problem 2).
+    """
+
+    def __init__(self, planner: Any, *, zero_inputs: bool) -> None:
+        self.planner = planner
+        self.zero_inputs = zero_inputs
+
+    def predict(self, observation: np.ndarray, deterministic: bool = True) -> Any:
+        return self.planner.predict(observation, deterministic=deterministic)
+
+    def __call__(self, env: Any, action: np.ndarray, horizon: int):
+        states, inputs = self.planner(env, action, horizon)
+        return (states, np.zeros_like(inputs)) if self.zero_inputs else (states, inputs)
+
+
+def _preset_planner(preset: ReproductionPreset):
+    """A function ``env -> _PresetPlanner`` building the preset's planner for ``env``."""
     from agents.planners import MPCReferencePlanner
 
     Q, Q_terminal, R = preset.planner_weights
-    return MPCReferencePlanner.from_env(env, horizon=preset.horizon, Q=Q, Q_terminal=Q_terminal,
-                                        R=R, convention=preset.planner_convention)
+
+    def build(env: Any) -> _PresetPlanner:
+        planner = MPCReferencePlanner.from_env(
+            env, horizon=preset.horizon, Q=Q, Q_terminal=Q_terminal, R=R,
+            convention=preset.planner_convention)
+        return _PresetPlanner(planner, zero_inputs=preset.filter_input_cost != "deviation")
+
+    return build
+
+
+def encounter_spec(job: EncounterJob) -> EpisodeSpec:
+    """The evaluation pipeline's episode of ``job``: the MPC planner, the paper's filter.
+
+    The paper's filter exactly: Problem 2 with its normals, no inter-sample rows and no
+    terminal set (both are this project's additions, see :mod:`filters.intersample`),
+    the preset's weights, fallback and input bound, and the paper's episode length.
+
+    Raises
+    ------
+    InvalidParameterError
+        If the scenario has no paper duration (:func:`paper_duration`).
+    """
+    preset = job.preset
+    q, q_terminal, r = preset.filter_weights
+    states, inputs = 4, 2  # the double integrator's state and input sizes
+    filter_options = dict(
+        horizon=preset.horizon, Q=(q * np.eye(states)).tolist(),
+        Q_terminal=(q_terminal * np.eye(states)).tolist(), R=(r * np.eye(inputs)).tolist(),
+        fallback=preset.fallback, objective="trajectory", normals="paper", intersample=False,
+        terminal=False)
+    env_options = dict(episode_length=paper_duration(job.scenario),
+                       max_acceleration=preset.max_acceleration)
+    return EpisodeSpec(scenario=scenario_name(job.scenario, warn=False), risk=job.risk,
+                       seed=int(job.seed), planner="mpc", alpha=preset.alpha,
+                       delta=preset.delta_for(job.risk), epsilon=preset.epsilon,
+                       noise=preset.noise, filter_options=filter_options,
+                       env_options=env_options)
 
 
 def make_encounter_env(job: EncounterJob):
     """The filtered environment of ``job`` (paper episode length) and its planner."""
-    import gymnasium as gym
+    from agents.evaluation.runner import make_env
 
-    import safe_nav_env  # noqa: F401
-    from filters import SafetyFilterWrapper
-
-    preset = job.preset
-    env = gym.make(job.scenario, noise=preset.noise, episode_length=paper_duration(job.scenario),
-                   max_acceleration=preset.max_acceleration,
-                   render_mode="rgb_array" if job.render else None)
-    planner = _planner(preset, env)
-    n, m = 4, 2
-    q, q_terminal, r = preset.filter_weights
-    reference = planner if preset.filter_input_cost == "deviation" else _StatesOnly(planner)
-    wrapped = SafetyFilterWrapper(
-        env, risk=job.risk, alpha=preset.alpha, delta=preset.delta_for(job.risk),
-        epsilon=preset.epsilon, horizon=preset.horizon, Q=q * np.eye(n),
-        Q_terminal=q_terminal * np.eye(n), R=r * np.eye(m), reference=reference,
-        fallback=preset.fallback,
-        # The paper's filter exactly: Problem 2 with its normals, no inter-sample rows
-        # and no terminal set (both are this project's additions, see filters.intersample).
-        objective="trajectory", normals="paper", intersample=False, terminal=False)
-    return wrapped, planner
-
-
-class _StatesOnly:
-    """Reference maker: the planner's states with zero reference inputs.
-
-    The wrapper's input cost is ``(u - u_ref)' R (u - u_ref)``; with ``u_ref = 0`` it is
-    the paper's ``u' R u``.
-    """
-
-    def __init__(self, planner: Any) -> None:
-        self.planner = planner
-
-    def __call__(self, env: Any, action: np.ndarray, horizon: int):
-        states, inputs = self.planner(env, action, horizon)
-        return states, np.zeros_like(inputs)
+    env, adapter = make_env(encounter_spec(job), policy=_preset_planner(job.preset),
+                            render_mode="rgb_array" if job.render else None)
+    return env, adapter.planner
 
 
 def run_encounter(job: EncounterJob) -> EncounterRecord:
-    """Run one episode of ``job``; never raises for a failure inside the episode."""
+    """Run one episode of ``job`` on the evaluation runner; never raises for a failure.
+
+    The episode runs in :func:`agents.evaluation.runner.run_episode` (the runner of
+    ``safe-nav evaluate``) with its trajectory recorded; the record keeps its partial
+    data if the episode failed.
+    """
+    from agents.evaluation.runner import run_episode
+
     start = time.perf_counter()
-    ego_states, inputs, obstacles, distances, swept = [], [], [], [], []
-    statuses, filter_times, halfspaces, frames = [], [], [], []
-    error = ""
-    dt, ego_radius, radii, goal = 0.2, 0.3, np.zeros(0), np.zeros(2)
     try:
-        env, planner = make_encounter_env(job)
-        try:
-            obs, info = env.reset(seed=int(job.seed))
-            base = env.unwrapped
-            dt, ego_radius = float(base.dt), float(base.ego_radius)
-            radii = np.asarray(base.obstacle_radii, dtype=float).copy()
-            goal = np.asarray(base.goal, dtype=float).copy()
-            ego_states.append(np.asarray(base.ego_state, dtype=float).copy())
-            obstacles.append(np.asarray(base.obstacle_positions, dtype=float).copy())
-            distances.append(np.asarray(info["distance_to_collision"], dtype=float).copy())
-            if job.render:
-                frames.append(env.render())
-            done = False
-            while not done:
-                action, _ = planner.predict(obs, deterministic=True)
-                obs, _, terminated, truncated, info = env.step(action)
-                report = info["filter"]
-                applied = np.asarray(report["applied_action"], dtype=float).copy()
-                inputs.append(applied)
-                ego_states.append(np.asarray(base.ego_state, dtype=float).copy())
-                obstacles.append(np.asarray(base.obstacle_positions, dtype=float).copy())
-                distances.append(np.asarray(info["distance_to_collision"], dtype=float).copy())
-                if "swept_distance_to_collision" not in info:
-                    raise KeyError("the environment does not report "
-                                   "info['swept_distance_to_collision'] (continuous time)")
-                swept.append(np.asarray(info["swept_distance_to_collision"], float).copy())
-                statuses.append(str(report["status"]))
-                filter_times.append(float(report["filter_time"]))
-                if job.record_halfspaces and report["normals"] is not None:
-                    halfspaces.append((np.asarray(report["normals"]).copy(),
-                                       np.asarray(report["offsets"]).copy()))
-                if job.render:
-                    frames.append(env.render())
-                if not np.all(np.isfinite(obs)):
-                    raise FloatingPointError(f"non-finite observation at step {len(inputs)}")
-                done = terminated or truncated
-        finally:
-            env.close()
+        spec = encounter_spec(job)
     except Exception as exc:  # noqa: BLE001 — a Monte Carlo run records failures
-        error = f"{type(exc).__name__}: {exc}".replace("\n", " ")[:500]
-    n = radii.shape[0]
-
-    def stack(rows: list, shape: tuple[int, ...]) -> np.ndarray:
-        return np.asarray(rows, dtype=float).reshape((len(rows), *shape))
-
+        return _failed_encounter(job, f"{type(exc).__name__}: {exc}", start)
+    record, trajectory = run_episode(spec, policy=_preset_planner(job.preset),
+                                     record_trajectory=True, render=job.render,
+                                     reuse_env=False)
+    if trajectory is None:
+        return _failed_encounter(job, record.error, start)
     return EncounterRecord(
-        preset=job.preset.name, scenario=job.scenario, risk=job.risk, seed=int(job.seed), dt=dt,
-        ego_radius=ego_radius, obstacle_radii=radii, goal=goal,
-        ego_states=stack(ego_states, (4,)), inputs=stack(inputs, (2,)),
-        obstacles=stack(obstacles, (n, 2)), distances=stack(distances, (n,)),
-        swept=stack(swept, (n,)),
-        statuses=tuple(statuses), filter_times=np.asarray(filter_times, dtype=float),
-        halfspaces=halfspaces, frames=frames, error=error,
+        preset=job.preset.name, scenario=job.scenario, risk=job.risk, seed=int(job.seed),
+        dt=trajectory.dt, ego_radius=trajectory.ego_radius,
+        obstacle_radii=trajectory.obstacle_radii, goal=trajectory.goal,
+        ego_states=trajectory.ego_states, inputs=trajectory.inputs,
+        obstacles=trajectory.obstacles, distances=trajectory.distances,
+        swept=trajectory.swept, statuses=tuple(trajectory.statuses),
+        filter_times=trajectory.filter_times,
+        halfspaces=trajectory.halfspaces if job.record_halfspaces else [],
+        frames=trajectory.frames, error=record.error.split(" | ")[0],
+        wall_time=time.perf_counter() - start)
+
+
+def _failed_encounter(job: EncounterJob, error: str, start: float) -> EncounterRecord:
+    """The record of an episode that failed before its first state was recorded."""
+    return EncounterRecord(
+        preset=job.preset.name, scenario=job.scenario, risk=job.risk, seed=int(job.seed),
+        dt=math.nan, ego_radius=math.nan, obstacle_radii=np.zeros(0), goal=np.zeros(2),
+        ego_states=np.zeros((0, 4)), inputs=np.zeros((0, 2)), obstacles=np.zeros((0, 0, 2)),
+        distances=np.zeros((0, 0)), swept=np.zeros((0, 0)), statuses=(),
+        filter_times=np.zeros(0), error=error.replace("\n", " ")[:500],
         wall_time=time.perf_counter() - start)
 
 
@@ -587,26 +590,36 @@ def plot_example_one(example: dict, path: Path) -> Path:
 
     from filters.plotting import draw_halfspace
 
-    fig, ax = plt.subplots(figsize=(5.5, 5))
+    fig, ax = plt.subplots(figsize=(8, 5))
     ax.set_xlim(-2, 1.5)
     ax.set_ylim(-1.8, 1.2)
     ax.set_aspect("equal")
     samples = example["samples"]
-    ax.scatter(samples[:, 0], samples[:, 1], s=4, color="k", alpha=0.5, label="samples")
+    ax.scatter(samples[:, 0], samples[:, 1], s=4, color="k", alpha=0.5,
+               label="predicted obstacle positions (samples)")
     ax.add_patch(plt.Circle(EXAMPLE_ONE["obstacle"], EXAMPLE_ONE["radius"], color="k",
-                            alpha=0.2))
+                            alpha=0.2, label=f"obstacle disc, r = {EXAMPLE_ONE['radius']:g} m"))
     ax.add_patch(plt.Circle(example["reference"], EXAMPLE_ONE["radius"], color="tab:blue",
-                            alpha=0.3))
-    ax.plot(*example["reference"], "bo", label="ego reference")
+                            alpha=0.3, label=f"ego disc, r = {EXAMPLE_ONE['radius']:g} m"))
+    ax.plot(*example["reference"], "bo", label="ego reference position")
     ax.annotate("", xy=example["reference"] + 0.5 * example["normal"],
                 xytext=example["reference"], arrowprops=dict(arrowstyle="->"))
+    ax.plot([], [], color="k", marker=r"$\rightarrow$", ls="", ms=12,
+            label="normal h (ego towards the sample mean)")
     colors = {"mean": "tab:red", "CVaR": "tab:blue"}
     greens = iter(["#66c266", "#2e9e2e", "#145214"])
     for label, data in example["halfspaces"].items():
         draw_halfspace(ax, example["normal"], data["offset"],
                        color=colors.get(label) or next(greens), alpha=0.9, label=label)
-    ax.legend(fontsize=7, loc="upper left")
-    ax.set_title("Example 1: safe halfspaces (ego side is below-left)")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0),
+              title="boundary h·y = b of each risk\n(safe side: below-left)", title_fontsize=7)
+    ax.set_title("Example 1 (Fig. 2): safe halfspaces of mean, CVaR and DR-CVaR\n"
+                 f"α = {EXAMPLE_ONE['alpha']:g}, δ = {EXAMPLE_ONE['delta']:g} m, "
+                 f"{EXAMPLE_ONE['n_samples']} samples of N(p, {EXAMPLE_ONE['variance']:g} I)",
+                 fontsize=10)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120, bbox_inches="tight")
     plt.close(fig)
@@ -951,7 +964,7 @@ def _monte_carlo_section(
     write_episodes_csv(records, folder / "episodes.csv")
     figures = _monte_carlo_figures(preset, records, rows, folder / "figures", seed=seed)
     scenarios = list(dict.fromkeys(r.scenario for r in records))
-    dt = records[0].dt if records else 0.2
+    dt = next((r.dt for r in records if math.isfinite(r.dt)), 0.2)
     windows = resolve_windows(records)
     encounters = resolve_windows(records, mode="encounter")
     lines = [f"### Preset `{preset.name}`", "", f"Settings: {preset.description}.", "",
@@ -1021,7 +1034,7 @@ def _monte_carlo_figures(
     files: dict[str, Path] = {}
     scenarios = list(dict.fromkeys(r.scenario for r in records))
     windows = {s: w for s, (w, _) in resolve_windows(records).items()}
-    dt = records[0].dt if records else 0.2
+    dt = next((r.dt for r in records if math.isfinite(r.dt)), 0.2)
     distances = {s: {risk: _series([r for r in records if r.scenario == s and r.risk == risk
                                      and not r.error], "distances")
                      for risk in dict.fromkeys(r.risk for r in records if r.scenario == s)}

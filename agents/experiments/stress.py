@@ -36,6 +36,7 @@ from agents.evaluation.summary import (
     audit_rows,
     audit_table,
     summarise,
+    time_to_goal_cell,
 )
 from filters.errors import InvalidParameterError
 from safe_nav_env.scenarios import CUSTOM
@@ -160,7 +161,7 @@ def stress_table(rows: Sequence[SummaryRow], *, epsilon: float) -> str:
             out.append(
                 f"| {_label(r, epsilon)} | {r.episodes}{failed} | {r.collision_rate:.1%} "
                 f"[{r.collision_low:.1%}, {r.collision_high:.1%}] | "
-                f"{r.sampled_collision_rate:.1%} | {r.goal_rate:.1%} | {r.time_to_goal:.2f} | "
+                f"{r.sampled_collision_rate:.1%} | {r.goal_rate:.1%} | {time_to_goal_cell(r)} | "
                 + filter_cells)
         out.append("")
     return "\n".join(out)
@@ -277,9 +278,10 @@ def run_stress(
 
         files["pareto"] = plot_pareto(
             _pareto_panels(rows, epsilon=epsilon), output / "figures" / "pareto.png",
-            title=f"stress suite: collision rate against time to goal ({planner}, hollow: "
-            "dominated)")
-    return EvaluationOutputs(records, rows, markdown, time.perf_counter() - start, files)
+            title=f"Stress suite, {planner} planner: collision rate (continuous time) against "
+            "time to goal, per filter risk")
+    return EvaluationOutputs(records, rows, markdown, time.perf_counter() - start, files,
+                             reused=records.reused)
 
 
 def _relabel(table: str, epsilon: float) -> str:

@@ -296,6 +296,20 @@ def check_env_kwargs(env_id: str, env_kwargs: dict[str, Any] | None) -> None:
     env.close()
 
 
+def _model_file(path: str | Path) -> Path:
+    """``path`` as the model file to write, exactly as named (its folders are made later);
+    :class:`InvalidParameterError` if it is a folder or one of its parents is a file."""
+    path = Path(path)
+    if path.is_dir():
+        raise InvalidParameterError(f"the model file {path} is a folder; name a file in it, "
+                                    f"e.g. {path / 'ppo.zip'}")
+    for folder in path.parents:
+        if folder.exists() and not folder.is_dir():
+            raise InvalidParameterError(f"the model file {path} cannot be made: {folder} is "
+                                        "a file")
+    return path
+
+
 def _tensorboard_format(folder: str | Path, name: str):
     """TensorBoard output into ``folder/<name>_<k>`` (the next free k, as SB3 does)."""
     try:
@@ -372,14 +386,8 @@ def train_ppo(
         episode; an intervention of 1-3 m/s² costs :math:`\\kappa` (1-9) per step.
         The square weighs the rare large corrections most: a random policy's
         :math:`E\\|u^{safe} - a\\|^2` is about 50 (m/s²)² at a mean intervention of
-        3.8 m/s² (the first rollout of the runs below). Measured (100k steps of
-        ``--filter dr_cvar``, the held-action reference, seeds 0 and 1; README): with
-        0 the policy relies on the filter (unfiltered it collides in 100 % of
-        MultiObstacle episodes); 0.01 teaches it to avoid the obstacles itself (0 %
-        there unfiltered, 4 % on RandomCrossing against 32-43 %; mean intervention
-        0.5-0.6 m/s² at the end of training against 4.1-4.4); filtered, it takes up to 0.8 s
-        longer to the goal; 0.05 (seed 0) is as careful, but at this budget it stalls
-        0.3-1.5 m short of the goal in 65 % of the RandomCrossing episodes.
+        3.8 m/s². What 0, 0.01 and 0.05 gave in training runs: README, "The
+        intervention penalty".
     filter_reference
         ``"default"``: the wrapper's reference; ``"rollout"``: the policy being
         trained, rolled out over the horizon (in-process environments only; about
@@ -403,7 +411,8 @@ def train_ppo(
     progress_bar
         Show a tqdm/rich progress bar.
     save_path
-        Where to save the model (``.zip``), or ``None``.
+        The model file to write, exactly as named (a Stable-Baselines3 zip archive,
+        whatever the suffix; its folders are made), or ``None``.
     metrics_path
         The per-rollout metrics CSV; default :func:`metrics_path_for` ``(save_path)``,
         none without ``save_path``.
@@ -465,7 +474,7 @@ def train_ppo(
                 raise InvalidParameterError(
                     "filter_reference='rollout' conflicts with filter_kwargs policy/reference")
     if save_path is not None:
-        save_path = Path(save_path)
+        save_path = _model_file(save_path)
     if metrics_path is None and save_path is not None:
         metrics_path = metrics_path_for(save_path)
     formats = []
@@ -542,9 +551,10 @@ def train_ppo(
     finally:
         model.logger.close()
     wall_time = time.perf_counter() - start
-    if save_path is not None:
+    if save_path is not None:  # through a handle: SB3 would append ".zip" to a bare name
         save_path.parent.mkdir(parents=True, exist_ok=True)
-        model.save(save_path)
+        with save_path.open("wb") as handle:
+            model.save(handle)
     steps = int(model.num_timesteps)
     report = TrainingReport(
         steps, wall_time, steps / max(wall_time, 1e-9), save_path,

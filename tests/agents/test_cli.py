@@ -198,9 +198,12 @@ def test_ctrl_c_saves_what_finished_and_the_same_command_resumes(tmp_path, capsy
     ran = []
     monkeypatch.setattr(agents.evaluation.executors, "run_spec", lambda spec: ran.append(spec.seed)
                         or real(spec))
+    capsys.readouterr()
     assert main(argv) == 0
     assert ran == [2]  # only the missing episode
     assert len(list(csv.DictReader((out / "episodes.csv").open()))) == 3
+    assert f"3 episodes (2 reused from {out / 'episodes.csv'}, 1 run now) in" in \
+        capsys.readouterr().out
 
 
 def test_the_cache_refuses_another_policy_and_another_setting(tmp_path, capsys):
@@ -234,3 +237,70 @@ def test_scenario_spellings_are_accepted_with_a_note(tmp_path, capsys):
     rows = list(csv.DictReader((out / "episodes.csv").open()))
     assert {r["scenario"] for r in rows} == {"HeadOn", "Overtaking"}
     assert scenario_id("head_on") == scenario_id("HeadOn") == "SafeNav/HeadOn-v0"
+
+
+def test_version_prints_the_package_version(capsys):
+    from importlib.metadata import version
+
+    assert main(["--version"]) == 0
+    assert capsys.readouterr().out.strip() == f"safe-nav {version('safe-nav')}"
+
+
+def test_train_saves_under_the_name_given_in_a_new_folder(tmp_path, capsys):
+    model = tmp_path / "new" / "folder" / "model"  # no .zip: SB3 would append one
+    assert main(["train", "--timesteps", "64", "--n-envs", "1", "--output", str(model),
+                 "--quiet", "--no-progress"]) == 0
+    assert sorted(p.name for p in model.parent.iterdir()) == ["model", "model.metrics.csv"]
+    assert zipfile.is_zipfile(model)
+    assert f"saved to {model};" in capsys.readouterr().out
+
+
+def test_train_output_that_is_a_folder_or_under_a_file_is_one_line(tmp_path, capsys):
+    assert main(["train", "--timesteps", "64", "--output", str(tmp_path)]) == 2
+    assert "is a folder" in _one_line(capsys)
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    assert main(["train", "--timesteps", "64", "--output", str(blocker / "model.zip")]) == 2
+    assert "is a file" in _one_line(capsys)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]
+
+
+def test_the_mpc_planner_with_a_policy_is_an_error(tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["evaluate", *TINY, "--planner", "mpc", "--policy",
+                 str(pretrained_policy_path()), "--output", str(out)]) == 2
+    assert "planner 'mpc'" in _one_line(capsys)
+    assert not out.exists()
+
+
+def test_a_failed_evaluate_leaves_no_empty_folder(tmp_path, capsys):
+    out = tmp_path / "new" / "out"
+    for extra in (["--filter-option", "bogus=1"], ["--sweep", "--filter-option", "bogus=1"],
+                  ["--suite", "stress", "--cases", "biased", "--filter-option", "bogus=1"]):
+        argv = ["evaluate", "--episodes", "1", "--workers", "1", "--no-plots", "--no-progress",
+                "--planner", "mpc", "--output", str(out), *extra]
+        if "--suite" not in extra:
+            argv[1:1] = ["--scenarios", "HeadOn", "--risks", "dr_cvar"]
+        assert main(argv) == 2
+        assert "bogus" in _one_line(capsys)
+        assert list(tmp_path.iterdir()) == []
+
+
+def test_the_custom_scenario_is_usable_from_the_command_line(tmp_path, capsys):
+    out = tmp_path / "out"
+    argv = ["evaluate", "--scenarios", "Custom", "--risks", "none", "--episodes", "1",
+            "--workers", "1", "--no-plots", "--no-progress", "--planner", "mpc",
+            "--output", str(out)]
+    assert main(argv) == 2
+    assert "--env-option scenario=" in _one_line(capsys)
+    custom = ('scenario={"name": "mine", "ego_start": [-4, 0], "goal": [4, 0], "obstacles": '
+              '[{"start": [2, 0.5], "velocity": [-1, 0]}], "duration": 6}')
+    assert main([*argv, "--env-option", 'scenario={"goal": [4, 0]}']) == 2
+    assert "missing" in _one_line(capsys)
+    assert main([*argv, "--env-option", custom]) == 0
+    (row,) = csv.DictReader((out / "episodes.csv").open())
+    assert row["scenario"] == "Custom" and row["error"] == ""
+    assert '"goal":[4,0]' in row["env_options"]
+    assert main(["evaluate", *TINY, "--planner", "mpc", "--output", str(tmp_path / "other"),
+                 "--env-option", custom]) == 2  # it would silently replace HeadOn
+    assert "for the scenario 'Custom' only" in _one_line(capsys)

@@ -91,6 +91,29 @@ def test_interrupted_run_resumes_from_its_csv(tmp_path):
     assert tuple(rows[0]) == RECORD_FIELDS
     assert both[:2] == first
     assert [r.seed for r in both] == [0, 1, 2]
+    assert (first.reused, both.reused) == (0, 2)
+
+
+def test_a_resumed_run_says_how_many_episodes_it_reused(tmp_path):
+    from agents.evaluation.campaign import run_evaluation
+
+    kwargs = dict(workers=1, plots=False, progress=False, **MPC)
+    first = run_evaluation(tmp_path, ["HeadOn"], ["none"], episodes=1, **kwargs)
+    assert "reused" not in str(first)
+    again = run_evaluation(tmp_path, ["HeadOn"], ["none"], episodes=3, **kwargs)
+    assert f"3 episodes (1 reused from {tmp_path / 'episodes.csv'}, 2 run now) in" in str(again)
+    assert again.reused == 1
+
+
+def test_the_interrupted_message_counts_the_reused_episodes(tmp_path):
+    from argparse import Namespace
+
+    from agents.cli.main import _interrupted_message
+    from agents.evaluation.evaluate import EvaluationInterrupted
+
+    exc = EvaluationInterrupted(3, 5, tmp_path / "episodes.csv", reused=2)
+    message = _interrupted_message("safe-nav evaluate", exc, Namespace(output=tmp_path))
+    assert "3 of 5 episodes finished (2 of them reused from an earlier run)" in message
 
 
 def test_records_round_trip_through_csv(tmp_path):
@@ -170,6 +193,20 @@ def test_summary_counts_collisions_and_failures():
     assert row.collision_rate == pytest.approx(0.4)
     assert row.worst_distance == pytest.approx(-0.1)
     assert "(1 failed)" in markdown_table([row])
+    assert row.arrivals == 5 and "| 2.00 |" in markdown_table([row])
+
+
+def test_the_summary_prints_a_dash_when_no_episode_arrived():
+    from agents.evaluation.evaluate import EpisodeRecord
+
+    records = [EpisodeRecord("HeadOn", "mean", s, "mpc", "rollout", 0.2, 0.1, 0.05, steps=10,
+                             min_distance=0.5, min_swept_distance=0.5, goal_reached=False)
+               for s in range(3)]
+    (row,) = summarise(records)
+    header, _, line = markdown_table([row]).splitlines()
+    cells = dict(zip(header.split(" | "), line.split(" | "), strict=True))
+    assert cells["time to goal (s)"] == "- (0 arrived)"  # was "nan"
+    assert row.arrivals == 0 and math.isnan(row.time_to_goal)
 
 
 def test_a_missing_policy_fails_before_any_episode_runs(tmp_path):

@@ -108,6 +108,16 @@ def test_options_become_canonical_json():
     assert options_json({}) == options_json(None) == options_json("") == ""
     assert options_json('{"b": 1, "a": true}') == '{"a":true,"b":1}'
     assert json.loads(options_json({"Q": np.eye(2)})) == {"Q": [[1.0, 0.0], [0.0, 1.0]]}
+    assert (options_json({"scenario": {"name": "a", "goal": (4, 0)}})  # Custom's scenario
+            == '{"scenario":{"goal":[4,0],"name":"a"}}')
+
+
+def test_settings_that_would_be_silently_ignored_are_refused():
+    with pytest.raises(InvalidParameterError, match="'Custom' only"):  # would replace HeadOn
+        EpisodeSpec("HeadOn", "none", 0, env_options={"scenario": "Overtaking"})
+    assert EpisodeSpec("Custom", "none", 0, env_options={"scenario": "Overtaking"})
+    with pytest.raises(InvalidParameterError, match="planner 'mpc'.*uses no policy file"):
+        EpisodeSpec("HeadOn", "none", 0, planner="mpc", policy_path="policy.zip")
 
 
 def test_scenario_spellings_become_the_canonical_name():

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import warnings
 
 import gymnasium as gym
@@ -11,7 +12,12 @@ from gymnasium.utils.env_checker import check_env
 
 import safe_nav_env  # noqa: F401
 from agents.planners import MPCReferencePlanner
-from filters import InvalidParameterError, InvalidTypeError, SafetyFilterWrapper
+from filters import (
+    InvalidArrayError,
+    InvalidParameterError,
+    InvalidTypeError,
+    SafetyFilterWrapper,
+)
 from filters.references import PolicyRolloutReference, hold_action_reference
 from filters.wrapper import RISKS
 from safe_nav_env import ObstacleSpec, Scenario
@@ -259,3 +265,20 @@ def test_sb3_learns_on_the_filtered_env():
                 device="cpu")
     model.learn(total_timesteps=2048)
     assert model.num_timesteps >= 2048
+
+
+@pytest.mark.parametrize("risk", ["none", "dr_cvar"])
+@pytest.mark.parametrize(("action", "given"), [
+    (5.0, "shape ()"),  # was broadcast to both axes
+    (np.zeros(3), "shape (3,)"),  # was a raw numpy broadcasting error
+    ([1.0], "shape (1,)"),
+])
+def test_an_action_of_another_shape_is_a_clear_error(risk, action, given):
+    env = SafetyFilterWrapper(gym.make("SafeNav/HeadOn-v0"), risk=risk)
+    env.reset(seed=0)
+    before = env.unwrapped.ego_state.copy()
+    with pytest.raises(InvalidArrayError, match=re.escape("shape (2,)") + ".*" + re.escape(given)):
+        env.step(action)
+    assert np.array_equal(env.unwrapped.ego_state, before)  # no step was taken
+    with pytest.raises(InvalidArrayError, match="numeric"):
+        env.step("fast")

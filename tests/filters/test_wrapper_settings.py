@@ -45,6 +45,19 @@ def test_an_action_wrapper_in_between_is_refused():
         SafetyFilterWrapper(ClipAction(gym.make("SafeNav/HeadOn-v0")))
 
 
+@pytest.mark.parametrize(("inner", "order"), [
+    (lambda env: RescaleAction(env, -1.0, 1.0),
+     "RescaleAction(SafetyFilterWrapper(env), -1.0, 1.0)"),
+    (ClipAction, "ClipAction(SafetyFilterWrapper(env))"),
+])
+def test_the_composition_error_says_which_order_works_and_why(inner, order):
+    with pytest.raises(InvalidTypeError) as caught:
+        SafetyFilterWrapper(inner(gym.make("SafeNav/HeadOn-v0")), risk="dr_cvar")
+    message = str(caught.value)
+    assert "put it outside the filter instead, " + order in message
+    assert "Why:" in message and "physical units" in message
+
+
 def test_rescale_action_outside_maps_to_physical_units():
     env = RescaleAction(SafetyFilterWrapper(gym.make("SafeNav/HeadOn-v0"), risk="none"),
                         -1.0, 1.0)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -70,6 +72,14 @@ def test_bad_actions_raise(action):
     env.reset(seed=0)
     with pytest.raises(InvalidActionError):
         env.unwrapped.step(np.array(action))
+
+
+@pytest.mark.parametrize(("action", "given"), [(5.0, "shape ()"), (np.zeros(3), "shape (3,)")])
+def test_a_bad_action_shape_names_the_expected_one(action, given):
+    env = gym.make("SafeNav/HeadOn-v0")
+    env.reset(seed=0)
+    with pytest.raises(InvalidActionError, match=re.escape("shape (2,)") + ".*" + re.escape(given)):
+        env.unwrapped.step(action)
 
 
 def test_observation_layout_and_observe():
