@@ -364,10 +364,10 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     fast_path
         ``True`` (default): the lean per-step path (the held-action kernel called with
-        constants checked once, the halfspace rows by :class:`filters.kernels.WrapperRows`,
-        the filter's compiled hard step of :mod:`filters.mpc.fast`); its results equal
-        the general path's to rounding. ``False``: the general path (``step_rows``, the
-        filter's general solve), the reference the fast one is checked against.
+        constants checked once, the halfspace rows by :class:`filters.kernels.WrapperRows`);
+        its results equal the general path's to rounding. ``False``: the general path
+        (``step_rows``), the reference the fast one is checked against. The MPC step is
+        the same on both.
 
     Raises
     ------
@@ -605,7 +605,7 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             input_bounds=base.input_bounds, position_bounds=base.position_bounds,
             n_obstacles=self.rows_per_obstacle * rows, soft=self.soft,
             objective=self.objective, later_input_weight=self.later_input_weight,
-            terminal_set=terminal_set, fallback=self.fallback, fast_path=self.fast_path,
+            terminal_set=terminal_set, fallback=self.fallback,
         )
 
     # ------------------------------------------------------------------ gym API
