@@ -3,11 +3,9 @@
 For every grid point ``(n_obstacles, T, N_s)`` (default: {1, 3, 10, 20} x {10, 20,
 40, 80} x {100, 1000}) the same recorded instances are solved by
 
-* ours: :func:`filters.safe_halfspaces` (DR-CVaR, the paper's defaults; the compiled
-  kernels of :mod:`filters.kernels`) on the ``N_s`` prediction samples, then
-  :meth:`filters.MPCSafetyFilter.solve` (built once per grid point), timed separately;
-  the *step* is their sum, what a control loop pays; the numpy reference of the
-  halfspaces (``backend="numpy"``) is timed on the same instances in a pass of its own;
+* ours: :func:`filters.safe_halfspaces` (DR-CVaR, the paper's defaults) on the ``N_s``
+  prediction samples, then :meth:`filters.MPCSafetyFilter.solve` (built once per grid
+  point), timed separately; the *step* is their sum, what a control loop pays;
 * the reference: the same QP (the same halfspaces) in CVXPY, built once with
   Parameters (DPP) and compiled by its first solve, which is timed apart.
 
@@ -268,7 +266,6 @@ class ScalingPoint:
     piqp_qp_ms: float = float("nan")  # backend="piqp", QP median
     piqp_per_qp_ms: float = float("nan")  # backend="piqp": its hard QP alone
     family: str = "straight"  # instance family (FAMILIES)
-    halfspaces_numpy_ms: float = float("nan")  # the numpy reference, same instances
     clarabel_per_qp_cpu_ms: float = float("nan")  # its hard QP alone: CPU time of the thread
     clarabel_per_qp_iterations: float = float("nan")  # its hard QP alone: median iterations
     clarabel_per_iteration_us: float = float("nan")  # median of (CPU time / iterations), µs
@@ -339,14 +336,6 @@ def benchmark_point(
         step_ms.append(1e3 * (end - begin))
         recorded.append(hs)
         results.append(result)
-
-    numpy_ms = []
-    for instance in instances:
-        begin = time.perf_counter()
-        safe_halfspaces(instance.reference_states[1:, :2], instance.samples, ego_shape=ego_shape,
-                        obstacle_shapes=shapes, risk="dr_cvar", ego_velocity=instance.x0[2:],
-                        backend="numpy")
-        numpy_ms.append(1e3 * (time.perf_counter() - begin))
 
     reference = cvxpy_filter_class()(A, B, C, **kwargs)
     first = instances[0]
@@ -422,7 +411,6 @@ def benchmark_point(
         **_per_qp_fields("piqp", per_qp["piqp"]),
         **_per_qp_fields("riccati", riccati_timings),
         family=family,
-        halfspaces_numpy_ms=float(np.median(numpy_ms)),
     )
 
 
@@ -471,7 +459,7 @@ def benchmark_scaling(
 def format_scaling_table(points: Sequence[ScalingPoint]) -> str:
     """The ratio table in markdown (medians in ms; ratios of the same run)."""
     lines = [
-        "| obstacles | T | N_s | halfspaces | halfspaces numpy | QP | step | CVXPY QP | "
+        "| obstacles | T | N_s | halfspaces | QP | step | CVXPY QP | "
         "CVXPY / step | CVXPY / QP | auto picks | QP daqp | QP clarabel | QP piqp | "
         "per QP clarabel | per QP piqp | per QP CPU clarabel / piqp | "
         "per QP iterations clarabel / piqp | "
@@ -479,13 +467,13 @@ def format_scaling_table(points: Sequence[ScalingPoint]) -> str:
         "recovery QP alone riccati (iterations, µs per iteration) | "
         "max abs u_daqp - u_clarabel | "
         "statuses (ours) | same status |",
-        "|" + "---|" * 24,
+        "|" + "---|" * 23,
     ]
     for p in points:
         statuses = ", ".join(f"{k} {v}" for k, v in sorted(p.statuses.items()))
         lines.append(
             f"| {p.n_obstacles} | {p.horizon} | {p.n_samples} | {p.halfspaces_ms:.3f} | "
-            f"{p.halfspaces_numpy_ms:.3f} | {p.qp_ms:.3f} | {p.step_ms:.3f} | {p.cvxpy_ms:.2f} | "
+            f"{p.qp_ms:.3f} | {p.step_ms:.3f} | {p.cvxpy_ms:.2f} | "
             f"{p.ratio:.1f}x | "
             f"{p.qp_ratio:.1f}x | {p.backend} | {p.daqp_qp_ms:.3f} | {p.clarabel_qp_ms:.3f} | "
             f"{p.piqp_qp_ms:.3f} | {p.clarabel_per_qp_ms:.3f} | {p.piqp_per_qp_ms:.3f} | "
