@@ -3,11 +3,9 @@
 For every grid point ``(n_obstacles, T, N_s)`` (default: {1, 3, 10, 20} x {10, 20,
 40, 80} x {100, 1000}) the same recorded instances are solved by
 
-* ours: :func:`filters.safe_halfspaces` (DR-CVaR, the paper's defaults; the compiled
-  kernels of :mod:`filters.kernels`) on the ``N_s`` prediction samples, then
-  :meth:`filters.MPCSafetyFilter.solve` (built once per grid point), timed separately;
-  the *step* is their sum, what a control loop pays; the numpy reference of the
-  halfspaces (``backend="numpy"``) is timed on the same instances in a pass of its own;
+* ours: :func:`filters.safe_halfspaces` (DR-CVaR, the paper's defaults) on the ``N_s``
+  prediction samples, then :meth:`filters.MPCSafetyFilter.solve` (built once per grid
+  point), timed separately; the *step* is their sum, what a control loop pays;
 * the reference: the same QP (the same halfspaces) in CVXPY, built once with
   Parameters (DPP) and compiled by its first solve, which is timed apart.
 
@@ -257,7 +255,6 @@ class ScalingPoint:
     daqp_clarabel_difference: float = float("nan")  # max |u_daqp - u_clarabel|, both optimal
     clarabel_per_qp_ms: float = float("nan")  # backend="clarabel": its hard QP alone
     family: str = "straight"  # instance family (FAMILIES)
-    halfspaces_numpy_ms: float = float("nan")  # the numpy reference, same instances
     clarabel_per_qp_cpu_ms: float = float("nan")  # its hard QP alone: CPU time of the thread
     clarabel_per_qp_iterations: float = float("nan")  # its hard QP alone: median iterations
     clarabel_per_iteration_us: float = float("nan")  # median of (CPU time / iterations), µs
@@ -319,14 +316,6 @@ def benchmark_point(
         recorded.append(hs)
         results.append(result)
 
-    numpy_ms = []
-    for instance in instances:
-        begin = time.perf_counter()
-        safe_halfspaces(instance.reference_states[1:, :2], instance.samples, ego_shape=ego_shape,
-                        obstacle_shapes=shapes, risk="dr_cvar", ego_velocity=instance.x0[2:],
-                        backend="numpy")
-        numpy_ms.append(1e3 * (time.perf_counter() - begin))
-
     reference = cvxpy_filter_class()(A, B, C, **kwargs)
     first = instances[0]
     begin = time.perf_counter()
@@ -387,7 +376,6 @@ def benchmark_point(
         daqp_clarabel_difference=max(between) if between else float("nan"),
         **_per_qp_fields("clarabel", per_qp["clarabel"]),
         family=family,
-        halfspaces_numpy_ms=float(np.median(numpy_ms)),
     )
 
 
@@ -436,18 +424,18 @@ def benchmark_scaling(
 def format_scaling_table(points: Sequence[ScalingPoint]) -> str:
     """The ratio table in markdown (medians in ms; ratios of the same run)."""
     lines = [
-        "| obstacles | T | N_s | halfspaces | halfspaces numpy | QP | step | CVXPY QP | "
+        "| obstacles | T | N_s | halfspaces | QP | step | CVXPY QP | "
         "CVXPY / step | CVXPY / QP | auto picks | QP daqp | QP clarabel | "
         "per QP clarabel (CPU, iterations, CPU µs per iteration) | "
         "hard QPs solved (clarabel) | max abs u_daqp - u_clarabel | "
         "statuses (ours) | same status |",
-        "|" + "---|" * 17,
+        "|" + "---|" * 16,
     ]
     for p in points:
         statuses = ", ".join(f"{k} {v}" for k, v in sorted(p.statuses.items()))
         lines.append(
             f"| {p.n_obstacles} | {p.horizon} | {p.n_samples} | {p.halfspaces_ms:.3f} | "
-            f"{p.halfspaces_numpy_ms:.3f} | {p.qp_ms:.3f} | {p.step_ms:.3f} | {p.cvxpy_ms:.2f} | "
+            f"{p.qp_ms:.3f} | {p.step_ms:.3f} | {p.cvxpy_ms:.2f} | "
             f"{p.ratio:.1f}x | "
             f"{p.qp_ratio:.1f}x | {p.backend} | {p.daqp_qp_ms:.3f} | {p.clarabel_qp_ms:.3f} | "
             f"{p.clarabel_per_qp_ms:.3f} ({p.clarabel_per_qp_cpu_ms:.3f}, "

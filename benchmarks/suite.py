@@ -78,7 +78,6 @@ class FilterStepBenchmark:
     backend_qp_ms: dict[str, float] | None = None  # explicit back ends, same steps
     backend_step_ms: dict[str, float] | None = None  # halfspaces + that QP, per step
     backend_difference: dict[str, float] | None = None  # max |u - u_clarabel|, both solved
-    halfspaces_numpy_ms: float = float("nan")  # the numpy reference, same steps
 
     def format(self) -> str:
         statuses = ", ".join(f"{k} {v}" for k, v in sorted(self.statuses.items()))
@@ -87,9 +86,6 @@ class FilterStepBenchmark:
             f"N_s = 100), {self.steps} steps, medians:",
             f"    ours: halfspaces {self.halfspaces_ms:.3f} ms + QP {self.qp_ms:.3f} ms = "
             f"step {self.step_ms:.3f} ms (p90 {self.step_p90_ms:.3f} ms)",
-            f"    halfspaces (filters.step_rows, as the wrapper): compiled kernels "
-            f"{self.halfspaces_ms:.3f} ms, numpy reference {self.halfspaces_numpy_ms:.3f} ms "
-            f"on the same steps ({self.halfspaces_numpy_ms / self.halfspaces_ms:.1f}x)",
             f"    CVXPY QP built once with Parameters (Clarabel): {self.cvxpy_qp_ms:.3f} ms",
             f"    ratio CVXPY QP / our whole step: {self.ratio:.1f}x   (target >= 10x, "
             f"step < 1 ms)",
@@ -129,15 +125,21 @@ def benchmark_filter_step(n_steps: int = 500, seed: int = 0, *,
     The CVXPY QP is then solved on the very same data, in a second pass (run
     interleaved, each solver evicts the other's data from the caches and both
     look slower than in a loop of their own). The halfspaces are the wrapper's
-    (:func:`filters.step_rows.step_rows`: the compiled kernels); a further pass times
-    the numpy reference (``backend="numpy"``) on the same steps.
+    (:func:`filters.safe_halfspaces`, then :func:`filters.intersample_rows` for the
+    continuous-time filter).
     """
     import gymnasium as gym
 
     import safe_nav_env  # noqa: F401
     from agents.planners import MPCReferencePlanner
-    from filters import CVXPYSafetyFilter, Disc, MPCSafetyFilter, stopping_terminal_set
-    from filters.step_rows import step_rows
+    from filters import (
+        CVXPYSafetyFilter,
+        Disc,
+        MPCSafetyFilter,
+        intersample_rows,
+        safe_halfspaces,
+        stopping_terminal_set,
+    )
 
     env = gym.make("SafeNav/MultiObstacle-v0", n_samples=100, horizon=10)
     base = env.unwrapped
@@ -152,7 +154,6 @@ def benchmark_filter_step(n_steps: int = 500, seed: int = 0, *,
     ours = MPCSafetyFilter(A, B, C, **weights)  # backend="auto"
     halfspace_ms, qp_ms, step_ms, needed_qp = [], [], [], []
     instances = []
-    inputs = []  # the halfspaces' inputs of every step, for the numpy reference's pass
     statuses: dict[str, int] = {}
     episode = 0
     while len(step_ms) < n_steps:
@@ -168,11 +169,13 @@ def benchmark_filter_step(n_steps: int = 500, seed: int = 0, *,
             ref_states, ref_inputs = planner.plan(x0, base.goal)
             predictions = base.predictions
             begin = time.perf_counter()
-            rows = step_rows(
-                ref_states[1:] @ C.T, predictions, horizon=10, ego_shape=ego_shape,
-                obstacle_shapes=obstacle_shapes, risk="dr_cvar", alpha=0.2, delta=0.1,
-                epsilon=0.05, ego_velocity=x0[2:],
-                input_bounds=base.input_bounds if continuous else None, dt=float(base.dt))
+            shapes = dict(ego_shape=ego_shape, obstacle_shapes=obstacle_shapes)
+            predictions = predictions[:, :, :10]
+            rows = safe_halfspaces(ref_states[1:] @ C.T, predictions, risk="dr_cvar",
+                                   ego_velocity=x0[2:], **shapes)
+            if continuous:
+                rows = intersample_rows(rows, predictions, input_bounds=base.input_bounds,
+                                        dt=float(base.dt), **shapes)
             hs = (rows.normals, rows.offsets)
             middle = time.perf_counter()
             result = ours.solve(x0, ref_states, hs, reference_inputs=ref_inputs)
@@ -182,20 +185,9 @@ def benchmark_filter_step(n_steps: int = 500, seed: int = 0, *,
             step_ms.append(1e3 * (end - begin))
             needed_qp.append(ours.last_qp_solves > 0)
             instances.append((x0, ref_states, hs, ref_inputs))
-            inputs.append((ref_states[1:] @ C.T, np.array(predictions), x0[2:],
-                           ego_shape, obstacle_shapes))
             statuses[result.status.value] = statuses.get(result.status.value, 0) + 1
             _, _, terminated, truncated, _ = env.step(result.inputs[0].astype(np.float32))
             done = terminated or truncated
-    numpy_ms = []
-    for origins, predictions, velocity, ego_shape, obstacle_shapes in inputs:
-        begin = time.perf_counter()
-        step_rows(origins, predictions, horizon=10, ego_shape=ego_shape,
-                  obstacle_shapes=obstacle_shapes, risk="dr_cvar", alpha=0.2, delta=0.1,
-                  epsilon=0.05, ego_velocity=velocity,
-                  input_bounds=base.input_bounds if continuous else None, dt=float(base.dt),
-                  backend="numpy")
-        numpy_ms.append(1e3 * (time.perf_counter() - begin))
     backend_qp: dict[str, list[float]] = {}
     backend_inputs: dict[str, list] = {}
     for name in ("daqp", "clarabel"):
@@ -242,7 +234,7 @@ def benchmark_filter_step(n_steps: int = 500, seed: int = 0, *,
         backend_qp_ms={name: float(np.median(v)) for name, v in backend_qp.items()},
         backend_step_ms={name: float(np.median(halfspaces_each + np.asarray(v)))
                          for name, v in backend_qp.items()},
-        backend_difference=difference, halfspaces_numpy_ms=float(np.median(numpy_ms)),
+        backend_difference=difference,
         variant="the continuous-time filter (inter-sample rows, terminal set, recovery)"
         if continuous else "the paper's filter")
 
@@ -640,7 +632,6 @@ def run_scaling(
     qp_ratios = np.array([p.qp_ratio for p in points])
     work = np.array([p.n_obstacles * p.horizon * p.n_samples for p in points], dtype=float)
     per_sample_ns = 1e6 * np.array([p.halfspaces_ms for p in points]) / work
-    numpy_ns = 1e6 * np.array([p.halfspaces_numpy_ms for p in points]) / work
     largest = int(np.argmax(work))
     parts = [
         f"python {platform.python_version()}, numpy {np.__version__}, {platform.machine()}; "
@@ -656,11 +647,8 @@ def run_scaling(
         f"lowest {ratios.min():.1f}x, median {np.median(ratios):.1f}x; "
         f"{int((ratios >= 10).sum())} of {len(points)} points >= 10x",
         f"halfspaces per sample processed (n x T x N_s): {per_sample_ns[largest]:.1f} "
-        f"ns at the largest point (numpy reference {numpy_ns[largest]:.1f} ns, "
-        f"{numpy_ns[largest] / per_sample_ns[largest]:.1f}x), {per_sample_ns.min():.1f} to "
-        f"{per_sample_ns.max():.1f} ns over the grid (fixed costs dominate the small points); "
-        f"numpy reference / compiled kernels: {np.min(numpy_ns / per_sample_ns):.1f}x to "
-        f"{np.max(numpy_ns / per_sample_ns):.1f}x",
+        f"ns at the largest point, {per_sample_ns.min():.1f} to "
+        f"{per_sample_ns.max():.1f} ns over the grid (fixed costs dominate the small points)",
     ]
     if policy:
         from agents.policies.numpy_policy import benchmark_numpy_policy
