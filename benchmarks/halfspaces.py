@@ -9,9 +9,7 @@ and solved (Clarabel) ``repeats`` times with new samples, and we report CVXPY's
 compilation ("setup"), the solver's solve time and the wall-clock time of
 ``problem.solve`` ("call"), in milliseconds, next to the paper's Table I (ECOS,
 2023 hardware). Our :func:`filters.halfspaces.safe_halfspaces` is timed for one
-obstacle at one step and for 3 obstacles x 10 steps in one call, with the default
-``backend="auto"`` (the compiled kernels) and, on the same data, the numpy reference
-(``backend="numpy"``).
+obstacle at one step and for 3 obstacles x 10 steps in one call.
 
 Usage::
 
@@ -83,8 +81,7 @@ class OurTiming:
 
     ``speedup`` is CVXPY's mean call time for ONE halfspace divided by our time for
     all 3 x 10 halfspaces; ``speedup_same_work`` compares the same 30 halfspaces
-    (30 CVXPY calls against one of ours). ``numpy_grid_us`` is the numpy reference
-    (``backend="numpy"``) on the same 3 x 10 data, ``numpy_ratio`` its time over ours.
+    (30 CVXPY calls against one of ours).
     """
 
     risk: str
@@ -93,8 +90,6 @@ class OurTiming:
     grid_us: float
     speedup: float
     speedup_same_work: float
-    numpy_grid_us: float = float("nan")
-    numpy_ratio: float = float("nan")
 
 
 @dataclass(frozen=True)
@@ -172,12 +167,8 @@ def _time_ours(
     one = _median_call_us(lambda: safe_halfspaces(y_one, single, obstacle_shapes=[disc], **options))
     shapes = [disc] * n_obstacles
     full = _median_call_us(lambda: safe_halfspaces(y_grid, grid, obstacle_shapes=shapes, **options))
-    numpy_full = _median_call_us(
-        lambda: safe_halfspaces(y_grid, grid, obstacle_shapes=shapes, backend="numpy", **options)
-    )
     per_call = cvxpy_call_ms * 1e3 / full
-    return OurTiming(risk, n_samples, one, full, per_call, per_call * n_obstacles * horizon,
-                     numpy_full, numpy_full / full)
+    return OurTiming(risk, n_samples, one, full, per_call, per_call * n_obstacles * horizon)
 
 
 def benchmark_table_one(
@@ -251,16 +242,13 @@ def format_table_one(result: TableOneResult) -> str:
         )
     lines += [
         "",
-        "Ours: safe_halfspaces, median wall-clock µs (one call; compiled kernels, and the "
-        "numpy reference on the same data)",
+        "Ours: safe_halfspaces, median wall-clock µs (one call)",
         f"{'risk':<8}{'N_s':>6}{'1 x 1':>10}{'3 x 10':>10}"
-        f"{'CVXPY call / ours(3x10)':>26}{'30 calls / ours(3x10)':>24}"
-        f"{'numpy 3 x 10':>14}{'numpy / ours':>14}",
+        f"{'CVXPY call / ours(3x10)':>26}{'30 calls / ours(3x10)':>24}",
     ]
     for row in result.ours:
         lines.append(
             f"{row.risk:<8}{row.n_samples:>6}{row.one_halfspace_us:>10.1f}{row.grid_us:>10.1f}"
             f"{row.speedup:>25.0f}x{row.speedup_same_work:>23.0f}x"
-            f"{row.numpy_grid_us:>14.1f}{row.numpy_ratio:>13.1f}x"
         )
     return "\n".join(lines)

@@ -3,11 +3,9 @@
 For every grid point ``(n_obstacles, T, N_s)`` (default: {1, 3, 10, 20} x {10, 20,
 40, 80} x {100, 1000}) the same recorded instances are solved by
 
-* ours: :func:`filters.safe_halfspaces` (DR-CVaR, the paper's defaults; the compiled
-  kernels of :mod:`filters.kernels`) on the ``N_s`` prediction samples, then
-  :meth:`filters.MPCSafetyFilter.solve` (built once per grid point), timed separately;
-  the *step* is their sum, what a control loop pays; the numpy reference of the
-  halfspaces (``backend="numpy"``) is timed on the same instances in a pass of its own;
+* ours: :func:`filters.safe_halfspaces` (DR-CVaR, the paper's defaults) on the ``N_s``
+  prediction samples, then :meth:`filters.MPCSafetyFilter.solve` (built once per grid
+  point), timed separately; the *step* is their sum, what a control loop pays;
 * the reference: the same QP (the same halfspaces) in CVXPY, built once with
   Parameters (DPP) and compiled by its first solve, which is timed apart.
 
@@ -33,22 +31,14 @@ Two instance families (``family=``):
 * ``"goal"``: the same episodes, but the reference stops at a goal inside the arena
   (x = 4.5 m on the ego's lane): the long-horizon QPs a real planner would send.
 
-Ours is the default ``backend="auto"`` (DAQP for the hard QP; DAQP or PIQP for the
+Ours is the default ``backend="auto"`` (DAQP for the hard QP; DAQP or Clarabel for the
 recovery QP, by size; the point reports which); each explicit back end (``"daqp"``,
-``"clarabel"``, ``"piqp"``) then solves
-the same recorded halfspaces in a pass of its own, so that the table shows them all
-and how far their inputs are apart; the sparse back ends (Clarabel, PIQP) then also time
-their hard QP alone at every step, in one more pass each ("per QP": one kind of QP at
-every size, so that its growth with T is the back end's, not that of the share of
-recovery QPs; a pass of its own, so that the recovery QP the filter pass just solved does
-not evict its data from the caches between steps), with its median interior-point
-iterations, its median time per iteration and the share of hard QPs it solved (the
-growth with T splits into iterations, a property of the instances, and the work per
-iteration, the back end's). Besides the wall time, that pass records the CPU time of the
-thread (``time.thread_time``): on a machine whose cores are shared, a QP that takes
-milliseconds is more often preempted mid-solve than one that takes a tenth of that, so
-its wall-time median grows faster with T than its work; the time per iteration is CPU
-time. The filters are timed in
+``"clarabel"``) then solves
+the same recorded halfspaces in a pass of its own, so that the table shows them both
+and how far their inputs are apart; Clarabel then also times its hard QP alone at every
+step, in one more pass ("per QP": one kind of QP at every size), with its median
+interior-point iterations, its median time per iteration (CPU time of the thread,
+``time.thread_time``) and the share of hard QPs it solved. The filters are timed in
 separate passes over the same instances (interleaved, each evicts the other's data from
 the caches). Every number is a median over the steps of one run; the ratios compare
 numbers of the same run.
@@ -69,7 +59,6 @@ import numpy as np
 from benchmarks.filter_qp import RADIUS, SPEED, TS, double_integrator, filter_kwargs
 from filters import Disc, FilterStatus, MPCSafetyFilter, safe_halfspaces
 from filters.errors import InvalidParameterError
-from filters.mpc.backends.riccati import RiccatiBackend
 from filters.mpc.result import StepData
 
 __all__ = [
@@ -265,24 +254,11 @@ class ScalingPoint:
     clarabel_qp_ms: float = float("nan")  # backend="clarabel", QP median
     daqp_clarabel_difference: float = float("nan")  # max |u_daqp - u_clarabel|, both optimal
     clarabel_per_qp_ms: float = float("nan")  # backend="clarabel": its hard QP alone
-    piqp_qp_ms: float = float("nan")  # backend="piqp", QP median
-    piqp_per_qp_ms: float = float("nan")  # backend="piqp": its hard QP alone
     family: str = "straight"  # instance family (FAMILIES)
-    halfspaces_numpy_ms: float = float("nan")  # the numpy reference, same instances
     clarabel_per_qp_cpu_ms: float = float("nan")  # its hard QP alone: CPU time of the thread
     clarabel_per_qp_iterations: float = float("nan")  # its hard QP alone: median iterations
     clarabel_per_iteration_us: float = float("nan")  # median of (CPU time / iterations), µs
     clarabel_per_qp_solved: float = float("nan")  # share of the hard QPs it solved
-    piqp_per_qp_cpu_ms: float = float("nan")
-    piqp_per_qp_iterations: float = float("nan")
-    piqp_per_iteration_us: float = float("nan")
-    piqp_per_qp_solved: float = float("nan")
-    # the recovery QP (every row soft) alone at every step, by the Riccati back end
-    riccati_per_qp_ms: float = float("nan")
-    riccati_per_qp_cpu_ms: float = float("nan")
-    riccati_per_qp_iterations: float = float("nan")
-    riccati_per_iteration_us: float = float("nan")
-    riccati_per_qp_solved: float = float("nan")
 
     def as_row(self) -> dict:
         """Flat ``dict`` for CSV (statuses as ``name:count`` pairs)."""
@@ -340,14 +316,6 @@ def benchmark_point(
         recorded.append(hs)
         results.append(result)
 
-    numpy_ms = []
-    for instance in instances:
-        begin = time.perf_counter()
-        safe_halfspaces(instance.reference_states[1:, :2], instance.samples, ego_shape=ego_shape,
-                        obstacle_shapes=shapes, risk="dr_cvar", ego_velocity=instance.x0[2:],
-                        backend="numpy")
-        numpy_ms.append(1e3 * (time.perf_counter() - begin))
-
     reference = cvxpy_filter_class()(A, B, C, **kwargs)
     first = instances[0]
     begin = time.perf_counter()
@@ -368,12 +336,12 @@ def benchmark_point(
 
     backend_ms: dict[str, list[float]] = {}
     backend_inputs: dict[str, list] = {}
-    per_qp: dict[str, list[tuple[float, float, int, bool]]] = {"clarabel": [], "piqp": []}
+    per_qp: dict[str, list[tuple[float, float, int, bool]]] = {"clarabel": []}
     zero_inputs = np.zeros((horizon, B.shape[1]))
     hard_steps = [StepData(instance.x0, instance.reference_states[1:], zero_inputs,
                            np.asarray(hs.normals), np.asarray(hs.offsets))
                   for instance, hs in zip(instances, recorded, strict=True)]
-    for name in ("daqp", "clarabel", "piqp"):
+    for name in ("daqp", "clarabel"):
         explicit = MPCSafetyFilter(A, B, C, backend=name, **kwargs)
         backend_ms[name], backend_inputs[name] = [], []
         for instance, hs in zip(instances, recorded, strict=True):
@@ -391,17 +359,6 @@ def benchmark_point(
                 end_cpu, end = time.thread_time(), time.perf_counter()
                 per_qp[name].append((1e3 * (end - begin), 1e3 * (end_cpu - begin_cpu),
                                      solution.iterations, solution.found))
-    # The Riccati back end solves only QPs whose every row is soft: the recovery QP of
-    # each step, alone, in a pass of its own (the same kind of QP at every size).
-    riccati = RiccatiBackend(ours.problem.with_soft_rows({"halfspaces", "bounds"}))
-    riccati.solve(hard_steps[0])  # numba's first call loads the compiled kernel
-    riccati_timings = []
-    for step in hard_steps:
-        begin, begin_cpu = time.perf_counter(), time.thread_time()
-        solution = riccati.solve(step)
-        end_cpu, end = time.thread_time(), time.perf_counter()
-        riccati_timings.append((1e3 * (end - begin), 1e3 * (end_cpu - begin_cpu),
-                                solution.iterations, solution.found))
     between = [float(np.max(np.abs(a - b))) for a, b in zip(
         backend_inputs["daqp"], backend_inputs["clarabel"], strict=True)
         if a is not None and b is not None]
@@ -417,12 +374,8 @@ def benchmark_point(
         daqp_qp_ms=float(np.median(backend_ms["daqp"])),
         clarabel_qp_ms=float(np.median(backend_ms["clarabel"])),
         daqp_clarabel_difference=max(between) if between else float("nan"),
-        piqp_qp_ms=float(np.median(backend_ms["piqp"])),
         **_per_qp_fields("clarabel", per_qp["clarabel"]),
-        **_per_qp_fields("piqp", per_qp["piqp"]),
-        **_per_qp_fields("riccati", riccati_timings),
         family=family,
-        halfspaces_numpy_ms=float(np.median(numpy_ms)),
     )
 
 
@@ -471,30 +424,23 @@ def benchmark_scaling(
 def format_scaling_table(points: Sequence[ScalingPoint]) -> str:
     """The ratio table in markdown (medians in ms; ratios of the same run)."""
     lines = [
-        "| obstacles | T | N_s | halfspaces | halfspaces numpy | QP | step | CVXPY QP | "
-        "CVXPY / step | CVXPY / QP | auto picks | QP daqp | QP clarabel | QP piqp | "
-        "per QP clarabel | per QP piqp | per QP CPU clarabel / piqp | "
-        "per QP iterations clarabel / piqp | "
-        "CPU per iteration µs clarabel / piqp | hard QPs solved (clarabel) | "
-        "recovery QP alone riccati (iterations, µs per iteration) | "
-        "max abs u_daqp - u_clarabel | "
+        "| obstacles | T | N_s | halfspaces | QP | step | CVXPY QP | "
+        "CVXPY / step | CVXPY / QP | auto picks | QP daqp | QP clarabel | "
+        "per QP clarabel (CPU, iterations, CPU µs per iteration) | "
+        "hard QPs solved (clarabel) | max abs u_daqp - u_clarabel | "
         "statuses (ours) | same status |",
-        "|" + "---|" * 24,
+        "|" + "---|" * 16,
     ]
     for p in points:
         statuses = ", ".join(f"{k} {v}" for k, v in sorted(p.statuses.items()))
         lines.append(
             f"| {p.n_obstacles} | {p.horizon} | {p.n_samples} | {p.halfspaces_ms:.3f} | "
-            f"{p.halfspaces_numpy_ms:.3f} | {p.qp_ms:.3f} | {p.step_ms:.3f} | {p.cvxpy_ms:.2f} | "
+            f"{p.qp_ms:.3f} | {p.step_ms:.3f} | {p.cvxpy_ms:.2f} | "
             f"{p.ratio:.1f}x | "
             f"{p.qp_ratio:.1f}x | {p.backend} | {p.daqp_qp_ms:.3f} | {p.clarabel_qp_ms:.3f} | "
-            f"{p.piqp_qp_ms:.3f} | {p.clarabel_per_qp_ms:.3f} | {p.piqp_per_qp_ms:.3f} | "
-            f"{p.clarabel_per_qp_cpu_ms:.3f} / {p.piqp_per_qp_cpu_ms:.3f} | "
-            f"{p.clarabel_per_qp_iterations:.0f} / {p.piqp_per_qp_iterations:.0f} | "
-            f"{p.clarabel_per_iteration_us:.1f} / {p.piqp_per_iteration_us:.1f} | "
+            f"{p.clarabel_per_qp_ms:.3f} ({p.clarabel_per_qp_cpu_ms:.3f}, "
+            f"{p.clarabel_per_qp_iterations:.0f}, {p.clarabel_per_iteration_us:.1f}) | "
             f"{100 * p.clarabel_per_qp_solved:.0f}% | "
-            f"{p.riccati_per_qp_ms:.3f} ({p.riccati_per_qp_iterations:.0f}, "
-            f"{p.riccati_per_iteration_us:.1f}) | "
             f"{p.daqp_clarabel_difference:.1e} | {statuses} | "
             f"{100 * p.agreement:.0f}% |"
         )

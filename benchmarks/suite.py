@@ -8,7 +8,7 @@ is a ratio against a reference measured in the same run:
 (b) one full filter step (halfspaces + QP) on the multi-obstacle scenario
     (3 obstacles, T = 10, N_s = 100) against the same QP in CVXPY built once with
     Parameters, and the QP alone on synthetic instances; ours is the default
-    ``backend="auto"``, and each explicit back end (DAQP, Clarabel, PIQP) is timed on the
+    ``backend="auto"``, and each explicit back end (DAQP, Clarabel) is timed on the
     same steps too;
 (c) the unfiltered environment's steps per second;
 (d) ``safe-nav bench --training`` (:func:`benchmark_training`): PPO training steps per
@@ -78,7 +78,6 @@ class FilterStepBenchmark:
     backend_qp_ms: dict[str, float] | None = None  # explicit back ends, same steps
     backend_step_ms: dict[str, float] | None = None  # halfspaces + that QP, per step
     backend_difference: dict[str, float] | None = None  # max |u - u_clarabel|, both solved
-    halfspaces_numpy_ms: float = float("nan")  # the numpy reference, same steps
 
     def format(self) -> str:
         statuses = ", ".join(f"{k} {v}" for k, v in sorted(self.statuses.items()))
@@ -87,9 +86,6 @@ class FilterStepBenchmark:
             f"N_s = 100), {self.steps} steps, medians:",
             f"    ours: halfspaces {self.halfspaces_ms:.3f} ms + QP {self.qp_ms:.3f} ms = "
             f"step {self.step_ms:.3f} ms (p90 {self.step_p90_ms:.3f} ms)",
-            f"    halfspaces (filters.step_rows, as the wrapper): compiled kernels "
-            f"{self.halfspaces_ms:.3f} ms, numpy reference {self.halfspaces_numpy_ms:.3f} ms "
-            f"on the same steps ({self.halfspaces_numpy_ms / self.halfspaces_ms:.1f}x)",
             f"    CVXPY QP built once with Parameters (Clarabel): {self.cvxpy_qp_ms:.3f} ms",
             f"    ratio CVXPY QP / our whole step: {self.ratio:.1f}x   (target >= 10x, "
             f"step < 1 ms)",
@@ -129,15 +125,21 @@ def benchmark_filter_step(n_steps: int = 500, seed: int = 0, *,
     The CVXPY QP is then solved on the very same data, in a second pass (run
     interleaved, each solver evicts the other's data from the caches and both
     look slower than in a loop of their own). The halfspaces are the wrapper's
-    (:func:`filters.step_rows.step_rows`: the compiled kernels); a further pass times
-    the numpy reference (``backend="numpy"``) on the same steps.
+    (:func:`filters.safe_halfspaces`, then :func:`filters.intersample_rows` for the
+    continuous-time filter).
     """
     import gymnasium as gym
 
     import safe_nav_env  # noqa: F401
     from agents.planners import MPCReferencePlanner
-    from filters import CVXPYSafetyFilter, Disc, MPCSafetyFilter, stopping_terminal_set
-    from filters.step_rows import step_rows
+    from filters import (
+        CVXPYSafetyFilter,
+        Disc,
+        MPCSafetyFilter,
+        intersample_rows,
+        safe_halfspaces,
+        stopping_terminal_set,
+    )
 
     env = gym.make("SafeNav/MultiObstacle-v0", n_samples=100, horizon=10)
     base = env.unwrapped
@@ -152,7 +154,6 @@ def benchmark_filter_step(n_steps: int = 500, seed: int = 0, *,
     ours = MPCSafetyFilter(A, B, C, **weights)  # backend="auto"
     halfspace_ms, qp_ms, step_ms, needed_qp = [], [], [], []
     instances = []
-    inputs = []  # the halfspaces' inputs of every step, for the numpy reference's pass
     statuses: dict[str, int] = {}
     episode = 0
     while len(step_ms) < n_steps:
@@ -168,11 +169,13 @@ def benchmark_filter_step(n_steps: int = 500, seed: int = 0, *,
             ref_states, ref_inputs = planner.plan(x0, base.goal)
             predictions = base.predictions
             begin = time.perf_counter()
-            rows = step_rows(
-                ref_states[1:] @ C.T, predictions, horizon=10, ego_shape=ego_shape,
-                obstacle_shapes=obstacle_shapes, risk="dr_cvar", alpha=0.2, delta=0.1,
-                epsilon=0.05, ego_velocity=x0[2:],
-                input_bounds=base.input_bounds if continuous else None, dt=float(base.dt))
+            shapes = dict(ego_shape=ego_shape, obstacle_shapes=obstacle_shapes)
+            predictions = predictions[:, :, :10]
+            rows = safe_halfspaces(ref_states[1:] @ C.T, predictions, risk="dr_cvar",
+                                   ego_velocity=x0[2:], **shapes)
+            if continuous:
+                rows = intersample_rows(rows, predictions, input_bounds=base.input_bounds,
+                                        dt=float(base.dt), **shapes)
             hs = (rows.normals, rows.offsets)
             middle = time.perf_counter()
             result = ours.solve(x0, ref_states, hs, reference_inputs=ref_inputs)
@@ -182,23 +185,12 @@ def benchmark_filter_step(n_steps: int = 500, seed: int = 0, *,
             step_ms.append(1e3 * (end - begin))
             needed_qp.append(ours.last_qp_solves > 0)
             instances.append((x0, ref_states, hs, ref_inputs))
-            inputs.append((ref_states[1:] @ C.T, np.array(predictions), x0[2:],
-                           ego_shape, obstacle_shapes))
             statuses[result.status.value] = statuses.get(result.status.value, 0) + 1
             _, _, terminated, truncated, _ = env.step(result.inputs[0].astype(np.float32))
             done = terminated or truncated
-    numpy_ms = []
-    for origins, predictions, velocity, ego_shape, obstacle_shapes in inputs:
-        begin = time.perf_counter()
-        step_rows(origins, predictions, horizon=10, ego_shape=ego_shape,
-                  obstacle_shapes=obstacle_shapes, risk="dr_cvar", alpha=0.2, delta=0.1,
-                  epsilon=0.05, ego_velocity=velocity,
-                  input_bounds=base.input_bounds if continuous else None, dt=float(base.dt),
-                  backend="numpy")
-        numpy_ms.append(1e3 * (time.perf_counter() - begin))
     backend_qp: dict[str, list[float]] = {}
     backend_inputs: dict[str, list] = {}
-    for name in ("daqp", "clarabel", "piqp"):
+    for name in ("daqp", "clarabel"):
         explicit = MPCSafetyFilter(A, B, C, backend=name, **weights)
         backend_qp[name], backend_inputs[name] = [], []
         for instance in instances:
@@ -242,7 +234,7 @@ def benchmark_filter_step(n_steps: int = 500, seed: int = 0, *,
         backend_qp_ms={name: float(np.median(v)) for name, v in backend_qp.items()},
         backend_step_ms={name: float(np.median(halfspaces_each + np.asarray(v)))
                          for name, v in backend_qp.items()},
-        backend_difference=difference, halfspaces_numpy_ms=float(np.median(numpy_ms)),
+        backend_difference=difference,
         variant="the continuous-time filter (inter-sample rows, terminal set, recovery)"
         if continuous else "the paper's filter")
 
@@ -456,84 +448,6 @@ def benchmark_training(timesteps: int = 20_480, chunk: int = 2048, seed: int = 0
 
 
 # --------------------------------------------------------------------------- --scaling
-def _sparse_growth(points: list) -> str:
-    """How the sparse back ends' time per QP grows from the shortest horizon >= 20 to the
-    longest, over the obstacle counts x N_s of ``points`` (medians, with the ranges):
-    Clarabel's and PIQP's on the hard QP alone, the Riccati method's on the recovery QP
-    alone (the QP it solves: every row soft), each at every step.
-
-    Per back end: the plain wall-time ratio (the issue's criterion: at most the horizon
-    ratio for linear growth), the same ratio of the CPU time of the thread (what the
-    back end computes, without the waits of a busy machine), split into its two factors,
-    the ratio of the median iteration counts (a property of the instances) and the ratio
-    of the median CPU times per iteration (the back end's work); and the slopes of
-    least-squares fits of log time against log T over every horizon >= 20 (1 for linear
-    growth), which use the middle horizons too.
-    """
-    horizons = sorted({p.horizon for p in points if p.horizon >= 20})
-    if len(horizons) < 2:
-        return "sparse back ends' growth: needs two horizons >= 20"
-    short, long = horizons[0], horizons[-1]
-    series: dict[tuple[int, int], dict[int, object]] = {}
-    for p in points:
-        if p.horizon >= 20:
-            series.setdefault((p.n_obstacles, p.n_samples), {})[p.horizon] = p
-
-    def spread(values: list[float], unit: str = "x") -> str:
-        array = np.array(values, dtype=float)
-        return (f"{np.median(array):.2f}{unit} (range {array.min():.2f}{unit} to "
-                f"{array.max():.2f}{unit})")
-
-    def slope(by_horizon: dict, field: str) -> float:
-        ts = sorted(by_horizon)
-        return float(np.polyfit(np.log(ts), np.log([getattr(by_horizon[t], field)
-                                                    for t in ts]), 1)[0])
-
-    lines = [f"sparse back ends, one QP alone (clarabel, piqp: the hard QP; riccati: the "
-             f"recovery QP), T = {long} over T = {short} (horizon ratio "
-             f"{long / short:.0f}; linear growth: at most {long / short:.0f}x, slope 1), "
-             f"medians over {len(series)} obstacle counts x N_s:"]
-    for name in ("clarabel", "piqp", "riccati"):
-        fields = {key: f"{name}_{key}" for key in (
-            "per_qp_ms", "per_qp_cpu_ms", "per_qp_iterations", "per_iteration_us")}
-        ratios: dict[str, list[float]] = {key: [] for key in fields}
-        slopes: dict[str, list[float]] = {"per_qp_ms": [], "per_qp_cpu_ms": []}
-        for by_horizon in series.values():
-            if short in by_horizon and long in by_horizon:
-                for key, field in fields.items():
-                    ratios[key].append(getattr(by_horizon[long], field)
-                                       / getattr(by_horizon[short], field))
-            if len(by_horizon) >= 2:
-                for key in slopes:
-                    slopes[key].append(slope(by_horizon, fields[key]))
-        if not ratios["per_qp_ms"]:
-            continue
-        lines.append(
-            f"  {name}: wall time {spread(ratios['per_qp_ms'])}; CPU time "
-            f"{spread(ratios['per_qp_cpu_ms'])}, its factors: iterations "
-            f"{spread(ratios['per_qp_iterations'])}, CPU time per iteration "
-            f"{spread(ratios['per_iteration_us'])}; log-log slope over T in {horizons}: "
-            f"wall {spread(slopes['per_qp_ms'], '')}, CPU {spread(slopes['per_qp_cpu_ms'], '')}")
-    return "\n".join(lines)
-
-
-def _interleaved_growth(grid: Any, *, seed: int, family: str) -> str:
-    """:func:`benchmarks.growth.benchmark_growth` from the grid's shortest horizon
-    >= 20 to its longest, at every obstacle count x N_s of ``grid``."""
-    from benchmarks.growth import benchmark_growth, format_growth
-
-    horizons = sorted(h for h in grid.horizons if h >= 20)
-    if len(horizons) < 2:
-        return format_growth([])
-    ratios = []
-    for n_obstacles in grid.obstacles:
-        for n_samples in grid.samples:
-            ratios += benchmark_growth(n_obstacles, n_samples, short=horizons[0],
-                                       long=horizons[-1], steps=grid.steps, seed=seed,
-                                       family=family)
-    return format_growth(ratios)
-
-
 def benchmark_rollout_reference(
     horizon: int = 10, steps: int = 200, seed: int = 0, path: str | None = None
 ) -> dict[str, float]:
@@ -714,12 +628,10 @@ def run_scaling(
     if grid is None:
         grid = QUICK_GRID if quick else FULL_GRID
     points = benchmark_scaling(grid, seed=seed, progress=progress, family=family)
-    growth = _interleaved_growth(grid, seed=seed, family=family)
     ratios = np.array([p.ratio for p in points])
     qp_ratios = np.array([p.qp_ratio for p in points])
     work = np.array([p.n_obstacles * p.horizon * p.n_samples for p in points], dtype=float)
     per_sample_ns = 1e6 * np.array([p.halfspaces_ms for p in points]) / work
-    numpy_ns = 1e6 * np.array([p.halfspaces_numpy_ms for p in points]) / work
     largest = int(np.argmax(work))
     parts = [
         f"python {platform.python_version()}, numpy {np.__version__}, {platform.machine()}; "
@@ -734,14 +646,9 @@ def run_scaling(
         f"CVXPY QP / our whole step (halfspaces + QP, which CVXPY's side does not compute): "
         f"lowest {ratios.min():.1f}x, median {np.median(ratios):.1f}x; "
         f"{int((ratios >= 10).sum())} of {len(points)} points >= 10x",
-        _sparse_growth(points),
-        growth,
         f"halfspaces per sample processed (n x T x N_s): {per_sample_ns[largest]:.1f} "
-        f"ns at the largest point (numpy reference {numpy_ns[largest]:.1f} ns, "
-        f"{numpy_ns[largest] / per_sample_ns[largest]:.1f}x), {per_sample_ns.min():.1f} to "
-        f"{per_sample_ns.max():.1f} ns over the grid (fixed costs dominate the small points); "
-        f"numpy reference / compiled kernels: {np.min(numpy_ns / per_sample_ns):.1f}x to "
-        f"{np.max(numpy_ns / per_sample_ns):.1f}x",
+        f"ns at the largest point, {per_sample_ns.min():.1f} to "
+        f"{per_sample_ns.max():.1f} ns over the grid (fixed costs dominate the small points)",
     ]
     if policy:
         from agents.policies.numpy_policy import benchmark_numpy_policy

@@ -11,9 +11,8 @@
   :class:`PolicyRolloutReference` its reference makers.
 * :class:`Disc`, :class:`ConvexPolygon` — shapes with support functions.
 
-The halfspaces run on compiled (numba) kernels where they apply (``backend="auto"``,
-see :mod:`filters.kernels`), with the numpy implementation as the reference
-(``backend="numpy"``).
+The halfspaces have one (numpy) implementation, checked against the CVXPY formulation
+of :mod:`filters.halfspace_cvxpy` by tolerance.
 
 ``import filters`` imports neither numba (loaded by the first compiled call) nor CVXPY
 (only :mod:`filters.halfspace_cvxpy` and :mod:`filters.mpc.backends.cvxpy`, the readable

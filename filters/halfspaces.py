@@ -25,40 +25,19 @@ with :math:`R` the mean, :math:`\\mathrm{CVaR}_\\alpha`, or the DR-CVaR of
 Proposition 1 (see :mod:`filters.risk`; :math:`\\mathrm{CVaR}_\\alpha + \\epsilon/\\alpha`
 for the unbounded support :math:`\\Xi = \\mathbb{R}^d`).
 
-Bounded support (Proposition 1 with :math:`\\Xi = \\{p : V p \\le v\\}`, every sample
-in :math:`\\Xi`). For fixed :math:`\\lambda`, LP duality turns the minimum over
-:math:`\\gamma_{ik}` in eq. (6) into
-:math:`\\sup_{p \\in \\Xi} a_k \\cdot (p - p^i) - \\lambda \\lVert p - p^i \\rVert_2`
-(zero for :math:`k = 2`), and the minimum over :math:`\\eta, \\tau` is a CVaR. What
-remains is a convex one-dimensional problem in the Wasserstein multiplier :math:`\\lambda`:
 
-.. math::
+With a polytope support :math:`\\Xi = \\{p : V p \\le v\\}` the DR-CVaR is Proposition 1's
+program, evaluated by :func:`filters.support.dr_cvar_on_polytope`.
 
-    R_\\Xi = \\min_{0 \\le \\lambda \\le 1/\\alpha} \\;
-    \\lambda \\epsilon + \\mathrm{CVaR}_\\alpha\\big(x_j + \\psi_j(\\alpha\\lambda)\\big),
-    \\qquad
-    \\psi_j(\\kappa) = \\sup_{p \\in \\Xi} \\;
-    -h \\cdot (p - p^j) - \\kappa \\lVert p - p^j \\rVert_2 ,
-
-with :math:`x_j = -h \\cdot p^j`: a sample may be transported towards the ego at
-unit gain and cost :math:`\\kappa`, but not outside :math:`\\Xi`. At
-:math:`\\lambda = 1/\\alpha`, :math:`\\psi = 0` and the value is the unbounded one, so
-a bounded support is never more conservative. In the plane, :math:`\\psi_j` is the
-maximum of a concave function over the edges of :math:`\\Xi` and has a closed
-form per edge (setup O(N m^2), then O(N m) per evaluation); the minimum over
-:math:`\\lambda` is found by a golden-section search (48 evaluations), vectorised over
-obstacles and steps. The value returned is attained at a feasible :math:`\\lambda`, so
-any residual error makes the offset smaller (safer), never larger. Unbounded
-polyhedra are handled (:math:`\\psi = \\infty` below a recession threshold). For
-``d != 2`` the CVXPY program of :mod:`filters.halfspace_cvxpy` is solved per
-obstacle and step instead (slow). Like the paper, this is Proposition 1's program:
-it swaps :math:`\\sup_{\\mathbb{P}}` and :math:`\\inf_\\tau`, an upper bound on the DR-CVaR.
+The one implementation of the halfspaces, checked against the CVXPY programs of
+:mod:`filters.halfspace_cvxpy` by tolerance (``tests/filters/test_halfspace_reference.py``).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -66,15 +45,14 @@ import numpy as np
 from filters._validation import finite_array
 from filters.errors import InvalidArrayError, InvalidParameterError, InvalidTypeError
 from filters.geometry import ConvexPolygon, Disc, Shape, collision_margin
-from filters.kernels import check_backend, compiled_rows, kernel_applies, use_kernel
 from filters.risk import (
     check_alpha,
     check_epsilon_array,
     check_margins,
     check_risk,
-    cvar_last_axis,
     risk_of_samples,
 )
+from filters.support import check_support, dr_cvar_on_polytope
 
 __all__ = ["DEGENERATE_DISTANCE", "Halfspaces", "offsets_along", "safe_halfspaces"]
 
@@ -82,9 +60,6 @@ __all__ = ["DEGENERATE_DISTANCE", "Halfspaces", "offsets_along", "safe_halfspace
 #: normal ``h`` is undefined and a fallback direction is used.
 DEGENERATE_DISTANCE = 1e-9
 
-#: Golden-section iterations over lambda in [0, 1/alpha]: the bracket shrinks to 1e-10 of it.
-_GOLDEN_ITERATIONS = 48
-_INV_PHI = (math.sqrt(5.0) - 1.0) / 2.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -180,7 +155,7 @@ def safe_halfspaces(
     ego_velocity: object | None = None,
     normals: object | None = None,
     conformal_margins: object | None = None,
-    backend: str = "auto",
+    backend: str | None = None,
 ) -> Halfspaces:
     """Risk-based safe halfspaces for every obstacle and prediction step (Definitions 2-3).
 
@@ -257,10 +232,8 @@ def safe_halfspaces(
         metres, a scalar, shape ``(T,)`` (one per look-ahead step) or ``(n_obstacles, T)``,
         e.g. :meth:`filters.calibration.ConformalMargin.margins`.
     backend
-        ``"auto"`` (default): the compiled kernel of :mod:`filters.kernels` where it
-        applies (disc shapes; with a polytope ``support``, every risk but
-        ``"dr_cvar"``), else numpy; ``"numba"``: that kernel, or an error where it does
-        not apply; ``"numpy"``: the vectorised reference. They agree to rounding.
+        Deprecated and ignored (there is one implementation); ``"auto"``, ``"numba"``
+        or ``"numpy"`` give a :class:`DeprecationWarning`.
 
     Returns
     -------
@@ -282,12 +255,12 @@ def safe_halfspaces(
     InvalidParameterError
         If ``risk`` is unknown, ``alpha`` is outside its domain, ``epsilon < 0``,
         ``delta`` is not finite, the number of obstacle shapes does not match,
-        ``conformal_margins`` is missing for ``"conformal"``, or ``backend`` is unknown
-        (or ``"numba"`` for a case the kernels do not cover).
+        ``conformal_margins`` is missing for ``"conformal"``, or ``backend`` is not
+        ``None``, ``"auto"``, ``"numba"`` or ``"numpy"``.
     InvalidTypeError
         If a shape is not a :class:`Disc` or :class:`ConvexPolygon`.
     """
-    backend = check_backend(backend)
+    warn_deprecated_backend(backend, "safe_halfspaces")
     risk = check_risk(risk)
     alpha = check_alpha(alpha, risk)
     delta = _check_delta(delta)
@@ -298,24 +271,13 @@ def safe_halfspaces(
     if risk == "conformal":
         margins = check_margins(conformal_margins, (n_obstacles, horizon))
     shapes = _check_shapes(ego_shape, obstacle_shapes, n_obstacles, dim)
-    polytope = None if support is None else _check_support(support, points)
+    polytope = None if support is None else check_support(support, points)
     previous = None
     if previous_normals is not None:
-        previous = finite_array(
-            "previous_normals", previous_normals, shape=(n_obstacles, horizon, dim)
-        )
+        previous = _finite("previous_normals", previous_normals, (n_obstacles, horizon, dim))
     velocity = None if ego_velocity is None else _check_velocity(ego_velocity, horizon, dim)
 
     given = None if normals is None else _check_normals(normals, points.shape)
-    if n_obstacles and use_kernel(backend, kernel_applies(ego_shape, shapes, polytope, risk)):
-        rows = compiled_rows(
-            points, horizon, y_ref, radii=_disc_radii(ego_shape, shapes), risk=risk,
-            alpha=alpha, delta=delta, epsilon=epsilon, conformal_margins=margins,
-            normals="paper" if given is None else given, previous_normals=previous,
-            ego_velocity=velocity)
-        _check_status(rows.status, samples)
-        return Halfspaces(rows.normals, rows.offsets, risk, alpha, delta, epsilon,
-                          rows.degenerate)
     with np.errstate(all="ignore"):  # non-finite samples are reported below, by name
         if given is None:
             normals, degenerate = _normals(_sample_means(points), y_ref, previous, velocity)
@@ -345,7 +307,7 @@ def _offsets(
     """Offsets :math:`b = -(R(-h \\cdot p) - \\delta + r)`, ``(n, T)``, of checked data."""
     losses = _losses(points, normals)  # (n, T, N): samples of -h . p
     if risk == "dr_cvar" and polytope is not None:
-        value = _dr_cvar_on_polytope(losses, points, normals, polytope, alpha, epsilon)
+        value = dr_cvar_on_polytope(losses, points, normals, polytope, alpha, epsilon)
     else:
         value = risk_of_samples(losses, risk, alpha, epsilon, overwrite=True, margin=margins)
     return -(value - delta + _margins(ego_shape, shapes, normals))
@@ -363,11 +325,11 @@ def offsets_along(
     epsilon: float | object = 0.05,
     support: tuple[object, object] | None = None,
     conformal_margins: object | None = None,
-    backend: str = "auto",
+    backend: str | None = None,
 ) -> np.ndarray:
     """``safe_halfspaces(..., normals=normals).offsets`` for the filter's hot path.
 
-    The same numbers, bit for bit, as :func:`safe_halfspaces` with given ``normals``
+    The same computation as :func:`safe_halfspaces` with given ``normals``
     (normalised here the same way), with the checks a caller that already holds
     checked halfspaces needs: the shapes of ``normals`` ``(n, T, d)`` and ``samples``
     ``(n, N_s, T', d)`` with ``T' >= T`` (the first ``T`` steps are used), the risk
@@ -379,7 +341,7 @@ def offsets_along(
     InvalidArrayError, InvalidParameterError, InvalidTypeError
         As :func:`safe_halfspaces`.
     """
-    backend = check_backend(backend)
+    warn_deprecated_backend(backend, "offsets_along")
     risk = check_risk(risk)
     alpha = check_alpha(alpha, risk)
     delta = _check_delta(delta)
@@ -397,7 +359,7 @@ def offsets_along(
             np.zeros((max(horizon, 1), max(dim, 1))), points,
             ego_shape=ego_shape, obstacle_shapes=obstacle_shapes, risk=risk, alpha=alpha,
             delta=delta, epsilon=epsilon, support=support, normals=normals,
-            conformal_margins=conformal_margins, backend=backend).offsets
+            conformal_margins=conformal_margins).offsets
     n_obstacles, horizon, dim = normals.shape
     points = samples[:, :, :horizon] if samples.shape[2] != horizon else samples
     points = np.asarray(points, dtype=np.float64)
@@ -410,13 +372,6 @@ def offsets_along(
         unit = _unit_normals(np.asarray(normals, dtype=np.float64))
         if n_obstacles == 0:
             return np.zeros((0, horizon))
-        if use_kernel(backend, kernel_applies(ego_shape, shapes, None, risk)):
-            rows = compiled_rows(
-                samples, horizon, None, radii=_disc_radii(ego_shape, shapes), risk=risk,
-                alpha=alpha, delta=delta, epsilon=epsilon, conformal_margins=margins,
-                normals=unit)
-            _check_status(rows.status, points)
-            return rows.offsets
         offsets = _offsets(points, unit, ego_shape, shapes, risk, alpha, delta, epsilon,
                            margins, None)
     _check_finite_result(points, unit, offsets)
@@ -424,6 +379,17 @@ def offsets_along(
 
 
 # --------------------------------------------------------------------------- validation
+
+
+def warn_deprecated_backend(backend: object, caller: str) -> None:
+    """Warn that ``backend=`` is ignored (raise on a value it never accepted)."""
+    if backend is None:
+        return
+    if backend not in ("auto", "numba", "numpy"):
+        raise InvalidParameterError(f"{caller}: backend must be 'auto', 'numba' or 'numpy' "
+                                    f"(deprecated, ignored), got {backend!r}")
+    warnings.warn(f"{caller}: backend={backend!r} is deprecated and ignored: the "
+                  "halfspaces have one implementation", DeprecationWarning, stacklevel=3)
 
 
 def _check_delta(delta: object) -> float:
@@ -465,25 +431,6 @@ def _check_positions(reference: object, samples: object) -> tuple[np.ndarray, np
     if points.shape[1] == 0:
         raise InvalidArrayError(f"samples must hold at least one sample, got shape {points.shape}")
     return y_ref, points
-
-
-def _disc_radii(ego_shape: Shape, shapes: list[Shape]) -> np.ndarray:
-    """Collision margins of disc pairs, ``r_A + r_O`` per obstacle (any unit normal)."""
-    return np.array([shape.radius for shape in shapes]) + ego_shape.radius
-
-
-def _check_status(status: int, samples: object) -> None:
-    """Raise the numpy path's errors for a kernel status other than OK (0).
-
-    A non-finite sample is named by :func:`filters._validation.finite_array`; finite
-    samples whose halfspaces overflowed get the numpy path's "too large" error.
-    """
-    if status == 0:
-        return
-    finite_array("samples", samples)
-    raise InvalidArrayError(
-        "samples are too large: the safe halfspaces overflowed (positions are in metres)"
-    )
 
 
 def _check_finite_result(samples: object, normals: np.ndarray, offsets: np.ndarray) -> None:
@@ -536,16 +483,24 @@ def _check_shapes(
     return shapes
 
 
+def _finite(name: str, value: object, shape: tuple[int, ...]) -> np.ndarray:
+    """:func:`filters._validation.finite_array` with a shape, fast for float64 arrays."""
+    if (type(value) is np.ndarray and value.dtype == np.float64 and value.shape == shape
+            and math.isfinite(float(np.add.reduce(value, axis=None)))):
+        return value
+    return finite_array(name, value, shape=shape)
+
+
 def _check_normals(normals: object, shape: tuple[int, ...]) -> np.ndarray:
     n_obstacles, _, horizon, dim = shape
-    array = finite_array("normals", normals, shape=(n_obstacles, horizon, dim))
-    return _unit_normals(array)
+    return _unit_normals(_finite("normals", normals, (n_obstacles, horizon, dim)))
 
 
 def _unit_normals(array: np.ndarray) -> np.ndarray:
     """``array / |array|`` along the last axis; raises on a zero or non-finite normal."""
-    size = np.sqrt((array * array).sum(axis=-1))
-    if not np.all(size >= DEGENERATE_DISTANCE):  # NaN fails too
+    size = np.sqrt(np.add.reduce(array * array, axis=-1))
+    if size.size and not (size.min() >= DEGENERATE_DISTANCE  # NaN fails too
+                          and math.isfinite(size.max())):
         if not np.isfinite(size).all():
             finite_array("normals", array)  # names the first non-finite entry
         raise InvalidArrayError("normals must be non-zero vectors, got a zero normal")
@@ -555,6 +510,10 @@ def _unit_normals(array: np.ndarray) -> np.ndarray:
 def _check_velocity(ego_velocity: object, horizon: int, dim: int) -> np.ndarray:
     """The ego velocity as given, ``(d,)`` or ``(T, d)``; broadcast only when a fallback
     needs it (this check runs every control step, the fallback rarely)."""
+    if (type(ego_velocity) is np.ndarray and ego_velocity.dtype == np.float64
+            and ego_velocity.shape in ((dim,), (horizon, dim))
+            and math.isfinite(float(np.add.reduce(ego_velocity, axis=None)))):
+        return ego_velocity
     try:
         velocity = np.asarray(ego_velocity, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -566,46 +525,6 @@ def _check_velocity(ego_velocity: object, horizon: int, dim: int) -> np.ndarray:
     if not np.isfinite(velocity).all():
         finite_array("ego_velocity", velocity)  # names the first non-finite entry
     return velocity
-
-
-def _check_support(
-    support: tuple[object, object], points: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Return ``(V, v)`` with unit rows, shapes ``(n, m, d)`` and ``(n, m)``."""
-    n_obstacles, _, _, dim = points.shape
-    if not isinstance(support, (tuple, list)) or len(support) != 2:
-        raise InvalidTypeError(f"support must be None or a pair (V, v), got {support!r}")
-    V = finite_array("support V", support[0])
-    v = finite_array("support v", support[1])
-    if V.ndim == 2:
-        V, v = V[None], v[None]
-        if v.shape[1:] != V.shape[1:2]:
-            raise InvalidArrayError(
-                f"support v must have shape ({V.shape[1]},) to match V, got {v.shape[1:]}"
-            )
-        V = np.broadcast_to(V, (n_obstacles, *V.shape[1:]))
-        v = np.broadcast_to(v, (n_obstacles, v.shape[1]))
-    if V.ndim != 3 or V.shape[0] != n_obstacles or V.shape[2] != dim or V.shape[1] == 0:
-        raise InvalidArrayError(
-            f"support V must have shape (m, {dim}) or ({n_obstacles}, m, {dim}) with m >= 1, "
-            f"got {V.shape}"
-        )
-    if v.shape != V.shape[:2]:
-        raise InvalidArrayError(f"support v must have shape {V.shape[:2]}, got {v.shape}")
-    finite_array("samples", points)  # before the support test, so NaN/inf is named as such
-    norms = np.linalg.norm(V, axis=-1)
-    if np.any(norms == 0.0):
-        raise InvalidArrayError("support V must not have zero rows")
-    V, v = V / norms[..., None], v / norms
-    excess = np.einsum("istd,imd->istm", points, V) - v[:, None, None, :]
-    tol = 1e-9 * (1.0 + np.max(np.abs(v)) + np.max(np.abs(points), initial=0.0))
-    if np.any(excess > tol):
-        i, s, t, _ = np.argwhere(excess > tol)[0]
-        raise InvalidArrayError(
-            f"samples must lie in the support {{p : V p <= v}}; samples[{i}, {s}, {t}] = "
-            f"{points[i, s, t].tolist()} is outside (clip or project predictions first)"
-        )
-    return V, v
 
 
 # --------------------------------------------------------------------------- closed forms
@@ -666,206 +585,11 @@ def _sample_means(points: np.ndarray) -> np.ndarray:
     return (weights @ flat).reshape(n_obstacles, horizon, dim)
 
 
-#: Prediction steps per block-diagonal product in :func:`_losses`: the work grows
-#: linearly in T beyond it, and horizons up to it give the same bits as one product.
-_LOSS_STEPS_PER_PRODUCT = 16
-
-
 def _losses(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
-    """Samples of :math:`-h_{i,t} \\cdot p`, shape ``(n, T, N)``, sample axis last and contiguous.
+    """Samples of :math:`-h_{i,t} \\cdot p`, shape ``(n, T, N)``, the sample axis last.
 
-    Batched products with the block-diagonal ``(c, c d)`` matrices of the normals of
-    ``c = min(T, 16)`` consecutive steps: a product over all ``T`` steps at once would
-    cost O(T^2 d N) per obstacle, these cost O(16 T d N).
+    One batched product ``(n, T, N, d) @ (n, T, d, 1)``: O(n T N d).
     """
-    n_obstacles, n_samples, horizon, dim = points.shape
-    flat = points.reshape(n_obstacles, n_samples, horizon * dim)
-    if horizon <= _LOSS_STEPS_PER_PRODUCT:
-        return -(_block_diagonal(normals) @ flat.transpose(0, 2, 1))
-    losses = np.empty((n_obstacles, horizon, n_samples))
-    for start in range(0, horizon, _LOSS_STEPS_PER_PRODUCT):
-        stop = min(start + _LOSS_STEPS_PER_PRODUCT, horizon)
-        columns = flat[:, :, start * dim : stop * dim].transpose(0, 2, 1)
-        np.matmul(_block_diagonal(normals[:, start:stop]), columns, out=losses[:, start:stop])
-    return np.negative(losses, out=losses)
+    return np.matmul(points.transpose(0, 2, 1, 3), -normals[..., None])[..., 0]
 
 
-def _block_diagonal(normals: np.ndarray) -> np.ndarray:
-    """``(n, c, c d)``: row ``t`` holds ``normals[:, t]`` in columns ``t d .. t d + d - 1``."""
-    n_obstacles, steps, dim = normals.shape
-    index = np.arange(steps)
-    blocks = np.zeros((n_obstacles, steps, steps, dim))
-    blocks[:, index, index, :] = normals
-    return blocks.reshape(n_obstacles, steps, steps * dim)
-
-
-# --------------------------------------------------------------------------- Proposition 1
-
-
-def _dr_cvar_on_polytope(
-    losses: np.ndarray,
-    points: np.ndarray,
-    normals: np.ndarray,
-    polytope: tuple[np.ndarray, np.ndarray],
-    alpha: float,
-    epsilon: float | np.ndarray,
-) -> np.ndarray:
-    """DR-CVaR of ``-h . p`` with support ``{p : V p <= v}`` (Proposition 1), shape ``(n, T)``."""
-    if points.shape[-1] != 2:
-        return _dr_cvar_on_polytope_cvxpy(points, normals, polytope, alpha, epsilon)
-    edges = _PlanarEdges(points, normals, *polytope)
-
-    def objective(lam: np.ndarray) -> np.ndarray:
-        kappa = alpha * lam
-        value = lam * epsilon + cvar_last_axis(losses + edges.transport_gain(kappa), alpha)
-        return np.where(kappa < edges.kappa_recession, np.inf, value)
-
-    unbounded = cvar_last_axis(losses, alpha) + epsilon / alpha  # lambda = 1/alpha
-    return np.minimum(unbounded, _golden_section(objective, 1.0 / alpha, losses.shape[:2]))
-
-
-def _golden_section(
-    objective: Callable[[np.ndarray], np.ndarray], upper: float, shape: tuple[int, ...]
-) -> np.ndarray:
-    """Minimum of convex ``objective`` over ``[0, upper]``, elementwise over a batch.
-
-    ``objective`` maps an array of multipliers of shape ``shape`` to values of that
-    shape (``+inf`` where infeasible, which only happens for small multipliers).
-    Returns the smallest value seen: an upper bound (a feasible multiplier, hence a
-    conservative offset) within about ``1e-10 * upper`` times the slope of the minimum.
-    """
-    a = np.zeros(shape)
-    b = np.full(shape, upper)
-    c = b - _INV_PHI * (b - a)
-    d = a + _INV_PHI * (b - a)
-    fc, fd = objective(c), objective(d)
-    best = np.minimum(fc, fd)
-    for _ in range(_GOLDEN_ITERATIONS):
-        left = fc < fd  # minimum in [a, d]; ties (also inf, inf) move right
-        b = np.where(left, d, b)
-        a = np.where(left, a, c)
-        c, d = np.where(left, b - _INV_PHI * (b - a), d), np.where(left, c, a + _INV_PHI * (b - a))
-        fresh = objective(np.where(left, c, d))
-        fc, fd = np.where(left, fresh, fd), np.where(left, fc, fresh)
-        best = np.minimum(best, fresh)
-    return best
-
-
-class _PlanarEdges:
-    """Per-sample edge data of a planar polytope, to evaluate :math:`\\psi_j(\\kappa)` fast.
-
-    For sample :math:`p^j` and edge line :math:`\\{\\Delta : n_e \\cdot \\Delta = s_{je}\\}`
-    (unit row :math:`n_e`, slack :math:`s_{je} = v_e - n_e \\cdot p^j \\ge 0`), parametrise
-    :math:`\\Delta = s_{je} n_e + t\\, e_e` with :math:`e_e \\perp n_e`. Along it the gain
-    :math:`-h \\cdot \\Delta - \\kappa \\lVert \\Delta \\rVert` is
-    :math:`c_0 + c_1 t - \\kappa \\sqrt{s^2 + t^2}`, concave in ``t``, maximised at
-    :math:`t^* = s c_1 / \\sqrt{\\kappa^2 - c_1^2}` (when :math:`\\kappa > |c_1|`) clipped
-    to the edge :math:`[t_{lo}, t_{hi}]` cut out by the other rows. Arrays are stored
-    edge-first, ``(m, n, T, N)``, so the maximum over edges is a fast slab-wise reduction.
-    """
-
-    def __init__(self, points: np.ndarray, normals: np.ndarray, V: np.ndarray, v: np.ndarray):
-        # slack[e, i, t, j] = v_e - n_e . p^j, the distance from sample j to edge line e.
-        projections = np.einsum("imd,isTd->miTs", V, points)
-        slack = np.maximum(np.moveaxis(v, 1, 0)[:, :, None, None] - projections, 0.0)
-        tangent = np.stack([-V[..., 1], V[..., 0]], axis=-1)  # (n, m, 2)
-        h_dot_n = np.einsum("itd,imd->mit", normals, V)[..., None]  # (m, n, T, 1)
-        self.rho = slack
-        self.c0 = -slack * h_dot_n
-        self.c1 = -np.einsum("itd,imd->mit", normals, tangent)[..., None]  # (m, n, T, 1)
-        # Row k along edge e: n_k . (s_e n_e + t e_e) <= s_k,
-        # i.e. t (n_k . e_e) <= s_k - s_e (n_k . n_e).
-        along = np.einsum("ikd,ied->eki", V, tangent)[..., None, None]  # (m_e, m_k, n, 1, 1)
-        cosine = np.einsum("ikd,ied->eki", V, V)[..., None, None]
-        room = slack[None, :] - slack[:, None] * cosine  # (m_e, m_k, n, T, N)
-        scale = 1e-9 * (1.0 + float(np.max(np.abs(v))) + float(np.max(np.abs(points))))
-        parallel = np.abs(along) <= 1e-12
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ratio = room / np.where(parallel, 1.0, along)
-        t_hi = np.min(np.where(~parallel & (along > 0), ratio, np.inf), axis=1)
-        t_lo = np.max(np.where(~parallel & (along < 0), ratio, -np.inf), axis=1)
-        blocked = np.any(parallel & (room < -scale), axis=1)
-        feasible = ~blocked & (t_lo <= t_hi + scale)
-        self.t_lo = np.where(feasible, t_lo, 0.0)  # empty edges: finite dummies...
-        self.t_hi = np.where(feasible, np.maximum(t_hi, t_lo), 0.0)
-        self.penalty = np.where(feasible, 0.0, -np.inf)  # ...that never win the max
-        self.has_rays = bool(np.isinf(self.t_lo).any() or np.isinf(self.t_hi).any())
-        self.abs_c1 = np.abs(self.c1)
-        self.rho_c1 = self.rho * self.c1
-        self.t_unbounded = np.sign(self.c1) * np.inf  # t* when kappa <= |c1|
-        self.t_unbounded[self.c1 == 0.0] = 0.0
-        self.kappa_recession = _recession_threshold(normals, V, tangent)
-
-    def transport_gain(self, kappa: np.ndarray) -> np.ndarray:
-        """Transport gain :math:`\\psi_j(\\kappa)` of every sample (see the module docstring).
-
-        ``kappa`` has shape ``(n, T)``; returns ``(n, T, N)``, ``>= 0``; only valid for
-        ``kappa >= kappa_recession`` (otherwise the supremum is infinite).
-        """
-        k = kappa[None, :, :, None]
-        interior = k > self.abs_c1  # small (m, n, T, 1) arrays from here...
-        root = np.sqrt(np.where(interior, k * k - self.c1 * self.c1, 1.0))
-        t = np.where(interior, self.rho_c1 / root, self.t_unbounded)  # ...to (m, n, T, N)
-        np.clip(t, self.t_lo, self.t_hi, out=t)
-        if self.has_rays:  # an unbounded edge: t may be infinite, take the limit value
-            finite = np.isfinite(t)
-            limit = np.where(self.abs_c1 > k, np.inf, self.c0)
-            t = np.where(finite, t, 0.0)
-        value = self.c0 + self.c1 * t - k * np.hypot(self.rho, t) + self.penalty
-        if self.has_rays:
-            value = np.where(finite, value, limit + self.penalty)
-        return np.maximum(value.max(axis=0), 0.0)
-
-
-def _recession_threshold(normals: np.ndarray, V: np.ndarray, tangent: np.ndarray) -> np.ndarray:
-    """Recession threshold, shape ``(n, T)``.
-
-    .. math::
-
-        \\kappa_{rec} = \\max\\{-h \\cdot w : \\lVert w \\rVert = 1,\\ V w \\le 0\\}.
-
-    :math:`\\psi = +\\infty` for :math:`\\kappa < \\kappa_{rec}`; ``-inf`` for a bounded
-    support. In the plane the maximiser is :math:`-h` or an edge direction :math:`\\pm e`.
-    """
-    tol = 1e-12
-    minus_h = -normals  # (n, T, 2)
-    h_ok = np.all(np.einsum("imd,itd->itm", V, minus_h) <= tol, axis=-1)
-    best = np.where(h_ok, 1.0, -np.inf)
-    for sign in (1.0, -1.0):
-        direction = sign * tangent  # (n, m, 2)
-        ok = np.all(np.einsum("ikd,imd->imk", V, direction) <= tol, axis=-1)  # (n, m)
-        gain = np.einsum("itd,imd->itm", minus_h, direction)
-        best = np.maximum(best, np.max(np.where(ok[:, None, :], gain, -np.inf), axis=-1))
-    return best
-
-
-def _dr_cvar_on_polytope_cvxpy(
-    points: np.ndarray,
-    normals: np.ndarray,
-    polytope: tuple[np.ndarray, np.ndarray],
-    alpha: float,
-    epsilon: float | np.ndarray,
-) -> np.ndarray:
-    """Slow path for ``d != 2``: Proposition 1 with CVXPY per obstacle and step."""
-    from filters.halfspace_cvxpy import cvxpy_halfspace
-
-    V, v = polytope
-    n_obstacles, _, horizon, _ = points.shape
-    value = np.empty((n_obstacles, horizon))
-    for i in range(n_obstacles):
-        for t in range(horizon):
-            # With r = 0 and delta = 0, g* is exactly the risk value R(-h . p).
-            result = cvxpy_halfspace(
-                points[i, :, t],
-                normals[i, t],
-                0.0,
-                risk="dr_cvar",
-                alpha=alpha,
-                delta=0.0,
-                epsilon=epsilon if np.ndim(epsilon) == 0 else float(epsilon[t]),
-                support=(V[i], v[i]),
-            )
-            value[i, t] = result.g
-    # lambda = 1/alpha is always feasible: never report more than the unbounded value.
-    unbounded = cvar_last_axis(_losses(points, normals), alpha) + epsilon / alpha
-    return np.fmin(unbounded, value)

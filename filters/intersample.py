@@ -64,7 +64,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from filters.geometry import Shape
-from filters.halfspaces import Halfspaces, offsets_along, safe_halfspaces
+from filters.halfspaces import (
+    Halfspaces,
+    offsets_along,
+    safe_halfspaces,
+    warn_deprecated_backend,
+)
 from filters.mpc.filter import DISABLED_OFFSET
 
 __all__ = ["IntersampleRows", "arc_margin", "intersample_rows"]
@@ -133,7 +138,7 @@ def intersample_rows(
     support: tuple[object, object] | None = None,
     current_position: np.ndarray | None = None,
     current_obstacles: np.ndarray | None = None,
-    backend: str = "auto",
+    backend: str | None = None,
     **risk_options: object,
 ) -> IntersampleRows:
     r"""End and start rows for every obstacle and interval (see the module docstring).
@@ -156,11 +161,11 @@ def intersample_rows(
         Optional ego position ``(d,)`` and obstacle positions ``(k, d)`` now, to report
         the start row of the first interval.
     backend
-        ``"auto"``, ``"numba"`` or ``"numpy"``: how the start rows' offsets are computed
-        (see :func:`filters.safe_halfspaces`).
+        Deprecated and ignored, as for :func:`filters.safe_halfspaces`.
     **risk_options
         Passed on to :func:`filters.safe_halfspaces` for the start rows.
     """
+    warn_deprecated_backend(backend, "intersample_rows")
     normals, offsets = halfspaces.normals, halfspaces.offsets
     k, horizon, dim = normals.shape
     margins = arc_margin(normals, input_bounds, dt)
@@ -174,7 +179,7 @@ def intersample_rows(
     if k and horizon > 1:
         start = offsets_along(  # safe_halfspaces(..., normals=...) without its re-checks
             normals[:, 1:], samples, ego_shape=ego_shape, obstacle_shapes=obstacle_shapes,
-            support=support, backend=backend, **_steps(options, slice(0, horizon - 1)),
+            support=support, **_steps(options, slice(0, horizon - 1)),
         )
         rows_n[k:, : horizon - 1] = normals[:, 1:]
         rows_b[k:, : horizon - 1] = start - margins[:, 1:]
@@ -183,7 +188,7 @@ def intersample_rows(
         now = safe_halfspaces(
             np.zeros((1, dim)), np.asarray(current_obstacles, dtype=np.float64)[:, None, None],
             ego_shape=ego_shape, obstacle_shapes=obstacle_shapes, support=support,
-            normals=normals[:, :1], backend=backend, **_steps(options, slice(0, 1)),
+            normals=normals[:, :1], **_steps(options, slice(0, 1)),
         )
         violation = normals[:, 0] @ np.asarray(current_position, dtype=np.float64)
         violation = violation - (now.offsets[:, 0] - margins[:, 0])

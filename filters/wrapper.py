@@ -30,11 +30,12 @@ from filters._validation import scalar_in_range
 from filters.calibration import OnlineCalibration
 from filters.errors import InvalidArrayError, InvalidParameterError, InvalidTypeError
 from filters.geometry import Disc
-from filters.halfspaces import Halfspaces
-from filters.kernels import WrapperRows, kernels_available
+from filters.halfspaces import Halfspaces, safe_halfspaces
+from filters.intersample import intersample_rows
 from filters.mpc import FilterResult, FilterStatus, MPCSafetyFilter
-from filters.mpc.filter import DISABLED_OFFSET
 from filters.mpc.terminal import stopping_terminal_set
+from filters.normals import clearest_normals as clearest_normals  # re-exported
+from filters.normals import nearside_normals
 from filters.protocol import FilterableEnv
 from filters.references import (
     Policy,
@@ -44,8 +45,6 @@ from filters.references import (
 )
 from filters.risk import CHANCE_RISKS, check_alpha, check_epsilon, check_risk
 from filters.risk import RISKS as _METRICS
-from filters.step_rows import clearest_normals as clearest_normals  # re-exported
-from filters.step_rows import step_rows
 
 RISKS: tuple[str, ...] = ("none", *_METRICS)
 """Risk settings accepted by :class:`SafetyFilterWrapper` (``"none"``: pass-through)."""
@@ -299,7 +298,7 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         reference and the last optimal plan is farther from the obstacle, so that the
         normals follow the plan where the reference runs through an obstacle and do not
         flip; ``"nearside"`` while there is no optimal plan; see
-        :func:`filters.step_rows.clearest_normals`).
+        :func:`filters.normals.clearest_normals`).
     fallback
         ``"soft"`` (default): when the hard QP is infeasible, the exact-penalty QP with
         halfspace and arena rows softened (it equals the hard solution whenever that is
@@ -364,10 +363,9 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     fast_path
         ``True`` (default): the lean per-step path (the held-action kernel called with
-        constants checked once, the halfspace rows by :class:`filters.kernels.WrapperRows`,
-        the filter's compiled hard step of :mod:`filters.mpc.fast`); its results equal
-        the general path's to rounding. ``False``: the general path (``step_rows``, the
-        filter's general solve), the reference the fast one is checked against.
+        constants checked once); its results agree with the general path's within the
+        tolerances of the tests. ``False``: the general path. The halfspaces and the MPC
+        step have one implementation either way.
 
     Raises
     ------
@@ -532,22 +530,15 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 self.calibration_episodes = CALIBRATION_EPISODES if episodes is None else episodes
         self._mpc: MPCSafetyFilter | None = None
         self._previous_normals: np.ndarray | None = None
-        # the last step's halfspaces: made on demand from (normals, offsets, degenerate)
-        self._halfspace_parts: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
-        self._halfspaces_made: Halfspaces | None = None
+        self._halfspaces_made: Halfspaces | None = None  # the last step's halfspaces
         self._last_plan: np.ndarray | None = None
         self._plan_optimal = False  # whether _last_plan met every row (status "optimal")
         self._hook: Callable[[Any], None] | None = None
         self._halfspace_lines: Any = None  # the hook's line collection, reused per frame
         self._shape_cache: tuple[tuple, Disc, list[Disc]] | None = None
-        # The prepared per-step kernels: the held-action reference's constants, and the
-        # rows kernel (built per set of obstacle radii) where the settings allow it.
+        # The held-action reference's constants, checked once.
         self._hold = (self._prepared_hold() if self.fast_path and self.risk != "none"
                       and self.reference is hold_action_reference else None)
-        self._fast_rows = (self.fast_path and self.risk not in ("none", "conformal")
-                           and self.epsilon != "auto" and support is None
-                           and kernels_available())
-        self._rows_cache: tuple | None = None  # (radii, ego radius, shape, rows, key)
         if self.risk != "none":  # builds (and so validates) the weights and bounds now
             self._mpc = self._build_filter(max(1, len(np.asarray(base.obstacle_radii))))
         if self._calibration is not None:
@@ -559,12 +550,7 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     @property
     def _last_halfspaces(self) -> Halfspaces | None:
-        """The last filtered step's :class:`~filters.halfspaces.Halfspaces` (for drawing),
-        made on first use from that step's arrays."""
-        if self._halfspaces_made is None and self._halfspace_parts is not None:
-            normals, offsets, degenerate = self._halfspace_parts
-            self._halfspaces_made = Halfspaces(normals, offsets, self.risk, self.alpha,
-                                               self.delta, self.epsilon, degenerate)
+        """The last filtered step's :class:`~filters.halfspaces.Halfspaces` (for drawing)."""
         return self._halfspaces_made
 
     @property
@@ -605,7 +591,7 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             input_bounds=base.input_bounds, position_bounds=base.position_bounds,
             n_obstacles=self.rows_per_obstacle * rows, soft=self.soft,
             objective=self.objective, later_input_weight=self.later_input_weight,
-            terminal_set=terminal_set, fallback=self.fallback, fast_path=self.fast_path,
+            terminal_set=terminal_set, fallback=self.fallback,
         )
 
     # ------------------------------------------------------------------ gym API
@@ -619,7 +605,7 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self._calibration.reset()
             self._calibrate()
         self._previous_normals = None
-        self._halfspace_parts = self._halfspaces_made = None
+        self._halfspaces_made = None
         self._last_plan = None
         self._plan_optimal = False
         self._install_render_hook()
@@ -815,30 +801,20 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self, base: FilterableEnv, x0: np.ndarray, ref_states: np.ndarray, radii: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray]]:
         """The step's halfspaces ``(normals, offsets)`` and the QP's rows (with the
-        inter-sample rows, if set); the halfspaces are kept for :attr:`_last_halfspaces`."""
+        inter-sample rows, if set); the halfspaces are kept for :attr:`_last_halfspaces`.
+
+        The normals start at :meth:`_normal_origins` (``"nearside"``, ``"clearest"``: the
+        rules of :mod:`filters.normals`); :func:`filters.safe_halfspaces` gives the
+        offsets, :func:`filters.intersample_rows` the inter-sample rows.
+        """
         predictions = np.asarray(base.predictions, dtype=float)
-        prepared = self._prepared_rows(base, radii, predictions)
-        if prepared is not None:
-            previous = self._previous_normals
-            if previous is not None and previous.shape[0] != radii.shape[0]:
-                previous = None
-            plan = self._last_plan if (self.normals == "previous_plan" or (
-                self.normals == "clearest" and self._plan_optimal)) else None
-            out = prepared(predictions, x0, ref_states, base.dynamics[2], plan, previous)
-            if out is not None and out[0] == 0:
-                _, normals, degenerate, offsets, rows_normals, rows_offsets = out
-                self._halfspace_parts, self._halfspaces_made = (normals, offsets,
-                                                                degenerate), None
-                if rows_normals is None:
-                    return normals, offsets, (normals, offsets)
-                return normals, offsets, (rows_normals, rows_offsets)
-        # the general call (other settings, or a problem the kernel reported: the numpy
-        # path names it)
-        if predictions.shape[2] < self.horizon:
+        if predictions.ndim != 4 or predictions.shape[2] < self.horizon:
             raise InvalidParameterError(
                 f"the filter horizon {self.horizon} exceeds the prediction horizon "
-                f"{predictions.shape[2]} of the environment"
+                f"of the environment (predictions of shape {predictions.shape}, expected "
+                "(n_obstacles, n_samples, T, d))"
             )
+        samples = predictions[:, :, :self.horizon]
         previous = self._previous_normals
         if previous is not None and previous.shape[0] == len(radii):
             # Last step's normals, shifted by one step to line up with this horizon.
@@ -849,50 +825,27 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         C = base.dynamics[2]
         y0 = C @ x0
         origins = self._normal_origins(y0, ref_states[1:, :] @ C.T)
-        clearest = self.normals == "clearest"
-        rows = step_rows(
-            origins, predictions,
-            horizon=self.horizon, ego_shape=ego_shape, obstacle_shapes=obstacle_shapes,
+        given = None
+        if len(radii) and self.normals in ("nearside", "clearest"):
+            if not np.isfinite(samples).all():
+                raise InvalidArrayError(
+                    "the prediction samples hold NaN or infinite values (at indices "
+                    f"{np.argwhere(~np.isfinite(samples))[0].tolist()})")
+            given = (nearside_normals(samples, origins, y0) if self.normals == "nearside"
+                     else clearest_normals(samples, origins, y0, self._clearest_plan(y0)))
+        options = self._risk_options()
+        halfspaces = safe_halfspaces(
+            origins, samples, ego_shape=ego_shape, obstacle_shapes=obstacle_shapes,
             support=self.support, previous_normals=previous, ego_velocity=x0[2:],
-            nearside_from=y0 if self.normals == "nearside" else None,
-            clearest_from=y0 if clearest else None,
-            clearest_plan=self._clearest_plan(y0) if clearest else None,
-            input_bounds=base.input_bounds if self.intersample else None,
-            dt=float(base.dt), **self._risk_options(),
-        )
-        halfspaces = rows.halfspaces
-        self._halfspace_parts, self._halfspaces_made = None, halfspaces
+            normals=given, **options)
+        self._halfspaces_made = halfspaces
+        if not self.intersample:
+            return halfspaces.normals, halfspaces.offsets, (halfspaces.normals,
+                                                            halfspaces.offsets)
+        rows = intersample_rows(
+            halfspaces, samples, ego_shape=ego_shape, obstacle_shapes=obstacle_shapes,
+            input_bounds=base.input_bounds, dt=float(base.dt), support=self.support, **options)
         return halfspaces.normals, halfspaces.offsets, (rows.normals, rows.offsets)
-
-    def _prepared_rows(self, base: FilterableEnv, radii: np.ndarray,
-                       predictions: np.ndarray) -> WrapperRows | None:
-        """The prepared rows kernel (:class:`filters.kernels.WrapperRows`) for these discs and
-        sample count, built once per set of them; ``None`` where the general call runs (a
-        polytope support, the conformal risk, ``epsilon="auto"``, an unexpected shape)."""
-        if not self._fast_rows or predictions.ndim != 4:
-            return None
-        cached = self._rows_cache
-        ego_radius = base.ego_radius
-        if (cached is not None and cached[0] is radii and not radii.flags.writeable
-                and cached[1] == ego_radius and cached[2] == predictions.shape):
-            return cached[3]  # the same read-only radii array as last step (the usual case)
-        key = (float(ego_radius), tuple(radii.tolist()), predictions.shape[1],
-               predictions.shape[3])
-        if cached is not None and cached[4] == key:
-            prepared = cached[3]
-        elif len(radii):
-            ego_shape, obstacle_shapes = self._shapes(float(ego_radius), radii)
-            prepared = WrapperRows(
-                horizon=self.horizon, n_samples=predictions.shape[1],
-                radii=np.array([shape.radius for shape in obstacle_shapes]) + ego_shape.radius,
-                risk=self.risk, alpha=self.alpha, delta=self.delta, epsilon=self.epsilon,
-                normals=self.normals, dim=predictions.shape[3],
-                input_bounds=base.input_bounds if self.intersample else None,
-                dt=float(base.dt), disabled_offset=DISABLED_OFFSET)
-        else:
-            prepared = None
-        self._rows_cache = (radii, ego_radius, predictions.shape, prepared, key)
-        return prepared
 
     def _shapes(self, ego_radius: float, radii: np.ndarray) -> tuple[Disc, list[Disc]]:
         """The ego and obstacle discs, built once per set of radii (not every step)."""

@@ -4,8 +4,9 @@ A double-integrator robot must reach a goal among disc obstacles whose motion is
 noisy and predicted by samples (Safaoui & Summers, ICRA 2024, Section IV-B).
 Importing the package registers the ids ``SafeNav/HeadOn-v0``,
 ``SafeNav/Overtaking-v0``, ``SafeNav/Intersection-v0``,
-``SafeNav/MultiObstacle-v0``, ``SafeNav/RandomCrossing-v0`` and
-``SafeNav/Custom-v0``::
+``SafeNav/MultiObstacle-v0``, ``SafeNav/RandomCrossing-v0``,
+``SafeNav/Custom-v0`` and ``SafeNav/Pedestrians-v0`` (recorded ETH/UCY pedestrians,
+:mod:`safe_nav_env.pedestrians`, imported when such an environment is made)::
 
     import gymnasium as gym
     import safe_nav_env
@@ -31,7 +32,7 @@ from safe_nav_env.noise import (
 )
 from safe_nav_env.obstacles import ObstacleModel, distance_to_collision
 from safe_nav_env.predictors import ConstantVelocityKalman, Predictor, resolve_predictor
-from safe_nav_env.registration import ENV_IDS, register_envs
+from safe_nav_env.registration import ENV_IDS, PEDESTRIANS_ID, register_envs
 from safe_nav_env.scenarios import (
     HEAD_ON,
     INTERSECTION,
@@ -39,6 +40,7 @@ from safe_nav_env.scenarios import (
     OVERTAKING,
     SCENARIO_NAMES,
     SCENARIOS,
+    SCENES,
     ObstacleSpec,
     Scenario,
     ScenarioNameWarning,
@@ -58,8 +60,10 @@ __all__ = [
     "MULTI_OBSTACLE",
     "NOISE_PRESETS",
     "OVERTAKING",
+    "PEDESTRIANS_ID",
     "SCENARIOS",
     "SCENARIO_NAMES",
+    "SCENES",
     "STRESS_SUITE",
     "ConfigError",
     "ConstantVelocityKalman",

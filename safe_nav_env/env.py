@@ -572,8 +572,8 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         self.ego_state = _read_only(np.array((px, py, vx, vy)))
 
         model = self._model
-        before = self.obstacle_positions
         self.obstacle_positions = _read_only(model.step(self.np_random, self.noise.reality))
+        before = model.chord_starts  # each obstacle's own position before the step
         self.obstacle_velocities = _read_only(model.velocities)
         self.predictions = _read_only(
             model.predict(self.np_random, self.noise.prediction, self.n_samples, self.horizon)

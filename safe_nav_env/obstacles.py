@@ -96,6 +96,10 @@ class ObstacleModel:
         Current positions, shape ``(n, 2)``, in m (a new array after each step).
     velocities
         Current nominal velocities, shape ``(n, 2)``, in m/s.
+    chord_starts
+        Where each obstacle's chord over the last step starts, shape ``(n, 2)``, in m:
+        its positions before the step (after :meth:`reset`, the start positions). The
+        environment's continuous-time collision check runs along these chords.
     radii
         Radii, shape ``(n,)``, in m.
     turning
@@ -124,6 +128,7 @@ class ObstacleModel:
     def _set_state(
         self, positions: np.ndarray, velocities: np.ndarray, anchors: np.ndarray
     ) -> None:
+        self.chord_starts = self.positions if self.step_count else positions
         self.positions = positions
         self.velocities = velocities
         self.anchors = anchors
@@ -182,6 +187,7 @@ class ObstacleModel:
             increment = np.where(self.turning, theta[:, 1] - theta[:, 0], 0.0)
             self._set_state(positions, _rotate(self.velocities, increment), nominal)
         else:
+            self.chord_starts = self.positions
             self.positions, self.velocities, self.anchors = (
                 positions, self.velocities.copy(), nominal
             )

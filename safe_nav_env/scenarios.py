@@ -469,7 +469,14 @@ SCENARIOS: dict[str, Scenario | ScenarioFactory] = _ScenarioTable({
 """Scenarios and scenario families by canonical name, as accepted by
 ``SafeNavEnv(scenario=...)`` (the other spellings are found too, with a warning)."""
 
-SCENARIO_NAMES: tuple[str, ...] = (*SCENARIOS, CUSTOM)
+SCENES: dict[str, str] = {
+    "Crowd": "safe_nav_env.crowd.env:CrowdEnv",
+    "Pedestrians": "safe_nav_env.pedestrians.env:PedestrianEnv",
+}
+"""Environments with scenes of their own (no :class:`Scenario`), by name: their entry
+points. ``SafeNav/<name>-v0`` makes one; its options choose the scene."""
+
+SCENARIO_NAMES: tuple[str, ...] = (*SCENARIOS, *SCENES, CUSTOM)
 """Every canonical scenario name, one per registered gym id."""
 
 

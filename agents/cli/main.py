@@ -241,12 +241,25 @@ def build_parser() -> argparse.ArgumentParser:
                           help="--sweep: Wasserstein radii, in m (>= 0)")
     evaluate.add_argument("--deltas", type=_metres, nargs="+", default=[0.0, 0.1, 0.2],
                           help="--sweep: risk bounds, in m (>= 0)")
+    from agents.experiments.crowd import CROWD_SETTINGS
+    from agents.experiments.pedestrians import PEDESTRIAN_SETTINGS
     from agents.experiments.stress import STRESS_METHODS
     from safe_nav_env.stress import STRESS_SUITE
 
-    evaluate.add_argument("--suite", choices=("scenarios", "stress"), default="scenarios",
+    evaluate.add_argument("--suite", choices=("scenarios", "stress", "crowd", "pedestrians"),
+                          default="scenarios",
                           help="scenarios: --scenarios x --risks; stress: the stress suite "
-                          "(--cases x --methods, output default results/stress)")
+                          "(--cases x --methods, output default results/stress); crowd: "
+                          "CrowdNav's circle crossing (--crowd-settings x --risks, "
+                          "--episodes test cases, output default results/crowd); "
+                          "pedestrians: the ETH/UCY scenes (--scenes x --risks, output "
+                          "default results/pedestrians)")
+    evaluate.add_argument("--scenes", choices=list(PEDESTRIAN_SETTINGS), nargs="+",
+                          default=list(PEDESTRIAN_SETTINGS),
+                          help="--suite pedestrians: the recorded scenes")
+    evaluate.add_argument("--crowd-settings", choices=list(CROWD_SETTINGS), nargs="+",
+                          default=["orca_invisible"],
+                          help="--suite crowd: human model and robot visibility")
     evaluate.add_argument("--cases", choices=list(STRESS_SUITE), nargs="+",
                           default=list(STRESS_SUITE), help="--suite stress: the cases")
     evaluate.add_argument("--methods", choices=list(STRESS_METHODS), nargs="+",
@@ -468,6 +481,25 @@ def _evaluate_on(args: argparse.Namespace, executor: Any) -> int:
         common.pop("noise")
         outputs = run_stress(output, args.cases, args.methods, delta=args.delta,
                              epsilon=args.epsilon, plots=not args.no_plots, **common)
+    elif args.suite in ("crowd", "pedestrians"):
+        from agents.experiments.crowd import run_crowd
+        from agents.experiments.pedestrians import run_pedestrians
+
+        option = "--crowd-settings" if args.suite == "crowd" else "--scenes"
+        clash = [flag for flag, given in (("--sweep", args.sweep), ("--noise", args.noise),
+                                          ("--scenarios", args.scenarios != list(PAPER_SCENARIOS)))
+                 if given]
+        if clash:
+            print(f"safe-nav evaluate: error: --suite {args.suite} sets the scene itself; drop "
+                  f"{', '.join(clash)} (use {option})", file=sys.stderr)
+            return EXIT_BAD_INPUT
+        output = args.output if args.output != Path("results/evaluate") else Path(
+            f"results/{args.suite}")
+        common.pop("noise")
+        run, settings = ((run_crowd, args.crowd_settings) if args.suite == "crowd"
+                         else (run_pedestrians, args.scenes))
+        outputs = run(output, settings, args.risks, delta=args.delta, epsilon=args.epsilon,
+                      **common)
     elif args.sweep:
         outputs = run_sweep(args.output, args.scenarios, epsilons=args.epsilons,
                             deltas=args.deltas, **common)

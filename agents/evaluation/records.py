@@ -300,6 +300,10 @@ class EpisodeRecord:
     min_distance, min_swept_distance
         Smallest clearance to any obstacle at the sample instants, and over the
         whole continuous-time path (NaN if the environment does not report it).
+    discomfort_steps
+        Steps whose sampled clearance to some obstacle was below the environment's
+        discomfort distance (``info["discomfort"]``: 0.2 m in ``SafeNav/Crowd-v0``;
+        always 0 where the environment does not report it).
     goal_reached, time_to_goal, path_length, episode_return
         Goal reached, when (s), the ego's path length (m) and the summed reward.
     mean_intervention, max_intervention
@@ -349,6 +353,7 @@ class EpisodeRecord:
     sampled_collision_steps: int = 0
     min_distance: float = math.nan
     min_swept_distance: float = math.nan
+    discomfort_steps: int = 0
     goal_reached: bool = False
     time_to_goal: float = math.nan
     path_length: float = 0.0
@@ -423,6 +428,9 @@ COLUMN_DOCS: dict[str, tuple[str, str]] = {
                           "(negative: overlap)"),
     "min_swept_distance": ("m", "Smallest clearance over the continuous-time path (negative: "
                                 "overlap; NaN if not reported)"),
+    "discomfort_steps": ("steps", "Steps whose sampled clearance to some obstacle was below "
+                                  "the environment's discomfort distance (0.2 m in "
+                                  "SafeNav/Crowd-v0; 0 where not reported)"),
     "goal_reached": ("bool", "Whether the ego reached its goal"),
     "time_to_goal": ("s", "Time at which the goal was reached (NaN if not reached)"),
     "path_length": ("m", "Length of the ego's path"),

@@ -99,10 +99,11 @@ class Trajectory:
     inputs
         (S, 2) applied accelerations, in m/s².
     distances
-        (S+1, n) sampled distances to collision, in m (``info["distance_to_collision"]``).
+        (S+1, n) sampled distances to collision, in m (``info["distance_to_collision"]``;
+        with padded info, one column per slot, ``inf`` for an absent obstacle).
     swept
         (S, n) minimum clearance over each step, in m (continuous time,
-        ``info["swept_distance_to_collision"]``).
+        ``info["swept_distance_to_collision"]``, padded likewise).
     filter_times
         (S,) the filter's time per step, in s.
     dt
@@ -503,6 +504,8 @@ class TrajectoryRecorder:
         n = len(base.obstacle_radii)
 
         def stack(rows: list, shape: tuple[int, ...]) -> np.ndarray:
+            if not rows:  # no step: the width of an empty series is its nominal one
+                return np.zeros((0, *(n if size == -1 else size for size in shape)))
             return np.asarray(rows, dtype=float).reshape((len(rows), *shape))
 
         states = stack(self._states, (4,))
@@ -512,8 +515,8 @@ class TrajectoryRecorder:
             ego_radius=float(base.ego_radius), goal=np.asarray(base.goal, dtype=float).copy(),
             halfspaces=self._halfspaces, statuses=self._statuses, frames=self._frames,
             collisions=self._collisions, ego_states=states,
-            inputs=stack(self._inputs, (2,)), distances=stack(self._distances, (n,)),
-            swept=stack(self._swept, (n,)),
+            inputs=stack(self._inputs, (2,)), distances=stack(self._distances, (-1,)),
+            swept=stack(self._swept, (-1,)),
             filter_times=np.asarray(self._filter_times, dtype=float), dt=float(base.dt))
 
 
@@ -525,6 +528,7 @@ class EpisodeStats:
         self.min_distance = math.inf
         self.min_swept_distance = math.inf
         self.swept_reported = False
+        self.discomfort_steps = 0
         self.goal_time = math.nan
         self.path_length = 0.0
         self.interventions: list[float] = []
@@ -564,6 +568,7 @@ class EpisodeStats:
         self.collisions.append(collision)
         # Before the continuous-time environment, "collision" was the sampled flag.
         self.sampled_collisions.append(bool(info.get("sampled_collision", collision)))
+        self.discomfort_steps += bool(info.get("discomfort", False))
         position = np.asarray(base.ego_state[:2], dtype=float)
         self.path_length += float(np.linalg.norm(position - self._position))
         self._position = position.copy()
@@ -633,6 +638,7 @@ class EpisodeStats:
             sampled_collision_steps=sum(self.sampled_collisions),
             min_distance=self.min_distance if math.isfinite(self.min_distance) else math.nan,
             min_swept_distance=swept if math.isfinite(swept) else math.nan,
+            discomfort_steps=self.discomfort_steps,
             goal_reached=not math.isnan(self.goal_time),
             time_to_goal=self.goal_time,
             path_length=self.path_length,

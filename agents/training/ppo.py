@@ -97,9 +97,9 @@ class TrainingReport:
     lagrange_multiplier: float | None = None
 
 
-def pretrained_policy_path() -> Path:
-    """Path of the PPO policy shipped with the package."""
-    return Path(str(resources.files("agents") / "pretrained" / PRETRAINED_POLICY))
+def pretrained_policy_path(name: str = PRETRAINED_POLICY) -> Path:
+    """Path of a PPO policy shipped with the package (default: the RandomCrossing one)."""
+    return Path(str(resources.files("agents") / "pretrained" / name))
 
 
 def metrics_path_for(save_path: str | Path) -> Path:

@@ -5,8 +5,9 @@
 * :mod:`filters.mpc.terminal`: :func:`stopping_terminal_set` (recursive feasibility
   against the arena for the double integrator).
 * :mod:`filters.mpc.backends`: DAQP (whitened condensed QP, dual active set, lazy rows),
-  Clarabel and PIQP (sparse, built once) and CVXPY (reference); ``backend="auto"`` picks
-  per QP (DAQP for hard QPs; DAQP or PIQP for soft ones, by size).
+  Clarabel (sparse, built once, updated per step) and CVXPY (reference);
+  ``backend="auto"`` picks per QP (DAQP for hard QPs; DAQP or Clarabel for soft ones, by
+  size).
 * :mod:`filters.mpc.condensed`: the whitened condensed QP (identity Hessian, row bank).
 * :mod:`filters.mpc.filter`: :class:`MPCSafetyFilter`, the step: validation, shortcut,
   acceptance check, recovery.

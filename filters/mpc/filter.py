@@ -26,6 +26,7 @@ A step never raises because a QP is infeasible or a solver fails; the
 from __future__ import annotations
 
 import time
+import warnings
 from collections.abc import Mapping
 from typing import Any
 
@@ -34,14 +35,25 @@ import scipy.linalg
 
 from filters._validation import finite_array
 from filters.errors import InvalidParameterError, InvalidTypeError
-from filters.mpc import fast as fast_codes
 from filters.mpc._linalg import matvec_operator
-from filters.mpc.backends.riccati import every_row_soft
+from filters.mpc.backends import (
+    AUTO_DAQP_MAX_INPUTS,
+    BACKENDS,
+    REMOVED_BACKENDS,
+    auto_backend,
+    check_backend,
+    make_backend,
+)
 from filters.mpc.checks import all_finite, finite_step_array, parse_halfspaces
-from filters.mpc.fast import FastHardStep, fast_path_applies
-from filters.mpc.problem import SOFT_ROWS, MPCProblem
+from filters.mpc.problem import MPCProblem
 from filters.mpc.recovery import braking_gain, rollout_with_brake, shifted_plan
-from filters.mpc.result import FilterResult, FilterStatus, QPSolution, StepData
+from filters.mpc.result import (
+    FilterResult,
+    FilterStatus,
+    QPSolution,
+    StepData,
+    recovery_status,
+)
 
 __all__ = [
     "AUTO_DAQP_MAX_INPUTS",
@@ -50,22 +62,12 @@ __all__ = [
     "FALLBACKS",
     "FEASIBILITY_TOLERANCE",
     "INPUT_CLIP_TOLERANCE",
+    "REMOVED_BACKENDS",
     "SLACK_TOLERANCE",
     "MPCSafetyFilter",
     "auto_backend",
 ]
 
-#: Back ends by name (the CVXPY one imports CVXPY when built); ``"auto"`` picks DAQP or
-#: PIQP per QP (see :func:`auto_backend`).
-BACKENDS = ("auto", "clarabel", "daqp", "piqp", "cvxpy")
-#: ``backend="auto"`` solves QPs with soft rows with DAQP alone while the condensed QP
-#: has at most this many inputs ``T m`` (DAQP's full, not lazy, QP), else with DAQP
-#: within an iteration budget and PIQP after it (see :func:`auto_backend`).
-AUTO_DAQP_MAX_INPUTS = 40
-#: The names of that combination (:mod:`filters.mpc.backends.hybrid`): its
-#: interior-point method is the compiled Riccati one when every row is soft (the recovery
-#: QP), PIQP otherwise (``soft=True``: the arena rows stay hard).
-HYBRID, HYBRID_RICCATI = "daqp+piqp", "daqp+riccati"
 #: What to do when the hard QP fails.
 FALLBACKS = ("soft", "paper")
 #: Offset written in unused halfspace rows: the row reads ``0 @ y <= 1``.
@@ -81,62 +83,7 @@ SLACK_TOLERANCE = 1e-6
 INPUT_CLIP_TOLERANCE = 1e-4
 
 _NO_QP = "unconstrained optimum feasible (no QP needed)"
-_FLOAT64 = np.dtype(np.float64)  # a singleton: ``dtype is _FLOAT64`` is the cheap test
 _vecdot = getattr(np, "vecdot", None) or (lambda a, b: np.einsum("...d,...d->...", a, b))
-
-
-def auto_backend(problem: MPCProblem) -> str:
-    r"""The back end ``backend="auto"`` picks for one QP of the filter.
-
-    * A QP without soft rows (the hard QP): ``"daqp"`` at every size. DAQP solves the
-      whitened condensed QP (identity Hessian), and above
-      :data:`~filters.mpc.backends.daqp.LAZY_MIN_INPUTS` inputs with lazy (screened)
-      rows warm-started from the previous step, so its work grows with the rows that
-      matter, not with all of them; an infeasible hard QP is detected in a few
-      iterations.
-    * A QP with soft rows (``soft=True``, and the recovery QP): ``"daqp"`` while
-      :math:`T m \le 40` (:data:`AUTO_DAQP_MAX_INPUTS`, DAQP's full QP), else
-      (:class:`~filters.mpc.backends.hybrid.ActiveSetThenInteriorPoint`) DAQP's lazy QP
-      within an iteration budget, then an interior-point method when the budget runs
-      out: ``"daqp+riccati"`` when every row is soft (the recovery QP; the compiled
-      Riccati method of :mod:`filters.mpc.backends.riccati`), ``"daqp+piqp"`` otherwise
-      (PIQP, a sparse interior-point solver). Every violated soft row enters an active-set method's
-      working set, one per iteration, while an interior-point method's ~20 iterations
-      do not depend on how many rows end up violated: on the scaling grid's long
-      horizons a step that violates a few rows took DAQP 0.8 ms and PIQP 7 ms, a strongly
-      infeasible one that violates hundreds took DAQP thousands of iterations (up to
-      130 ms), PIQP 2-7 ms and the Riccati method 0.6-2.5 ms. Neither kind is fast on
-      both; the budget bounds what a wrong first guess costs, and a run of strongly
-      infeasible steps goes to the interior-point method directly.
-
-    The measurements behind both rules are printed by ``safe-nav bench --scaling``
-    (columns for each explicit back end).
-    """
-    if problem.soft_rows and problem.horizon * problem.m > AUTO_DAQP_MAX_INPUTS:
-        return HYBRID_RICCATI if every_row_soft(problem) else HYBRID
-    return "daqp"
-
-
-def _make_backend(name: str, problem: MPCProblem, settings: Mapping[str, Any] | None) -> Any:
-    if name == "clarabel":
-        from filters.mpc.backends.clarabel import ClarabelBackend
-
-        return ClarabelBackend(problem, solver_settings=settings)
-    if name == "daqp":
-        from filters.mpc.backends.daqp import DAQPBackend
-
-        return DAQPBackend(problem, solver_settings=settings)
-    if name == "piqp":
-        from filters.mpc.backends.piqp import PIQPBackend
-
-        return PIQPBackend(problem, solver_settings=settings)
-    if name in (HYBRID, HYBRID_RICCATI):
-        from filters.mpc.backends.hybrid import ActiveSetThenInteriorPoint
-
-        return ActiveSetThenInteriorPoint(problem)  # only "auto" without settings builds it
-    from filters.mpc.backends.cvxpy import CVXPYBackend  # imports cvxpy
-
-    return CVXPYBackend(problem, solver_settings=settings)
 
 
 class MPCSafetyFilter:
@@ -180,7 +127,7 @@ class MPCSafetyFilter:
     solver_settings
         Back-end settings: Clarabel settings to override for ``backend="clarabel"``
         (and for ``"auto"``, which then always picks Clarabel: the settings are
-        Clarabel's); DAQP settings for ``"daqp"``; PIQP settings for ``"piqp"``; for
+        Clarabel's); DAQP settings for ``"daqp"``; for
         ``backend="cvxpy"``, keywords of ``problem.solve``).
     skip_feasible_reference
         With ``reference_inputs``, return the unconstrained optimum without a QP when it
@@ -200,19 +147,15 @@ class MPCSafetyFilter:
         last plan, then brake).
     backend
         ``"auto"`` (default: DAQP for the hard QP; for QPs with soft rows DAQP while
-        ``T m <= 40``, else DAQP within an iteration budget and an interior-point method
-        after it, ``"daqp+riccati"`` for the recovery QP and ``"daqp+piqp"`` for
-        ``soft=True``; see :func:`auto_backend`), ``"daqp"`` (the
+        ``T m <= 40``, else Clarabel; see :func:`auto_backend`), ``"daqp"`` (the
         whitened condensed QP, dual active set, lazy rows for long horizons; soft rows as
-        DAQP soft constraints), ``"clarabel"`` (the sparse QP built once), ``"piqp"``
-        (the same sparse QP in PIQP) or ``"cvxpy"`` (the readable reference; imports
+        DAQP soft constraints), ``"clarabel"`` (the sparse QP built once, updated per
+        step) or ``"cvxpy"`` (the readable reference, for tests and benchmarks; imports
         CVXPY). :attr:`backend` and :attr:`recovery_backend` tell which ones ``"auto"``
-        picked.
+        picked. A name of :data:`REMOVED_BACKENDS` raises an error naming
+        :data:`BACKENDS`.
     fast_path
-        Solve the common step, a hard QP with DAQP on the full whitened QP, with the
-        compiled fast path of :mod:`filters.mpc.fast` (default ``True``; its results
-        equal the general path's to rounding). ``False``: always the general path (the
-        reference the tests compare the fast one against).
+        Deprecated, no effect (the step has one implementation); passing it warns.
 
     Raises
     ------
@@ -260,16 +203,18 @@ class MPCSafetyFilter:
         terminal_set: tuple[np.ndarray, np.ndarray] | None = None,
         fallback: str = "soft",
         backend: str = "auto",
-        fast_path: bool = True,
+        fast_path: bool | None = None,
     ) -> None:
-        for name, value in (("soft", soft), ("skip_feasible_reference", skip_feasible_reference),
-                            ("fast_path", fast_path)):
+        for name, value in (("soft", soft), ("skip_feasible_reference", skip_feasible_reference)):
             if not isinstance(value, (bool, np.bool_)):
                 raise InvalidTypeError(f"{name} must be a bool, got {value!r}")
+        if fast_path is not None:
+            warnings.warn("MPCSafetyFilter(fast_path=...) has no effect and is deprecated: "
+                          "the filter step has one implementation", DeprecationWarning,
+                          stacklevel=2)
         if fallback not in FALLBACKS:
             raise InvalidParameterError(f"fallback must be one of {FALLBACKS}, got {fallback!r}")
-        if backend not in BACKENDS:
-            raise InvalidParameterError(f"backend must be one of {BACKENDS}, got {backend!r}")
+        check_backend(backend)
         problem = MPCProblem(
             A, B, C, horizon, R, Q, Q_terminal, objective=objective,
             later_input_weight=later_input_weight, input_bounds=input_bounds,
@@ -295,32 +240,18 @@ class MPCSafetyFilter:
             self._brake_gain = braking_gain(problem.A, problem.B, problem.C)
         else:
             self._brake_gain = finite_array("brake_gain", brake_gain, shape=(m, n))
-        self._primary = _make_backend(backend, problem, solver_settings)
+        self._primary = make_backend(backend, problem, solver_settings)
         self._recovery = None
         if fallback == "soft":
-            self._recovery = _make_backend(recovery_backend, recovery_problem, solver_settings)
+            self._recovery = make_backend(recovery_backend, recovery_problem, solver_settings)
         # Precomputed for the per-step checks (a few NumPy calls per step).
         phi, gamma = problem.rollout
         self._phi, self._gamma = matvec_operator(phi), matvec_operator(gamma)
         self._gain = matvec_operator(problem.gain)
-        # One product M @ [x0; u] - r gives the roll-out, the positions and the excess of
-        # every bound row (upper arena faces by step and axis, lower faces, terminal rows:
-        # the back ends' order): each small NumPy call costs microseconds, so few of them.
-        evaluation = problem.evaluation_map  # [x_0..x_T; C x_1..C x_T]
-        split = (T + 1) * n
-        positions = evaluation[split:].reshape(T, problem.d, -1)
-        y_low, y_high = problem.position_bounds
-        hi, lo = np.flatnonzero(np.isfinite(y_high)), np.flatnonzero(np.isfinite(y_low))
-        G, g = problem.terminal_set if problem.terminal_set is not None else (
-            np.zeros((0, n)), np.zeros(0))
-        last_state = evaluation[T * n : split]
-        rows = [evaluation, positions[:, hi].reshape(-1, evaluation.shape[1]),
-                -positions[:, lo].reshape(-1, evaluation.shape[1]), G @ last_state]
-        offsets = [np.zeros(split + T * problem.d), np.tile(y_high[hi], T),
-                   -np.tile(y_low[lo], T), g]
-        self._eval = matvec_operator(np.vstack(rows))
-        self._eval_offset = np.concatenate(offsets)
-        self._split = (split, split + T * problem.d)
+        # One product M @ [x0; u] - r: the roll-out, the positions, every bound row's excess.
+        evaluation, self._eval_offset = problem.check_map
+        self._eval = matvec_operator(evaluation)
+        self._split = ((T + 1) * n, (T + 1) * n + T * problem.d)
         # Block-diagonal weights of the cost (8) on the flattened deviations.
         self._R_block = matvec_operator(scipy.linalg.block_diag(*problem.input_weights))
         self._Q_block = matvec_operator(scipy.linalg.block_diag(*problem.state_weights))
@@ -340,18 +271,7 @@ class MPCSafetyFilter:
         self._plan: np.ndarray | None = None
         self._failures = 0
         self._qp_solves = 0
-        self._step: StepData | None = None  # the last QP step's data (see _last_step)
-        self._pending: tuple | None = None  # ... or the arrays to build them from
-        self._no_rows = (np.zeros((0, T, problem.d)), np.zeros((0, T)))
-        self._fast: FastHardStep | None = None
-        if fast_path and fast_path_applies(problem, self._primary):
-            recovery = self._recovery if self._recovery is not None and fast_path_applies(
-                recovery_problem, self._recovery, soft_rows=SOFT_ROWS) else None
-            self._fast = FastHardStep(
-                problem, self._primary, recovery, gain=problem.gain,
-                disabled_offset=DISABLED_OFFSET,
-                slack_tolerance=SLACK_TOLERANCE, clip_tolerance=INPUT_CLIP_TOLERANCE,
-                feasibility_tolerance=FEASIBILITY_TOLERANCE)
+        self._step: StepData | None = None  # the last QP step's data, as the back ends take it
 
     # ------------------------------------------------------------------ properties
     @property
@@ -386,8 +306,8 @@ class MPCSafetyFilter:
 
     @property
     def backend(self) -> str:
-        """The primary QP's back end: ``"daqp"``, ``"clarabel"``, ``"piqp"``, ``"cvxpy"``, or
-        ``"daqp+piqp"`` (``"auto"`` resolved, ``soft=True`` with a long horizon)."""
+        """The primary QP's back end: ``"daqp"``, ``"clarabel"`` or ``"cvxpy"`` (``"auto"``
+        resolved)."""
         return self._backend_name
 
     @property
@@ -434,11 +354,8 @@ class MPCSafetyFilter:
     def _evaluate(
         self, x0: np.ndarray, inputs: np.ndarray, normals: np.ndarray, offsets: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Roll-out ``(T + 1, n)``, halfspace excess ``(k, T)``, bound-row excess (1-D).
-
-        Excess is ``lhs - rhs`` (<= 0: the row holds). Bound rows are ordered as in the
-        back ends: upper arena faces (by step, then axis), lower faces, terminal rows.
-        """
+        """Roll-out ``(T + 1, n)``, halfspace excess ``(k, T)``, bound-row excess (1-D, in
+        the order of :attr:`MPCProblem.check_map`); excess ``lhs - rhs`` <= 0: the row holds."""
         z = np.concatenate((x0, inputs.reshape(-1)), out=self._z)
         out = self._eval @ z - self._eval_offset
         split, end = self._split
@@ -463,8 +380,7 @@ class MPCSafetyFilter:
         raw = solution.inputs
         if not all_finite(raw):
             return "rejected: non-finite solution"
-        # A solver's answer may sit slightly outside the box: clip it, then check the rows
-        # on the clipped inputs.
+        # A solver's answer may sit slightly outside the box: clip, then check the rows.
         inputs = np.minimum(np.maximum(raw, self._u_low), self._u_high)
         clipped = 0.0 if (inputs == raw).all() else float(
             np.maximum.reduce(np.abs(inputs - raw), axis=None))
@@ -472,7 +388,6 @@ class MPCSafetyFilter:
             return f"rejected: input bound violated by {clipped:.3g}"
         states, halfspace, bounds = self._evaluate(x0, inputs, normals, offsets)
         k = normals.shape[0]
-        # Without a slack the allowance is 0 and x - 0.0 is x bit for bit: no subtraction.
         # The back end's slacks describe its own inputs: after a clip beyond the
         # feasibility tolerance they are stale, and a soft row is allowed the violation of
         # the clipped plan itself (the slack reported is recomputed from the plan anyway).
@@ -531,12 +446,6 @@ class MPCSafetyFilter:
             If ``halfspaces`` has an unsupported type.
         """
         start = time.perf_counter()
-        fast = self._fast
-        if fast is not None and self._primary is fast.backend:
-            result = self._solve_fast(fast, x0, reference_states, halfspaces, reference_inputs,
-                                      start)
-            if result is not None:
-                return result
         T, n, m = self._T, self._n, self._m
         x0 = finite_step_array("x0", x0, (n,))
         reference_states = finite_step_array("reference_states", reference_states, (T + 1, n))
@@ -572,7 +481,7 @@ class MPCSafetyFilter:
                     )
 
         step = self._padded_step(x0, ref_states, ref_inputs, normals, offsets)
-        self._step, self._pending = step, None
+        self._step = step
 
         primary = self._call(self._primary, step)
         answer = self._accept(primary, self._primary_soft_rows, x0, normals, offsets)
@@ -593,133 +502,6 @@ class MPCSafetyFilter:
         self._failures += 1
         return self._recover(step, x0, normals, offsets, status_text, iterations, solve_time,
                              start)
-
-    def _solve_fast(
-        self, fast: FastHardStep, x0: object, reference_states: object, halfspaces: object,
-        reference_inputs: object, start: float,
-    ) -> FilterResult | None:
-        """The step by :class:`~filters.mpc.fast.FastHardStep`, or ``None`` when the general
-        path must run (arrays that are not plain float64 of the right shapes, or non-finite
-        numbers: the general path raises the named error)."""
-        T, n, m = self._T, self._n, self._m
-        if type(halfspaces) is tuple and len(halfspaces) == 2:
-            normals, offsets = halfspaces
-        elif halfspaces is None:
-            normals, offsets = self._no_rows
-        else:
-            return None
-        ref_inputs = self._zero_inputs if reference_inputs is None else reference_inputs
-        if not (_plain(x0, (n,)) and _plain(reference_states, (T + 1, n))
-                and _plain(ref_inputs, (T, m)) and type(normals) is np.ndarray
-                and type(offsets) is np.ndarray and _float64(normals) and _float64(offsets)
-                and normals.ndim == 3
-                and normals.shape[0] <= self._K and normals.shape[1:] == self._positions_shape
-                and offsets.shape == (normals.shape[0], T) and normals.flags.c_contiguous
-                and offsets.flags.c_contiguous):
-            return None
-        inputs, states = np.empty(T * m), np.empty(self._states_shape)
-        shortcut = self._skip and reference_inputs is not None
-        begin = time.perf_counter()
-        if fast.own_solver:
-            code = fast.solve_hard(x0, reference_states, ref_inputs, normals, offsets, shortcut,
-                                   inputs, states)
-        else:
-            code = fast.prepare(x0, reference_states, ref_inputs, normals, offsets, shortcut,
-                                inputs, states)
-        if code == fast_codes.NON_FINITE:
-            return None
-        info = fast.info
-        if code == fast_codes.SHORTCUT:
-            self._qp_solves = 0
-            plan = inputs.reshape(T, m)
-            self._plan, self._failures = plan, 0
-            return self._result(FilterStatus.OPTIMAL, plan, states, None, 0.0, _NO_QP, 0, 0.0,
-                                float(info[0]), start)
-        self._qp_solves = 1
-        self._step, self._pending = None, (x0, reference_states, ref_inputs, normals, offsets)
-        if code == fast_codes.SOLVED:  # the compiled solver's answer, accepted
-            plan = inputs.reshape(T, m)
-            self._plan, self._failures = plan, 0
-            bound_total = float(info[3]) if info[3] > SLACK_TOLERANCE else 0.0
-            return self._result(FilterStatus.OPTIMAL, plan, states, None, bound_total,
-                                "Solved", int(info[4]), time.perf_counter() - begin,
-                                float(info[0]), start)
-        recovery = fast.recovery
-        if recovery is not None and self._recovery is not recovery:
-            recovery = None
-        if fast.own_solver:
-            fast.write_daqp_rows(normals.shape[0])  # DAQP solves next: it takes them as they are
-        backend = fast.backend
-        if code == fast_codes.INFEASIBLE and recovery is not None:
-            # The compiled solver's verdict stands: the recovery QP follows, and it has the
-            # hard QP's answer if that is feasible after all (the exact penalty).
-            z, status, flag = None, "PrimalInfeasible", -1
-            iterations, solve_time = int(info[4]), time.perf_counter() - begin
-        else:  # DAQP decides, as on the general path
-            try:
-                z, status, flag, iterations, solve_time = backend.solve_written(fast.f)
-            except Exception as exc:  # a back end bug must not crash the control loop
-                backend.drop_model()
-                z, status, flag, iterations, solve_time = (None, f"exception: {exc!r}", -1, 0,
-                                                           0.0)
-        answer = ""
-        if z is not None and flag >= 1:
-            code = fast.accept(z, x0, ref_inputs, normals, offsets, inputs, states)
-            if code == fast_codes.ACCEPTED:
-                plan = inputs.reshape(T, m)
-                self._plan, self._failures = plan, 0
-                bound_total = float(info[3]) if info[3] > SLACK_TOLERANCE else 0.0
-                return self._result(FilterStatus.OPTIMAL, plan, states, None, bound_total,
-                                    status, iterations, solve_time, float(info[0]), start)
-            answer = _rejection(code, info)
-        self._failures += 1
-        status_text = f"{status} ({answer})" if answer else status
-        if recovery is None:
-            return self._recover(self._last_step, x0, normals, offsets, status_text,
-                                 iterations, solve_time, start)
-        # the recovery QP: the same rows, softened (fallback="soft")
-        self._qp_solves = 2
-        try:
-            fast.copy_rows_to_recovery()
-            z, status, flag, more, seconds = recovery.solve_written(fast.f)
-        except Exception as exc:  # a back end bug must not crash the control loop
-            recovery.drop_model()
-            z, status, flag, more, seconds = None, f"exception: {exc!r}", -1, 0, 0.0
-        iterations += more
-        solve_time += seconds
-        answer = ""
-        if z is not None and flag >= 1:
-            slack = np.empty(offsets.shape)
-            code = fast.accept_recovery(z, x0, ref_inputs, normals, offsets, inputs, states,
-                                        slack)
-            if code == fast_codes.ACCEPTED:
-                plan = inputs.reshape(T, m)
-                self._plan = plan
-                slack[slack <= SLACK_TOLERANCE] = 0.0
-                bound_total = float(info[3]) if info[3] > SLACK_TOLERANCE else 0.0
-                return self._result(_recovery_status(slack, bound_total), plan, states,
-                                    slack, bound_total,
-                                    f"hard QP: {status_text}; recovery QP: {status}",
-                                    iterations, solve_time, float(info[0]), start)
-            answer = _rejection(code, info)
-        # the recovery failed too: brake (the general path's last resort)
-        reason = f" ({answer})" if answer else ""
-        return self._brake(x0, normals, offsets, None,
-                           f"hard QP: {status_text}; recovery QP: {status}{reason}",
-                           iterations, solve_time, self._last_step, start)
-
-    @property
-    def _last_step(self) -> StepData | None:
-        """The last QP step's data as the back ends take them (for inspection and tests)."""
-        if self._pending is not None:
-            x0, reference_states, ref_inputs, normals, offsets = self._pending
-            ref_states = reference_states[1:]
-            if not self._has_state_cost:
-                ref_states = (self._phi @ x0 + self._gamma @ ref_inputs.reshape(-1)).reshape(
-                    self._T, self._n)
-            self._step = self._padded_step(x0, ref_states, ref_inputs, normals, offsets)
-            self._pending = None
-        return self._step
 
     def _padded_step(self, x0: np.ndarray, ref_states: np.ndarray, ref_inputs: np.ndarray,
                      normals: np.ndarray, offsets: np.ndarray) -> StepData:
@@ -749,7 +531,7 @@ class MPCSafetyFilter:
                 inputs, states, halfspace, bounds = answer
                 self._plan = inputs
                 slack, bound_total = self._slack(halfspace), self._bound_total(bounds)
-                return self._result(_recovery_status(slack, bound_total), inputs, states,
+                return self._result(recovery_status(slack, bound_total), inputs, states,
                                     slack, bound_total, status_text,
                                     iterations, solve_time,
                                     self._cost(inputs, states, ref_states, ref_inputs), start)
@@ -778,7 +560,6 @@ class MPCSafetyFilter:
     def _cost(self, inputs: np.ndarray, states: np.ndarray, ref_states: np.ndarray,
               ref_inputs: np.ndarray) -> float:
         """:meth:`MPCProblem.cost` with the block-diagonal weights (two products)."""
-        # No reference inputs: u - 0.0 is u bit for bit, so no subtraction.
         du = inputs.reshape(-1) if ref_inputs is self._zero_inputs else (
             inputs - ref_inputs).reshape(-1)
         total = du @ (self._R_block @ du)
@@ -816,35 +597,3 @@ class MPCSafetyFilter:
             "consecutive_failures": self._failures, "bound_slack": bound_slack,
         })
         return result
-
-
-def _plain(array: object, shape: tuple[int, ...]) -> bool:
-    """Whether ``array`` is a C-contiguous float64 ndarray of ``shape`` (the fast path's)."""
-    return (type(array) is np.ndarray and _float64(array) and array.shape == shape
-            and array.flags.c_contiguous)
-
-
-def _float64(array: np.ndarray) -> bool:
-    """Whether ``array`` holds native float64 (the identity test first: it is the cheap one)."""
-    return array.dtype is _FLOAT64 or array.dtype == _FLOAT64
-
-
-def _recovery_status(slack: np.ndarray, bound_total: float) -> FilterStatus:
-    """The status of an accepted recovery answer: ``"recovery"`` if it used arena or
-    terminal slack (``bound_total > 0``), ``"soft"`` if only halfspace slack (``slack``,
-    already zeroed below the tolerance), else ``"optimal"`` (the hard QP was feasible
-    after all: the exact penalty returned its solution)."""
-    if bound_total > 0.0:
-        return FilterStatus.RECOVERY
-    if slack.any():
-        return FilterStatus.SOFT
-    return FilterStatus.OPTIMAL
-
-
-def _rejection(code: int, info: np.ndarray) -> str:
-    """Why the fast path's acceptance check rejected an answer (the general path's words)."""
-    if code == fast_codes.REJECT_NON_FINITE:
-        return "rejected: non-finite solution"
-    if code == fast_codes.REJECT_CLIP:
-        return f"rejected: input bound violated by {info[1]:.3g}"
-    return f"rejected: constraint violation {info[2]:.3g} > {FEASIBILITY_TOLERANCE:g}"

@@ -277,6 +277,26 @@ class MPCProblem:
         positions = np.kron(np.eye(T), self.C) @ rollout[n:]
         return np.vstack([rollout, positions])
 
+    @cached_property
+    def check_map(self) -> tuple[np.ndarray, np.ndarray]:
+        r"""``(M, r)``: ``M @ [x0; u] - r`` is :math:`[x_0..x_T; C x_1..C x_T]` followed by
+        the excess (``lhs - rhs``, <= 0: the row holds) of every bound row, in the back
+        ends' order: upper arena faces (by step, then axis), lower faces, terminal rows.
+        One product checks a whole plan (small NumPy calls cost microseconds each)."""
+        T, n, d = self.horizon, self.n, self.d
+        evaluation = self.evaluation_map
+        split = (T + 1) * n
+        positions = evaluation[split:].reshape(T, d, -1)
+        y_low, y_high = self.position_bounds
+        hi, lo = np.flatnonzero(np.isfinite(y_high)), np.flatnonzero(np.isfinite(y_low))
+        G, g = self.terminal_set if self.terminal_set is not None else (
+            np.zeros((0, n)), np.zeros(0))
+        columns = evaluation.shape[1]
+        rows = [evaluation, positions[:, hi].reshape(-1, columns),
+                -positions[:, lo].reshape(-1, columns), G @ evaluation[T * n : split]]
+        offsets = [np.zeros(split + T * d), np.tile(y_high[hi], T), -np.tile(y_low[lo], T), g]
+        return np.vstack(rows), np.concatenate(offsets)
+
     # ------------------------------------------------------------------ cost
     def cost(
         self, inputs: np.ndarray, states: np.ndarray, ref_states: np.ndarray,

@@ -13,7 +13,7 @@ from enum import Enum
 
 import numpy as np
 
-__all__ = ["FilterResult", "FilterStatus", "QPSolution", "StepData"]
+__all__ = ["FilterResult", "FilterStatus", "QPSolution", "StepData", "recovery_status"]
 
 
 class FilterStatus(str, Enum):
@@ -165,3 +165,15 @@ class StepData:
     ref_inputs: np.ndarray
     normals: np.ndarray
     offsets: np.ndarray
+
+
+def recovery_status(slack: np.ndarray, bound_total: float) -> FilterStatus:
+    """The status of an accepted recovery answer: ``"recovery"`` if it used arena or
+    terminal slack (``bound_total > 0``), ``"soft"`` if only halfspace slack (``slack``,
+    already zeroed below the tolerance), else ``"optimal"`` (the hard QP was feasible
+    after all: the exact penalty returned its solution)."""
+    if bound_total > 0.0:
+        return FilterStatus.RECOVERY
+    if slack.any():
+        return FilterStatus.SOFT
+    return FilterStatus.OPTIMAL

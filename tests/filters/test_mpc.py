@@ -39,8 +39,6 @@ from tests.builders import (
     solve,
 )
 
-pytest.importorskip("cvxpy")
-
 BACKENDS = ["clarabel", "daqp", "cvxpy"]
 FAST = ["clarabel", "daqp"]
 OBJECTIVES = ["trajectory", "first_input"]
@@ -155,7 +153,7 @@ def test_exact_penalty_recovery_qp_equals_the_hard_qp_when_feasible():
         hard = solve(mpc, instance)
         if hard.status is not FilterStatus.OPTIMAL:
             continue
-        step = mpc._last_step
+        step = mpc._step
         recovered = mpc._recovery.solve(step)
         assert recovered.found
         np.testing.assert_allclose(recovered.inputs, hard.inputs, atol=1e-5)
@@ -165,7 +163,8 @@ def test_exact_penalty_recovery_qp_equals_the_hard_qp_when_feasible():
 
 
 def test_recovery_slack_is_the_minimal_l1_violation():
-    cp = pytest.importorskip("cvxpy")
+    import cvxpy as cp
+
     mpc = make_filter(n_obstacles=3)
     checked = 0
     for instance in mode_instances("recovery", 5, 10):
@@ -187,17 +186,14 @@ def test_recovery_slack_is_the_minimal_l1_violation():
     assert checked >= 5
 
 
-@pytest.mark.parametrize("fast_path", [False, True])
 @pytest.mark.parametrize("excess", [2e-5, 2e-3])
-def test_answers_slightly_outside_the_input_box_are_clipped_and_checked(excess, fast_path):
+def test_answers_slightly_outside_the_input_box_are_clipped_and_checked(excess):
     """A back end answer up to INPUT_CLIP_TOLERANCE outside the input box is clipped and
     its rows are checked on the clipped plan (a recovery answer 2e-5 outside was once
-    rejected, and the filter braked); beyond it, the answer is rejected. On the general
-    path and on the fast path (filters.mpc.fast), which calls DAQP's ``solve_written``."""
+    rejected, and the filter braked); beyond it, the answer is rejected."""
     from filters.mpc.filter import INPUT_CLIP_TOLERANCE
 
-    mpc = make_filter("daqp", n_obstacles=3, fast_path=fast_path)
-    assert (mpc._fast is not None and mpc._fast.recovery is mpc._recovery) == fast_path
+    mpc = make_filter("daqp", n_obstacles=3)
     recovery = mpc._recovery
     real = recovery.solve
 
@@ -210,26 +206,14 @@ def test_answers_slightly_outside_the_input_box_are_clipped_and_checked(excess, 
         inputs[inputs <= -5.0 + 1e-9] -= excess
         return dataclasses.replace(solution, inputs=inputs)
 
-    real_written = recovery.solve_written
-
-    def outside_written(f):  # the same in the whitened variables z = U' u
-        z, *rest = real_written(f)
-        if z is None or rest[1] < 1:
-            return (z, *rest)
-        inputs = recovery.qp.u_of_z @ z
-        inputs[inputs >= 5.0 - 1e-9] += excess
-        inputs[inputs <= -5.0 + 1e-9] -= excess
-        return (recovery.qp.z_of_u @ inputs, *rest)
-
     recovery.solve = outside
-    recovery.solve_written = outside_written
     saturated = 0
     for instance in mode_instances("recovery", 5, 10):
         mpc.reset()
         result = solve(mpc, instance)
         if mpc.last_qp_solves < 2:
             continue  # the hard QP answered
-        plan = real(mpc._last_step).inputs
+        plan = real(mpc._step).inputs
         if plan is None or not np.any(np.abs(plan) >= 5.0 - 1e-9):
             continue
         saturated += 1

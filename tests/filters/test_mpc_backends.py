@@ -1,6 +1,7 @@
-"""Every fast back end (Clarabel and PIQP sparse, DAQP condensed, ``"auto"``) equals the CVXPY
-reference at T = 10, 20, 40 and 80, for every objective and mode; DAQP's warm-started
-model returns what a fresh one returns; infeasible QPs give Clarabel's statuses.
+"""Every back end (Clarabel sparse, DAQP condensed, ``"auto"``) equals the CVXPY reference
+at T = 10, 20, 40 and 80, for every objective and mode (by tolerance); DAQP's
+warm-started model returns what a fresh one returns; infeasible QPs give Clarabel's
+statuses.
 
 The instances are horizon-generic crossings (the ego at the left, a straight
 reference slow enough to stay in the arena, obstacles ahead with halfspaces toward
@@ -16,14 +17,10 @@ from benchmarks.filter_qp import double_integrator, filter_kwargs
 from filters.mpc import FilterStatus, MPCSafetyFilter, stopping_terminal_set
 from filters.mpc.filter import AUTO_DAQP_MAX_INPUTS, auto_backend
 
-pytest.importorskip("cvxpy")
-pytest.importorskip("daqp")
-pytest.importorskip("piqp")
-
 TS = 0.2
 A, B, C = double_integrator(TS)
 ARENA = 5.0
-FAST = ["clarabel", "daqp", "piqp", "auto"]
+FAST = ["clarabel", "daqp", "auto"]
 OBJECTIVES = ["trajectory", "first_input"]
 MODES = ["hard", "soft", "recovery", "paper"]
 HORIZONS = [10, 20, pytest.param(40, marks=pytest.mark.slow),
@@ -130,8 +127,8 @@ def test_every_backend_equals_the_cvxpy_reference(horizon, objective, mode):
 @pytest.mark.parametrize("horizon", [10, 20])
 @pytest.mark.parametrize("warm", [False, True])
 def test_daqp_update_equals_rebuild(horizon, objective, mode, warm):
-    """A used DAQP model gives bit for bit what a fresh one gives (the default cold
-    start), and to 1e-8 when warm-started from the previous solve's active set; the
+    """A used DAQP model gives what a fresh one gives (to 1e-9 m/s² with the default cold
+    start, to 1e-7 when warm-started from the previous solve's active set); the
     sequence includes infeasible steps."""
     persistent = make("daqp", horizon, objective, mode, skip_feasible_reference=False)
     assert persistent.backend == "daqp"
@@ -146,15 +143,13 @@ def test_daqp_update_equals_rebuild(horizon, objective, mode, warm):
         assert updated.status == rebuilt.status
         assert updated.solver_status == rebuilt.solver_status
         np.testing.assert_allclose(updated.inputs, rebuilt.inputs, rtol=0,
-                                   atol=1e-7 if warm else 0.0)
-        if not warm:
-            assert updated.iterations == rebuilt.iterations
+                                   atol=1e-7 if warm else 1e-9)
 
 
 @pytest.mark.parametrize("fallback", ["soft", "paper"])
 def test_infeasible_qp_gives_clarabels_status(fallback):
     statuses = {}
-    for name in ("clarabel", "daqp", "piqp"):
+    for name in ("clarabel", "daqp"):
         mpc = make(name, 10, "trajectory", "paper" if fallback == "paper" else "hard")
         rng = np.random.default_rng(3)
         case = instance(rng, 10, "hard")
@@ -169,30 +164,16 @@ def test_infeasible_qp_gives_clarabels_status(fallback):
             assert second.status is FilterStatus.SHIFTED
         else:
             assert second.status in (FilterStatus.SOFT, FilterStatus.RECOVERY)
-    assert statuses["daqp"] == statuses["clarabel"] == statuses["piqp"]
+    assert statuses["daqp"] == statuses["clarabel"]
 
 
-def test_piqp_settings_are_checked():
-    from filters.errors import InvalidParameterError, InvalidTypeError
-
-    tuned = make("piqp", 10, "trajectory", "hard", solver_settings={"max_iter": 100})
-    assert tuned._primary.solver.settings.max_iter == 100
-    with pytest.raises(InvalidParameterError, match="no_such"):
-        make("piqp", 10, "trajectory", "hard", solver_settings={"no_such": 1})
-    with pytest.raises(InvalidParameterError, match="max_iter"):
-        make("piqp", 10, "trajectory", "hard", solver_settings={"max_iter": "many"})
-    with pytest.raises(InvalidTypeError, match="solver_settings"):
-        make("piqp", 10, "trajectory", "hard", solver_settings=[("max_iter", 3)])
-
-
-def test_auto_picks_daqp_for_hard_qps_and_daqp_then_an_interior_point_for_long_soft_ones():
+def test_auto_picks_daqp_for_hard_qps_and_clarabel_for_long_soft_ones():
     for horizon in (10, 20, 21, 40, 80):
         for mode in ("hard", "soft", "recovery"):
             mpc = make("auto", horizon, "trajectory", mode)
             long = horizon * 2 > AUTO_DAQP_MAX_INPUTS
-            assert mpc.backend == ("daqp+piqp" if mode == "soft" and long else "daqp")
-            # the recovery QP (every row soft): the Riccati method; soft=True: PIQP
-            assert mpc.recovery_backend == ("daqp+riccati" if long else "daqp")
+            assert mpc.backend == ("clarabel" if mode == "soft" and long else "daqp")
+            assert mpc.recovery_backend == ("clarabel" if long else "daqp")
             assert auto_backend(mpc.problem) == mpc.backend
     assert AUTO_DAQP_MAX_INPUTS == 40
     assert make("auto", 80, "trajectory", "paper").recovery_backend is None
@@ -241,41 +222,6 @@ def test_daqp_soft_qp_is_never_worse_than_the_reference_in_its_own_objective():
             assert penalised[0] <= penalised[1] * (1 + 1e-6) + 1e-6
 
 
-def test_daqp_iteration_budget_is_checked_and_spent_over_the_rounds():
-    from filters.errors import InvalidParameterError
-    from filters.mpc.backends.daqp import DAQPBackend
-    from filters.mpc.result import StepData
-
-    problem = make("auto", 40, "trajectory", "recovery")._recovery.problem
-    for bad in (0, -3, 2.5, True, "10"):
-        with pytest.raises(InvalidParameterError, match="iteration_budget"):
-            DAQPBackend(problem, lazy=True, iteration_budget=bad)
-    rng = np.random.default_rng(11)
-    spent = 0
-    for _ in range(6):
-        case = instance(rng, 40, "recovery")
-        normals, offsets = case["halfspaces"]
-        padded_n, padded_o = np.zeros((K, 40, 2)), np.ones((K, 40))
-        padded_n[: len(normals)], padded_o[: len(offsets)] = normals, offsets
-        step = StepData(case["x0"], case["reference_states"][1:], np.zeros((40, 2)),
-                        padded_n, padded_o)
-        answer = DAQPBackend(problem, lazy=True).solve(step)  # fresh: no warm start
-        assert answer.found
-        if answer.iterations < 3:
-            continue
-        budget = answer.iterations // 2
-        capped = DAQPBackend(problem, lazy=True, iteration_budget=budget).solve(step)
-        assert not capped.found and capped.status == "MaxIterations"
-        assert capped.iterations <= budget
-        # DAQP's limit counts the iteration that finds the optimum, which it does not report
-        enough = DAQPBackend(problem, lazy=True,
-                             iteration_budget=answer.iterations + 1).solve(step)
-        assert enough.found
-        np.testing.assert_array_equal(enough.inputs, answer.inputs)  # the same solves
-        spent += 1
-    assert spent  # some instance needed iterations
-
-
 def test_daqp_iteration_limit_is_a_failure_not_an_exception():
     mpc = make("daqp", 10, "trajectory", "paper", solver_settings={"iter_limit": 1},
                skip_feasible_reference=False)
@@ -290,62 +236,16 @@ def test_daqp_iteration_limit_is_a_failure_not_an_exception():
 
 
 @pytest.mark.parametrize("mode", ["hard", "soft", "recovery"])
-def test_piqp_update_equals_rebuild(mode):
-    """A PIQP solver updated step after step answers as one set up for that step alone
-    (to 1e-8 m/s²: piqp 0.7's update path differs from a fresh set-up by up to 2e-9)."""
-    persistent = make("piqp", 20, "trajectory", mode, skip_feasible_reference=False)
+def test_clarabel_update_equals_rebuild(mode):
+    """A Clarabel solver updated step after step (``b`` and the halfspace entries of
+    ``A``) answers as one set up for that step alone (to 1e-9 m/s²)."""
+    persistent = make("clarabel", 20, "trajectory", mode, skip_feasible_reference=False)
     rng = np.random.default_rng([9, MODES.index(mode)])
     for _ in range(6):
         case = instance(rng, 20, mode)
         persistent.reset()
         updated = solve(persistent, case)
-        rebuilt = solve(make("piqp", 20, "trajectory", mode, skip_feasible_reference=False),
+        rebuilt = solve(make("clarabel", 20, "trajectory", mode, skip_feasible_reference=False),
                         case)
         assert updated.status == rebuilt.status
-        np.testing.assert_allclose(updated.inputs, rebuilt.inputs, rtol=0, atol=1e-8)
-
-
-@pytest.mark.parametrize("horizon", [20, pytest.param(80, marks=pytest.mark.slow)])
-def test_piqp_hard_infeasibility_tolerance_keeps_clarabels_status_at_the_boundary(horizon):
-    """Shift a hard QP's halfspace offsets by ``lam`` (m): bisect with Clarabel at 1e-12
-    where it turns infeasible, then PIQP (hard-QP tolerance) must say what Clarabel says
-    10 µm to 1 cm on either side of that boundary."""
-    from filters.mpc.backends.piqp import HARD_PRIMAL_INFEASIBILITY_TOLERANCE
-
-    tight = {name: 1e-12 for name in ("tol_feas", "tol_gap_abs", "tol_gap_rel",
-                                      "tol_infeas_abs", "tol_infeas_rel")}
-    reference = make("clarabel", horizon, "trajectory", "paper", solver_settings=tight,
-                     skip_feasible_reference=False)
-    piqp_filter = make("piqp", horizon, "trajectory", "paper", skip_feasible_reference=False)
-    settings = piqp_filter._primary.solver.settings
-    assert settings.eps_primal_inf == HARD_PRIMAL_INFEASIBILITY_TOLERANCE
-    soft = make("piqp", horizon, "trajectory", "soft")
-    assert soft._primary.solver.settings.eps_primal_inf != HARD_PRIMAL_INFEASIBILITY_TOLERANCE
-
-    def shifted(case: dict, lam: float) -> dict:
-        normals, offsets = case["halfspaces"]
-        return {**case, "halfspaces": (normals, offsets + lam)}
-
-    def feasible(mpc: MPCSafetyFilter, case: dict) -> bool:
-        mpc.reset()
-        return solve(mpc, case).status is FilterStatus.OPTIMAL
-
-    rng = np.random.default_rng([7, horizon])
-    checked = 0
-    while checked < 3:
-        case = instance(rng, horizon, "hard")
-        low, high = -20.0, 5.0
-        if feasible(reference, shifted(case, low)) or not feasible(reference, shifted(case, high)):
-            continue
-        for _ in range(30):  # to 2e-8 m
-            middle = 0.5 * (low + high)
-            if feasible(reference, shifted(case, middle)):
-                high = middle
-            else:
-                low = middle
-        for delta in (1e-2, 1e-3, 1e-4, 1e-5):
-            assert feasible(reference, shifted(case, high + delta))
-            assert not feasible(reference, shifted(case, low - delta))
-            assert feasible(piqp_filter, shifted(case, high + delta)), delta
-            assert not feasible(piqp_filter, shifted(case, low - delta)), delta
-        checked += 1
+        np.testing.assert_allclose(updated.inputs, rebuilt.inputs, rtol=0, atol=1e-9)

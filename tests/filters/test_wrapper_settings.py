@@ -12,8 +12,8 @@ from gymnasium.wrappers import ClipAction, RescaleAction
 
 import safe_nav_env  # noqa: F401
 from filters import InvalidParameterError, InvalidTypeError, SafetyFilterWrapper
+from filters.normals import nearside_normals as _nearside_normals
 from filters.references import hold_action_reference
-from filters.step_rows import nearside_normals as _nearside_normals
 from filters.wrapper import clearest_normals
 from safe_nav_env import ObstacleSpec, Scenario
 

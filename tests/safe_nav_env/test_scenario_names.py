@@ -13,6 +13,7 @@ from safe_nav_env import (
     HEAD_ON,
     SCENARIO_NAMES,
     SCENARIOS,
+    SCENES,
     SafeNavEnv,
     Scenario,
     ScenarioError,
@@ -24,11 +25,15 @@ from safe_nav_env import (
 
 def test_the_canonical_name_is_the_gym_ids():
     assert SCENARIO_NAMES == ("HeadOn", "Overtaking", "Intersection", "MultiObstacle",
-                              "RandomCrossing", "Custom")
-    assert list(SCENARIOS) == list(SCENARIO_NAMES[:-1])
+                              "RandomCrossing", *SCENES, "Custom")
+    assert list(SCENARIOS) == list(SCENARIO_NAMES[:5])
     for name in SCENARIO_NAMES:
         assert env_id(name) in gym.registry
-        assert ENV_IDS[env_id(name)] == (None if name == "Custom" else name)
+        if name in SCENES:  # an environment of its own
+            assert gym.registry[env_id(name)].entry_point == SCENES[name]
+            assert env_id(name) not in ENV_IDS
+        else:
+            assert ENV_IDS[env_id(name)] == (None if name == "Custom" else name)
     for name, scenario in SCENARIOS.items():
         if isinstance(scenario, Scenario):
             assert scenario.name == name

@@ -50,9 +50,8 @@ reference on the test instances: DAQP's penalised objective was never above CVXP
 Soft QPs with many violated rows are where an active-set method is slow: each violated
 row enters the active set, one per iteration, and DAQP's dual has them bounded by
 :math:`\rho`. With hundreds of violated rows (long horizons, strongly infeasible
-steps) an interior-point method is faster, which is why ``backend="auto"`` gives DAQP
-an iteration budget for the soft QPs of long horizons and solves them with PIQP when it
-runs out (:mod:`filters.mpc.backends.hybrid`, :func:`filters.mpc.filter.auto_backend`).
+steps) an interior-point method is faster, which is why ``backend="auto"`` solves the
+soft QPs of long horizons with Clarabel (:func:`filters.mpc.filter.auto_backend`).
 
 **Statuses.** DAQP's exit flags are reported with Clarabel's names where one exists
 (``1``, ``2`` -> ``"Solved"``, ``-1`` -> ``"PrimalInfeasible"``, ``-4`` ->
@@ -139,11 +138,6 @@ class DAQPBackend:
         Screen the rows (module docstring); ``None`` (default): when ``T m >``
         :data:`LAZY_MIN_INPUTS`. With ``lazy``, the previous answer, shifted by one step,
         is a second screening point until :meth:`reset`.
-    iteration_budget
-        With ``lazy``: DAQP iterations over all relaxed QPs of one solve; a solve that
-        needs more stops with status ``"MaxIterations"`` (``None``, the default: DAQP's
-        ``iter_limit`` per relaxed QP only). See :mod:`filters.mpc.backends.hybrid`.
-
     Raises
     ------
     InvalidParameterError
@@ -155,17 +149,9 @@ class DAQPBackend:
     def __init__(
         self, problem: MPCProblem, *, solver_settings: Mapping[str, Any] | None = None,
         warm_start: bool = False, lazy: bool | None = None,
-        iteration_budget: int | None = None,
     ) -> None:
         self.problem = problem
         self._settings = daqp_settings(solver_settings)
-        if iteration_budget is not None and (
-                isinstance(iteration_budget, bool)
-                or not isinstance(iteration_budget, (int, np.integer))
-                or iteration_budget < 1):
-            raise InvalidParameterError(
-                f"iteration_budget must be None or an integer >= 1, got {iteration_budget!r}")
-        self._budget = None if iteration_budget is None else int(iteration_budget)
         self._warm_start = bool(warm_start)
         self.qp = CondensedQP(problem)
         nu = self.qp.nu
@@ -270,17 +256,9 @@ class DAQPBackend:
         """The DAQP settings of this back end's models (DAQP's defaults, overridden)."""
         return {**daqp.Model().settings, **self._settings}
 
-    @property
-    def row_buffers(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(A, upper, lower)``: the full model's rows ``(n_fixed + K T, T m)`` and bounds,
-        which :meth:`solve_written` hands to DAQP (written in place by the caller;
-        without ``lazy`` only)."""
-        if self.lazy:
-            raise AttributeError("a lazy DAQP back end keeps no full row buffers")
-        return self._A, self._upper, self._lower
-
     def solve_written(self, f: np.ndarray) -> tuple[np.ndarray | None, str, int, int, float]:
-        """DAQP on the rows in :attr:`row_buffers` and the linear cost ``f`` (``lazy=False``).
+        """DAQP on the rows written in the full model's buffers and the linear cost ``f``
+        (``lazy=False``).
 
         Returns ``(z, status, exitflag, iterations, solve_time)``: ``z`` the whitened
         answer (meaningful when ``exitflag >= 1``), ``status`` the name the filter reports.
@@ -335,11 +313,6 @@ class DAQPBackend:
         self.rounds = 0
         while keep_fixed.any() or keep_hs.any():
             self.rounds += 1
-            if self._budget is not None:
-                if iterations >= self._budget:
-                    return self._solution(None, -4, iterations, time.perf_counter() - begin,
-                                          rows)
-                self._model.settings = {"iter_limit": self._budget - iterations}
             flag, z, its, dual_fixed, dual_hs = self._solve_relaxed(
                 rows, keep_fixed, keep_hs, dual_fixed, dual_hs)
             iterations += its

@@ -1,0 +1,206 @@
+"""The interactive-crowd benchmark: ``safe-nav evaluate --suite crowd``.
+
+CrowdNav's protocol (:mod:`safe_nav_env.crowd.env`): test case ``i`` is the episode of
+seed ``seed + i`` of ``SafeNav/Crowd-v0``, the same cases for every setting and method.
+Settings are the human model and whether the humans see the robot
+(:data:`CROWD_SETTINGS`); methods are the filter's risks (``"none"``: the planner
+alone). The episodes run through :func:`agents.evaluation.evaluate.evaluate`, so the
+CSV, run key, resume and ``--overwrite`` behave as for ``safe-nav evaluate``.
+
+Metrics, as CrowdNav reports them: success (goal reached), collision (continuous time,
+the episode ends), timeout (neither within 25 s), time to goal (mean over the
+successes, s) and discomfort frequency (the share of all steps whose clearance to some
+human fell below 0.2 m), with Wilson 95 % intervals on the rates.
+
+Output folder::
+
+    episodes.csv, episodes.run.json   one row per episode, the run key
+    summary.md                        the table per setting and method
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import defaultdict
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from agents.evaluation.campaign import EvaluationOutputs, describe_run, output_folder
+from agents.evaluation.evaluate import evaluate
+from agents.evaluation.executors import Executor
+from agents.evaluation.records import EpisodeRecord, EpisodeSpec
+from agents.evaluation.summary import summarise, wilson_interval
+from agents.experiments.scenes import scene_setting, scene_specs
+
+__all__ = ["CROWD_SETTINGS", "CrowdRow", "crowd_rows", "crowd_specs", "crowd_table",
+           "run_crowd"]
+
+CROWD_SETTINGS: dict[str, dict[str, Any]] = {
+    "orca_invisible": {"human_policy": "orca", "robot_visible": False},
+    "orca_visible": {"human_policy": "orca", "robot_visible": True},
+    "social_force_invisible": {"human_policy": "social_force", "robot_visible": False},
+    "social_force_visible": {"human_policy": "social_force", "robot_visible": True},
+}
+"""Human model and robot visibility of each setting (``SafeNav/Crowd-v0`` options).
+CrowdNav's main table is ``orca_invisible``."""
+
+CROWD_RISKS = ("none", "mean", "cvar", "dr_cvar")
+"""Methods run by default: the planner alone and the paper's three filters."""
+
+CROWD_POLICY = "ppo_crowd.zip"
+"""The shipped PPO planner trained on ``SafeNav/Crowd-v0`` (``agents/pretrained/``)."""
+
+
+def crowd_specs(settings: Sequence[str], risks: Sequence[str], *, episodes: int, seed: int,
+                **common: Any) -> list[EpisodeSpec]:
+    """One spec per (setting, risk, test case) (:func:`agents.experiments.scenes.scene_specs`)."""
+    return scene_specs("Crowd", CROWD_SETTINGS, settings, risks, episodes=episodes, seed=seed,
+                       **common)
+
+
+def setting_of(record: EpisodeRecord) -> str:
+    """The :data:`CROWD_SETTINGS` name of a record (from its environment options)."""
+    return scene_setting(record, CROWD_SETTINGS)
+
+
+@dataclass(frozen=True)
+class CrowdRow:
+    """CrowdNav's metrics of one (setting, risk) over its test cases.
+
+    Rates are shares of the cases; ``time_to_goal`` (s) is the mean over the successes;
+    ``discomfort`` the share of all steps with a clearance below the discomfort
+    distance; ``*_low``, ``*_high`` the Wilson 95 % interval.
+    """
+
+    setting: str
+    risk: str
+    cases: int
+    success: float
+    success_low: float
+    success_high: float
+    collision: float
+    collision_low: float
+    collision_high: float
+    timeout: float
+    time_to_goal: float
+    discomfort: float
+    failed: int
+
+
+def crowd_rows(records: Sequence[EpisodeRecord]) -> list[CrowdRow]:
+    """The table's rows, one per (setting, risk), in the order they first appear."""
+    groups: dict[tuple[str, str], list[EpisodeRecord]] = defaultdict(list)
+    for record in records:
+        groups[(setting_of(record), record.risk)].append(record)
+    rows = []
+    for (setting, risk), group in groups.items():
+        ran = [r for r in group if not r.error]
+        n = max(1, len(ran))
+        successes = sum(r.goal_reached and not r.collision for r in ran)
+        collisions = sum(r.collision for r in ran)
+        times = [r.time_to_goal for r in ran if r.goal_reached and not r.collision]
+        steps = sum(r.steps for r in ran)
+        rows.append(CrowdRow(
+            setting=setting, risk=risk, cases=len(ran), success=successes / n,
+            success_low=wilson_interval(successes, len(ran))[0],
+            success_high=wilson_interval(successes, len(ran))[1],
+            collision=collisions / n, collision_low=wilson_interval(collisions, len(ran))[0],
+            collision_high=wilson_interval(collisions, len(ran))[1],
+            timeout=(len(ran) - successes - collisions) / n,
+            time_to_goal=sum(times) / len(times) if times else math.nan,
+            discomfort=sum(r.discomfort_steps for r in ran) / steps if steps else math.nan,
+            failed=len(group) - len(ran)))
+    return rows
+
+
+def crowd_table(rows: Sequence[CrowdRow]) -> str:
+    """The rows as a Markdown table (CrowdNav's columns, with intervals)."""
+    def pct(value: float, low: float | None = None, high: float | None = None) -> str:
+        text = f"{100 * value:.1f}%"
+        return text if low is None else f"{text} [{100 * low:.1f}, {100 * high:.1f}]"
+
+    lines = ["| setting | method | cases | success [95 % CI] | collision [95 % CI] | timeout "
+             "| time to goal (s) | discomfort frequency |",
+             "|---|---|---|---|---|---|---|---|"]
+    for row in rows:
+        time_cell = "-" if math.isnan(row.time_to_goal) else f"{row.time_to_goal:.2f}"
+        discomfort = "-" if math.isnan(row.discomfort) else f"{row.discomfort:.3f}"
+        lines.append(f"| {row.setting} | {row.risk} | {row.cases} | "
+                     f"{pct(row.success, row.success_low, row.success_high)} | "
+                     f"{pct(row.collision, row.collision_low, row.collision_high)} | "
+                     f"{pct(row.timeout)} | {time_cell} | {discomfort} |")
+    return "\n".join(lines) + "\n"
+
+
+def run_crowd(
+    output: str | Path = "results/crowd",
+    settings: Sequence[str] = ("orca_invisible",),
+    risks: Sequence[str] = CROWD_RISKS,
+    *,
+    episodes: int = 500,
+    workers: int = 2,
+    seed: int = 0,
+    planner: str = "ppo",
+    reference: str = "rollout",
+    policy_path: str = "",
+    alpha: float = 0.2,
+    delta: float = 0.1,
+    epsilon: float = 0.05,
+    filter_options: dict[str, Any] | str | None = None,
+    env_options: dict[str, Any] | str | None = None,
+    executor: str | Executor = "process",
+    progress: bool = True,
+    overwrite: bool = False,
+) -> EvaluationOutputs:
+    """Run the crowd benchmark; write its CSV and summary to ``output``.
+
+    Parameters
+    ----------
+    output
+        Output folder (see the module docstring); an interrupted run resumes from it.
+    settings
+        Names in :data:`CROWD_SETTINGS`.
+    risks
+        Filter risks (``"none"``: the planner alone).
+    episodes
+        Test cases per (setting, risk): seeds ``seed .. seed + episodes - 1``.
+    workers, seed, planner, reference, policy_path, alpha, delta, epsilon, filter_options,
+    env_options, executor, progress, overwrite
+        As for :func:`agents.evaluation.campaign.run_evaluation`. The PPO planner needs a
+        policy trained on ``SafeNav/Crowd-v0`` (its observation has five human slots):
+        ``policy_path`` empty means the shipped crowd policy.
+
+    Raises
+    ------
+    InvalidParameterError, PolicyFileError, RunMismatchError, ...
+        As :func:`agents.evaluation.evaluate.evaluate`, before any episode runs.
+    """
+    output = output_folder(output)
+    if planner == "ppo" and not policy_path:
+        from agents.training.ppo import pretrained_policy_path
+
+        policy_path = str(pretrained_policy_path(CROWD_POLICY))
+    specs = crowd_specs(settings, risks, episodes=episodes, seed=seed, planner=planner,
+                        reference=reference, policy_path=policy_path, alpha=alpha,
+                        delta=delta, epsilon=epsilon, filter_options=filter_options or "",
+                        env_options=env_options or "")
+    start = time.perf_counter()
+    records = evaluate(specs=specs, vary=("env_options",), workers=workers, executor=executor,
+                       csv_path=output / "episodes.csv", progress=progress,
+                       overwrite=overwrite)
+    wall = time.perf_counter() - start
+    rows = crowd_rows(records)
+    markdown = crowd_table(rows)
+    run_settings = (f"alpha {alpha}, delta {delta} m, epsilon {epsilon} m, {episodes} test "
+                    f"cases per cell (seeds {seed}..{seed + episodes - 1})")
+    (output / "summary.md").write_text(
+        "# Interactive crowds (CrowdNav's circle crossing)\n\n"
+        + describe_run(records, planner=planner, reference=reference, settings=run_settings)
+        + f"- this call: {wall:.1f} s wall time on {workers} worker(s)\n\n" + markdown)
+    files = {"episodes": output / "episodes.csv", "run_key": output / "episodes.run.json",
+             "summary": output / "summary.md"}
+    return EvaluationOutputs(records, summarise(records), markdown,
+                             time.perf_counter() - start, files, reused=records.reused)

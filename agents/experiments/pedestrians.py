@@ -1,0 +1,190 @@
+"""The recorded-pedestrian benchmark: ``safe-nav evaluate --suite pedestrians``.
+
+Every packaged ETH/UCY scene of ``SafeNav/Pedestrians-v0`` (ETH: Pellegrini et al.,
+ICCV 2009; UCY: Lerner, Chrysanthou & Lischinski, Eurographics 2007) times every risk,
+on the same seeds (episode ``i`` of every cell is seed ``seed + i``: its start time,
+start and goal). Pedestrians follow their recordings and do not react to the robot; the
+predictions see the past only (:mod:`safe_nav_env.pedestrians`). The episodes run
+through :func:`agents.evaluation.evaluate.evaluate`.
+
+Metrics per scene, in the style of ECP-MPC: collision rate (continuous time, Wilson 95
+%), success rate (goal reached without collision), time to goal (mean over the
+successes, s), infeasible share (steps whose hard QP had no solution: a filter status
+other than ``optimal``), miscoverage (the share of first-step halfspaces whose obstacle,
+one step later, crossed the halfspace's boundary: realised loss ``> 0``) and the
+smallest clearance over the continuous-time path (m; the median over episodes and the
+worst).
+
+Output folder::
+
+    episodes.csv, episodes.run.json   one row per episode, the run key
+    summary.md                        the table per scene and risk
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import defaultdict
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from agents.evaluation.campaign import EvaluationOutputs, describe_run, output_folder
+from agents.evaluation.evaluate import evaluate
+from agents.evaluation.executors import Executor
+from agents.evaluation.records import EpisodeRecord
+from agents.evaluation.summary import summarise, wilson_interval
+from agents.experiments.audit import decode_losses
+from agents.experiments.scenes import scene_setting, scene_specs
+from safe_nav_env.pedestrians.recording import SCENES
+
+__all__ = ["PEDESTRIAN_SETTINGS", "PedestrianRow", "pedestrian_rows", "pedestrian_table",
+           "run_pedestrians"]
+
+PEDESTRIAN_SETTINGS: dict[str, dict[str, Any]] = {name: {"scene": name} for name in SCENES}
+"""One setting per packaged scene (``SafeNav/Pedestrians-v0``'s ``scene`` option)."""
+
+PEDESTRIAN_RISKS = ("none", "mean", "cvar", "dr_cvar", "conformal")
+"""Methods run by default: the planner alone, the paper's filters and a calibrated one."""
+
+
+@dataclass(frozen=True)
+class PedestrianRow:
+    """The metrics of one (scene, risk); see the module docstring."""
+
+    scene: str
+    risk: str
+    episodes: int
+    collision: float
+    collision_low: float
+    collision_high: float
+    success: float
+    time_to_goal: float
+    infeasible: float
+    miscoverage: float
+    median_min_distance: float
+    worst_min_distance: float
+    failed: int
+
+
+def pedestrian_rows(records: Sequence[EpisodeRecord]) -> list[PedestrianRow]:
+    """The table's rows, one per (scene, risk), in the order they first appear."""
+    groups: dict[tuple[str, str], list[EpisodeRecord]] = defaultdict(list)
+    for record in records:
+        groups[(scene_setting(record, PEDESTRIAN_SETTINGS), record.risk)].append(record)
+    rows = []
+    for (scene, risk), group in groups.items():
+        ran = [r for r in group if not r.error]
+        n = len(ran)
+        collisions = sum(r.collision for r in ran)
+        low, high = wilson_interval(collisions, n)
+        successes = [r for r in ran if r.goal_reached and not r.collision]
+        steps = sum(r.steps for r in ran)
+        optimal = sum(r.share_optimal * r.steps for r in ran)
+        losses = np.concatenate([decode_losses(r.audit_all_losses) for r in ran] or [[]])
+        clearances = np.array([r.min_swept_distance for r in ran], dtype=float)
+        clearances = clearances[np.isfinite(clearances)]
+        filtered = risk != "none"
+        rows.append(PedestrianRow(
+            scene=scene, risk=risk, episodes=n, collision=collisions / max(1, n),
+            collision_low=low, collision_high=high, success=len(successes) / max(1, n),
+            time_to_goal=(float(np.mean([r.time_to_goal for r in successes]))
+                          if successes else math.nan),
+            infeasible=1.0 - optimal / steps if filtered and steps else math.nan,
+            miscoverage=float(np.mean(losses > 0.0)) if losses.size else math.nan,
+            median_min_distance=float(np.median(clearances)) if clearances.size else math.nan,
+            worst_min_distance=float(clearances.min()) if clearances.size else math.nan,
+            failed=len(group) - n))
+    return rows
+
+
+def _cell(value: float, digits: int = 2, percent: bool = False) -> str:
+    if math.isnan(value):
+        return "-"
+    return f"{100 * value:.1f}%" if percent else f"{value:.{digits}f}"
+
+
+def pedestrian_table(rows: Sequence[PedestrianRow]) -> str:
+    """The rows as a Markdown table."""
+    lines = ["| scene | method | episodes | collision [95 % CI] | success | time to goal (s) "
+             "| infeasible steps | miscoverage | min distance, median / worst (m) |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for row in rows:
+        lines.append(
+            f"| {row.scene} | {row.risk} | {row.episodes} | "
+            f"{_cell(row.collision, percent=True)} [{100 * row.collision_low:.1f}, "
+            f"{100 * row.collision_high:.1f}] | {_cell(row.success, percent=True)} | "
+            f"{_cell(row.time_to_goal)} | {_cell(row.infeasible, percent=True)} | "
+            f"{_cell(row.miscoverage, percent=True)} | {_cell(row.median_min_distance)} / "
+            f"{_cell(row.worst_min_distance)} |")
+    return "\n".join(lines) + "\n"
+
+
+def run_pedestrians(
+    output: str | Path = "results/pedestrians",
+    scenes: Sequence[str] = tuple(PEDESTRIAN_SETTINGS),
+    risks: Sequence[str] = PEDESTRIAN_RISKS,
+    *,
+    episodes: int = 100,
+    workers: int = 2,
+    seed: int = 0,
+    planner: str = "mpc",
+    reference: str = "rollout",
+    policy_path: str = "",
+    alpha: float = 0.2,
+    delta: float = 0.1,
+    epsilon: float = 0.05,
+    filter_options: dict[str, Any] | str | None = None,
+    env_options: dict[str, Any] | str | None = None,
+    executor: str | Executor = "process",
+    progress: bool = True,
+    overwrite: bool = False,
+) -> EvaluationOutputs:
+    """Run the pedestrian benchmark; write its CSV and summary to ``output``.
+
+    Parameters
+    ----------
+    output
+        Output folder (see the module docstring); an interrupted run resumes from it.
+    scenes
+        Packaged scene names (:data:`PEDESTRIAN_SETTINGS`).
+    risks
+        Filter risks (``"none"``: the planner alone).
+    episodes
+        Episodes per (scene, risk).
+    workers, seed, planner, reference, policy_path, alpha, delta, epsilon, filter_options,
+    env_options, executor, progress, overwrite
+        As for :func:`agents.evaluation.campaign.run_evaluation`. The PPO planner needs a
+        policy whose observation has the environment's slots (8 by default).
+
+    Raises
+    ------
+    InvalidParameterError, PolicyFileError, RunMismatchError, ...
+        As :func:`agents.evaluation.evaluate.evaluate`, before any episode runs.
+    """
+    output = output_folder(output)
+    specs = scene_specs("Pedestrians", PEDESTRIAN_SETTINGS, scenes, risks, episodes=episodes,
+                        seed=seed, planner=planner, reference=reference,
+                        policy_path=policy_path, alpha=alpha, delta=delta, epsilon=epsilon,
+                        filter_options=filter_options or "", env_options=env_options or "")
+    start = time.perf_counter()
+    records = evaluate(specs=specs, vary=("env_options",), workers=workers, executor=executor,
+                       csv_path=output / "episodes.csv", progress=progress,
+                       overwrite=overwrite)
+    wall = time.perf_counter() - start
+    markdown = pedestrian_table(pedestrian_rows(records))
+    run_settings = (f"alpha {alpha}, delta {delta} m, epsilon {epsilon} m, {episodes} "
+                    f"episodes per cell (seeds {seed}..{seed + episodes - 1})")
+    (output / "summary.md").write_text(
+        "# Recorded pedestrians (ETH: Pellegrini et al., ICCV 2009; UCY: Lerner, "
+        "Chrysanthou & Lischinski, Eurographics 2007)\n\n"
+        + describe_run(records, planner=planner, reference=reference, settings=run_settings)
+        + f"- this call: {wall:.1f} s wall time on {workers} worker(s)\n\n" + markdown)
+    files = {"episodes": output / "episodes.csv", "run_key": output / "episodes.run.json",
+             "summary": output / "summary.md"}
+    return EvaluationOutputs(records, summarise(records), markdown,
+                             time.perf_counter() - start, files, reused=records.reused)

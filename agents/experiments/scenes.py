@@ -1,0 +1,68 @@
+"""Benchmarks over a scene environment's settings: the specs and the setting of a record.
+
+A *scene suite* runs one scene environment (``SafeNav/Crowd-v0``,
+``SafeNav/Pedestrians-v0``) under several named settings (environment options) and
+risks, on the same seeds in every cell (common random numbers: test case ``i`` is seed
+``seed + i``), through the evaluation pipeline.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+from agents.evaluation.records import EpisodeRecord, EpisodeSpec
+from filters.errors import InvalidParameterError
+
+__all__ = ["scene_setting", "scene_specs"]
+
+
+def scene_specs(scenario: str, catalogue: Mapping[str, Mapping[str, Any]],
+                settings: Sequence[str], risks: Sequence[str], *, episodes: int, seed: int,
+                **common: Any) -> list[EpisodeSpec]:
+    """One spec per (setting, risk, test case).
+
+    Parameters
+    ----------
+    scenario
+        The scene environment's scenario name (``"Crowd"``, ``"Pedestrians"``).
+    catalogue
+        Setting name -> its environment options.
+    settings
+        The names to run, in ``catalogue``.
+    risks
+        Filter risks (``"none"``: the planner alone).
+    episodes, seed
+        Test cases per cell, seeds ``seed .. seed + episodes - 1``.
+    common
+        Further :class:`~agents.evaluation.records.EpisodeSpec` fields; ``env_options``
+        are merged under each setting's options.
+
+    Raises
+    ------
+    InvalidParameterError
+        For an unknown setting or a non-positive episode count.
+    """
+    unknown = [s for s in settings if s not in catalogue]
+    if unknown:
+        raise InvalidParameterError(f"unknown {scenario} settings {unknown}; choose from "
+                                    f"{list(catalogue)}")
+    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
+        raise InvalidParameterError(f"episodes must be an integer >= 1, got {episodes!r}")
+    env_options = common.pop("env_options", "") or {}
+    if isinstance(env_options, str):
+        env_options = json.loads(env_options)
+    return [EpisodeSpec(scenario=scenario, risk=risk, seed=seed + i,
+                        env_options={**env_options, **catalogue[setting]}, **common)
+            for setting in settings for risk in risks for i in range(episodes)]
+
+
+def scene_setting(record: EpisodeRecord, catalogue: Mapping[str, Mapping[str, Any]]) -> str:
+    """The name in ``catalogue`` whose options the record's environment options contain
+    (the options themselves if none does)."""
+    options = json.loads(record.env_options) if record.env_options else {}
+    for name, setting in catalogue.items():
+        if all(options.get(key) == value for key, value in setting.items()):
+            return name
+    return record.env_options
