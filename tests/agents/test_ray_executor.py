@@ -8,6 +8,7 @@ default) works without the ray extra.
 from __future__ import annotations
 
 import csv
+import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -117,10 +118,12 @@ class LosesANode(RayExecutor):
 
     def run(self, specs):
         for record in super().run(specs):
-            if not self.killed:
+            for _ in range(1000 if not self.killed else 0):  # watch the node for a while
                 self.killed = _busy_workers(self.node)
                 if self.killed:
                     self.cluster.remove_node(self.node, allow_graceful=False)
+                    break
+                time.sleep(0.002)
             yield record
 
 
@@ -128,17 +131,18 @@ def test_a_lost_node_loses_and_repeats_no_episode(cluster, tmp_path):
     import ray
 
     head, worker = cluster
-    kwargs = dict(episodes=12, seed=5, progress=False, planner="mpc")
-    clean = evaluate(["HeadOn"], ["none"], workers=1, **kwargs)
+    kwargs = dict(episodes=8, seed=5, progress=False, planner="mpc")
+    clean = evaluate(["HeadOn"], ["none", "dr_cvar"], workers=1, **kwargs)
     ray.init(address=head.address, log_to_driver=False)
     assert sum(node["Alive"] for node in ray.nodes()) == 2
     path = tmp_path / "episodes.csv"
     executor = LosesANode(head, worker)
-    faulty = evaluate(["HeadOn"], ["none"], executor=executor, csv_path=path, **kwargs)
+    faulty = evaluate(["HeadOn"], ["none", "dr_cvar"], executor=executor, csv_path=path,
+                      **kwargs)
     assert executor.killed  # removed while an episode was running there
-    alive = {node["NodeID"]: node["Alive"] for node in ray.nodes()}
-    assert alive[worker.node_id] is False and sum(alive.values()) == 1
+    assert not worker.any_processes_alive()  # its raylet and object store are gone
     rows = read_records(path)
-    assert len(rows) == 12 and len({r.key() for r in rows}) == 12  # each episode exactly once
+    assert len(rows) == 16 and len({r.key() for r in rows}) == 16  # each episode exactly once
     assert _timeless(faulty) == _timeless(clean)
-    assert sorted(_timeless(rows), key=lambda r: r.key()) == _timeless(clean)
+    assert sorted(_timeless(rows), key=lambda r: r.key()) == sorted(_timeless(clean),
+                                                                    key=lambda r: r.key())
