@@ -118,7 +118,6 @@ class TrainingPolicy:
     def __init__(self) -> None:
         self.model: Any = None
         self._physical: Any = None
-        self._compiled_rollout: Any = None
 
     def bind(self, model: Any, physical_space: Any) -> None:
         """Answer with ``model`` from now on (its actions mapped to ``physical_space``)."""
@@ -127,7 +126,6 @@ class TrainingPolicy:
         self.model = model
         self._physical = (PhysicalUnitsPolicy(model, physical_space)
                           if is_normalised_policy(model, physical_space) else model)
-        self._compiled_rollout = None  # compiled again for this model on first use
 
     def predict(self, observation: Any, state: Any = None, episode_start: Any = None,
                 deterministic: bool = False):
@@ -135,16 +133,6 @@ class TrainingPolicy:
             raise InvalidTypeError("TrainingPolicy.predict called before bind(model)")
         return self._physical.predict(observation, state=state, episode_start=episode_start,
                                       deterministic=deterministic)
-
-    def rollout_reference(self, env: Any, action: Any, horizon: int):
-        """The bound model's roll-out in one compiled call (its live parameters, so each
-        update is followed), or ``None`` before :meth:`bind` or when it cannot be compiled
-        (see :meth:`agents.NumpyPolicy.rollout_reference`)."""
-        if self._physical is None:
-            return None
-        from agents.policies.compiled_rollout import rollout_reference
-
-        return rollout_reference(self, env, action, horizon)
 
     def __deepcopy__(self, memo: dict) -> TrainingPolicy:  # the wrapper records its args
         return self
