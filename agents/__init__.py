@@ -4,7 +4,8 @@
   ``load_ppo()`` loads the policy shipped with the package.
 * :func:`load_numpy_policy`, :class:`NumpyPolicy` — the same actor exported once to
   numpy (a faster deterministic ``predict``, for the filter's roll-out reference);
-  ``TorchActorPolicy`` is a deprecated alias of :class:`NumpyPolicy` (it warns).
+  ``agents.TorchActorPolicy`` is a deprecated alias of :class:`NumpyPolicy` (it warns;
+  not in ``__all__``).
 * :class:`MPCReferencePlanner` — the paper's obstacle-agnostic goal-tracking MPC.
 * :func:`evaluate` — Monte Carlo comparison of risk settings, one record per episode
   (:mod:`agents.evaluation.records`: specs, records, CSV;
@@ -56,7 +57,6 @@ __all__ = [
     "RunMismatchError",
     "SafetyEvalCallback",
     "SafetyMetricsCallback",
-    "TorchActorPolicy",
     "evaluate",
     "load_numpy_policy",
     "load_ppo",
