@@ -193,7 +193,7 @@ def load_policy(policy_path: str | Path = "", *, sha256: str = "") -> tuple[Any,
                               f"run (SHA-256 {sha[:12]}..., expected {sha256[:12]}...)")
     key = (str(policy_file(policy_path).resolve()), sha)
     if key not in _POLICY_CACHE:
-        from agents.policies.numpy_policy import TorchActorPolicy, UnsupportedPolicyError
+        from agents.policies.numpy_policy import NumpyPolicy, UnsupportedPolicyError
         from agents.training.ppo import load_ppo, set_torch_threads
 
         set_torch_threads(1)
@@ -202,8 +202,8 @@ def load_policy(policy_path: str | Path = "", *, sha256: str = "") -> tuple[Any,
         except Exception as exc:  # noqa: BLE001 - SB3/torch/zip raise many kinds
             raise PolicyFileError(f"cannot load the PPO policy {policy_file(policy_path)} "
                                   f"({type(exc).__name__}: {exc})".replace("\n", " ")) from exc
-        try:  # the same actions bit for bit, without SB3's per-call overhead
-            _POLICY_CACHE[key] = TorchActorPolicy.from_sb3(model)
+        try:  # SB3's deterministic actions to float32 rounding, without its per-call overhead
+            _POLICY_CACHE[key] = NumpyPolicy.from_sb3(model)
         except UnsupportedPolicyError:
             _POLICY_CACHE[key] = model
     return _POLICY_CACHE[key], sha

@@ -113,38 +113,45 @@ class TrainingPolicy:
 
     The training environments are built before the model, so this stands in for it
     until :meth:`bind` is called. In-process environments only (``vec_env="dummy"``).
+    Deterministic actions come from :class:`agents.NumpyPolicy` (SB3's to float32
+    rounding), exported again by :meth:`refresh` at the start of every rollout (the
+    parameters change only in the updates between rollouts); others from the SB3 model.
     """
 
     def __init__(self) -> None:
         self.model: Any = None
-        self._physical: Any = None
-        self._compiled_rollout: Any = None
+        self._space: Any = None
+        self._physical: Any = None  # the SB3 model, in physical units
+        self._fast: Any = None  # its numpy export, in physical units (None: not exportable)
 
     def bind(self, model: Any, physical_space: Any) -> None:
         """Answer with ``model`` from now on (its actions mapped to ``physical_space``)."""
+        self.model, self._space = model, physical_space
+        self._physical = self._in_physical_units(model)
+        self.refresh()
+
+    def refresh(self) -> None:
+        """Export the bound model's actor to numpy again (after its parameters changed)."""
+        from agents.policies.numpy_policy import NumpyPolicy, UnsupportedPolicyError
+
+        try:
+            self._fast = self._in_physical_units(NumpyPolicy.from_sb3(self.model))
+        except UnsupportedPolicyError:
+            self._fast = None
+
+    def _in_physical_units(self, policy: Any) -> Any:
         from agents.training.wrappers import PhysicalUnitsPolicy, is_normalised_policy
 
-        self.model = model
-        self._physical = (PhysicalUnitsPolicy(model, physical_space)
-                          if is_normalised_policy(model, physical_space) else model)
-        self._compiled_rollout = None  # compiled again for this model on first use
+        return (PhysicalUnitsPolicy(policy, self._space)
+                if is_normalised_policy(self.model, self._space) else policy)
 
     def predict(self, observation: Any, state: Any = None, episode_start: Any = None,
                 deterministic: bool = False):
         if self._physical is None:
             raise InvalidTypeError("TrainingPolicy.predict called before bind(model)")
-        return self._physical.predict(observation, state=state, episode_start=episode_start,
-                                      deterministic=deterministic)
-
-    def rollout_reference(self, env: Any, action: Any, horizon: int):
-        """The bound model's roll-out in one compiled call (its live parameters, so each
-        update is followed), or ``None`` before :meth:`bind` or when it cannot be compiled
-        (see :meth:`agents.NumpyPolicy.rollout_reference`)."""
-        if self._physical is None:
-            return None
-        from agents.policies.compiled_rollout import rollout_reference
-
-        return rollout_reference(self, env, action, horizon)
+        policy = self._fast if deterministic and self._fast is not None else self._physical
+        return policy.predict(observation, state=state, episode_start=episode_start,
+                              deterministic=deterministic)
 
     def __deepcopy__(self, memo: dict) -> TrainingPolicy:  # the wrapper records its args
         return self
@@ -487,7 +494,7 @@ def train_ppo(
     from stable_baselines3.common.callbacks import CallbackList
     from stable_baselines3.common.logger import CSVOutputFormat, HumanOutputFormat, Logger
 
-    from agents.training.callbacks import SafetyEvalCallback, SafetyMetricsCallback
+    from agents.training.callbacks import RefreshActor, SafetyEvalCallback, SafetyMetricsCallback
 
     torch.set_num_threads(torch_threads)
     training_policy = None
@@ -526,6 +533,8 @@ def train_ppo(
 
     safety = SafetyMetricsCallback()
     callbacks: list[Any] = [safety]
+    if training_policy is not None:
+        callbacks.append(RefreshActor(training_policy))
     best_model_path = None
     if eval_freq:
         eval_env = make_training_env(
