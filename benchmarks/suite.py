@@ -403,8 +403,8 @@ def benchmark_training(timesteps: int = 20_480, chunk: int = 2048, seed: int = 0
 
     What ``safe-nav train`` runs without and with ``--filter dr_cvar``
     (:func:`agents.train_ppo` defaults: RandomCrossing, 8 in-process environments, the
-    held-action reference): both models are made (and warmed up: imports, numba
-    caches, first allocations) by ``train_ppo(total_timesteps=warmup_steps)``, then
+    held-action reference): both models are made (and warmed up: imports, first
+    allocations) by ``train_ppo(total_timesteps=warmup_steps)``, then
     trained on ``chunk`` steps at a time, plain and filtered in turn, until each has
     ``timesteps`` timed steps. A chunk of 2048 steps is one rollout and its PPO update.
 

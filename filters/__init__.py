@@ -14,9 +14,9 @@
 The halfspaces have one (numpy) implementation, checked against the CVXPY formulation
 of :mod:`filters.halfspace_cvxpy` by tolerance.
 
-``import filters`` imports neither numba (loaded by the first compiled call) nor CVXPY
-(only :mod:`filters.halfspace_cvxpy` and :mod:`filters.mpc.backends.cvxpy`, the readable
-reference formulations, do; reach ``filters.CVXPYSafetyFilter`` lazily) nor matplotlib.
+``import filters`` imports neither CVXPY (only :mod:`filters.halfspace_cvxpy` and
+:mod:`filters.mpc.backends.cvxpy`, the readable reference formulations, do; reach
+``filters.CVXPYSafetyFilter`` lazily) nor matplotlib.
 """
 
 from typing import Any

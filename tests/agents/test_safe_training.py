@@ -9,9 +9,7 @@ import warnings
 import gymnasium as gym
 import numpy as np
 import pytest
-
-pytest.importorskip("stable_baselines3")
-
+import stable_baselines3  # noqa: F401  (the train extra of the set-up)
 from stable_baselines3 import PPO  # noqa: E402
 from stable_baselines3.common.logger import Logger  # noqa: E402
 from stable_baselines3.common.vec_env import DummyVecEnv  # noqa: E402
@@ -434,7 +432,7 @@ def test_the_training_policy_answers_with_its_numpy_export_refreshed_per_rollout
 # ----------------------------------------------------------------------------- the CLI
 @pytest.mark.slow
 def test_train_cli_smoke_prints_metrics_and_writes_csv_and_tensorboard(tmp_path, capsys):
-    pytest.importorskip("tensorboard")
+    import tensorboard  # noqa: F401  (the train extra)
     output = tmp_path / "ppo.zip"
     code = main(["train", "--env-id", "HeadOn", "--timesteps", "256", "--n-envs", "2",
                  "--output", str(output), "--no-progress", "--filter", "dr_cvar",

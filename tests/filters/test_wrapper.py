@@ -262,8 +262,9 @@ def test_render_hook_is_installed_once_and_frames_render():
     assert frame.dtype == np.uint8 and frame.ndim == 3
 
 
+@pytest.mark.video  # the video extra: pytest -m video
 def test_record_video_writes_a_file(tmp_path):
-    pytest.importorskip("moviepy", reason="RecordVideo needs moviepy (dev extra)")
+    import moviepy  # noqa: F401
     env = gym.make("SafeNav/HeadOn-v0", render_mode="rgb_array")
     folder = tmp_path / "videos"
     env = gym.wrappers.RecordVideo(SafetyFilterWrapper(env, risk="dr_cvar"), str(folder),
