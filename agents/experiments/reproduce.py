@@ -69,12 +69,6 @@ from safe_nav_env.scenarios import env_id, scenario_name
 PAPER_SCENARIOS = tuple(env_id(name) for name in PAPER_SCENARIO_NAMES)
 """The paper's four scenarios by gym id (reproduce's encounters are keyed by gym id)."""
 
-PAPER_TABLE_ONE_MS = {
-    "cvar": {50: (0.144, 2.23), 500: (1.91, 4.32), 1500: (5.98, 8.95)},
-    "dr_cvar": {50: (0.236, 9.10), 500: (2.58, 73.4), 1500: (8.53, 216.0)},
-}
-"""Table I of the paper: (solve, call) in ms, CVXPY + ECOS on a Xeon E3-1535M."""
-
 PAPER_WORST_DISTANCE = {"mean": -0.45, "cvar": -0.22}
 """Section IV-B: worst sampled distance to collision in the box plots (300 runs, the
 three single-obstacle scenarios, on :data:`PAPER_WINDOWS`); DR-CVaR: no collision."""
@@ -1115,7 +1109,7 @@ def reproduce(
     timing
         Run the Table I timing (``False`` skips it, for quick runs).
     """
-    from benchmarks.suite import halfspace_timing_table
+    from agents.experiments.table_one import PAPER_TABLE_ONE, halfspace_timing_table
 
     unknown = [p for p in presets if p not in PRESETS]
     if unknown or not presets:
@@ -1154,13 +1148,12 @@ def reproduce(
                   "halfspace through `safe_halfspaces`.", "",
                   "| method | N_s | paper solve | paper call | CVXPY solve here | CVXPY call here "
                   "| ours here (closed form) |", "|---|---|---|---|---|---|---|"]
-        for risk in ("cvar", "dr_cvar"):
-            for n, (p_solve, p_call) in PAPER_TABLE_ONE_MS[risk].items():
-                here = table["cvxpy"][risk].get(n)
-                if here is None:
-                    continue
-                lines.append(f"| {risk} | {n} | {p_solve} | {p_call} | {here['solve']:.3f} | "
-                             f"{here['call']:.2f} | {table['ours'][n]:.4f} |")
+        for (risk, n), (p_solve, p_call) in PAPER_TABLE_ONE.items():
+            here = table["cvxpy"][risk].get(n)
+            if here is None:
+                continue
+            lines.append(f"| {risk} | {n} | {p_solve} | {p_call} | {here['solve']:.3f} | "
+                         f"{here['call']:.2f} | {table['ours'][n]:.4f} |")
         lines.append("")
 
     lines += ["## Monte Carlo with the obstacle-agnostic MPC planner (Fig. 4, Fig. 5)", "",
