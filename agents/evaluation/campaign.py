@@ -10,7 +10,7 @@ Output folder layout::
                         environment settings, noise, package version); a resumed run
                         must match it
     summary.md          the summary tables (Markdown), naming the policy, the settings
-                        and the code version, and the guarantee audit (agents/experiments/audit.py)
+                        and the code version, and the guarantee audit (agents/evaluation/audit.py)
     figures/            trajectories_<scenario>.png, distance_boxplots.png,
                         collision_rates.png, safe_polytopes.png, episode.gif
 """

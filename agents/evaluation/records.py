@@ -319,7 +319,7 @@ class EpisodeRecord:
     filter_time_median, filter_time_max, wall_time
         Filter step times and the episode's wall time, in s.
     audit_steps, audit_losses
-        The guarantee audit (:mod:`agents.experiments.audit`): the number of active first-step
+        The guarantee audit (:mod:`agents.evaluation.audit`): the number of active first-step
         halfspaces (obstacle-steps) and their realised losses, in m, as
         ``";"``-separated numbers rounded to 0.1 mm (pooling over episodes needs every
         loss, since a CVaR is not a sum). Empty when no filter ran.

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from agents.errors import PolicyFileError
+from agents.evaluation.audit import encode_losses
 from agents.evaluation.records import (
     FILTER_STATUSES,
     EpisodeRecord,
@@ -30,7 +31,6 @@ from agents.evaluation.records import (
     file_sha256,
     package_version,
 )
-from agents.experiments.audit import encode_losses
 from filters.errors import InvalidParameterError
 from filters.wrapper import FALLBACK_STATUSES, NOMINAL_STATUSES
 
@@ -586,7 +586,7 @@ class EpisodeStats:
     def _audit(self, base: Any, report: Any) -> None:
         """The realised losses of the step's active first-step halfspaces.
 
-        See :mod:`agents.experiments.audit`.
+        See :mod:`agents.evaluation.audit`.
 
         ``base`` has already stepped: its obstacle positions are the realised ones at the
         step the halfspaces' ``k = 1`` predicted. Steps without halfspaces or a plan
@@ -599,7 +599,7 @@ class EpisodeStats:
         normals, offsets, plan = report["normals"], report["offsets"], report["planned_states"]
         if normals is None or offsets is None or plan is None or len(normals) == 0:
             return
-        from agents.experiments.audit import first_step_losses
+        from agents.evaluation.audit import first_step_losses
         from filters.intersample import arc_margin
 
         h = np.asarray(normals, dtype=float)[:, 0]
