@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from agents.evaluation.records import PAPER_SCENARIOS, PLANNERS, REFERENCES, package_version
+from filters.constants import ALPHA, DELTA, EPSILON
 from filters.risk import PAPER_RISKS
 from filters.wrapper import FALLBACKS, OBJECTIVES, RISKS
 
@@ -341,11 +342,11 @@ def _add_evaluation_arguments(parser: argparse.ArgumentParser, *, episodes: int)
                         help="where episodes run: local processes or a Ray cluster")
     parser.add_argument("--seed", type=_seed, default=0,
                         help="seed of the first episode (episode i uses seed + i)")
-    parser.add_argument("--alpha", type=_tail_mass, default=0.2,
+    parser.add_argument("--alpha", type=_tail_mass, default=ALPHA,
                         help="CVaR tail mass, in (0, 1]")
-    parser.add_argument("--delta", type=_metres, default=0.1,
+    parser.add_argument("--delta", type=_metres, default=DELTA,
                         help="risk bound on the intrusion depth, in m (>= 0)")
-    parser.add_argument("--epsilon", type=_metres, default=0.05,
+    parser.add_argument("--epsilon", type=_metres, default=EPSILON,
                         help="Wasserstein radius of DR-CVaR, in m (>= 0)")
     parser.add_argument("--noise", type=_noise, default="",
                         help="noise preset of the environment, e.g. authors_code (default: the "

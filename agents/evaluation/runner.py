@@ -33,6 +33,7 @@ from agents.evaluation.records import (
 )
 from filters.errors import InvalidParameterError
 from filters.wrapper import FALLBACK_STATUSES, NOMINAL_STATUSES
+from safe_nav_env.constants import DT
 
 __all__ = ["EpisodeStats", "Trajectory", "TrajectoryRecorder", "check_policy",
            "clear_env_cache", "collision_cause", "load_policy", "make_env", "policy_file",
@@ -538,7 +539,7 @@ class EpisodeStats:
         self.sampled_collisions: list[bool] = []
         self.first_error = ""
         self.episode_return = 0.0
-        self.dt = 0.2
+        self.dt = DT
         self._position = np.zeros(2)
         self.intersample = False
         self.audit: list[float] = []

@@ -62,8 +62,11 @@ import numpy as np
 from agents.evaluation.records import PAPER_SCENARIOS as PAPER_SCENARIO_NAMES
 from agents.evaluation.records import EpisodeSpec
 from agents.evaluation.summary import SummaryRow, short_name, wilson_interval
+from agents.experiments.table_one import EXAMPLE_ONE
 from agents.planners import AUTHORS_CODE_PLANNER
+from filters.constants import ALPHA, DELTA, EPSILON, HORIZON
 from filters.errors import InvalidArrayError, InvalidParameterError
+from filters.risk import PAPER_RISKS
 from safe_nav_env.scenarios import env_id, scenario_name
 
 PAPER_SCENARIOS = tuple(env_id(name) for name in PAPER_SCENARIO_NAMES)
@@ -144,11 +147,11 @@ class ReproductionPreset:
     planner_weights: tuple[float, float, float]
     filter_weights: tuple[float, float, float]
     max_acceleration: float
-    alpha: float = 0.2
-    delta: float = 0.1
-    epsilon: float = 0.05
+    alpha: float = ALPHA
+    delta: float = DELTA
+    epsilon: float = EPSILON
     mean_delta: float | None = None
-    horizon: int = 10
+    horizon: int = HORIZON
     filter_input_cost: str = "absolute"
     fallback: str = "paper"
 
@@ -543,9 +546,6 @@ def _progress(iterator: Iterable[EncounterRecord], total: int, show: bool):
 
 
 # ---------------------------------------------------------------------------- Example 1, Table I
-EXAMPLE_ONE = dict(reference=(-0.9, -0.8), obstacle=(0.5, 0.0), radius=0.3, n_samples=100,
-                   variance=0.01, alpha=0.2, delta=0.1, epsilons=(0.05, 0.1, 0.2))
-"""Example 1 of the paper."""
 
 
 def example_one(seed: int = 0) -> dict:
@@ -828,7 +828,7 @@ def write_episodes_csv(records: Sequence[EncounterRecord], path: Path) -> Path:
 
 
 # ---------------------------------------------------------------------------- Monte Carlo
-RISKS = ("none", "mean", "cvar", "dr_cvar")
+RISKS = ("none", *PAPER_RISKS)
 """Risk settings of the paper's Monte Carlo, plus the unfiltered reference."""
 
 
@@ -927,8 +927,8 @@ def compare_with_paper(rows: Sequence[WindowRow]) -> list[str]:
             f"distance in the window {min(r.window_worst for r in dr):.3f} m.")
     for scenario in dict.fromkeys(r.scenario for r in rows):
         by_risk = {r.risk: r for r in rows if r.scenario == scenario}
-        if all(k in by_risk for k in ("mean", "cvar", "dr_cvar")):
-            m, c, d = (by_risk[k] for k in ("mean", "cvar", "dr_cvar"))
+        if all(k in by_risk for k in PAPER_RISKS):
+            m, c, d = (by_risk[k] for k in PAPER_RISKS)
             sampled_ok = (m.window_sampled_collisions >= c.window_sampled_collisions
                           >= d.window_sampled_collisions)
             swept_ok = m.collisions >= c.collisions >= d.collisions

@@ -26,10 +26,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from filters.constants import ALPHA, DELTA, EPSILON
 from filters.geometry import Disc
 from filters.halfspaces import safe_halfspaces
+from safe_nav_env.constants import N_SAMPLES, OBSTACLE_RADIUS
 
 __all__ = [
+    "EXAMPLE_ONE",
     "PAPER_TABLE_ONE",
     "CvxpyTiming",
     "OurTiming",
@@ -50,11 +53,17 @@ PAPER_TABLE_ONE: dict[tuple[str, int], tuple[float, float]] = {
     ("dr_cvar", 1500): (8.53, 216.0),
 }
 
-_Y_REF = np.array([-0.9, -0.8])
-_OBSTACLE = np.array([0.5, 0.0])
-_RADIUS = 0.3
+EXAMPLE_ONE = dict(reference=(-0.9, -0.8), obstacle=(0.5, 0.0), radius=OBSTACLE_RADIUS,
+                   n_samples=N_SAMPLES, variance=0.01, alpha=ALPHA, delta=DELTA,
+                   epsilons=(EPSILON, 0.1, 0.2))
+"""Example 1 of the paper (Sec. II-C): ego reference, nominal obstacle position (m), disc
+radius (m), samples of N(obstacle, variance I), and the risk parameters."""
+
+_Y_REF = np.array(EXAMPLE_ONE["reference"])
+_OBSTACLE = np.array(EXAMPLE_ONE["obstacle"])
+_RADIUS = OBSTACLE_RADIUS
 _STD = 0.1  # N(p, 0.01 I)
-_ALPHA, _DELTA, _EPSILON = 0.2, 0.1, 0.05
+_ALPHA, _DELTA, _EPSILON = ALPHA, DELTA, EPSILON
 _GRID = (3, 10)  # obstacles x steps
 
 
