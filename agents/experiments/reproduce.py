@@ -67,6 +67,7 @@ from agents.planners import AUTHORS_CODE_PLANNER
 from filters.constants import ALPHA, DELTA, EPSILON, HORIZON
 from filters.errors import InvalidArrayError, InvalidParameterError
 from filters.risk import PAPER_RISKS
+from safe_nav_env.constants import DT
 from safe_nav_env.scenarios import env_id, scenario_name
 
 PAPER_SCENARIOS = tuple(env_id(name) for name in PAPER_SCENARIO_NAMES)
@@ -958,7 +959,7 @@ def _monte_carlo_section(
     write_episodes_csv(records, folder / "episodes.csv")
     figures = _monte_carlo_figures(preset, records, rows, folder / "figures", seed=seed)
     scenarios = list(dict.fromkeys(r.scenario for r in records))
-    dt = next((r.dt for r in records if math.isfinite(r.dt)), 0.2)
+    dt = next((r.dt for r in records if math.isfinite(r.dt)), DT)
     windows = resolve_windows(records)
     encounters = resolve_windows(records, mode="encounter")
     lines = [f"### Preset `{preset.name}`", "", f"Settings: {preset.description}.", "",
@@ -1028,7 +1029,7 @@ def _monte_carlo_figures(
     files: dict[str, Path] = {}
     scenarios = list(dict.fromkeys(r.scenario for r in records))
     windows = {s: w for s, (w, _) in resolve_windows(records).items()}
-    dt = next((r.dt for r in records if math.isfinite(r.dt)), 0.2)
+    dt = next((r.dt for r in records if math.isfinite(r.dt)), DT)
     distances = {s: {risk: _series([r for r in records if r.scenario == s and r.risk == risk
                                      and not r.error], "distances")
                      for risk in dict.fromkeys(r.risk for r in records if r.scenario == s)}
