@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -38,24 +37,6 @@ import numpy as np
 
 if TYPE_CHECKING:
     from benchmarks.scaling import ScalingGrid
-
-
-def halfspace_timing_table(
-    sample_counts: Sequence[int] = (50, 500, 1500), repeats: int = 100, seed: int = 0
-) -> dict:
-    """Table I as nested dicts (ms): ``cvxpy[risk][N_s] = {setup, solve, call}`` (means)
-    and ``ours[N_s]`` = our DR-CVaR time for one halfspace; ``result`` is the raw
-    :class:`benchmarks.halfspaces.TableOneResult`."""
-    from benchmarks.halfspaces import benchmark_table_one
-
-    result = benchmark_table_one(sample_counts, repeats, seed)
-    cvxpy: dict[str, dict[int, dict[str, float]]] = {}
-    for row in result.cvxpy:
-        cvxpy.setdefault(row.risk, {})[row.n_samples] = {
-            "setup": row.setup_mean, "solve": row.solve_mean, "call": row.call_mean}
-    ours = {row.n_samples: row.one_halfspace_us / 1e3 for row in result.ours
-            if row.risk == "dr_cvar"}
-    return {"cvxpy": cvxpy, "ours": ours, "result": result}
 
 
 @dataclass(frozen=True)
@@ -244,9 +225,9 @@ def run_benchmarks(filter_steps: int = 500, table_repeats: int = 100, seed: int 
     """Run (a), (b) and (c) and return the printed report."""
     import platform
 
+    from agents.experiments.table_one import format_table_one, halfspace_timing_table
     from benchmarks.env import benchmark as env_benchmark
     from benchmarks.filter_qp import benchmark_filter_qp, format_filter_qp
-    from benchmarks.halfspaces import format_table_one
 
     parts = [f"python {platform.python_version()}, numpy {np.__version__}, "
              f"{platform.machine()}; medians; ratios measured in this run"]

@@ -71,8 +71,8 @@ __all__ = [
 
 
 def __getattr__(name: str) -> Any:
-    if name == "CVXPYSafetyFilter":  # imports cvxpy, so only on demand
-        from filters.mpc.backends.cvxpy import CVXPYSafetyFilter
+    if name == "CVXPYSafetyFilter":  # the CVXPY reference: resolved on first use
+        from filters.mpc.cvxpy_filter import CVXPYSafetyFilter
 
         return CVXPYSafetyFilter
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

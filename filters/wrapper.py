@@ -29,6 +29,7 @@ import numpy as np
 
 from filters._validation import scalar_in_range
 from filters.calibration import OnlineCalibration
+from filters.constants import ALPHA, DELTA, EPSILON
 from filters.errors import InvalidArrayError, InvalidParameterError, InvalidTypeError
 from filters.geometry import Disc
 from filters.halfspaces import Halfspaces, safe_halfspaces
@@ -390,9 +391,9 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self,
         env: gym.Env,
         risk: str = "dr_cvar",
-        alpha: float = 0.2,
-        delta: float = 0.1,
-        epsilon: float | str = 0.05,
+        alpha: float = ALPHA,
+        delta: float = DELTA,
+        epsilon: float | str = EPSILON,
         horizon: int | None = None,
         *,
         objective: str | None = None,
@@ -870,7 +871,7 @@ def _choice(name: str, value: object, choices: tuple[str, ...]) -> str:
 
 def calibration_settings(
     risk: str,
-    epsilon: float | str = 0.05,
+    epsilon: float | str = EPSILON,
     *,
     calibration_episodes: int | None = None,
     calibration_seed: int = CALIBRATION_SEED,

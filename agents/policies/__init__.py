@@ -1,2 +1,6 @@
-"""The fast deterministic form of a trained PPO actor: :mod:`agents.policies.numpy_policy`
-(the actor exported to numpy, for the filter's roll-out reference)."""
+"""Trained PPO actors in the forms the filter and the evaluation use.
+
+* :mod:`agents.policies.loading` — load a trained PPO policy (the shipped one or a file);
+* :mod:`agents.policies.numpy_policy` — the actor exported to numpy, for the filter's
+  roll-out reference.
+"""

@@ -395,7 +395,7 @@ def load_numpy_policy(path: str | Path | None = None) -> NumpyPolicy:
     UnsupportedPolicyError
         If the policy cannot be exported (see :meth:`NumpyPolicy.from_sb3`).
     """
-    from agents.training.ppo import load_ppo
+    from agents.policies.loading import load_ppo
 
     return NumpyPolicy.from_sb3(load_ppo(path))
 
@@ -432,7 +432,7 @@ def benchmark_numpy_policy(
     (the network does not care where they come from); one torch thread, as in the
     evaluation workers.
     """
-    from agents.training.ppo import load_ppo, set_torch_threads
+    from agents.policies.loading import load_ppo, set_torch_threads
 
     set_torch_threads(1)
     model = load_ppo(path)

@@ -27,17 +27,19 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from agents.policies.loading import (  # noqa: F401  (re-exported)
+    PRETRAINED_POLICY,
+    load_ppo,
+    pretrained_policy_path,
+    set_torch_threads,
+)
 from filters.errors import InvalidParameterError, InvalidTypeError
 
 DEFAULT_ENV_ID = "SafeNav/RandomCrossing-v0"
 """The randomised training scenario family."""
-
-PRETRAINED_POLICY = "ppo_random_crossing.zip"
-"""File name of the policy shipped in ``agents/pretrained``."""
 
 DEFAULT_PPO_KWARGS: dict[str, Any] = {
     "n_steps": 256,
@@ -95,11 +97,6 @@ class TrainingReport:
     best_model_path: Path | None = None
     safety: dict[str, float] = field(default_factory=dict)
     lagrange_multiplier: float | None = None
-
-
-def pretrained_policy_path(name: str = PRETRAINED_POLICY) -> Path:
-    """Path of a PPO policy shipped with the package (default: the RandomCrossing one)."""
-    return Path(str(resources.files("agents") / "pretrained" / name))
 
 
 def metrics_path_for(save_path: str | Path) -> Path:
@@ -573,29 +570,6 @@ def train_ppo(
         lagrange_multiplier=getattr(model, "lagrange_multiplier", None),
     )
     return model, report
-
-
-def load_ppo(path: str | Path | None = None):
-    """Load a PPO policy; with no argument, the one shipped with the package.
-
-    Raises
-    ------
-    FileNotFoundError
-        If ``path`` (or the shipped policy) does not exist.
-    """
-    from stable_baselines3 import PPO
-
-    path = pretrained_policy_path() if path is None else Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"no PPO policy at {path}")
-    return PPO.load(path, device="cpu")
-
-
-def set_torch_threads(n: int = 1) -> None:
-    """Use ``n`` torch threads (1 is fastest for small MLPs on this machine)."""
-    import torch
-
-    torch.set_num_threads(n)
 
 
 __all__ = [
