@@ -3,10 +3,9 @@
 * :func:`train_ppo`, :func:`load_ppo` — the PPO reference planner (Stable-Baselines3);
   ``load_ppo()`` loads the policy shipped with the package.
 * :func:`load_numpy_policy`, :class:`NumpyPolicy` — the same actor exported once to
-  numpy (deterministic ``predict`` about 10x faster; for the roll-out reference);
-  :class:`TorchActorPolicy` — the same actions as SB3 bit for bit, several times faster;
-  with either, the filter's roll-out reference runs in one compiled call
-  (:mod:`agents.policies.compiled_rollout`).
+  numpy (a faster deterministic ``predict``, for the filter's roll-out reference);
+  ``agents.TorchActorPolicy`` is a deprecated alias of :class:`NumpyPolicy` (it warns;
+  not in ``__all__``).
 * :class:`MPCReferencePlanner` — the paper's obstacle-agnostic goal-tracking MPC.
 * :func:`evaluate` — Monte Carlo comparison of risk settings, one record per episode
   (:mod:`agents.evaluation.records`: specs, records, CSV;
@@ -24,7 +23,7 @@ from agents.evaluation.records import EpisodeRecord, EpisodeSpec
 from agents.evaluation.runner import run_episode
 from agents.evaluation.summary import summarise
 from agents.planners import MPCReferencePlanner
-from agents.policies.numpy_policy import NumpyPolicy, TorchActorPolicy, load_numpy_policy
+from agents.policies.numpy_policy import NumpyPolicy, load_numpy_policy
 from agents.training.ppo import load_ppo, train_ppo
 
 _LAZY = {
@@ -36,6 +35,10 @@ _LAZY = {
 
 
 def __getattr__(name: str):
+    if name == "TorchActorPolicy":  # deprecated alias of NumpyPolicy: warns
+        from agents.policies import numpy_policy
+
+        return numpy_policy.__getattr__(name)
     if name in _LAZY:
         import importlib
 
@@ -54,7 +57,6 @@ __all__ = [
     "RunMismatchError",
     "SafetyEvalCallback",
     "SafetyMetricsCallback",
-    "TorchActorPolicy",
     "evaluate",
     "load_numpy_policy",
     "load_ppo",

@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from filters import MPCSafetyFilter
+from filters.constants import HORIZON
 from filters.errors import InvalidArrayError, InvalidParameterError
 from filters.protocol import FilterableEnv
 
@@ -103,7 +104,7 @@ class MPCReferencePlanner:
         *,
         input_bounds: tuple[np.ndarray, np.ndarray],
         position_bounds: tuple[np.ndarray, np.ndarray] | None = None,
-        horizon: int = 10,
+        horizon: int = HORIZON,
         Q: float | np.ndarray = 1.0,
         Q_terminal: float | np.ndarray = 3.0,
         R: float | np.ndarray = 1.0,

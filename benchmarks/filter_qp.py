@@ -41,13 +41,14 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from filters.mpc import FilterStatus, MPCSafetyFilter
+from safe_nav_env.constants import ARENA_HALF_WIDTH, DT, EGO_RADIUS, EGO_START_SPEED
 
 __all__ = ["FilterQPBenchmark", "benchmark_filter_qp", "format_filter_qp", "make_instances"]
 
-TS = 0.2  # s, sampling time of the paper
-SPEED = 1.5  # m/s, ego reference speed
-RADIUS = 0.3  # m, ego and obstacle disc radii
-ARENA = 5.0  # m, arena [-5, 5]^2
+TS = DT  # s, sampling time of the paper
+SPEED = EGO_START_SPEED  # m/s, ego reference speed
+RADIUS = EGO_RADIUS  # m, ego and obstacle disc radii
+ARENA = ARENA_HALF_WIDTH  # m, arena [-5, 5]^2
 INPUT_LIMIT = 5.0  # m/s^2 per axis
 
 

@@ -47,7 +47,6 @@ numbers of the same run.
 from __future__ import annotations
 
 import csv
-import importlib
 import time
 from collections import Counter
 from collections.abc import Sequence
@@ -120,21 +119,10 @@ QUICK_GRID = ScalingGrid(obstacles=(1, 3, 10), horizons=(10, 40), samples=(100,)
 
 
 def cvxpy_filter_class() -> type:
-    """The CVXPY reference filter class, wherever the package keeps it.
+    """The CVXPY reference filter class, :class:`filters.CVXPYSafetyFilter`."""
+    from filters import CVXPYSafetyFilter
 
-    ``filters.mpc.backends.cvxpy`` (the back-end package) first, then the older
-    module ``filters.mpc_cvxpy``.
-    """
-    for module_name in ("filters.mpc.backends.cvxpy", "filters.mpc_cvxpy"):
-        try:
-            module = importlib.import_module(module_name)
-        except ImportError:
-            continue
-        if hasattr(module, "CVXPYSafetyFilter"):
-            return module.CVXPYSafetyFilter
-    raise ImportError(
-        "CVXPYSafetyFilter found neither in filters.mpc.backends.cvxpy nor in filters.mpc_cvxpy"
-    )
+    return CVXPYSafetyFilter
 
 
 @dataclass(frozen=True)

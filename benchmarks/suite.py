@@ -15,21 +15,20 @@ is a ratio against a reference measured in the same run:
     second with the DR-CVaR filter in the loop against without it, interleaved runs.
 
 (b) also times the policy roll-out reference (:func:`benchmark_rollout_reference`: the
-compiled kernel against the per-step ``predict`` loops) against the QP of the same run,
+``predict`` loop with SB3's model and with :class:`agents.NumpyPolicy`) against the QP
+of the same run,
 and both step by step in the evaluation's control loop (:func:`benchmark_control_loop`).
 
 ``safe-nav bench --scaling`` (:func:`run_scaling`) times the filter step on the grid
 obstacles x horizon x samples against CVXPY compiled once (see
 :mod:`benchmarks.scaling`), and the policy forward pass and roll-out
-reference through SB3 against :class:`agents.NumpyPolicy` and
-:class:`agents.TorchActorPolicy`.
+reference through SB3 against :class:`agents.NumpyPolicy`.
 """
 
 from __future__ import annotations
 
 import math
 import time
-from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -38,24 +37,6 @@ import numpy as np
 
 if TYPE_CHECKING:
     from benchmarks.scaling import ScalingGrid
-
-
-def halfspace_timing_table(
-    sample_counts: Sequence[int] = (50, 500, 1500), repeats: int = 100, seed: int = 0
-) -> dict:
-    """Table I as nested dicts (ms): ``cvxpy[risk][N_s] = {setup, solve, call}`` (means)
-    and ``ours[N_s]`` = our DR-CVaR time for one halfspace; ``result`` is the raw
-    :class:`benchmarks.halfspaces.TableOneResult`."""
-    from benchmarks.halfspaces import benchmark_table_one
-
-    result = benchmark_table_one(sample_counts, repeats, seed)
-    cvxpy: dict[str, dict[int, dict[str, float]]] = {}
-    for row in result.cvxpy:
-        cvxpy.setdefault(row.risk, {})[row.n_samples] = {
-            "setup": row.setup_mean, "solve": row.solve_mean, "call": row.call_mean}
-    ours = {row.n_samples: row.one_halfspace_us / 1e3 for row in result.ours
-            if row.risk == "dr_cvar"}
-    return {"cvxpy": cvxpy, "ours": ours, "result": result}
 
 
 @dataclass(frozen=True)
@@ -244,9 +225,9 @@ def run_benchmarks(filter_steps: int = 500, table_repeats: int = 100, seed: int 
     """Run (a), (b) and (c) and return the printed report."""
     import platform
 
+    from agents.experiments.table_one import format_table_one, halfspace_timing_table
     from benchmarks.env import benchmark as env_benchmark
     from benchmarks.filter_qp import benchmark_filter_qp, format_filter_qp
-    from benchmarks.halfspaces import format_table_one
 
     parts = [f"python {platform.python_version()}, numpy {np.__version__}, "
              f"{platform.machine()}; medians; ratios measured in this run"]
@@ -257,9 +238,9 @@ def run_benchmarks(filter_steps: int = 500, table_repeats: int = 100, seed: int 
     parts.append(continuous.format())
     rollout = benchmark_rollout_reference(steps=filter_steps, seed=seed)
     parts.append("    " + format_rollout_reference(rollout) + "\n"
-                 f"    compiled roll-out / the continuous-time filter's QP above: "
-                 f"{rollout['compiled']:.3f} / {continuous.qp_ms:.3f} ms = "
-                 f"{rollout['compiled'] / continuous.qp_ms:.2f}   (target <= 1)\n"
+                 f"    NumpyPolicy roll-out / the continuous-time filter's QP above: "
+                 f"{rollout['numpy']:.3f} / {continuous.qp_ms:.3f} ms = "
+                 f"{rollout['numpy'] / continuous.qp_ms:.2f}\n"
                  + benchmark_control_loop(filter_steps, seed).format())
     parts.append("    QP alone on synthetic instances:\n" + format_filter_qp(
         benchmark_filter_qp(n_steps=filter_steps, seed=seed)))
@@ -403,8 +384,8 @@ def benchmark_training(timesteps: int = 20_480, chunk: int = 2048, seed: int = 0
 
     What ``safe-nav train`` runs without and with ``--filter dr_cvar``
     (:func:`agents.train_ppo` defaults: RandomCrossing, 8 in-process environments, the
-    held-action reference): both models are made (and warmed up: imports, numba
-    caches, first allocations) by ``train_ppo(total_timesteps=warmup_steps)``, then
+    held-action reference): both models are made (and warmed up: imports, first
+    allocations) by ``train_ppo(total_timesteps=warmup_steps)``, then
     trained on ``chunk`` steps at a time, plain and filtered in turn, until each has
     ``timesteps`` timed steps. A chunk of 2048 steps is one rollout and its PPO update.
 
@@ -456,26 +437,21 @@ def benchmark_rollout_reference(
     On the states of unfiltered MultiObstacle episodes of the shipped PPO policy (recorded
     first, then replayed to each maker in a loop of its own: the same states for all),
     :class:`filters.references.PolicyRolloutReference` with: ``"sb3"`` the SB3
-    model's ``predict`` at each look-ahead step; ``"numpy"`` and ``"torch_actor"`` the
-    :class:`agents.NumpyPolicy` and :class:`agents.TorchActorPolicy` exports called the
-    same way (``compiled=False``); ``"compiled"`` the whole roll-out in one kernel
-    (:mod:`agents.policies.compiled_rollout`, what ``safe-nav evaluate`` runs); ``"hold"`` the
+    model's ``predict`` at each look-ahead step; ``"numpy"`` the :class:`agents.NumpyPolicy`
+    export called the same way (what ``safe-nav evaluate`` runs); ``"hold"`` the
     held-action reference, for scale.
     """
     import gymnasium as gym
 
     import safe_nav_env  # noqa: F401
-    from agents.policies.numpy_policy import NumpyPolicy, TorchActorPolicy
+    from agents.policies.numpy_policy import NumpyPolicy
     from agents.training.ppo import load_ppo, set_torch_threads
     from filters.references import PolicyRolloutReference, hold_action_reference
 
     set_torch_threads(1)
     model = load_ppo(path)
-    actor = TorchActorPolicy.from_sb3(model)
     makers = {"sb3": PolicyRolloutReference(model),
-              "numpy": PolicyRolloutReference(NumpyPolicy.from_sb3(model), compiled=False),
-              "torch_actor": PolicyRolloutReference(actor, compiled=False),
-              "compiled": PolicyRolloutReference(actor),
+              "numpy": PolicyRolloutReference(NumpyPolicy.from_sb3(model)),
               "hold": hold_action_reference}
     env = gym.make("SafeNav/MultiObstacle-v0", horizon=horizon)
     base = env.unwrapped
@@ -492,7 +468,7 @@ def benchmark_rollout_reference(
         done = terminated or truncated
     times: dict[str, list[float]] = {}
     for name, maker in makers.items():  # each in a loop of its own, as a control loop runs
-        maker(base, situations[0][1], horizon)  # first call: numba's cache, torch's kernels
+        maker(base, situations[0][1], horizon)  # first call: torch's kernels
         times[name] = []
         for state, action in situations:
             for field, value in state.items():
@@ -521,26 +497,26 @@ class ControlLoopTiming:
             f"reference, DR-CVaR, the wrapper's defaults), {self.steps} steps, medians: "
             f"reference {self.reference_ms:.3f} ms, halfspaces {self.halfspaces_ms:.3f} ms, "
             f"QP {self.qp_ms:.3f} ms, whole wrapper step {self.wrapper_ms:.3f} ms; "
-            f"reference / QP {self.ratio:.2f} (median of the per-step ratios; target <= 1)"
+            f"reference / QP {self.ratio:.2f} (median of the per-step ratios)"
         )
 
 
 def benchmark_control_loop(steps: int = 500, seed: int = 0) -> ControlLoopTiming:
     """The roll-out reference against the QP, step by step, in the evaluation's loop.
 
-    ``SafetyFilterWrapper(env, policy=TorchActorPolicy)`` as ``safe-nav evaluate`` builds
+    ``SafetyFilterWrapper(env, policy=NumpyPolicy)`` as ``safe-nav evaluate`` builds
     it, driven by the same actor; the times are the filter reports' (reference, halfspaces,
     QP = ``filter_time - halfspace_time``), so all are measured on the same steps.
     """
     import gymnasium as gym
 
     import safe_nav_env  # noqa: F401
-    from agents.policies.numpy_policy import TorchActorPolicy
+    from agents.policies.numpy_policy import NumpyPolicy
     from agents.training.ppo import load_ppo, set_torch_threads
     from filters import SafetyFilterWrapper
 
     set_torch_threads(1)
-    actor = TorchActorPolicy.from_sb3(load_ppo())
+    actor = NumpyPolicy.from_sb3(load_ppo())
     env = SafetyFilterWrapper(gym.make("SafeNav/MultiObstacle-v0"), policy=actor)
     rows, wrapper = [], []
     episode, done = 0, True
@@ -568,13 +544,11 @@ def benchmark_control_loop(steps: int = 500, seed: int = 0) -> ControlLoopTiming
 
 def format_rollout_reference(rollout: dict[str, float], horizon: int = 10) -> str:
     """The roll-out timings of :func:`benchmark_rollout_reference` as one paragraph."""
-    compiled = rollout["compiled"]
+    numpy_ms = rollout["numpy"]
     return (
         f"roll-out reference, T = {horizon} ({horizon - 1} policy calls), MultiObstacle, "
         f"medians: SB3 predict {rollout['sb3']:.3f} ms, NumpyPolicy.predict "
-        f"{rollout['numpy']:.3f} ms, TorchActorPolicy.predict {rollout['torch_actor']:.3f} "
-        f"ms, compiled kernel {compiled:.3f} ms ({rollout['sb3'] / compiled:.0f}x SB3, "
-        f"{rollout['torch_actor'] / compiled:.1f}x TorchActorPolicy); the held action "
+        f"{numpy_ms:.3f} ms ({rollout['sb3'] / numpy_ms:.1f}x faster); the held action "
         f"{rollout['hold']:.4f} ms"
     )
 
@@ -603,7 +577,7 @@ def run_scaling(
         Write the plot (needs matplotlib) when ``output`` is given.
     policy
         Also time the policy forward pass and the roll-out reference: SB3's ``predict``
-        against :class:`agents.NumpyPolicy` and :class:`agents.TorchActorPolicy`.
+        against :class:`agents.NumpyPolicy`.
     family
         Instance family (:data:`benchmarks.scaling.FAMILIES`): ``"straight"`` (the
         issue's grid: the reference leaves the arena at long horizons) or ``"goal"`` (it

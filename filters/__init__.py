@@ -14,9 +14,9 @@
 The halfspaces have one (numpy) implementation, checked against the CVXPY formulation
 of :mod:`filters.halfspace_cvxpy` by tolerance.
 
-``import filters`` imports neither numba (loaded by the first compiled call) nor CVXPY
-(only :mod:`filters.halfspace_cvxpy` and :mod:`filters.mpc.backends.cvxpy`, the readable
-reference formulations, do; reach ``filters.CVXPYSafetyFilter`` lazily) nor matplotlib.
+``import filters`` imports neither CVXPY (only :mod:`filters.halfspace_cvxpy` and
+:mod:`filters.mpc.backends.cvxpy`, the readable reference formulations, do; reach
+``filters.CVXPYSafetyFilter`` lazily) nor matplotlib.
 """
 
 from typing import Any
@@ -71,8 +71,8 @@ __all__ = [
 
 
 def __getattr__(name: str) -> Any:
-    if name == "CVXPYSafetyFilter":  # imports cvxpy, so only on demand
-        from filters.mpc.backends.cvxpy import CVXPYSafetyFilter
+    if name == "CVXPYSafetyFilter":  # the CVXPY reference: resolved on first use
+        from filters.mpc.cvxpy_filter import CVXPYSafetyFilter
 
         return CVXPYSafetyFilter
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

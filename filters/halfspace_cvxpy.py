@@ -53,6 +53,7 @@ import cvxpy as cp
 import numpy as np
 
 from filters._validation import finite_array
+from filters.constants import ALPHA, DELTA, EPSILON
 from filters.errors import InvalidArrayError, InvalidParameterError
 from filters.risk import PAPER_RISKS, check_alpha, check_epsilon, check_risk
 
@@ -122,9 +123,9 @@ def build_halfspace_problem(
     r: float,
     *,
     risk: str = "dr_cvar",
-    alpha: float = 0.2,
-    delta: float = 0.1,
-    epsilon: float = 0.05,
+    alpha: float = ALPHA,
+    delta: float = DELTA,
+    epsilon: float = EPSILON,
     support: tuple[object, object] | None = None,
     formulation: str = "vectorized",
 ) -> tuple[cp.Problem, cp.Variable]:
@@ -276,9 +277,9 @@ def cvxpy_halfspace(
     r: float,
     *,
     risk: str = "dr_cvar",
-    alpha: float = 0.2,
-    delta: float = 0.1,
-    epsilon: float = 0.05,
+    alpha: float = ALPHA,
+    delta: float = DELTA,
+    epsilon: float = EPSILON,
     support: tuple[object, object] | None = None,
     formulation: str = "vectorized",
     solver_options: dict[str, float] | None = None,
@@ -332,9 +333,9 @@ def time_cvxpy_halfspace(
     r: float,
     risk: str = "dr_cvar",
     *,
-    alpha: float = 0.2,
-    delta: float = 0.1,
-    epsilon: float = 0.05,
+    alpha: float = ALPHA,
+    delta: float = DELTA,
+    epsilon: float = EPSILON,
     support: tuple[object, object] | None = None,
     formulation: str = "vectorized",
 ) -> tuple[float, float, float]:

@@ -43,6 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from filters._validation import finite_array
+from filters.constants import ALPHA, DELTA, EPSILON
 from filters.errors import InvalidArrayError, InvalidParameterError, InvalidTypeError
 from filters.geometry import ConvexPolygon, Disc, Shape, collision_margin
 from filters.risk import (
@@ -147,9 +148,9 @@ def safe_halfspaces(
     ego_shape: Shape,
     obstacle_shapes: Sequence[Shape],
     risk: str = "dr_cvar",
-    alpha: float = 0.2,
-    delta: float = 0.1,
-    epsilon: float | object = 0.05,
+    alpha: float = ALPHA,
+    delta: float = DELTA,
+    epsilon: float | object = EPSILON,
     support: tuple[object, object] | None = None,
     previous_normals: object | None = None,
     ego_velocity: object | None = None,
@@ -320,9 +321,9 @@ def offsets_along(
     ego_shape: Shape,
     obstacle_shapes: Sequence[Shape],
     risk: str = "dr_cvar",
-    alpha: float = 0.2,
-    delta: float = 0.1,
-    epsilon: float | object = 0.05,
+    alpha: float = ALPHA,
+    delta: float = DELTA,
+    epsilon: float | object = EPSILON,
     support: tuple[object, object] | None = None,
     conformal_margins: object | None = None,
     backend: str | None = None,

@@ -63,6 +63,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from filters.constants import DISABLED_OFFSET
 from filters.geometry import Shape
 from filters.halfspaces import (
     Halfspaces,
@@ -70,7 +71,6 @@ from filters.halfspaces import (
     safe_halfspaces,
     warn_deprecated_backend,
 )
-from filters.mpc.filter import DISABLED_OFFSET
 
 __all__ = ["IntersampleRows", "arc_margin", "intersample_rows"]
 

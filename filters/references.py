@@ -5,7 +5,7 @@ The safety filter (Problem 2 of the paper) needs a reference trajectory
 action per step, so this module turns that proposal into a trajectory:
 
 * :func:`hold_action_reference` holds the proposed action over the horizon.
-  Policy-agnostic and cheap; it is what the wrapper uses during training.
+  Policy-agnostic and cheap; it is what the wrapper uses without a policy.
 * :class:`PolicyRolloutReference` rolls the policy itself out over the horizon
   against the obstacles' predicted mean motion (the learned reference planner of
   the paper), without touching the environment's state.
@@ -17,6 +17,7 @@ passed to :class:`filters.SafetyFilterWrapper` instead; ``env`` is the
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable
 from typing import Any, Protocol
 
@@ -64,7 +65,12 @@ def hold_action_reference(
     .. math:: u^r_k = \\operatorname{clip}(a, u_{min}, u_{max}),\\quad
               x^r_{k+1} = A x^r_k + B u^r_k,\\quad x^r_0 = x_t.
 
-    One compiled call; the shapes are checked first (the kernel does not check indices).
+    A NaN entry of ``action`` stays NaN (``np.clip``'s result).
+
+    Returns
+    -------
+    (numpy.ndarray, numpy.ndarray)
+        States ``(horizon + 1, n)`` (row 0 the current state) and inputs ``(horizon, m)``.
 
     Raises
     ------
@@ -89,50 +95,57 @@ def hold_action_reference(
             f"the environment's A {A.shape}, B {B.shape}, state {x0.shape} and input bounds "
             f"{low.shape}, {high.shape} do not fit together"
         )
-    from filters._reference_kernels import hold  # numba is imported on first use only
-
-    return hold(x0, u, low, high, A, B, int(horizon))
+    u = np.clip(u, low, high)
+    inputs = np.empty((int(horizon), m))
+    inputs[:] = u
+    states = np.empty((int(horizon) + 1, n))
+    states[0] = x0
+    bu = B @ u
+    for k in range(int(horizon)):
+        states[k + 1] = A @ states[k] + bu
+    return states, inputs
 
 
 class PolicyRolloutReference:
     """Roll ``policy`` out over the horizon on the obstacles' predicted mean motion.
 
-    Step 0 uses the action the agent proposed; step k >= 1 asks the policy (deterministic)
-    for the action it would take at the predicted state, where each obstacle sits at the
-    mean of its prediction samples for that step. The environment is not stepped.
+    .. math::
+
+        u_0 = \\operatorname{clip}(a), \\qquad
+        u_k = \\operatorname{clip}\\big(\\pi(\\operatorname{observe}(x_k, \\bar p_{k}, v))\\big)
+        \\ (k \\ge 1), \\qquad x_{k+1} = A x_k + B u_k,
+
+    where :math:`a` is the action the agent proposed, :math:`\\pi` the policy's
+    deterministic ``predict``, :math:`\\bar p_k` the mean of each obstacle's prediction
+    samples for look-ahead step :math:`k` (m), :math:`v` the obstacles' current
+    velocities (m/s), ``observe`` the environment's own observation
+    (:meth:`filters.protocol.FilterableEnv.observe`: the one definition) and ``clip``
+    the input box (m/s², a NaN stays NaN). The environment is not stepped.
 
     Parameters
     ----------
     policy
-        Object with a Stable-Baselines3 style ``predict(obs, deterministic=True)``.
+        Object with a Stable-Baselines3 style ``predict(obs, deterministic=True)``: an SB3
+        model, :class:`agents.NumpyPolicy` (the same actor in numpy, several times faster
+        per call) or :class:`agents.MPCReferencePlanner`.
     compiled
-        If true (default) and ``policy`` has a method ``rollout_reference(env, action,
-        horizon)``, ask it first: it returns the same roll-out computed its own way
-        (``agents.NumpyPolicy`` and ``agents.TorchActorPolicy`` run it in one compiled
-        kernel, equal to this loop to about 1e-6 m/s² per action), or ``None`` for an
-        environment it does not know, and then the loop below runs. ``False``: always
-        the loop, calling ``predict`` ``T - 1`` times.
+        Deprecated and ignored (there is one roll-out, this loop); passing it warns.
     """
 
-    def __init__(self, policy: Policy, *, compiled: bool = True) -> None:
+    def __init__(self, policy: Policy, *, compiled: bool | None = None) -> None:
         if not callable(getattr(policy, "predict", None)):
             raise InvalidTypeError(
                 f"policy must have a predict(observation, deterministic=...) method, got {policy!r}"
             )
-        if not isinstance(compiled, bool | np.bool_):
-            raise InvalidTypeError(f"compiled must be a bool, got {compiled!r}")
+        if compiled is not None:
+            warnings.warn(
+                "PolicyRolloutReference(compiled=...) is deprecated and ignored: the roll-out "
+                "has one implementation, the predict loop", DeprecationWarning, stacklevel=2)
         self.policy = policy
-        self.compiled = bool(compiled)
-        fast = getattr(policy, "rollout_reference", None) if compiled else None
-        self._fast = fast if callable(fast) else None
 
     def __call__(
         self, env: FilterableEnv, action: np.ndarray, horizon: int
     ) -> tuple[np.ndarray, np.ndarray]:
-        if self._fast is not None:
-            made = self._fast(env, action, horizon)
-            if made is not None:
-                return made
         A, B, _ = env.dynamics
         low, high = env.input_bounds
         predicted_means = np.asarray(env.predictions).mean(axis=1)  # (n_obstacles, T, d)
@@ -142,13 +155,10 @@ class PolicyRolloutReference:
         states[0] = env.ego_state
         inputs[0] = np.clip(action, low, high)
         observe, predict = env.observe, self.policy.predict
-        minimum, maximum = np.minimum, np.maximum
         for k in range(horizon):
             if k > 0:
                 proposal, _ = predict(observe(states[k], predicted_means[:, k - 1], velocities),
                                       deterministic=True)
-                # np.clip's result (NaN stays NaN) at a fraction of its per-call cost
-                minimum(maximum(np.asarray(proposal, dtype=float).reshape(-1), low), high,
-                        out=inputs[k])
+                inputs[k] = np.clip(np.asarray(proposal, dtype=float).reshape(-1), low, high)
             states[k + 1] = A @ states[k] + B @ inputs[k]
         return states, inputs

@@ -42,6 +42,7 @@ import numpy as np
 from scipy.special import ndtri
 
 from filters._validation import finite_array, scalar_in_range
+from filters.constants import ALPHA, EPSILON
 from filters.errors import InvalidArrayError, InvalidParameterError, InvalidTypeError
 
 __all__ = [
@@ -282,8 +283,8 @@ def empirical_cvar(x: object, alpha: float, axis: int = -1) -> np.ndarray:
 def risk_value(
     losses: object,
     risk: str = "dr_cvar",
-    alpha: float = 0.2,
-    epsilon: float | object = 0.05,
+    alpha: float = ALPHA,
+    epsilon: float | object = EPSILON,
     *,
     axis: int = -1,
     margin: object | None = None,

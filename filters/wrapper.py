@@ -19,6 +19,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, fields
 from typing import Any
@@ -28,6 +29,7 @@ import numpy as np
 
 from filters._validation import scalar_in_range
 from filters.calibration import OnlineCalibration
+from filters.constants import ALPHA, DELTA, EPSILON
 from filters.errors import InvalidArrayError, InvalidParameterError, InvalidTypeError
 from filters.geometry import Disc
 from filters.halfspaces import Halfspaces, safe_halfspaces
@@ -319,11 +321,7 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         obstacles' predicted mean motion (:class:`filters.references.PolicyRolloutReference`);
         otherwise the proposed action is held over the horizon.
     compiled_rollout
-        With ``policy``: let the policy roll itself out in one call when it can
-        (default ``True``; ``agents.NumpyPolicy`` and ``agents.TorchActorPolicy`` run the
-        whole roll-out in one compiled kernel, equal to the ``predict`` loop to about
-        1e-6 m/s² per action); ``False``: call ``policy.predict`` at every look-ahead
-        step (for ``TorchActorPolicy``, bit for bit SB3's actions).
+        Deprecated and ignored (the roll-out has one implementation); passing it warns.
     reference
         A custom reference maker ``(env, action, horizon) -> (states, inputs)``;
         overrides ``policy``.
@@ -362,10 +360,8 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         before ``calibration_memory`` existed, with ``calibration_episodes=0``).
 
     fast_path
-        ``True`` (default): the lean per-step path (the held-action kernel called with
-        constants checked once); its results agree with the general path's within the
-        tolerances of the tests. ``False``: the general path. The halfspaces and the MPC
-        step have one implementation either way.
+        Deprecated, ignored: the wrapper has one per-step path (the halfspaces, the
+        reference and the MPC step have one implementation each).
 
     Raises
     ------
@@ -395,9 +391,9 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self,
         env: gym.Env,
         risk: str = "dr_cvar",
-        alpha: float = 0.2,
-        delta: float = 0.1,
-        epsilon: float | str = 0.05,
+        alpha: float = ALPHA,
+        delta: float = DELTA,
+        epsilon: float | str = EPSILON,
         horizon: int | None = None,
         *,
         objective: str | None = None,
@@ -419,8 +415,8 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         calibration_episodes: int | None = None,
         calibration_seed: int = CALIBRATION_SEED,
         calibration_memory: str = "episode",
-        compiled_rollout: bool = True,
-        fast_path: bool = True,
+        compiled_rollout: bool | None = None,
+        fast_path: bool | None = None,
     ) -> None:
         # No deep copy: policies and planners hold solver and torch state.
         gym.utils.RecordConstructorArgs.__init__(
@@ -470,14 +466,16 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             low_inclusive=False, high_inclusive=False,
         )
         for name, flag in (("intersample", intersample), ("terminal", terminal),
-                           ("soft", soft), ("draw_halfspaces", draw_halfspaces),
-                           ("compiled_rollout", compiled_rollout), ("fast_path", fast_path)):
+                           ("soft", soft), ("draw_halfspaces", draw_halfspaces)):
             if not isinstance(flag, (bool, np.bool_)):
                 raise InvalidTypeError(f"{name} must be a bool, got {flag!r}")
+        for name, value in (("compiled_rollout", compiled_rollout), ("fast_path", fast_path)):
+            if value is not None:
+                warnings.warn(f"SafetyFilterWrapper({name}=...) is deprecated and ignored: the "
+                              "wrapper has one per-step path", DeprecationWarning, stacklevel=2)
         self.intersample, self.terminal = bool(intersample), bool(terminal)
         self._rows = 2 if self.intersample else 1  # rows_per_obstacle, read every step
         self.soft, self.draw_halfspaces = bool(soft), bool(draw_halfspaces)
-        self.fast_path = bool(fast_path)
         self.intervention_penalty = scalar_in_range(
             "intervention_penalty", intervention_penalty, low=0.0, high=np.inf,
             high_inclusive=False,
@@ -502,7 +500,7 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 raise InvalidTypeError(f"reference must be callable, got {reference!r}")
             self.reference: ReferenceMaker = reference
         elif policy is not None:
-            self.reference = PolicyRolloutReference(policy, compiled=bool(compiled_rollout))
+            self.reference = PolicyRolloutReference(policy)
         else:
             self.reference = hold_action_reference
         A, B, _ = base.dynamics
@@ -536,9 +534,6 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._hook: Callable[[Any], None] | None = None
         self._halfspace_lines: Any = None  # the hook's line collection, reused per frame
         self._shape_cache: tuple[tuple, Disc, list[Disc]] | None = None
-        # The held-action reference's constants, checked once.
-        self._hold = (self._prepared_hold() if self.fast_path and self.risk != "none"
-                      and self.reference is hold_action_reference else None)
         if self.risk != "none":  # builds (and so validates) the weights and bounds now
             self._mpc = self._build_filter(max(1, len(np.asarray(base.obstacle_radii))))
         if self._calibration is not None:
@@ -557,23 +552,6 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     def rows_per_obstacle(self) -> int:
         """Halfspace rows per obstacle and step: 2 with the inter-sample rows, else 1."""
         return 2 if self.intersample else 1
-
-    def _prepared_hold(self) -> tuple | None:
-        """``(x0 shape, action shape, kernel, low, high, A, B)`` of the held-action reference,
-        checked once (:func:`filters.references.hold_action_reference` checks them every
-        call), or ``None`` if they do not fit together (that function then raises)."""
-        base = self._base
-        A, B, _ = base.dynamics
-        A, B = np.ascontiguousarray(A, dtype=np.float64), np.ascontiguousarray(B, dtype=np.float64)
-        low, high = (np.ascontiguousarray(b, dtype=np.float64) for b in base.input_bounds)
-        if B.ndim != 2:
-            return None
-        n, m = B.shape
-        if A.shape != (n, n) or low.shape != (m,) or high.shape != (m,):
-            return None
-        from filters._reference_kernels import hold  # numba: imported on first use only
-
-        return (n,), (m,), hold, low, high, A, B
 
     def _build_filter(self, n_obstacles: int) -> MPCSafetyFilter:
         base = self._base
@@ -739,11 +717,7 @@ class SafetyFilterWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         try:
             if not finite:
                 raise InvalidParameterError(f"the proposed action is not finite: {proposed}")
-            hold = self._hold
-            if hold is not None and x0.shape == hold[0] and proposed.shape == hold[1]:
-                ref_states, ref_inputs = hold[2](x0, proposed, *hold[3:], self.horizon)
-            else:
-                ref_states, ref_inputs = self.reference(base, proposed, self.horizon)
+            ref_states, ref_inputs = self.reference(base, proposed, self.horizon)
             start = time.perf_counter()
             normals, offsets, rows = self._halfspaces(base, x0, ref_states, radii)
             middle = time.perf_counter()
@@ -897,7 +871,7 @@ def _choice(name: str, value: object, choices: tuple[str, ...]) -> str:
 
 def calibration_settings(
     risk: str,
-    epsilon: float | str = 0.05,
+    epsilon: float | str = EPSILON,
     *,
     calibration_episodes: int | None = None,
     calibration_seed: int = CALIBRATION_SEED,

@@ -11,6 +11,7 @@ import numpy as np
 from gymnasium import spaces
 
 from safe_nav_env.collision import swept_clearance
+from safe_nav_env.constants import DT, HORIZON, MAX_ACCELERATION
 from safe_nav_env.dynamics import double_integrator
 from safe_nav_env.errors import ConfigError, InvalidActionError, ScenarioError
 from safe_nav_env.noise import NoiseModel, resolve_noise
@@ -221,10 +222,10 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         render_mode: str | None = None,
         noise: NoiseModel | str | Mapping[str, Any] | None = None,
         n_samples: int | None = None,
-        horizon: int = 10,
+        horizon: int = HORIZON,
         episode_length: float | None = None,
-        dt: float = 0.2,
-        max_acceleration: float = 10.0,
+        dt: float = DT,
+        max_acceleration: float = MAX_ACCELERATION,
         max_obstacles: int = 4,
         progress_weight: float = 1.0,
         arrival_bonus: float = 10.0,

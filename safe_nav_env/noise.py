@@ -36,6 +36,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from safe_nav_env.constants import N_SAMPLES
 from safe_nav_env.errors import ScenarioError
 
 # A covariance as given by the user: σ², (σ²_1, ..., σ²_d) or a d × d matrix.
@@ -345,7 +346,7 @@ class NoiseModel:
 
     prediction: NoiseLaw = field(default_factory=lambda: Gaussian(0.01))
     reality: NoiseLaw = field(default_factory=lambda: Laplace(0.01))
-    n_samples: int = 100
+    n_samples: int = N_SAMPLES
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "prediction", noise_law(self.prediction, "noise.prediction"))
@@ -362,10 +363,10 @@ class NoiseModel:
 
 
 NOISE_PRESETS: dict[str, NoiseModel] = {
-    "paper": NoiseModel(Gaussian(0.01), Laplace(0.01), n_samples=100),
+    "paper": NoiseModel(Gaussian(0.01), Laplace(0.01), n_samples=N_SAMPLES),
     "authors_code": NoiseModel(Gaussian(0.1), Laplace.from_scale(0.1), n_samples=20),
-    "gaussian_reality": NoiseModel(Gaussian(0.01), Gaussian(0.01), n_samples=100),
-    "student_t": NoiseModel(Gaussian(0.01), StudentT(0.01, dof=3.0), n_samples=100),
+    "gaussian_reality": NoiseModel(Gaussian(0.01), Gaussian(0.01), n_samples=N_SAMPLES),
+    "student_t": NoiseModel(Gaussian(0.01), StudentT(0.01, dof=3.0), n_samples=N_SAMPLES),
 }
 """Named noise models.
 

@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from safe_nav_env.constants import ARENA, EGO_RADIUS, EGO_START_SPEED, OBSTACLE_RADIUS
 from safe_nav_env.errors import ScenarioError
 from safe_nav_env.noise import NoiseModel, resolve_noise
 
@@ -119,7 +120,7 @@ class ObstacleSpec:
 
     start: Vector
     velocity: Vector
-    radius: float = 0.3
+    radius: float = OBSTACLE_RADIUS
     turn_rate: float = 0.0
     turn_probability: float = 1.0
     turn_start: float = 0.0
@@ -223,8 +224,8 @@ class Scenario:
     duration: float | None = None
     episode_length: float | None = None
     noise: NoiseModel = field(default_factory=NoiseModel)
-    ego_radius: float = 0.3
-    arena: tuple[Vector, Vector] = ((-5.0, -5.0), (5.0, 5.0))
+    ego_radius: float = EGO_RADIUS
+    arena: tuple[Vector, Vector] = ARENA
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -285,11 +286,10 @@ class Scenario:
         return len(self.obstacles)
 
 
-_EGO_SPEED = 1.5  # m/s along +x at the start, as in the authors' code.
 
 HEAD_ON = Scenario(
     name="HeadOn",
-    ego_start=(-4.7, 0.0, _EGO_SPEED, 0.0),
+    ego_start=(-4.7, 0.0, EGO_START_SPEED, 0.0),
     goal=(4.7, 0.0),
     obstacles=(ObstacleSpec(start=(2.0, -0.01), velocity=(-1.0, 0.0)),),
     duration=3.0,
@@ -299,7 +299,7 @@ HEAD_ON = Scenario(
 
 OVERTAKING = Scenario(
     name="Overtaking",
-    ego_start=(-4.7, 0.0, _EGO_SPEED, 0.0),
+    ego_start=(-4.7, 0.0, EGO_START_SPEED, 0.0),
     goal=(4.7, 0.0),
     obstacles=(ObstacleSpec(start=(-2.0, -0.05), velocity=(1.0, 0.0)),),
     duration=3.0,
@@ -309,7 +309,7 @@ OVERTAKING = Scenario(
 
 INTERSECTION = Scenario(
     name="Intersection",
-    ego_start=(-3.5, 1.0, _EGO_SPEED, 0.0),
+    ego_start=(-3.5, 1.0, EGO_START_SPEED, 0.0),
     goal=(1.0, -3.0),
     obstacles=(ObstacleSpec(start=(-2.5, -1.0), velocity=(1.5, 0.0)),),
     duration=3.0,
@@ -319,7 +319,7 @@ INTERSECTION = Scenario(
 
 MULTI_OBSTACLE = Scenario(
     name="MultiObstacle",
-    ego_start=(-4.7, -1.0, _EGO_SPEED, 0.0),
+    ego_start=(-4.7, -1.0, EGO_START_SPEED, 0.0),
     goal=(4.7, 0.0),
     obstacles=(
         ObstacleSpec(start=(-1.1, 1.01), velocity=(0.7, 0.0)),

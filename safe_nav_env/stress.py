@@ -38,20 +38,20 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+from safe_nav_env.constants import EGO_START_SPEED, N_SAMPLES
 from safe_nav_env.noise import NOISE_PRESETS, Gaussian, Laplace, NoiseModel
 from safe_nav_env.predictors import Predictor, resolve_predictor
 from safe_nav_env.scenarios import HEAD_ON, ObstacleSpec, Scenario
 
 __all__ = ["CROSSING5", "DRIFT", "STRESS_SUITE", "TURNING", "StressCase"]
 
-_EGO_SPEED = 1.5  # m/s, as in the paper's scenarios
 
 DRIFT: tuple[float, float] = (-0.03, 0.03)
 """Mean of the realised per-step noise in the ``"biased"`` case, m per step (x, y)."""
 
 TURNING = Scenario(
     name="turning",
-    ego_start=(-4.7, 0.0, _EGO_SPEED, 0.0),
+    ego_start=(-4.7, 0.0, EGO_START_SPEED, 0.0),
     goal=(4.7, 0.0),
     obstacles=(
         # Heading -x above the path; may turn counter-clockwise (towards -y) by 45°.
@@ -71,7 +71,7 @@ def _crossers() -> tuple[ObstacleSpec, ...]:
     speed = 0.8  # m/s, vertical
     specs = []
     for index, x in enumerate((-2.0, -1.0, 0.0, 1.0, 2.0)):
-        arrival = (x + 4.7) / _EGO_SPEED  # when an ego at its start speed reaches x
+        arrival = (x + 4.7) / EGO_START_SPEED  # when an ego at its start speed reaches x
         sign = 1.0 if index % 2 == 0 else -1.0  # upwards, downwards, ...
         specs.append(ObstacleSpec(start=(x, -sign * speed * arrival), velocity=(0.0, sign * speed)))
     return tuple(specs)
@@ -79,7 +79,7 @@ def _crossers() -> tuple[ObstacleSpec, ...]:
 
 CROSSING5 = Scenario(
     name="crossing5",
-    ego_start=(-4.7, 0.0, _EGO_SPEED, 0.0),
+    ego_start=(-4.7, 0.0, EGO_START_SPEED, 0.0),
     goal=(4.7, 0.0),
     obstacles=_crossers(),
     duration=6.0,
@@ -135,7 +135,7 @@ STRESS_SUITE: dict[str, StressCase] = {
     ),
     "biased": StressCase(
         "biased", HEAD_ON,
-        NoiseModel(Gaussian(0.01), Laplace(0.01, mean=DRIFT), n_samples=100),
+        NoiseModel(Gaussian(0.01), Laplace(0.01, mean=DRIFT), n_samples=N_SAMPLES),
         description="head-on, realised noise drifts (-0.03, 0.03) m per step, not predicted",
     ),
     "turning": StressCase(

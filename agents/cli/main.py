@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from agents.evaluation.records import PAPER_SCENARIOS, PLANNERS, REFERENCES, package_version
+from filters.constants import ALPHA, DELTA, EPSILON
 from filters.risk import PAPER_RISKS
 from filters.wrapper import FALLBACKS, OBJECTIVES, RISKS
 
@@ -346,11 +347,11 @@ def _add_evaluation_arguments(parser: argparse.ArgumentParser, *, episodes: int)
                         "machine); default: RAY_ADDRESS if set, else a local Ray")
     parser.add_argument("--seed", type=_seed, default=0,
                         help="seed of the first episode (episode i uses seed + i)")
-    parser.add_argument("--alpha", type=_tail_mass, default=0.2,
+    parser.add_argument("--alpha", type=_tail_mass, default=ALPHA,
                         help="CVaR tail mass, in (0, 1]")
-    parser.add_argument("--delta", type=_metres, default=0.1,
+    parser.add_argument("--delta", type=_metres, default=DELTA,
                         help="risk bound on the intrusion depth, in m (>= 0)")
-    parser.add_argument("--epsilon", type=_metres, default=0.05,
+    parser.add_argument("--epsilon", type=_metres, default=EPSILON,
                         help="Wasserstein radius of DR-CVaR, in m (>= 0)")
     parser.add_argument("--noise", type=_noise, default="",
                         help="noise preset of the environment, e.g. authors_code (default: the "
@@ -424,18 +425,9 @@ def _dispatch(args: argparse.Namespace) -> int:
                         progress=not args.no_progress))
         return 0
     if args.command == "bench":
-        if args.scaling:
-            return _bench_scaling(args)
-        if args.training:
-            from benchmarks.suite import benchmark_training
+        from benchmarks.command import run  # the one import of benchmarks: on demand
 
-            print(benchmark_training(args.timesteps, args.chunk, args.seed).format())
-            return 0
-        from benchmarks.suite import run_benchmarks
-
-        print(run_benchmarks(filter_steps=args.steps or 500, table_repeats=args.repeats,
-                             seed=args.seed))
-        return 0
+        return run(args)
     return EXIT_BAD_INPUT  # pragma: no cover - argparse rejects unknown commands
 
 
@@ -516,24 +508,6 @@ def _evaluate_on(args: argparse.Namespace, executor: Any) -> int:
               f"{outputs.files['episodes']}; run the same command again to re-run them",
               file=sys.stderr)
         return EXIT_FAILED_EPISODES
-    return 0
-
-
-def _bench_scaling(args: argparse.Namespace) -> int:
-    from dataclasses import replace
-
-    from benchmarks.scaling import FULL_GRID, QUICK_GRID
-    from benchmarks.suite import run_scaling
-
-    grid = QUICK_GRID if args.quick else FULL_GRID
-    overrides = {name: tuple(values) for name, values in (
-        ("obstacles", args.obstacles), ("horizons", args.horizons), ("samples", args.samples))
-        if values}
-    if args.steps:
-        overrides["steps"] = max(2, args.steps)
-    grid = replace(grid, **overrides)
-    print(run_scaling(grid, seed=args.seed, output=args.output, plot=not args.no_plot,
-                      policy=not args.no_policy, family=args.family))
     return 0
 
 

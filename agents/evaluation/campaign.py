@@ -10,7 +10,7 @@ Output folder layout::
                         environment settings, noise, package version); a resumed run
                         must match it
     summary.md          the summary tables (Markdown), naming the policy, the settings
-                        and the code version, and the guarantee audit (agents/experiments/audit.py)
+                        and the code version, and the guarantee audit (agents/evaluation/audit.py)
     figures/            trajectories_<scenario>.png, distance_boxplots.png,
                         collision_rates.png, safe_polytopes.png, episode.gif
 """
@@ -43,6 +43,7 @@ from agents.evaluation.summary import (
     status_table,
     summarise,
 )
+from filters.constants import ALPHA, DELTA, EPSILON
 from filters.wrapper import RISKS
 from safe_nav_env.scenarios import scenario_name
 
@@ -130,9 +131,9 @@ def run_evaluation(
     planner: str = "ppo",
     reference: str = "rollout",
     policy_path: str = "",
-    alpha: float = 0.2,
-    delta: float = 0.1,
-    epsilon: float = 0.05,
+    alpha: float = ALPHA,
+    delta: float = DELTA,
+    epsilon: float = EPSILON,
     noise: str = "",
     filter_options: dict[str, Any] | str | None = None,
     env_options: dict[str, Any] | str | None = None,
@@ -242,7 +243,7 @@ def run_sweep(
     planner: str = "ppo",
     reference: str = "rollout",
     policy_path: str = "",
-    alpha: float = 0.2,
+    alpha: float = ALPHA,
     noise: str = "",
     filter_options: dict[str, Any] | str | None = None,
     env_options: dict[str, Any] | str | None = None,

@@ -28,6 +28,7 @@ from agents.evaluation.evaluate import EpisodeRecord, Trajectory
 from agents.evaluation.summary import RISK_ORDER, SummaryRow, short_name
 from filters.errors import InvalidArrayError, InvalidParameterError
 from filters.wrapper import FALLBACK_STATUSES
+from safe_nav_env.constants import DT
 
 RISK_COLORS = {"none": "tab:gray", "mean": "tab:red", "cvar": "tab:blue", "dr_cvar": "tab:green"}
 """The paper's colours: red mean, blue CVaR, green DR-CVaR (grey: unfiltered)."""
@@ -343,7 +344,7 @@ def plot_window_boxplots(
     windows: Mapping[str, tuple[int, int]],
     path: str | Path,
     *,
-    dt: float = 0.2,
+    dt: float = DT,
     title: str = "",
 ) -> Path:
     """Per-step box plots of the sampled distance to collision in each scenario's window.

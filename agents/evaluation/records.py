@@ -28,9 +28,11 @@ from typing import Any
 import numpy as np
 
 from agents.errors import RecordsFileError, RunMismatchError
+from filters.constants import ALPHA, DELTA, EPSILON
 from filters.errors import InvalidParameterError
 from filters.mpc import FilterStatus
 from filters.wrapper import RISKS, calibration_settings
+from safe_nav_env.constants import PAPER_SCENARIOS
 from safe_nav_env.scenarios import CUSTOM, SCENARIO_NAMES, scenario_name
 
 __all__ = [
@@ -54,9 +56,6 @@ __all__ = [
     "sort_records",
     "write_records",
 ]
-
-PAPER_SCENARIOS = ("HeadOn", "Overtaking", "Intersection", "MultiObstacle")
-"""The paper's four scenarios (canonical names; ``safe_nav_env.env_id`` gives the gym ids)."""
 
 PLANNERS = ("ppo", "mpc")
 """Reference planners: the shipped PPO policy, or the paper's obstacle-agnostic MPC."""
@@ -176,9 +175,9 @@ class EpisodeSpec:
     seed: int
     planner: str = "ppo"
     reference: str = "rollout"
-    alpha: float = 0.2
-    delta: float = 0.1
-    epsilon: float | str = 0.05
+    alpha: float = ALPHA
+    delta: float = DELTA
+    epsilon: float | str = EPSILON
     policy_path: str = ""
     noise: str = ""
     filter_options: str = ""
@@ -319,7 +318,7 @@ class EpisodeRecord:
     filter_time_median, filter_time_max, wall_time
         Filter step times and the episode's wall time, in s.
     audit_steps, audit_losses
-        The guarantee audit (:mod:`agents.experiments.audit`): the number of active first-step
+        The guarantee audit (:mod:`agents.evaluation.audit`): the number of active first-step
         halfspaces (obstacle-steps) and their realised losses, in m, as
         ``";"``-separated numbers rounded to 0.1 mm (pooling over episodes needs every
         loss, since a CVaR is not a sum). Empty when no filter ran.

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from agents.errors import PolicyFileError
+from agents.evaluation.audit import encode_losses
 from agents.evaluation.records import (
     FILTER_STATUSES,
     EpisodeRecord,
@@ -30,9 +31,9 @@ from agents.evaluation.records import (
     file_sha256,
     package_version,
 )
-from agents.experiments.audit import encode_losses
 from filters.errors import InvalidParameterError
 from filters.wrapper import FALLBACK_STATUSES, NOMINAL_STATUSES
+from safe_nav_env.constants import DT
 
 __all__ = ["EpisodeStats", "Trajectory", "TrajectoryRecorder", "check_policy",
            "clear_env_cache", "collision_cause", "load_policy", "make_env", "policy_file",
@@ -193,7 +194,7 @@ def load_policy(policy_path: str | Path = "", *, sha256: str = "") -> tuple[Any,
                               f"run (SHA-256 {sha[:12]}..., expected {sha256[:12]}...)")
     key = (str(policy_file(policy_path).resolve()), sha)
     if key not in _POLICY_CACHE:
-        from agents.policies.numpy_policy import TorchActorPolicy, UnsupportedPolicyError
+        from agents.policies.numpy_policy import NumpyPolicy, UnsupportedPolicyError
         from agents.training.ppo import load_ppo, set_torch_threads
 
         set_torch_threads(1)
@@ -202,8 +203,8 @@ def load_policy(policy_path: str | Path = "", *, sha256: str = "") -> tuple[Any,
         except Exception as exc:  # noqa: BLE001 - SB3/torch/zip raise many kinds
             raise PolicyFileError(f"cannot load the PPO policy {policy_file(policy_path)} "
                                   f"({type(exc).__name__}: {exc})".replace("\n", " ")) from exc
-        try:  # the same actions bit for bit, without SB3's per-call overhead
-            _POLICY_CACHE[key] = TorchActorPolicy.from_sb3(model)
+        try:  # SB3's deterministic actions to float32 rounding, without its per-call overhead
+            _POLICY_CACHE[key] = NumpyPolicy.from_sb3(model)
         except UnsupportedPolicyError:
             _POLICY_CACHE[key] = model
     return _POLICY_CACHE[key], sha
@@ -538,7 +539,7 @@ class EpisodeStats:
         self.sampled_collisions: list[bool] = []
         self.first_error = ""
         self.episode_return = 0.0
-        self.dt = 0.2
+        self.dt = DT
         self._position = np.zeros(2)
         self.intersample = False
         self.audit: list[float] = []
@@ -586,7 +587,7 @@ class EpisodeStats:
     def _audit(self, base: Any, report: Any) -> None:
         """The realised losses of the step's active first-step halfspaces.
 
-        See :mod:`agents.experiments.audit`.
+        See :mod:`agents.evaluation.audit`.
 
         ``base`` has already stepped: its obstacle positions are the realised ones at the
         step the halfspaces' ``k = 1`` predicted. Steps without halfspaces or a plan
@@ -599,7 +600,7 @@ class EpisodeStats:
         normals, offsets, plan = report["normals"], report["offsets"], report["planned_states"]
         if normals is None or offsets is None or plan is None or len(normals) == 0:
             return
-        from agents.experiments.audit import first_step_losses
+        from agents.evaluation.audit import first_step_losses
         from filters.intersample import arc_margin
 
         h = np.asarray(normals, dtype=float)[:, 0]

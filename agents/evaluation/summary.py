@@ -19,27 +19,13 @@ from typing import Any
 import numpy as np
 
 from agents.evaluation.records import AUTO, FILTER_STATUSES, RISKS, EpisodeRecord
+from agents.evaluation.statistics import wilson_interval
 
 RISK_ORDER = {risk: i for i, risk in enumerate(RISKS)}
 """Table order of the risk settings (:data:`filters.wrapper.RISKS`)."""
 
 COLLISION_CAUSES = ("fallback", "inter_sample", "noise")
 """Values of :attr:`EpisodeRecord.collision_cause` for a collided episode."""
-
-
-def wilson_interval(successes: int, trials: int, z: float = 1.959964) -> tuple[float, float]:
-    """Wilson score interval of a binomial proportion (95 % by default).
-
-    .. math::
-        \\frac{\\hat p + z^2/2n \\pm z\\sqrt{\\hat p(1-\\hat p)/n + z^2/4n^2}}{1 + z^2/n}
-    """
-    if trials <= 0:
-        return (math.nan, math.nan)
-    p = successes / trials
-    denominator = 1.0 + z * z / trials
-    centre = (p + z * z / (2 * trials)) / denominator
-    half = z * math.sqrt(p * (1 - p) / trials + z * z / (4 * trials * trials)) / denominator
-    return (max(0.0, centre - half), min(1.0, centre + half))
 
 
 def lower_tail_mean(values: np.ndarray, fraction: float = 0.1) -> float:
@@ -201,16 +187,16 @@ def status_table(rows: Sequence[SummaryRow]) -> str:
 class AuditRow:
     """The guarantee audit of one (scenario or case, planner, method).
 
-    See :mod:`agents.experiments.audit`.
+    See :mod:`agents.evaluation.audit`.
 
     Attributes
     ----------
     scenario, planner, risk, method
         As in :class:`SummaryRow`.
     promise
-        ``"mean"``, ``"cvar"`` or ``"chance"`` (:data:`agents.experiments.audit.PROMISES`).
+        ``"mean"``, ``"cvar"`` or ``"chance"`` (:data:`agents.evaluation.audit.PROMISES`).
     active
-        :class:`agents.experiments.audit.AuditResult` of the pooled losses of the *active*
+        :class:`agents.evaluation.audit.AuditResult` of the pooled losses of the *active*
         first-step halfspaces (the audit the issue asks for).
     all
         The same over every first-step halfspace, active or not (far more steps: the
@@ -233,7 +219,7 @@ def audit_rows(records: Iterable[EpisodeRecord]) -> list[AuditRow]:
     Each group's ``alpha`` and ``delta`` are its records' (a group mixing several
     raises :class:`~filters.errors.InvalidParameterError`).
     """
-    from agents.experiments.audit import PROMISES, audit_losses, decode_losses
+    from agents.evaluation.audit import PROMISES, audit_losses, decode_losses
     from filters.errors import InvalidParameterError
 
     groups: dict[tuple[str, str, str, bool], list[EpisodeRecord]] = defaultdict(list)
@@ -290,7 +276,7 @@ def audit_table(rows: Sequence[AuditRow]) -> str:
 
     Two pools side by side: the active first-step halfspaces, and all of them. The
     promised quantity is in bold; the verdict is
-    :meth:`agents.experiments.audit.AuditResult.verdict`.
+    :meth:`agents.evaluation.audit.AuditResult.verdict`.
     """
     pool = ["n", "mean ℓ (m)", "CVaR_α ℓ (m)", "P(ℓ > δ) [95 % CI]", "verdict"]
     header = ("| scenario | planner | method | promise | α | δ (m) | "
@@ -310,7 +296,7 @@ AUDIT_NOTE = (
     "the obstacle's realised position p one step later: the intrusion depth the risk bounds "
     "(DESIGN.md section 1). *active*: the steps where the applied plan's step-1 position lay "
     "within the inter-sample bow margin + 1 mm of the offset, or beyond it "
-    "(agents/experiments/audit.py); *all*: every step-1 halfspace, active or not. "
+    "(agents/evaluation/audit.py); *all*: every step-1 halfspace, active or not. "
     "The promised quantity is in bold. Intervals (95 %): Wilson for P(ℓ > δ), which "
     "treats the steps as independent (successive steps of an episode are not, so it is "
     "optimistic); a cluster "

@@ -2,7 +2,7 @@
 
 * :mod:`agents.experiments.reproduce` — the paper's figures and tables;
 * :mod:`agents.experiments.stress` — the stress suite (cases the paper did not design for);
-* :mod:`agents.experiments.audit` — empirical checks of each risk's guarantee;
+* :mod:`agents.experiments.table_one` — the paper's Table I timing (CVXPY against ours);
 * :mod:`agents.experiments.pareto` — safety against cost frontiers;
 * :mod:`agents.experiments.goal_reaching` — does a planner reach its goal from
   where a filter leaves it.

@@ -33,12 +33,12 @@ from typing import Any
 
 import numpy as np
 
+from agents.evaluation.audit import decode_losses
 from agents.evaluation.campaign import EvaluationOutputs, describe_run, output_folder
 from agents.evaluation.evaluate import evaluate
 from agents.evaluation.executors import Executor
 from agents.evaluation.records import EpisodeRecord
 from agents.evaluation.summary import summarise, wilson_interval
-from agents.experiments.audit import decode_losses
 from agents.experiments.scenes import scene_setting, scene_specs
 from safe_nav_env.pedestrians.recording import SCENES
 

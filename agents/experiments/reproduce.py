@@ -62,18 +62,16 @@ import numpy as np
 from agents.evaluation.records import PAPER_SCENARIOS as PAPER_SCENARIO_NAMES
 from agents.evaluation.records import EpisodeSpec
 from agents.evaluation.summary import SummaryRow, short_name, wilson_interval
+from agents.experiments.table_one import EXAMPLE_ONE
 from agents.planners import AUTHORS_CODE_PLANNER
+from filters.constants import ALPHA, DELTA, EPSILON, HORIZON
 from filters.errors import InvalidArrayError, InvalidParameterError
+from filters.risk import PAPER_RISKS
+from safe_nav_env.constants import DT
 from safe_nav_env.scenarios import env_id, scenario_name
 
 PAPER_SCENARIOS = tuple(env_id(name) for name in PAPER_SCENARIO_NAMES)
 """The paper's four scenarios by gym id (reproduce's encounters are keyed by gym id)."""
-
-PAPER_TABLE_ONE_MS = {
-    "cvar": {50: (0.144, 2.23), 500: (1.91, 4.32), 1500: (5.98, 8.95)},
-    "dr_cvar": {50: (0.236, 9.10), 500: (2.58, 73.4), 1500: (8.53, 216.0)},
-}
-"""Table I of the paper: (solve, call) in ms, CVXPY + ECOS on a Xeon E3-1535M."""
 
 PAPER_WORST_DISTANCE = {"mean": -0.45, "cvar": -0.22}
 """Section IV-B: worst sampled distance to collision in the box plots (300 runs, the
@@ -150,11 +148,11 @@ class ReproductionPreset:
     planner_weights: tuple[float, float, float]
     filter_weights: tuple[float, float, float]
     max_acceleration: float
-    alpha: float = 0.2
-    delta: float = 0.1
-    epsilon: float = 0.05
+    alpha: float = ALPHA
+    delta: float = DELTA
+    epsilon: float = EPSILON
     mean_delta: float | None = None
-    horizon: int = 10
+    horizon: int = HORIZON
     filter_input_cost: str = "absolute"
     fallback: str = "paper"
 
@@ -549,9 +547,6 @@ def _progress(iterator: Iterable[EncounterRecord], total: int, show: bool):
 
 
 # ---------------------------------------------------------------------------- Example 1, Table I
-EXAMPLE_ONE = dict(reference=(-0.9, -0.8), obstacle=(0.5, 0.0), radius=0.3, n_samples=100,
-                   variance=0.01, alpha=0.2, delta=0.1, epsilons=(0.05, 0.1, 0.2))
-"""Example 1 of the paper."""
 
 
 def example_one(seed: int = 0) -> dict:
@@ -834,7 +829,7 @@ def write_episodes_csv(records: Sequence[EncounterRecord], path: Path) -> Path:
 
 
 # ---------------------------------------------------------------------------- Monte Carlo
-RISKS = ("none", "mean", "cvar", "dr_cvar")
+RISKS = ("none", *PAPER_RISKS)
 """Risk settings of the paper's Monte Carlo, plus the unfiltered reference."""
 
 
@@ -933,8 +928,8 @@ def compare_with_paper(rows: Sequence[WindowRow]) -> list[str]:
             f"distance in the window {min(r.window_worst for r in dr):.3f} m.")
     for scenario in dict.fromkeys(r.scenario for r in rows):
         by_risk = {r.risk: r for r in rows if r.scenario == scenario}
-        if all(k in by_risk for k in ("mean", "cvar", "dr_cvar")):
-            m, c, d = (by_risk[k] for k in ("mean", "cvar", "dr_cvar"))
+        if all(k in by_risk for k in PAPER_RISKS):
+            m, c, d = (by_risk[k] for k in PAPER_RISKS)
             sampled_ok = (m.window_sampled_collisions >= c.window_sampled_collisions
                           >= d.window_sampled_collisions)
             swept_ok = m.collisions >= c.collisions >= d.collisions
@@ -964,7 +959,7 @@ def _monte_carlo_section(
     write_episodes_csv(records, folder / "episodes.csv")
     figures = _monte_carlo_figures(preset, records, rows, folder / "figures", seed=seed)
     scenarios = list(dict.fromkeys(r.scenario for r in records))
-    dt = next((r.dt for r in records if math.isfinite(r.dt)), 0.2)
+    dt = next((r.dt for r in records if math.isfinite(r.dt)), DT)
     windows = resolve_windows(records)
     encounters = resolve_windows(records, mode="encounter")
     lines = [f"### Preset `{preset.name}`", "", f"Settings: {preset.description}.", "",
@@ -1034,7 +1029,7 @@ def _monte_carlo_figures(
     files: dict[str, Path] = {}
     scenarios = list(dict.fromkeys(r.scenario for r in records))
     windows = {s: w for s, (w, _) in resolve_windows(records).items()}
-    dt = next((r.dt for r in records if math.isfinite(r.dt)), 0.2)
+    dt = next((r.dt for r in records if math.isfinite(r.dt)), DT)
     distances = {s: {risk: _series([r for r in records if r.scenario == s and r.risk == risk
                                      and not r.error], "distances")
                      for risk in dict.fromkeys(r.risk for r in records if r.scenario == s)}
@@ -1115,7 +1110,7 @@ def reproduce(
     timing
         Run the Table I timing (``False`` skips it, for quick runs).
     """
-    from benchmarks.suite import halfspace_timing_table
+    from agents.experiments.table_one import PAPER_TABLE_ONE, halfspace_timing_table
 
     unknown = [p for p in presets if p not in PRESETS]
     if unknown or not presets:
@@ -1154,13 +1149,12 @@ def reproduce(
                   "halfspace through `safe_halfspaces`.", "",
                   "| method | N_s | paper solve | paper call | CVXPY solve here | CVXPY call here "
                   "| ours here (closed form) |", "|---|---|---|---|---|---|---|"]
-        for risk in ("cvar", "dr_cvar"):
-            for n, (p_solve, p_call) in PAPER_TABLE_ONE_MS[risk].items():
-                here = table["cvxpy"][risk].get(n)
-                if here is None:
-                    continue
-                lines.append(f"| {risk} | {n} | {p_solve} | {p_call} | {here['solve']:.3f} | "
-                             f"{here['call']:.2f} | {table['ours'][n]:.4f} |")
+        for (risk, n), (p_solve, p_call) in PAPER_TABLE_ONE.items():
+            here = table["cvxpy"][risk].get(n)
+            if here is None:
+                continue
+            lines.append(f"| {risk} | {n} | {p_solve} | {p_call} | {here['solve']:.3f} | "
+                         f"{here['call']:.2f} | {table['ours'][n]:.4f} |")
         lines.append("")
 
     lines += ["## Monte Carlo with the obstacle-agnostic MPC planner (Fig. 4, Fig. 5)", "",

@@ -38,6 +38,7 @@ from agents.evaluation.summary import (
     summarise,
     time_to_goal_cell,
 )
+from filters.constants import ALPHA, DELTA, EPSILON
 from filters.errors import InvalidParameterError
 from safe_nav_env.scenarios import CUSTOM
 from safe_nav_env.stress import STRESS_SUITE
@@ -108,7 +109,7 @@ def stress_specs(
     *,
     episodes: int = 200,
     seed: int = 0,
-    epsilon: float = 0.05,
+    epsilon: float = EPSILON,
     **spec_kwargs: Any,
 ) -> list[EpisodeSpec]:
     """Every (case, method, episode); episode ``i`` uses seed ``seed + i`` in every cell.
@@ -204,9 +205,9 @@ def run_stress(
     planner: str = "ppo",
     reference: str = "rollout",
     policy_path: str = "",
-    alpha: float = 0.2,
-    delta: float = 0.1,
-    epsilon: float = 0.05,
+    alpha: float = ALPHA,
+    delta: float = DELTA,
+    epsilon: float = EPSILON,
     filter_options: dict[str, Any] | str | None = None,
     env_options: dict[str, Any] | str | None = None,
     executor: str | Executor = "process",

@@ -1,7 +1,6 @@
-"""Fast deterministic forms of a trained PPO actor, for the filter's roll-out reference.
+"""Trained PPO actors in the forms the filter and the evaluation use.
 
-* :mod:`agents.policies.numpy_policy` — the actor exported to numpy;
-* :mod:`agents.policies.compiled_rollout` — the policy roll-out over the horizon in one
-  compiled call;
-* :mod:`agents.policies.vector_tanh` — the activation used by both.
+* :mod:`agents.policies.loading` — load a trained PPO policy (the shipped one or a file);
+* :mod:`agents.policies.numpy_policy` — the actor exported to numpy, for the filter's
+  roll-out reference.
 """

@@ -3,9 +3,9 @@
 The roll-out reference (:class:`filters.references.PolicyRolloutReference`) asks
 the policy for ``T - 1`` actions at every control step, one after the other (each
 depends on the state the previous one produced), so it cannot be batched. Through
-Stable-Baselines3 one ``model.predict`` call costs about 0.3 ms here (tensor
-conversion, ``no_grad``, distribution objects), more than the whole filter QP.
-:class:`NumpyPolicy` evaluates the same network with numpy:
+Stable-Baselines3 most of one ``model.predict`` call is overhead (tensor
+conversion, ``no_grad``, distribution objects; :func:`benchmark_numpy_policy` times
+it). :class:`NumpyPolicy` evaluates the same network with numpy:
 
 .. math::
 
@@ -25,24 +25,10 @@ here: ``deterministic=False`` raises.
 Precision. The weights are the float32 tensors of the model, evaluated in float64
 from the float32 observation (SB3 casts observations to float32 first), and the
 action is rounded once to float32. That is the exact value of the float32 network;
-torch's own float32 arithmetic differs from it by a few float32 rounding steps
-(measured on the shipped policy: up to 2.4e-6 m/s² on actions of magnitude 7.7,
-and torch's batched and single-observation calls differ from each other by as
-much). The test checks ``|a_numpy - a_torch| <= 1e-6 max(1, |a_torch|)``.
-
-Bit for bit. :class:`TorchActorPolicy` runs the torch kernels SB3's modules end up
-in (``addmm`` and the activations, on preallocated ``(1, n)`` float32 tensors) and
-skips the rest of ``predict`` (``nn.Module`` calls, tensor conversion checks,
-distribution objects): the very same actions, bit for bit, several times faster than
-``model.predict`` (:func:`benchmark_numpy_policy` times the three). It is the one to
-use where results must not change at all (per-episode evaluation records).
-
-The roll-out. Both classes also offer ``rollout_reference(env, action, horizon)``:
-the whole roll-out in one compiled kernel (:mod:`agents.policies.compiled_rollout`, the float64
-network as here), which :class:`~filters.references.PolicyRolloutReference` uses by
-default; with ``compiled=False`` (``SafetyFilterWrapper(compiled_rollout=False)``) it
-calls ``predict`` at every look-ahead step instead, and :class:`TorchActorPolicy` then
-gives SB3's roll-out bit for bit.
+torch's own float32 arithmetic differs from it by a few float32 rounding steps (its
+batched and single-observation calls differ from each other by as much). The tests
+check ``|a_numpy - a_torch| <= 1e-6 max(1, |a_torch|)`` (m/s²) against
+``model.predict(obs, deterministic=True)``, the reference.
 
 Loading. :func:`load_numpy_policy` loads a PPO ``.zip`` with
 :func:`agents.load_ppo` (so torch and SB3 are still needed, once) and exports it;
@@ -57,6 +43,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -69,7 +56,6 @@ from filters.errors import InvalidArrayError, InvalidParameterError, InvalidType
 __all__ = [
     "NumpyPolicy",
     "PolicyTiming",
-    "TorchActorPolicy",
     "UnsupportedPolicyError",
     "benchmark_numpy_policy",
     "load_numpy_policy",
@@ -82,7 +68,7 @@ class UnsupportedPolicyError(InvalidTypeError):
 
 class _Activation:
     """An in-place numpy activation ``z -> σ(z)``, with its name and parameter (the
-    leaky slope or the ELU alpha, else 0) for :mod:`agents.policies.compiled_rollout`."""
+    leaky slope or the ELU alpha, else 0)."""
 
     __slots__ = ("name", "parameter")
 
@@ -200,7 +186,6 @@ class _DeterministicActor:
         self._action_shape = tuple(action_space.shape)
         self._low = np.asarray(action_space.low, dtype=np.float32).reshape(-1)
         self._high = np.asarray(action_space.high, dtype=np.float32).reshape(-1)
-        self._compiled_rollout: Any = None  # made on first use (False: none)
 
     def _actions(self, rows: np.ndarray) -> np.ndarray:  # pragma: no cover - abstract
         raise NotImplementedError
@@ -297,30 +282,6 @@ class _DeterministicActor:
                 f"got a single observation of shape {self._obs_shape}: use predict"
             )
         return self._actions(rows).reshape((-1, *self._action_shape))
-
-    def rollout_reference(
-        self, env: Any, action: Any, horizon: int
-    ) -> tuple[np.ndarray, np.ndarray] | None:
-        """The policy roll-out reference in one compiled call, or ``None`` if unsupported.
-
-        What :class:`filters.references.PolicyRolloutReference` computes with this
-        policy's ``predict`` (states ``(T+1, n)``, inputs ``(T, m)``), by the kernel of
-        :mod:`agents.policies.compiled_rollout` (float64 network: equal to this policy's roll-out
-        to about 1e-6 m/s² per action). ``None`` when ``env`` (the filter's
-        ``env.unwrapped``) or this network is not one the kernel knows; the caller
-        then rolls out with ``predict``.
-
-        Raises
-        ------
-        InvalidArrayError
-            If an observation of the roll-out is not finite, as ``predict`` would.
-        """
-        compiled = self._compiled_rollout
-        if compiled:  # made by an earlier call: straight to it
-            return compiled.reference(env, action, horizon)
-        from agents.policies.compiled_rollout import rollout_reference
-
-        return rollout_reference(self, env, action, horizon)
 
 
 class NumpyPolicy(_DeterministicActor):
@@ -424,132 +385,6 @@ class NumpyPolicy(_DeterministicActor):
         return self._to_box(z.astype(np.float32))
 
 
-class TorchActorPolicy(_DeterministicActor):
-    """The SB3 actor's own torch kernels, called without SB3's ``predict`` overhead.
-
-    Bit for bit the actions of ``model.predict(obs, deterministic=True)`` (the same
-    kernels on the same float32 tensors of the same shapes, then SB3's clip or
-    un-squash), at a fraction of its cost: use it where results must not change
-    (evaluation records), :class:`NumpyPolicy` where the last float32 bits may.
-    The parameters are shared with the model, not copied: later training changes them.
-
-    Fast path. For one observation and a ``policy_net`` of ``Linear`` layers with
-    ``Tanh``/``ReLU`` activations (the ``MlpPolicy`` default), the forward pass skips
-    ``nn.Module.__call__`` and runs the kernels ``nn.Linear`` ends up in for a
-    ``(1, n)`` batch, :math:`z_{l+1} = \\sigma_l(\\operatorname{addmm}(b_l, z_l, W_l^\\top))`,
-    on preallocated tensors (detached views of the parameters, so no autograd
-    bookkeeping). Any other network, or a batch, goes through the modules.
-    """
-
-    def __init__(self, policy: Any) -> None:
-        super().__init__(policy.observation_space, policy.action_space,
-                         bool(policy.squash_output))
-        policy.set_training_mode(False)  # as SB3's predict does (dropout, batch norm)
-        self._policy = policy
-        self._policy_net = policy.mlp_extractor.policy_net
-        self._action_net = policy.action_net
-        self._kernels = _single_row_forward(self._policy_net, self._action_net,
-                                            self._n_inputs, self.squash_output)
-
-    @classmethod
-    def from_sb3(cls, model: Any) -> TorchActorPolicy:
-        """Wrap the actor of an SB3 ``ActorCriticPolicy`` (or of a model holding one).
-
-        Any ``policy_net`` is accepted (it is called as it is).
-
-        Raises
-        ------
-        UnsupportedPolicyError
-            For an image or ``Dict`` observation space, another features extractor than
-            ``FlattenExtractor``, or a non-``Box`` action space.
-        """
-        return cls(_checked_actor_critic(model))
-
-    def _actions(self, rows: np.ndarray) -> np.ndarray:
-        if self._kernels is not None and rows.shape[0] == 1:
-            return self._to_box(self._kernels(rows))  # squashed inside, as below
-        import torch
-
-        with torch.inference_mode():
-            mean = self._action_net(self._policy_net(torch.from_numpy(np.array(rows))))
-            if self.squash_output:
-                mean = torch.tanh(mean)
-            return self._to_box(mean.numpy())
-
-
-class _SingleRowForward:
-    """``action_net(policy_net(x))`` for one float32 row, on preallocated tensors.
-
-    Each ``Linear`` runs ``torch.addmm(b, z, W.t(), out=buffer)``, the kernel that
-    ``torch.nn.functional.linear`` calls for a 2-D input with a bias; each activation
-    runs in place on that buffer (``torch.tanh(z, out=z)``, ``torch.relu_``), and a
-    final ``tanh`` squashes when the policy does. The parameters are detached views
-    (shared storage, ``requires_grad=False``), so no autograd graph is recorded and
-    training the model updates them. Returns a float32 ``(1, m)`` array that the next
-    call overwrites (the caller copies it: SB3's clip does).
-    """
-
-    def __init__(self, steps: list[tuple[Any, Any, str]], n_inputs: int, squash: bool) -> None:
-        import torch
-
-        self._torch = torch
-        self._input = torch.zeros((1, n_inputs), dtype=torch.float32)
-        self._input_np = self._input.numpy()
-        self._steps = []
-        for weight_t, bias, activation in steps:
-            out = torch.empty((1, weight_t.shape[1]), dtype=torch.float32)
-            self._steps.append((weight_t, bias, activation, out))
-        self._squash = squash
-        self._output_np = self._steps[-1][3].numpy()
-
-    def __call__(self, rows: np.ndarray) -> np.ndarray:
-        torch = self._torch
-        self._input_np[...] = rows
-        z = self._input
-        for weight_t, bias, activation, out in self._steps:
-            torch.addmm(bias, z, weight_t, out=out)
-            if activation == "tanh":
-                torch.tanh(out, out=out)
-            elif activation == "relu":
-                torch.relu_(out)
-            z = out
-        if self._squash:
-            torch.tanh(z, out=z)
-        return self._output_np  # a view of the last buffer: the next call overwrites it
-
-
-def _single_row_forward(
-    policy_net: Any, action_net: Any, n_inputs: int, squash: bool
-) -> _SingleRowForward | None:
-    """A :class:`_SingleRowForward` of the actor, or ``None`` if its layers are not plain.
-
-    Plain: ``policy_net`` an ``nn.Sequential`` of float32 ``Linear`` layers with biases,
-    each followed by at most one ``Tanh`` or ``ReLU``; ``action_net`` such a ``Linear``;
-    all on the CPU.
-    """
-    import torch
-    from torch import nn
-
-    if not isinstance(policy_net, nn.Sequential) or type(action_net) is not nn.Linear:
-        return None
-    steps: list[list[Any]] = []
-    for module in [*policy_net, action_net]:
-        if type(module) is nn.Linear:
-            if (module.bias is None or module.weight.dtype != torch.float32
-                    or module.weight.device.type != "cpu"):
-                return None
-            steps.append([module.weight.detach().t(), module.bias.detach(), ""])
-        elif type(module) in (nn.Tanh, nn.ReLU) and steps and not steps[-1][2]:
-            if type(module) is nn.ReLU and module.inplace:
-                return None
-            steps[-1][2] = "tanh" if type(module) is nn.Tanh else "relu"
-        else:
-            return None
-    if steps[-1][2] or steps[0][0].shape[0] != n_inputs:
-        return None
-    return _SingleRowForward([(w, b, act) for w, b, act in steps], n_inputs, squash)
-
-
 def load_numpy_policy(path: str | Path | None = None) -> NumpyPolicy:
     """Load a PPO ``.zip`` (default: the shipped policy) and export its actor to numpy.
 
@@ -560,7 +395,7 @@ def load_numpy_policy(path: str | Path | None = None) -> NumpyPolicy:
     UnsupportedPolicyError
         If the policy cannot be exported (see :meth:`NumpyPolicy.from_sb3`).
     """
-    from agents.training.ppo import load_ppo
+    from agents.policies.loading import load_ppo
 
     return NumpyPolicy.from_sb3(load_ppo(path))
 
@@ -573,7 +408,6 @@ class PolicyTiming:
     sb3_us: float
     numpy_us: float
     ratio: float  # sb3 / numpy
-    torch_actor_us: float  # TorchActorPolicy, the bit-identical path
     batch: int
     sb3_batch_us: float  # one batched call of `batch` observations
     numpy_batch_us: float
@@ -583,8 +417,7 @@ class PolicyTiming:
         return "\n".join([
             f"policy forward, one observation, {self.calls} calls, medians: SB3 predict "
             f"{self.sb3_us:.1f} us, NumpyPolicy {self.numpy_us:.1f} us "
-            f"({self.ratio:.1f}x faster); TorchActorPolicy (bit-identical to SB3) "
-            f"{self.torch_actor_us:.1f} us ({self.sb3_us / self.torch_actor_us:.1f}x)",
+            f"({self.ratio:.1f}x faster)",
             f"    batch of {self.batch}: SB3 {self.sb3_batch_us:.1f} us, NumpyPolicy "
             f"{self.numpy_batch_us:.1f} us; max |a_numpy - a_sb3| = {self.max_difference:.2e}",
         ])
@@ -593,32 +426,27 @@ class PolicyTiming:
 def benchmark_numpy_policy(
     path: str | Path | None = None, *, calls: int = 2000, batch: int = 64, seed: int = 0
 ) -> PolicyTiming:
-    """Time ``model.predict(obs, deterministic=True)`` against :class:`NumpyPolicy` and
-    :class:`TorchActorPolicy`.
+    """Time ``model.predict(obs, deterministic=True)`` against :class:`NumpyPolicy`.
 
     The observations are standard-normal draws from ``numpy.random.default_rng(seed)``
     (the network does not care where they come from); one torch thread, as in the
     evaluation workers.
     """
-    from agents.training.ppo import load_ppo, set_torch_threads
+    from agents.policies.loading import load_ppo, set_torch_threads
 
     set_torch_threads(1)
     model = load_ppo(path)
     policy = NumpyPolicy.from_sb3(model)
-    actor = TorchActorPolicy.from_sb3(model)
     rng = np.random.default_rng(seed)
     observations = rng.standard_normal((calls, *policy._obs_shape)).astype(np.float32)
-    sb3_times, numpy_times, actor_times, difference = [], [], [], 0.0
+    sb3_times, numpy_times, difference = [], [], 0.0
     for obs in observations:
         begin = time.perf_counter()
         torch_action, _ = model.predict(obs, deterministic=True)
         middle = time.perf_counter()
         numpy_action, _ = policy.predict(obs, deterministic=True)
-        end = time.perf_counter()
-        actor.predict(obs, deterministic=True)
         sb3_times.append(middle - begin)
-        numpy_times.append(end - middle)
-        actor_times.append(time.perf_counter() - end)
+        numpy_times.append(time.perf_counter() - middle)
         difference = max(difference, float(np.max(np.abs(numpy_action - torch_action))))
     sb3_batch, numpy_batch = [], []
     for start in range(0, calls - batch + 1, batch):
@@ -631,8 +459,19 @@ def benchmark_numpy_policy(
         numpy_batch.append(time.perf_counter() - middle)
     sb3_us, numpy_us = 1e6 * float(np.median(sb3_times)), 1e6 * float(np.median(numpy_times))
     return PolicyTiming(
-        calls=calls, sb3_us=sb3_us, numpy_us=numpy_us, ratio=sb3_us / numpy_us,
-        torch_actor_us=1e6 * float(np.median(actor_times)), batch=batch,
+        calls=calls, sb3_us=sb3_us, numpy_us=numpy_us, ratio=sb3_us / numpy_us, batch=batch,
         sb3_batch_us=1e6 * float(np.median(sb3_batch)),
         numpy_batch_us=1e6 * float(np.median(numpy_batch)), max_difference=difference,
     )
+
+
+def __getattr__(name: str) -> Any:
+    """``TorchActorPolicy``: a deprecated alias of :class:`NumpyPolicy` (with a warning)."""
+    if name == "TorchActorPolicy":
+        warnings.warn(
+            "TorchActorPolicy is deprecated: it is now an alias of NumpyPolicy (the one fast "
+            "form of the actor; its actions equal SB3's to float32 rounding, not bit for bit). "
+            "Use NumpyPolicy.from_sb3(model), or the SB3 model itself for SB3's exact actions",
+            DeprecationWarning, stacklevel=2)
+        return NumpyPolicy
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

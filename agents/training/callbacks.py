@@ -239,7 +239,22 @@ class SafetyEvalCallback(EvalCallback):
         return keep_going
 
 
+class RefreshActor(BaseCallback):
+    """Call ``policy.refresh()`` at the start of every rollout: the policy being trained
+    (:class:`agents.training.ppo.TrainingPolicy`) exported again for the roll-out reference."""
+
+    def __init__(self, policy: Any) -> None:
+        super().__init__()
+        self.policy = policy
+
+    def _on_rollout_start(self) -> None:
+        self.policy.refresh()
+
+    def _on_step(self) -> bool:
+        return True
+
+
 __all__ = [
-    "FILTER_STATUSES", "EpisodeSafety", "SafetyEvalCallback", "SafetyMetricsCallback",
-    "SafetyTally", "record_metrics",
+    "FILTER_STATUSES", "EpisodeSafety", "RefreshActor", "SafetyEvalCallback",
+    "SafetyMetricsCallback", "SafetyTally", "record_metrics",
 ]

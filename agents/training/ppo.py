@@ -27,17 +27,19 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from agents.policies.loading import (  # noqa: F401  (re-exported)
+    PRETRAINED_POLICY,
+    load_ppo,
+    pretrained_policy_path,
+    set_torch_threads,
+)
 from filters.errors import InvalidParameterError, InvalidTypeError
 
 DEFAULT_ENV_ID = "SafeNav/RandomCrossing-v0"
 """The randomised training scenario family."""
-
-PRETRAINED_POLICY = "ppo_random_crossing.zip"
-"""File name of the policy shipped in ``agents/pretrained``."""
 
 DEFAULT_PPO_KWARGS: dict[str, Any] = {
     "n_steps": 256,
@@ -97,11 +99,6 @@ class TrainingReport:
     lagrange_multiplier: float | None = None
 
 
-def pretrained_policy_path(name: str = PRETRAINED_POLICY) -> Path:
-    """Path of a PPO policy shipped with the package (default: the RandomCrossing one)."""
-    return Path(str(resources.files("agents") / "pretrained" / name))
-
-
 def metrics_path_for(save_path: str | Path) -> Path:
     """The metrics CSV next to a model: ``runs/ppo.zip`` -> ``runs/ppo.metrics.csv``."""
     path = Path(save_path)
@@ -113,38 +110,45 @@ class TrainingPolicy:
 
     The training environments are built before the model, so this stands in for it
     until :meth:`bind` is called. In-process environments only (``vec_env="dummy"``).
+    Deterministic actions come from :class:`agents.NumpyPolicy` (SB3's to float32
+    rounding), exported again by :meth:`refresh` at the start of every rollout (the
+    parameters change only in the updates between rollouts); others from the SB3 model.
     """
 
     def __init__(self) -> None:
         self.model: Any = None
-        self._physical: Any = None
-        self._compiled_rollout: Any = None
+        self._space: Any = None
+        self._physical: Any = None  # the SB3 model, in physical units
+        self._fast: Any = None  # its numpy export, in physical units (None: not exportable)
 
     def bind(self, model: Any, physical_space: Any) -> None:
         """Answer with ``model`` from now on (its actions mapped to ``physical_space``)."""
+        self.model, self._space = model, physical_space
+        self._physical = self._in_physical_units(model)
+        self.refresh()
+
+    def refresh(self) -> None:
+        """Export the bound model's actor to numpy again (after its parameters changed)."""
+        from agents.policies.numpy_policy import NumpyPolicy, UnsupportedPolicyError
+
+        try:
+            self._fast = self._in_physical_units(NumpyPolicy.from_sb3(self.model))
+        except UnsupportedPolicyError:
+            self._fast = None
+
+    def _in_physical_units(self, policy: Any) -> Any:
         from agents.training.wrappers import PhysicalUnitsPolicy, is_normalised_policy
 
-        self.model = model
-        self._physical = (PhysicalUnitsPolicy(model, physical_space)
-                          if is_normalised_policy(model, physical_space) else model)
-        self._compiled_rollout = None  # compiled again for this model on first use
+        return (PhysicalUnitsPolicy(policy, self._space)
+                if is_normalised_policy(self.model, self._space) else policy)
 
     def predict(self, observation: Any, state: Any = None, episode_start: Any = None,
                 deterministic: bool = False):
         if self._physical is None:
             raise InvalidTypeError("TrainingPolicy.predict called before bind(model)")
-        return self._physical.predict(observation, state=state, episode_start=episode_start,
-                                      deterministic=deterministic)
-
-    def rollout_reference(self, env: Any, action: Any, horizon: int):
-        """The bound model's roll-out in one compiled call (its live parameters, so each
-        update is followed), or ``None`` before :meth:`bind` or when it cannot be compiled
-        (see :meth:`agents.NumpyPolicy.rollout_reference`)."""
-        if self._physical is None:
-            return None
-        from agents.policies.compiled_rollout import rollout_reference
-
-        return rollout_reference(self, env, action, horizon)
+        policy = self._fast if deterministic and self._fast is not None else self._physical
+        return policy.predict(observation, state=state, episode_start=episode_start,
+                              deterministic=deterministic)
 
     def __deepcopy__(self, memo: dict) -> TrainingPolicy:  # the wrapper records its args
         return self
@@ -487,7 +491,7 @@ def train_ppo(
     from stable_baselines3.common.callbacks import CallbackList
     from stable_baselines3.common.logger import CSVOutputFormat, HumanOutputFormat, Logger
 
-    from agents.training.callbacks import SafetyEvalCallback, SafetyMetricsCallback
+    from agents.training.callbacks import RefreshActor, SafetyEvalCallback, SafetyMetricsCallback
 
     torch.set_num_threads(torch_threads)
     training_policy = None
@@ -526,6 +530,8 @@ def train_ppo(
 
     safety = SafetyMetricsCallback()
     callbacks: list[Any] = [safety]
+    if training_policy is not None:
+        callbacks.append(RefreshActor(training_policy))
     best_model_path = None
     if eval_freq:
         eval_env = make_training_env(
@@ -564,29 +570,6 @@ def train_ppo(
         lagrange_multiplier=getattr(model, "lagrange_multiplier", None),
     )
     return model, report
-
-
-def load_ppo(path: str | Path | None = None):
-    """Load a PPO policy; with no argument, the one shipped with the package.
-
-    Raises
-    ------
-    FileNotFoundError
-        If ``path`` (or the shipped policy) does not exist.
-    """
-    from stable_baselines3 import PPO
-
-    path = pretrained_policy_path() if path is None else Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"no PPO policy at {path}")
-    return PPO.load(path, device="cpu")
-
-
-def set_torch_threads(n: int = 1) -> None:
-    """Use ``n`` torch threads (1 is fastest for small MLPs on this machine)."""
-    import torch
-
-    torch.set_num_threads(n)
 
 
 __all__ = [

@@ -196,7 +196,6 @@ class PhysicalUnitsPolicy:
         self.policy = policy
         self.centre, self.half_width = _box_map(physical_space, "physical_space")
         self.action_space = physical_space
-        self._compiled_rollout: Any = None  # made on first use (False: none)
 
     def predict(self, observation: Any, state: Any = None, episode_start: Any = None,
                 deterministic: bool = False) -> tuple[np.ndarray, Any]:
@@ -204,17 +203,6 @@ class PhysicalUnitsPolicy:
                                             episode_start=episode_start,
                                             deterministic=deterministic)
         return self.centre + self.half_width * np.asarray(action, dtype=np.float64), state
-
-    def rollout_reference(
-        self, env: Any, action: Any, horizon: int
-    ) -> tuple[np.ndarray, np.ndarray] | None:
-        """The roll-out reference in one compiled call, the map to m/s² included, or
-        ``None`` (see :meth:`agents.NumpyPolicy.rollout_reference`): when the wrapped
-        policy is a plain SB3 MLP actor (or its numpy or torch export) and ``env`` a
-        ``SafeNavEnv``."""
-        from agents.policies.compiled_rollout import rollout_reference
-
-        return rollout_reference(self, env, action, horizon)
 
 
 __all__ = [

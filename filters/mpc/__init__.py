@@ -11,6 +11,8 @@
 * :mod:`filters.mpc.condensed`: the whitened condensed QP (identity Hessian, row bank).
 * :mod:`filters.mpc.filter`: :class:`MPCSafetyFilter`, the step: validation, shortcut,
   acceptance check, recovery.
+* :mod:`filters.mpc.cvxpy_filter`: :class:`CVXPYSafetyFilter`, the same filter on the
+  CVXPY back end (the reference in tests and benchmarks).
 * :mod:`filters.mpc.recovery`: the paper's Remark (shift the last plan, then brake).
 * :mod:`filters.mpc.result`: :class:`FilterStatus`, :class:`FilterResult`.
 
@@ -39,7 +41,7 @@ __all__ = [
 
 def __getattr__(name: str) -> Any:
     if name == "CVXPYSafetyFilter":
-        from filters.mpc.backends.cvxpy import CVXPYSafetyFilter
+        from filters.mpc.cvxpy_filter import CVXPYSafetyFilter
 
         return CVXPYSafetyFilter
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

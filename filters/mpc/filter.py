@@ -34,6 +34,13 @@ import numpy as np
 import scipy.linalg
 
 from filters._validation import finite_array
+from filters.constants import (  # noqa: F401  (re-exported: filters.mpc.filter.* names)
+    DISABLED_OFFSET,
+    FEASIBILITY_TOLERANCE,
+    HORIZON,
+    INPUT_CLIP_TOLERANCE,
+    SLACK_TOLERANCE,
+)
 from filters.errors import InvalidParameterError, InvalidTypeError
 from filters.mpc._linalg import matvec_operator
 from filters.mpc.backends import (
@@ -70,17 +77,6 @@ __all__ = [
 
 #: What to do when the hard QP fails.
 FALLBACKS = ("soft", "paper")
-#: Offset written in unused halfspace rows: the row reads ``0 @ y <= 1``.
-DISABLED_OFFSET = 1.0
-#: Largest violation (m for positions and halfspaces) accepted from a "solved" QP.
-FEASIBILITY_TOLERANCE = 1e-6
-#: Slacks and violations at or below this value (m) count as zero.
-SLACK_TOLERANCE = 1e-6
-#: Largest distance (m/s², per input) from a back end's answer to the input box that is
-#: clipped away rather than rejected. Every row is checked again on the clipped inputs,
-#: so clipping never admits a plan that breaks a hard row. Active-set soft QPs in the
-#: whitened variables (where the box is a general row) were seen up to 2e-5 outside it.
-INPUT_CLIP_TOLERANCE = 1e-4
 
 _NO_QP = "unconstrained optimum feasible (no QP needed)"
 _vecdot = getattr(np, "vecdot", None) or (lambda a, b: np.einsum("...d,...d->...", a, b))
@@ -186,7 +182,7 @@ class MPCSafetyFilter:
         B: np.ndarray,
         C: np.ndarray,
         *,
-        horizon: int = 10,
+        horizon: int = HORIZON,
         Q: np.ndarray | None = None,
         Q_terminal: np.ndarray | None = None,
         R: np.ndarray,

@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from safe_nav_env.constants import EGO_RADIUS
 from safe_nav_env.crowd.humans import HUMAN_POLICIES, make_humans
 from safe_nav_env.crowd.model import CrowdModel
 from safe_nav_env.env import SafeNavEnv, _option
@@ -125,7 +126,7 @@ class CrowdEnv(SafeNavEnv):
     def _draw_scenario(self, rng: np.random.Generator) -> Scenario:
         """The robot on the circle's bottom, the humans drawn as CrowdNav draws them."""
         r = self.circle_radius
-        ego_radius = 0.3  # the Scenario default, which the environment uses
+        ego_radius = EGO_RADIUS  # the Scenario default, which the environment uses
         placed = [((0.0, -r), (0.0, r), ego_radius)]  # (start, goal, radius)
         humans = []
         for index in range(self.n_humans):

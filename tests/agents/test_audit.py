@@ -9,9 +9,7 @@ import pytest
 from scipy.stats import norm
 
 from agents.errors import RecordsFileError
-from agents.evaluation.records import EpisodeRecord, read_records, write_records
-from agents.evaluation.summary import audit_rows, audit_table, wilson_interval
-from agents.experiments.audit import (
+from agents.evaluation.audit import (
     AUDIT_TOLERANCE,
     audit_losses,
     cluster_bootstrap,
@@ -19,6 +17,8 @@ from agents.experiments.audit import (
     encode_losses,
     first_step_losses,
 )
+from agents.evaluation.records import EpisodeRecord, read_records, write_records
+from agents.evaluation.summary import audit_rows, audit_table, wilson_interval
 from filters import Disc, safe_halfspaces
 from filters.errors import InvalidArrayError, InvalidParameterError
 from filters.risk import empirical_cvar

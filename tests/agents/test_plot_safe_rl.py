@@ -9,7 +9,7 @@ import pytest
 
 from agents.evaluation.records import EpisodeRecord, write_records
 
-_SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "plot_safe_rl.py"
+_SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "plot_safe_rl.py"
 
 
 def _load():

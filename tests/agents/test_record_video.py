@@ -12,7 +12,7 @@ import pytest
 from agents.errors import PolicyFileError
 from filters.errors import InvalidParameterError
 
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "record_video.py"
+SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "record_video.py"
 
 
 def _script():
@@ -35,9 +35,10 @@ def _decoded_frames(path: Path) -> tuple[list[np.ndarray], float]:
         clip.close()
 
 
+@pytest.mark.video  # the video extra: pytest -m video
 @pytest.mark.slow  # loads torch and runs ffmpeg: ~10 s of CPU
 def test_records_a_short_filtered_episode(tmp_path):
-    pytest.importorskip("moviepy", reason="RecordVideo needs moviepy (video/dev extra)")
+    import moviepy  # noqa: F401
     from PIL import Image
 
     from agents.evaluation.records import EpisodeSpec

@@ -9,9 +9,7 @@ import warnings
 import gymnasium as gym
 import numpy as np
 import pytest
-
-pytest.importorskip("stable_baselines3")
-
+import stable_baselines3  # noqa: F401  (the train extra of the set-up)
 from stable_baselines3 import PPO  # noqa: E402
 from stable_baselines3.common.logger import Logger  # noqa: E402
 from stable_baselines3.common.vec_env import DummyVecEnv  # noqa: E402
@@ -399,10 +397,42 @@ def test_filter_in_the_loop_with_the_policy_rollout_reference(tmp_path):
         report.safety["intervention"])
 
 
+def test_the_training_policy_answers_with_its_numpy_export_refreshed_per_rollout():
+    import torch
+
+    from agents.training.callbacks import RefreshActor
+    from agents.training.ppo import TrainingPolicy
+
+    space = gym.make("SafeNav/HeadOn-v0").action_space
+    model = PPO("MlpPolicy", make_training_env("SafeNav/HeadOn-v0", n_envs=1), seed=0,
+                device="cpu", **TINY_PPO)
+    policy = TrainingPolicy()
+    policy.bind(model, space)
+    sb3 = PhysicalUnitsPolicy(model, space)  # the reference: SB3's predict in m/s²
+    observations = np.random.default_rng(3).standard_normal((50, 26)).astype(np.float32)
+    tolerance = 1e-6 * float(np.max(space.high))  # float32 rounding, stretched to the box
+
+    def error() -> float:
+        return max(float(np.max(np.abs(policy.predict(obs, deterministic=True)[0]
+                                       - sb3.predict(obs, deterministic=True)[0])))
+                   for obs in observations)
+
+    assert error() <= tolerance
+    with torch.no_grad():  # an update: the export is stale until the next rollout starts
+        model.policy.action_net.bias.add_(0.3)
+    assert error() > 1e-3
+    callback = RefreshActor(policy)
+    callback.init_callback(model)
+    callback.on_rollout_start()
+    assert error() <= tolerance
+    stochastic, _ = policy.predict(observations[0], deterministic=False)  # SB3's sampler
+    assert stochastic.shape == (2,)
+
+
 # ----------------------------------------------------------------------------- the CLI
 @pytest.mark.slow
 def test_train_cli_smoke_prints_metrics_and_writes_csv_and_tensorboard(tmp_path, capsys):
-    pytest.importorskip("tensorboard")
+    import tensorboard  # noqa: F401  (the train extra)
     output = tmp_path / "ppo.zip"
     code = main(["train", "--env-id", "HeadOn", "--timesteps", "256", "--n-envs", "2",
                  "--output", str(output), "--no-progress", "--filter", "dr_cvar",

@@ -7,8 +7,8 @@ import csv
 import pytest
 
 from agents.cli.main import main
+from agents.evaluation.audit import decode_losses
 from agents.evaluation.records import EpisodeSpec
-from agents.experiments.audit import decode_losses
 from agents.experiments.stress import STRESS_METHODS, stress_specs
 from filters.errors import InvalidParameterError
 

@@ -330,7 +330,7 @@ def test_cvxpy_reference_rejects_bad_input():
 
 
 def test_benchmark_table_one_smoke():
-    from benchmarks.halfspaces import benchmark_table_one, format_table_one
+    from agents.experiments.table_one import benchmark_table_one, format_table_one
 
     result = benchmark_table_one(sample_counts=(50,), repeats=1, seed=1)
     assert [row.risk for row in result.cvxpy] == ["cvar", "dr_cvar"]

@@ -194,6 +194,29 @@ def test_policy_rollout_reference_follows_the_dynamics():
     assert not np.allclose(states, held_states)  # the planner re-plans along the way
 
 
+def test_the_compiled_rollout_switches_are_deprecated_and_ignored():
+    env = gym.make("SafeNav/HeadOn-v0")
+    env.reset(seed=0)
+    planner = MPCReferencePlanner.from_env(env)
+    with pytest.warns(DeprecationWarning, match="compiled=.*deprecated and ignored"):
+        maker = PolicyRolloutReference(planner, compiled=False)
+    expected = PolicyRolloutReference(planner)(env.unwrapped, np.ones(2), 10)
+    np.testing.assert_allclose(maker(env.unwrapped, np.ones(2), 10)[0], expected[0], atol=1e-12)
+    with pytest.warns(DeprecationWarning, match="compiled_rollout=.*deprecated and ignored"):
+        wrapped = SafetyFilterWrapper(gym.make("SafeNav/HeadOn-v0"), policy=planner,
+                                      compiled_rollout=False)
+    assert isinstance(wrapped.reference, PolicyRolloutReference)
+    with pytest.warns(DeprecationWarning, match="fast_path=.*deprecated and ignored"):
+        lean = SafetyFilterWrapper(gym.make("SafeNav/HeadOn-v0"), fast_path=False)
+    plain = SafetyFilterWrapper(gym.make("SafeNav/HeadOn-v0"))
+    for env in (lean, plain):
+        env.reset(seed=3)
+    for _ in range(10):  # the same steps with or without the ignored switch
+        a, b = (env.step(np.array([2.0, 1.0]))[4]["filter"] for env in (lean, plain))
+        assert a.status == b.status
+        np.testing.assert_array_equal(a.applied_action, b.applied_action)
+
+
 def test_intervention_penalty_lowers_the_reward_by_its_square():
     rewards = {}
     for penalty in (0.0, 2.0):
@@ -239,8 +262,9 @@ def test_render_hook_is_installed_once_and_frames_render():
     assert frame.dtype == np.uint8 and frame.ndim == 3
 
 
+@pytest.mark.video  # the video extra: pytest -m video
 def test_record_video_writes_a_file(tmp_path):
-    pytest.importorskip("moviepy", reason="RecordVideo needs moviepy (dev extra)")
+    import moviepy  # noqa: F401
     env = gym.make("SafeNav/HeadOn-v0", render_mode="rgb_array")
     folder = tmp_path / "videos"
     env = gym.wrappers.RecordVideo(SafetyFilterWrapper(env, risk="dr_cvar"), str(folder),

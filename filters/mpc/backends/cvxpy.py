@@ -6,8 +6,8 @@ the cost and the rows of :class:`~filters.mpc.MPCProblem` spelled out, built onc
 only refills the parameters), solved with Clarabel through CVXPY. Never in the control
 loop: a solve costs milliseconds of CVXPY overhead.
 
-This module imports CVXPY; ``import filters`` does not import it (reach
-:class:`CVXPYSafetyFilter` as ``filters.CVXPYSafetyFilter``, resolved lazily).
+This module imports CVXPY; ``import filters`` does not import it. The filter that uses it,
+:class:`filters.CVXPYSafetyFilter`, is in :mod:`filters.mpc.cvxpy_filter`.
 """
 
 from __future__ import annotations
@@ -20,11 +20,10 @@ import cvxpy as cp
 import numpy as np
 
 from filters.mpc.backends.clarabel import SOFT_GAP_TOLERANCE
-from filters.mpc.filter import MPCSafetyFilter
 from filters.mpc.problem import MPCProblem
 from filters.mpc.result import QPSolution, StepData
 
-__all__ = ["CVXPYBackend", "CVXPYSafetyFilter"]
+__all__ = ["CVXPYBackend"]
 
 _SOLVED = (cp.OPTIMAL, cp.OPTIMAL_INACCURATE)
 
@@ -162,16 +161,3 @@ class CVXPYBackend:
         return QPSolution(
             True, status, np.array(self._u.value), hs_slack, bound_slack, iterations, solve_time
         )
-
-
-class CVXPYSafetyFilter(MPCSafetyFilter):
-    """:class:`~filters.mpc.MPCSafetyFilter` with the CVXPY back end (``backend="cvxpy"``).
-
-    Same parameters, same results (to solver tolerance); for tests and benchmarks.
-    ``skip_feasible_reference`` defaults to ``False`` here: the reference solves every QP.
-    """
-
-    def __init__(self, A: np.ndarray, B: np.ndarray, C: np.ndarray, **kwargs: Any) -> None:
-        kwargs["backend"] = "cvxpy"
-        kwargs.setdefault("skip_feasible_reference", False)
-        super().__init__(A, B, C, **kwargs)

@@ -278,7 +278,7 @@ def audit_losses(losses: Sequence[float] | np.ndarray, *, alpha: float,
     InvalidParameterError
         If ``alpha`` is outside (0, 1] or ``delta`` is not finite.
     """
-    from agents.evaluation.summary import wilson_interval
+    from agents.evaluation.statistics import wilson_interval
 
     if groups is not None:
         groups = [np.asarray(g, dtype=float).reshape(-1) for g in groups]

@@ -11,9 +11,10 @@ compilation ("setup"), the solver's solve time and the wall-clock time of
 2023 hardware). Our :func:`filters.halfspaces.safe_halfspaces` is timed for one
 obstacle at one step and for 3 obstacles x 10 steps in one call.
 
-Usage::
+Part of the paper's reproduction (:func:`agents.experiments.reproduce.reproduce`, through
+:func:`halfspace_timing_table`); ``safe-nav bench`` prints it too. Usage::
 
-    from benchmarks.halfspaces import benchmark_table_one, format_table_one
+    from agents.experiments.table_one import benchmark_table_one, format_table_one
     print(format_table_one(benchmark_table_one()))
 """
 
@@ -25,19 +26,24 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from filters.constants import ALPHA, DELTA, EPSILON
 from filters.geometry import Disc
 from filters.halfspaces import safe_halfspaces
+from safe_nav_env.constants import N_SAMPLES, OBSTACLE_RADIUS
 
 __all__ = [
+    "EXAMPLE_ONE",
     "PAPER_TABLE_ONE",
     "CvxpyTiming",
     "OurTiming",
     "TableOneResult",
     "benchmark_table_one",
     "format_table_one",
+    "halfspace_timing_table",
 ]
 
-#: The paper's Table I: mean (solve, call) times in ms, keyed by (risk, N_s).
+#: The paper's Table I: mean (solve, call) times in ms, keyed by (risk, N_s); CVXPY + ECOS
+#: on a Xeon E3-1535M.
 PAPER_TABLE_ONE: dict[tuple[str, int], tuple[float, float]] = {
     ("cvar", 50): (0.144, 2.23),
     ("cvar", 500): (1.91, 4.32),
@@ -47,11 +53,17 @@ PAPER_TABLE_ONE: dict[tuple[str, int], tuple[float, float]] = {
     ("dr_cvar", 1500): (8.53, 216.0),
 }
 
-_Y_REF = np.array([-0.9, -0.8])
-_OBSTACLE = np.array([0.5, 0.0])
-_RADIUS = 0.3
+EXAMPLE_ONE = dict(reference=(-0.9, -0.8), obstacle=(0.5, 0.0), radius=OBSTACLE_RADIUS,
+                   n_samples=N_SAMPLES, variance=0.01, alpha=ALPHA, delta=DELTA,
+                   epsilons=(EPSILON, 0.1, 0.2))
+"""Example 1 of the paper (Sec. II-C): ego reference, nominal obstacle position (m), disc
+radius (m), samples of N(obstacle, variance I), and the risk parameters."""
+
+_Y_REF = np.array(EXAMPLE_ONE["reference"])
+_OBSTACLE = np.array(EXAMPLE_ONE["obstacle"])
+_RADIUS = OBSTACLE_RADIUS
 _STD = 0.1  # N(p, 0.01 I)
-_ALPHA, _DELTA, _EPSILON = 0.2, 0.1, 0.05
+_ALPHA, _DELTA, _EPSILON = ALPHA, DELTA, EPSILON
 _GRID = (3, 10)  # obstacles x steps
 
 
@@ -252,3 +264,19 @@ def format_table_one(result: TableOneResult) -> str:
             f"{row.speedup:>25.0f}x{row.speedup_same_work:>23.0f}x"
         )
     return "\n".join(lines)
+
+
+def halfspace_timing_table(
+    sample_counts: Sequence[int] = (50, 500, 1500), repeats: int = 100, seed: int = 0
+) -> dict:
+    """Table I as nested dicts (ms): ``cvxpy[risk][N_s] = {setup, solve, call}`` (means)
+    and ``ours[N_s]`` = our DR-CVaR time for one halfspace; ``result`` is the raw
+    :class:`TableOneResult`."""
+    result = benchmark_table_one(sample_counts, repeats, seed)
+    cvxpy: dict[str, dict[int, dict[str, float]]] = {}
+    for row in result.cvxpy:
+        cvxpy.setdefault(row.risk, {})[row.n_samples] = {
+            "setup": row.setup_mean, "solve": row.solve_mean, "call": row.call_mean}
+    ours = {row.n_samples: row.one_halfspace_us / 1e3 for row in result.ours
+            if row.risk == "dr_cvar"}
+    return {"cvxpy": cvxpy, "ours": ours, "result": result}
