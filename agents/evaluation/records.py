@@ -44,6 +44,7 @@ __all__ = [
     "REFERENCES",
     "RISKS",
     "SCENARIO_NAMES",
+    "TIMING_FIELDS",
     "EpisodeRecord",
     "EpisodeSpec",
     "RecordWriter",
@@ -471,6 +472,10 @@ def _same(a: Any, b: Any) -> bool:
 
 RECORD_FIELDS = tuple(f.name for f in fields(EpisodeRecord))
 """CSV columns, in order."""
+
+TIMING_FIELDS = ("wall_time", "filter_time_median", "filter_time_max")
+"""Columns measured in seconds of this machine's time: the only ones that differ between two
+runs of the same seeds and code (on 1 or 2 workers, locally or on Ray)."""
 
 KEY_FIELDS = ("scenario", "risk", "seed", "planner", "reference", "alpha", "delta", "epsilon",
               "noise", "filter_options", "env_options", "policy_sha256", "case")

@@ -12,8 +12,9 @@ import agents.evaluation.executors
 from agents.errors import WorkersLostError
 from agents.evaluation.evaluate import episode_specs, evaluate, read_records
 from agents.evaluation.executors import ProcessExecutor
+from agents.evaluation.records import TIMING_FIELDS
 
-TIMING = dict(wall_time=0.0, filter_time_median=0.0, filter_time_max=0.0)
+TIMING = dict.fromkeys(TIMING_FIELDS, 0.0)
 """The columns that measure time (they differ between any two runs); the rest must match."""
 
 
