@@ -335,7 +335,12 @@ def plot_distance_boxplots(records: Sequence[EpisodeRecord], path: str | Path) -
         ax.axhline(0.0, color="k", lw=1, ls="--")
         ax.set_title(short_name(scenario))
         ax.grid(alpha=0.3, axis="y")
-    axes[0][0].set_ylabel("min distance to collision (m)")
+    axes[0][0].set_ylabel("smallest clearance of the episode (m)\n(sampled; < 0: collision)")
+    n = max((len([r for r in records if r.scenario == s and not r.error]) for s in scenarios),
+            default=0)
+    fig.suptitle("Smallest distance to collision per episode, by filter risk "
+                 f"(up to {n // max(1, len({r.risk for r in records}))} episodes per box; "
+                 "whiskers: min and max)", fontsize=10)
     return _save(fig, path)
 
 
@@ -394,7 +399,10 @@ def plot_window_boxplots(
 
 
 def plot_collision_rates(
-    rows: Sequence[SummaryRow], path: str | Path, *, ylabel: str = "collision rate",
+    rows: Sequence[SummaryRow], path: str | Path, *,
+    ylabel: str = "collision rate (continuous time)\nshare of episodes",
+    title: str = "Collision rate per scenario, unfiltered and by filter risk "
+                 "(bars: Wilson 95 % intervals; labels: collisions / episodes)",
 ) -> Path:
     """Collision rate per scenario and risk with Wilson 95 % intervals.
 
@@ -439,6 +447,7 @@ def plot_collision_rates(
     ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=len(risks),
               frameon=False)
     ax.grid(alpha=0.3, axis="y")
+    ax.set_title(title, fontsize=10)
     return _save(fig, path)
 
 
