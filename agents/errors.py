@@ -33,3 +33,8 @@ class WorkersLostError(AgentsError, RuntimeError):
 
     The episodes that finished are saved; running the same command again resumes.
     """
+
+
+class MissingExtraError(AgentsError, ImportError):
+    """An optional feature was asked for without its extra installed (the message names
+    the extra and the command that installs it)."""

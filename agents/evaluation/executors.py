@@ -227,7 +227,10 @@ class RayExecutor(Executor):
         try:
             import ray
         except ImportError as exc:  # pragma: no cover - depends on the extra
-            raise ImportError("--executor ray needs Ray: pip install -e '.[ray]'") from exc
+            from agents.errors import MissingExtraError
+
+            raise MissingExtraError("--executor ray needs the 'ray' extra, which is not "
+                                    "installed: pip install -e '.[ray]'") from exc
         for name, value, low in (("max_in_flight", max_in_flight, 1),
                                  ("max_retries", max_retries, 0)):
             if isinstance(value, bool) or not isinstance(value, int) or value < low:

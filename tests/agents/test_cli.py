@@ -304,3 +304,14 @@ def test_the_custom_scenario_is_usable_from_the_command_line(tmp_path, capsys):
     assert main(["evaluate", *TINY, "--planner", "mpc", "--output", str(tmp_path / "other"),
                  "--env-option", custom]) == 2  # it would silently replace HeadOn
     assert "for the scenario 'Custom' only" in _one_line(capsys)
+
+
+def test_ray_without_its_extra_is_one_line_naming_the_extra(tmp_path, monkeypatch, capsys):
+    monkeypatch.setitem(__import__("sys").modules, "ray", None)  # as if not installed
+    code = main(["evaluate", "--executor", "ray", "--scenarios", "HeadOn", "--risks", "none",
+                 "--planner", "mpc", "--episodes", "1", "--output", str(tmp_path / "out"),
+                 "--no-progress"])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "'ray' extra" in err and "pip install -e '.[ray]'" in err
+    assert "Traceback" not in err
