@@ -9,7 +9,7 @@ from collections.abc import Iterable
 import gymnasium as gym
 import numpy as np
 
-from safe_nav_env.registration import ENV_IDS
+from safe_nav_env.registration import ENV_IDS, SCENE_IDS
 
 
 def steps_per_second(
@@ -86,8 +86,10 @@ def benchmark(
     **make_kwargs: object,
 ) -> dict[str, float]:
     """Steps per second (median of ``repeats``) for each id; default: every registered id
-    except ``SafeNav/Custom-v0``. See :func:`steps_per_second`."""
-    ids = [i for i in ENV_IDS if i != "SafeNav/Custom-v0"] if env_ids is None else list(env_ids)
+    except ``SafeNav/Custom-v0``, the scene environments (recorded pedestrians, the crowd)
+    with their default options included. See :func:`steps_per_second`."""
+    ids = ([i for i in ENV_IDS if i != "SafeNav/Custom-v0"] + list(SCENE_IDS)
+           if env_ids is None else list(env_ids))
     return {
         env_id: steps_per_second(env_id, n_steps=n_steps, repeats=repeats, seed=seed, raw=raw,
                                  **make_kwargs)

@@ -13,6 +13,8 @@ def test_benchmark_reports_a_rate_per_scenario():
         "SafeNav/Intersection-v0",
         "SafeNav/MultiObstacle-v0",
         "SafeNav/RandomCrossing-v0",
+        "SafeNav/Pedestrians-v0",
+        "SafeNav/Crowd-v0",
     }
     assert all(rate > 0 for rate in rates.values())
     assert steps_per_second("SafeNav/HeadOn-v0", n_steps=20, repeats=1, raw=True) > 0
