@@ -51,6 +51,10 @@ PEDESTRIAN_SETTINGS: dict[str, dict[str, Any]] = {name: {"scene": name} for name
 PEDESTRIAN_RISKS = ("none", "mean", "cvar", "dr_cvar", "conformal")
 """Methods run by default: the planner alone, the paper's filters and a calibrated one."""
 
+PEDESTRIAN_POLICY = "ppo_pedestrians.zip"
+"""The shipped PPO planner trained on ``SafeNav/Pedestrians-v0`` (scene ``zara2``; eight
+obstacle slots), the suite's PPO planner when no policy is given."""
+
 
 @dataclass(frozen=True)
 class PedestrianRow:
@@ -162,7 +166,8 @@ def run_pedestrians(
     workers, seed, planner, reference, policy_path, alpha, delta, epsilon, filter_options,
     env_options, executor, progress, overwrite
         As for :func:`agents.evaluation.campaign.run_evaluation`. The PPO planner needs a
-        policy whose observation has the environment's slots (8 by default).
+        policy whose observation has the environment's slots (8 by default): empty
+        ``policy_path`` means the shipped one (:data:`PEDESTRIAN_POLICY`).
 
     Raises
     ------
@@ -170,6 +175,10 @@ def run_pedestrians(
         As :func:`agents.evaluation.evaluate.evaluate`, before any episode runs.
     """
     output = output_folder(output)
+    if planner == "ppo" and not policy_path:
+        from agents.policies.loading import pretrained_policy_path
+
+        policy_path = str(pretrained_policy_path(PEDESTRIAN_POLICY))
     specs = scene_specs("Pedestrians", PEDESTRIAN_SETTINGS, scenes, risks, episodes=episodes,
                         seed=seed, planner=planner, reference=reference,
                         policy_path=policy_path, alpha=alpha, delta=delta, epsilon=epsilon,
