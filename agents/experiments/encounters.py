@@ -1,0 +1,337 @@
+"""The paper's Monte Carlo episodes: one encounter per (preset, scenario, risk, seed).
+
+An :class:`EncounterJob` runs on the evaluation runner
+(:func:`agents.evaluation.runner.run_episode`) with the paper's filter, the preset's
+planner and the paper's episode length, and gives an :class:`EncounterRecord`, its
+trajectory step by step; :func:`paper_monte_carlo` runs all of them.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from agents.evaluation.records import EpisodeSpec
+from agents.experiments.paper_settings import (
+    PAPER_SCENARIOS,
+    PRESETS,
+    ReproductionPreset,
+    paper_duration,
+)
+from filters.errors import InvalidParameterError
+from filters.risk import PAPER_RISKS
+from safe_nav_env.scenarios import scenario_name
+
+INFEASIBLE_STATUSES = ("shifted", "brake", "soft", "recovery")
+"""Filter statuses of a step whose hard QP failed (:class:`filters.mpc.FilterStatus`)."""
+
+
+# ---------------------------------------------------------------------------- episodes
+@dataclass(frozen=True)
+class EncounterJob:
+    """One paper-comparison episode: a preset, a scenario id, a risk and a seed."""
+
+    preset: ReproductionPreset
+    scenario: str
+    risk: str
+    seed: int
+    render: bool = False
+    record_halfspaces: bool = False
+
+
+@dataclass(frozen=True, eq=False)
+class EncounterRecord:
+    """Everything one episode did, step by step (S steps, n obstacles).
+
+    Attributes
+    ----------
+    ego_states
+        (S+1, 4) ego states ``[p, v]`` at the samples (m, m/s).
+    inputs
+        (S, 2) applied accelerations, in m/s².
+    obstacles
+        (S+1, n, 2) realised obstacle positions, in m.
+    distances
+        (S+1, n) sampled distances to collision, in m (``info["distance_to_collision"]``).
+    swept
+        (S, n) minimum clearance over each step, in m (continuous time,
+        ``info["swept_distance_to_collision"]``).
+    statuses, filter_times
+        The filter's status and its step time (s) at each step.
+    halfspaces, frames
+        Per step ``(normals, offsets)`` and rendered frames, if asked for.
+    error
+        Empty, or why the episode stopped early (its partial data are kept).
+    """
+
+    preset: str
+    scenario: str
+    risk: str
+    seed: int
+    dt: float
+    ego_radius: float
+    obstacle_radii: np.ndarray
+    goal: np.ndarray
+    ego_states: np.ndarray
+    inputs: np.ndarray
+    obstacles: np.ndarray
+    distances: np.ndarray
+    swept: np.ndarray
+    statuses: tuple[str, ...]
+    filter_times: np.ndarray
+    halfspaces: list = field(default_factory=list)
+    frames: list = field(default_factory=list)
+    error: str = ""
+    wall_time: float = 0.0
+
+    @property
+    def ego(self) -> np.ndarray:
+        """(S+1, 2) ego positions, in m."""
+        return self.ego_states[:, :2]
+
+    @property
+    def ego_velocities(self) -> np.ndarray:
+        """(S+1, 2) ego velocities, in m/s."""
+        return self.ego_states[:, 2:]
+
+    @property
+    def steps(self) -> int:
+        return int(self.inputs.shape[0])
+
+    @property
+    def collision(self) -> bool:
+        """Continuous-time collision in the episode (some step's clearance <= 0)."""
+        return bool(self.swept.size and np.min(self.swept) <= 0.0)
+
+    @property
+    def sampled_collision(self) -> bool:
+        """Collision at a sample instant (the paper's count)."""
+        return bool(self.distances.size and np.min(self.distances) <= 0.0)
+
+    @property
+    def fallback_steps(self) -> int:
+        """Steps where the filter's hard QP failed (:data:`INFEASIBLE_STATUSES`)."""
+        return sum(s in INFEASIBLE_STATUSES for s in self.statuses)
+
+    @property
+    def step_collisions(self) -> tuple[list[bool], list[bool]]:
+        """Per step ``1..S``: the continuous-time and the end-sample collision flags."""
+        swept = [bool(np.min(row) <= 0.0) if row.size else False for row in self.swept]
+        sampled = [bool(np.min(row) <= 0.0) if row.size else False
+                   for row in self.distances[1:]]
+        return swept, sampled
+
+    @property
+    def first_collision_step(self) -> int:
+        """The first step with a continuous-time collision (1-based), 0 if none."""
+        swept, _ = self.step_collisions
+        return swept.index(True) + 1 if any(swept) else 0
+
+    @property
+    def collision_cause(self) -> str:
+        """Why the first collision happened: ``""``, ``"fallback"``, ``"inter_sample"`` or
+        ``"noise"`` (:func:`agents.evaluation.runner.collision_cause`, the evaluation's rule)."""
+        from agents.evaluation.runner import collision_cause
+
+        swept, sampled = self.step_collisions
+        return collision_cause(swept, sampled, list(self.statuses))
+
+
+class _PresetPlanner:
+    """The preset's obstacle-agnostic planner: the agent and the filter's reference maker.
+
+    With ``zero_inputs`` the reference inputs are zero, so the wrapper's input cost
+    ``(u - u_ref)' R (u - u_ref)`` is the paper's ``u' R u`` (Problem 2).
+    """
+
+    def __init__(self, planner: Any, *, zero_inputs: bool) -> None:
+        self.planner = planner
+        self.zero_inputs = zero_inputs
+
+    def predict(self, observation: np.ndarray, deterministic: bool = True) -> Any:
+        return self.planner.predict(observation, deterministic=deterministic)
+
+    def __call__(self, env: Any, action: np.ndarray, horizon: int):
+        states, inputs = self.planner(env, action, horizon)
+        return (states, np.zeros_like(inputs)) if self.zero_inputs else (states, inputs)
+
+
+def _preset_planner(preset: ReproductionPreset):
+    """A function ``env -> _PresetPlanner`` building the preset's planner for ``env``."""
+    from agents.planners import MPCReferencePlanner
+
+    Q, Q_terminal, R = preset.planner_weights
+
+    def build(env: Any) -> _PresetPlanner:
+        planner = MPCReferencePlanner.from_env(
+            env, horizon=preset.horizon, Q=Q, Q_terminal=Q_terminal, R=R,
+            convention=preset.planner_convention)
+        return _PresetPlanner(planner, zero_inputs=preset.filter_input_cost != "deviation")
+
+    return build
+
+
+def encounter_spec(job: EncounterJob) -> EpisodeSpec:
+    """The evaluation pipeline's episode of ``job``: the MPC planner, the paper's filter.
+
+    The paper's filter exactly: Problem 2 with its normals, no inter-sample rows and no
+    terminal set (both are this project's additions, see :mod:`filters.intersample`),
+    the preset's weights, fallback and input bound, and the paper's episode length.
+
+    Raises
+    ------
+    InvalidParameterError
+        If the scenario has no paper duration
+        (:func:`~agents.experiments.paper_settings.paper_duration`).
+    """
+    preset = job.preset
+    q, q_terminal, r = preset.filter_weights
+    states, inputs = 4, 2  # the double integrator's state and input sizes
+    filter_options = dict(
+        horizon=preset.horizon, Q=(q * np.eye(states)).tolist(),
+        Q_terminal=(q_terminal * np.eye(states)).tolist(), R=(r * np.eye(inputs)).tolist(),
+        fallback=preset.fallback, objective="trajectory", normals="paper", intersample=False,
+        terminal=False)
+    env_options = dict(episode_length=paper_duration(job.scenario),
+                       max_acceleration=preset.max_acceleration)
+    return EpisodeSpec(scenario=scenario_name(job.scenario, warn=False), risk=job.risk,
+                       seed=int(job.seed), planner="mpc", alpha=preset.alpha,
+                       delta=preset.delta_for(job.risk), epsilon=preset.epsilon,
+                       noise=preset.noise, filter_options=filter_options,
+                       env_options=env_options)
+
+
+def make_encounter_env(job: EncounterJob):
+    """The filtered environment of ``job`` (paper episode length) and its planner."""
+    from agents.evaluation.runner import make_env
+
+    env, adapter = make_env(encounter_spec(job), policy=_preset_planner(job.preset),
+                            render_mode="rgb_array" if job.render else None)
+    return env, adapter.planner
+
+
+def run_encounter(job: EncounterJob) -> EncounterRecord:
+    """Run one episode of ``job`` on the evaluation runner; never raises for a failure.
+
+    The episode runs in :func:`agents.evaluation.runner.run_episode` (the runner of
+    ``safe-nav evaluate``) with its trajectory recorded; the record keeps its partial
+    data if the episode failed.
+    """
+    from agents.evaluation.runner import run_episode
+
+    start = time.perf_counter()
+    try:
+        spec = encounter_spec(job)
+    except Exception as exc:  # noqa: BLE001 — a Monte Carlo run records failures
+        return _failed_encounter(job, f"{type(exc).__name__}: {exc}", start)
+    record, trajectory = run_episode(spec, policy=_preset_planner(job.preset),
+                                     record_trajectory=True, render=job.render,
+                                     reuse_env=False)
+    if trajectory is None:
+        return _failed_encounter(job, record.error, start)
+    return EncounterRecord(
+        preset=job.preset.name, scenario=job.scenario, risk=job.risk, seed=int(job.seed),
+        dt=trajectory.dt, ego_radius=trajectory.ego_radius,
+        obstacle_radii=trajectory.obstacle_radii, goal=trajectory.goal,
+        ego_states=trajectory.ego_states, inputs=trajectory.inputs,
+        obstacles=trajectory.obstacles, distances=trajectory.distances,
+        swept=trajectory.swept, statuses=tuple(trajectory.statuses),
+        filter_times=trajectory.filter_times,
+        halfspaces=trajectory.halfspaces if job.record_halfspaces else [],
+        frames=trajectory.frames, error=record.error.split(" | ")[0],
+        wall_time=time.perf_counter() - start)
+
+
+def _failed_encounter(job: EncounterJob, error: str, start: float) -> EncounterRecord:
+    """The record of an episode that failed before its first state was recorded."""
+    return EncounterRecord(
+        preset=job.preset.name, scenario=job.scenario, risk=job.risk, seed=int(job.seed),
+        dt=math.nan, ego_radius=math.nan, obstacle_radii=np.zeros(0), goal=np.zeros(2),
+        ego_states=np.zeros((0, 4)), inputs=np.zeros((0, 2)), obstacles=np.zeros((0, 0, 2)),
+        distances=np.zeros((0, 0)), swept=np.zeros((0, 0)), statuses=(),
+        filter_times=np.zeros(0), error=error.replace("\n", " ")[:500],
+        wall_time=time.perf_counter() - start)
+
+
+def _worker_init() -> None:
+    import os
+
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+
+def run_encounters(
+    jobs: Sequence[EncounterJob], *, workers: int = 1, progress: bool = False,
+) -> list[EncounterRecord]:
+    """Run ``jobs`` (in ``workers`` processes) and return their records in job order."""
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise InvalidParameterError(f"workers must be an integer >= 1, got {workers!r}")
+    iterator: Iterator[EncounterRecord]
+    if workers == 1 or len(jobs) <= 1:
+        iterator = map(run_encounter, jobs)
+        return list(_progress(iterator, len(jobs), progress))
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    context = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=workers, mp_context=context,
+                             initializer=_worker_init) as pool:
+        chunk = max(1, min(16, len(jobs) // (4 * workers) or 1))
+        return list(_progress(pool.map(run_encounter, jobs, chunksize=chunk), len(jobs),
+                              progress))
+
+
+def _progress(iterator: Iterable[EncounterRecord], total: int, show: bool):
+    if not show:
+        return iterator
+    from tqdm.auto import tqdm
+
+    return tqdm(iterator, total=total, desc="paper episodes", unit="ep")
+
+
+# ---------------------------------------------------------------------------- Monte Carlo
+RISKS = ("none", *PAPER_RISKS)
+"""Risk settings of the paper's Monte Carlo, plus the unfiltered reference."""
+
+
+def paper_monte_carlo(
+    preset: str | ReproductionPreset = "paper",
+    scenarios: Sequence[str] = PAPER_SCENARIOS,
+    risks: Sequence[str] = RISKS,
+    *,
+    episodes: int = 300,
+    seed: int = 0,
+    workers: int = 1,
+    progress: bool = False,
+) -> list[EncounterRecord]:
+    """The paper's Monte Carlo (Section IV-B) under ``preset``, paper episode lengths.
+
+    Episode ``i`` of every (scenario, risk) uses seed ``seed + i``, so the risks are
+    compared on common random numbers.
+
+    Raises
+    ------
+    InvalidParameterError
+        For an unknown preset, scenario or risk, or ``episodes < 1``.
+    """
+    from filters.wrapper import RISKS as FILTER_RISKS
+
+    if isinstance(preset, str):
+        if preset not in PRESETS:
+            raise InvalidParameterError(f"preset must be one of {sorted(PRESETS)}, got "
+                                        f"{preset!r}")
+        preset = PRESETS[preset]
+    for risk in risks:
+        if risk not in FILTER_RISKS:
+            raise InvalidParameterError(f"risk must be one of {FILTER_RISKS}, got {risk!r}")
+    for scenario in scenarios:
+        paper_duration(scenario)
+    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
+        raise InvalidParameterError(f"episodes must be an integer >= 1, got {episodes!r}")
+    jobs = [EncounterJob(preset, scenario, risk, seed + i)
+            for scenario in scenarios for risk in risks for i in range(episodes)]
+    return run_encounters(jobs, workers=workers, progress=progress)
