@@ -80,3 +80,13 @@ def scalar_in_range(
             f"{name} must lie in {left}{low}, {high}{right}, got {value!r}"
         )
     return number
+
+
+def integer_at_least(name: str, value: object, *, low: int = 1) -> int:
+    """Return ``value`` as an int ``>= low``, or raise ``InvalidParameterError``."""
+    if type(value) is int and value >= low:  # the common case, checked every step
+        return value
+    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < low:
+        raise InvalidParameterError(f"{name} must be an integer >= {low}, got {value!r}")
+    return int(value)
+

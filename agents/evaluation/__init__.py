@@ -1,6 +1,10 @@
 """Monte Carlo evaluation of filtered against unfiltered planners.
 
-* :mod:`agents.evaluation.records` — episode specs, records, the CSV schema and run keys;
+* :mod:`agents.evaluation.records` — episode specs, records, the CSV schema and run keys in
+  one import, and the column glossary; they are defined in
+  :mod:`agents.evaluation.episodes` (specs, records, columns and keys),
+  :mod:`agents.evaluation.record_csv` (the results CSV) and
+  :mod:`agents.evaluation.run_keys` (run keys);
 * :mod:`agents.evaluation.runner` — one episode;
 * :mod:`agents.evaluation.executors` — where episodes run (local process pool, Ray);
 * :mod:`agents.evaluation.evaluate` — :func:`~agents.evaluation.evaluate.evaluate`, the pipeline;

@@ -1,0 +1,177 @@
+"""The prediction record: issued prediction samples matched with the realised positions.
+
+:class:`PredictionRecord` keeps the samples issued over the last ``T`` steps and returns
+one :class:`Realisation` per look-ahead ``k`` when the realised position for a predicted
+time arrives: the scores of :class:`filters.conformal.ConformalMargin` and the errors of
+:class:`filters.wasserstein.WassersteinRadius` (chained by
+:class:`filters.calibration.OnlineCalibration`).
+
+Timeline (one call of :meth:`PredictionRecord.update` per control step ``t``): the
+environment reports the realised positions :math:`p_t` (``(n_obs, d)``) and samples
+:math:`\\hat p^{(j)}_{t+k}`, ``k = 1..T``. The samples issued at :math:`t - k` for
+look-ahead ``k`` are compared with :math:`p_t`:
+
+.. math::
+
+    \\hat\\mu_{t,k} = \\frac{1}{N_s}\\sum_j \\hat p^{(j)}_{t-k+k}, \\qquad
+    e_{t,k} = p_t - \\hat\\mu_{t,k}, \\qquad
+    s_{t,k} = \\lVert e_{t,k} \\rVert_2 .
+
+Why the Euclidean score: for every unit normal :math:`h`, Cauchy-Schwarz gives
+:math:`-h \\cdot p_t \\le -h \\cdot \\hat\\mu + \\lVert p_t - \\hat\\mu \\rVert`, so a margin
+:math:`q_k` with :math:`P(s_{t,k} \\le q_k) \\ge 1 - \\alpha` makes
+:math:`R = \\overline{(-h \\cdot p)} + q_k` an upper bound on the realised loss
+:math:`-h \\cdot p_t` with probability :math:`\\ge 1 - \\alpha`, *whatever* the normal the
+filter picks (the normal depends on the ego reference, which is chosen after the
+margin). An :math:`h`-projected score would be tighter but only valid for the
+normal it was computed with.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from filters._validation import finite_array, integer_at_least
+from filters.errors import InvalidArrayError, InvalidParameterError
+
+__all__ = ["PredictionRecord", "Realisation"]
+
+
+@dataclass(frozen=True, eq=False)
+class Realisation:
+    """Realised against predicted positions for one look-ahead step ``k``.
+
+    Attributes
+    ----------
+    lookahead
+        ``k`` in ``1..T``: the samples were issued ``k`` steps before ``step``.
+    step
+        Index of the :meth:`PredictionRecord.update` call that realised them (from 0).
+    errors
+        :math:`e = p_{\\text{realised}} - \\hat\\mu`, shape ``(n_obs, d)``, m.
+    scores
+        :math:`s = \\lVert e \\rVert_2`, shape ``(n_obs,)``, m.
+    predicted_errors
+        The predictor's own errors :math:`\\hat p^{(j)} - \\hat\\mu`, shape
+        ``(n_obs, m, d)`` with ``m <= N_s`` (the first ``keep_samples`` samples), m.
+    n_samples
+        ``N_s``, the number of samples the mean was taken over.
+    """
+
+    lookahead: int
+    step: int
+    errors: np.ndarray
+    scores: np.ndarray
+    predicted_errors: np.ndarray
+    n_samples: int
+
+
+class PredictionRecord:
+    """Record of issued predictions, matched with the realised positions as they arrive.
+
+    Parameters
+    ----------
+    horizon
+        ``T``: look-ahead steps tracked (samples with more steps are cut to ``T``).
+    keep_samples
+        Predicted errors kept per obstacle in each :class:`Realisation` (the first
+        ``keep_samples`` samples; ``None``: all). Bounds memory for long records.
+    memory
+        Scores kept per look-ahead for :meth:`scores` (the most recent ``memory`` steps).
+
+    Examples
+    --------
+    >>> record = PredictionRecord(horizon=10)
+    >>> for samples, positions in stream:      # doctest: +SKIP
+    ...     realised = record.update(samples, positions)
+    ...     margin.update(realised)
+    """
+
+    def __init__(
+        self, horizon: int, *, keep_samples: int | None = None, memory: int = 10_000
+    ) -> None:
+        self.horizon = integer_at_least("horizon", horizon)
+        self.keep_samples = (None if keep_samples is None
+                             else integer_at_least("keep_samples", keep_samples))
+        self.memory = integer_at_least("memory", memory)
+        self._pending: deque[tuple[int, np.ndarray]] = deque(maxlen=self.horizon)
+        self._scores: list[deque[np.ndarray]] = [
+            deque(maxlen=self.memory) for _ in range(self.horizon)
+        ]
+        self.step = 0
+
+    def reset(self) -> None:
+        """Forget the pending predictions (call at an episode boundary); keep the scores."""
+        self._pending.clear()
+
+    def update(self, samples: object, realised_positions: object) -> tuple[Realisation, ...]:
+        """Match ``realised_positions`` with earlier predictions, then store ``samples``.
+
+        Parameters
+        ----------
+        samples
+            Predictions issued now for steps ``t+1..t+T'``, shape
+            ``(n_obs, N_s, T', d)`` with ``T' >= 1`` (only the first ``T`` steps are kept), m.
+        realised_positions
+            Positions realised now, :math:`p_t`, shape ``(n_obs, d)``, m.
+
+        Returns
+        -------
+        tuple of Realisation
+            One per look-ahead ``k`` whose prediction (issued ``k`` steps ago, in this
+            episode) is realised now, in increasing ``k``; empty on the first call.
+
+        Raises
+        ------
+        InvalidArrayError
+            If an array has the wrong shape or holds NaN/inf, or the obstacle count or
+            dimension changed without :meth:`reset`.
+        """
+        points = finite_array("samples", samples, ndim=4)
+        positions = finite_array("realised_positions", realised_positions, ndim=2)
+        n_obs, n_samples, steps, dim = points.shape
+        if n_samples == 0 or steps == 0:
+            raise InvalidArrayError(
+                f"samples must hold at least one sample and one step, got shape {points.shape}"
+            )
+        if positions.shape != (n_obs, dim):
+            raise InvalidArrayError(
+                f"realised_positions must have shape ({n_obs}, {dim}) to match samples "
+                f"{points.shape}, got {positions.shape}"
+            )
+        if self._pending and self._pending[-1][1].shape[0::3] != (n_obs, dim):
+            old = self._pending[-1][1].shape
+            raise InvalidArrayError(
+                f"samples have shape {points.shape} but the pending ones {old}: the obstacle "
+                "count or dimension changed; call reset() at an episode boundary"
+            )
+        realised = []
+        for issued, old in reversed(self._pending):  # newest first: k = 1, 2, ...
+            k = self.step - issued
+            if k > old.shape[2]:
+                continue
+            predicted = old[:, :, k - 1]  # (n_obs, N_s, d)
+            mean = predicted.mean(axis=1)
+            errors = positions - mean
+            scores = np.sqrt((errors * errors).sum(axis=-1))
+            kept = predicted if self.keep_samples is None else predicted[:, : self.keep_samples]
+            own = kept - mean[:, None, :]
+            for array in (errors, scores, own):
+                array.flags.writeable = False
+            self._scores[k - 1].append(scores)
+            realised.append(Realisation(k, self.step, errors, scores, own, predicted.shape[1]))
+        stored = np.array(points[:, :, : self.horizon], dtype=np.float64)
+        self._pending.append((self.step, stored))
+        self.step += 1
+        return tuple(sorted(realised, key=lambda r: r.lookahead))
+
+    def scores(self, lookahead: int) -> np.ndarray:
+        """All kept scores at ``lookahead`` (chronological, pooled over obstacles), m."""
+        k = integer_at_least("lookahead", lookahead)
+        if k > self.horizon:
+            raise InvalidParameterError(f"lookahead must be in 1..{self.horizon}, got {k}")
+        kept = self._scores[k - 1]
+        return np.concatenate(list(kept)) if kept else np.zeros(0)
