@@ -1,0 +1,112 @@
+"""Per-step halfspace rows of :class:`filters.wrapper.SafetyFilterWrapper`.
+
+Where the normals start (the ``normals`` option), the step's safe halfspaces
+(:func:`filters.safe_halfspaces`) and the inter-sample rows
+(:func:`filters.intersample_rows`) the QP is given.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from filters.errors import InvalidArrayError, InvalidParameterError
+from filters.geometry import Disc
+from filters.halfspaces import Halfspaces, safe_halfspaces
+from filters.intersample import intersample_rows
+from filters.normals import clearest_normals, nearside_normals
+from filters.protocol import FilterableEnv
+
+
+class HalfspaceRowsMixin:
+    """The wrapper's per-step halfspace methods (mixed into
+    :class:`filters.wrapper.SafetyFilterWrapper`, whose attributes they use)."""
+
+    @property
+    def _last_halfspaces(self) -> Halfspaces | None:
+        """The last filtered step's :class:`~filters.halfspaces.Halfspaces` (for drawing)."""
+        return self._halfspaces_made
+
+    def _normal_origins(self, y0: np.ndarray, ref_positions: np.ndarray) -> np.ndarray:
+        """Positions ``(T, d)`` the normals start from (see ``normals``); ``y0 = C x0``."""
+        if self.normals == "ego":
+            return np.broadcast_to(y0, ref_positions.shape)
+        plan = self._last_plan
+        if self.normals == "previous_plan" and plan is not None:
+            # (T+1, d) planned at the last step, shifted and re-anchored
+            return _shifted_positions(plan @ self._base.dynamics[2].T, y0)
+        return ref_positions
+
+    def _clearest_plan(self, y0: np.ndarray) -> np.ndarray | None:
+        """The last plan's positions shifted to start at ``y0`` ``(T, d)``, if that step
+        was optimal, else ``None`` (the plan of ``normals="clearest"``)."""
+        if self._last_plan is None or not self._plan_optimal:
+            return None
+        return _shifted_positions(self._last_plan @ self._base.dynamics[2].T, y0)
+
+    def _halfspaces(
+        self, base: FilterableEnv, x0: np.ndarray, ref_states: np.ndarray, radii: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray]]:
+        """The step's halfspaces ``(normals, offsets)`` and the QP's rows (with the
+        inter-sample rows, if set); the halfspaces are kept for :attr:`_last_halfspaces`.
+
+        The normals start at :meth:`_normal_origins` (``"nearside"``, ``"clearest"``: the
+        rules of :mod:`filters.normals`); :func:`filters.safe_halfspaces` gives the
+        offsets, :func:`filters.intersample_rows` the inter-sample rows.
+        """
+        predictions = np.asarray(base.predictions, dtype=float)
+        if predictions.ndim != 4 or predictions.shape[2] < self.horizon:
+            raise InvalidParameterError(
+                f"the filter horizon {self.horizon} exceeds the prediction horizon "
+                f"of the environment (predictions of shape {predictions.shape}, expected "
+                "(n_obstacles, n_samples, T, d))"
+            )
+        samples = predictions[:, :, :self.horizon]
+        previous = self._previous_normals
+        if previous is not None and previous.shape[0] == len(radii):
+            # Last step's normals, shifted by one step to line up with this horizon.
+            previous = np.concatenate([previous[:, 1:], previous[:, -1:]], axis=1)
+        else:
+            previous = None
+        ego_shape, obstacle_shapes = self._shapes(float(base.ego_radius), radii)
+        C = base.dynamics[2]
+        y0 = C @ x0
+        origins = self._normal_origins(y0, ref_states[1:, :] @ C.T)
+        given = None
+        if len(radii) and self.normals in ("nearside", "clearest"):
+            if not np.isfinite(samples).all():
+                raise InvalidArrayError(
+                    "the prediction samples hold NaN or infinite values (at indices "
+                    f"{np.argwhere(~np.isfinite(samples))[0].tolist()})")
+            given = (nearside_normals(samples, origins, y0) if self.normals == "nearside"
+                     else clearest_normals(samples, origins, y0, self._clearest_plan(y0)))
+        options = self._risk_options()
+        halfspaces = safe_halfspaces(
+            origins, samples, ego_shape=ego_shape, obstacle_shapes=obstacle_shapes,
+            support=self.support, previous_normals=previous, ego_velocity=x0[2:],
+            normals=given, **options)
+        self._halfspaces_made = halfspaces
+        if not self.intersample:
+            return halfspaces.normals, halfspaces.offsets, (halfspaces.normals,
+                                                            halfspaces.offsets)
+        rows = intersample_rows(
+            halfspaces, samples, ego_shape=ego_shape, obstacle_shapes=obstacle_shapes,
+            input_bounds=base.input_bounds, dt=float(base.dt), support=self.support, **options)
+        return halfspaces.normals, halfspaces.offsets, (rows.normals, rows.offsets)
+
+    def _shapes(self, ego_radius: float, radii: np.ndarray) -> tuple[Disc, list[Disc]]:
+        """The ego and obstacle discs, built once per set of radii (not every step)."""
+        key = (ego_radius, tuple(radii.tolist()))
+        if self._shape_cache is None or self._shape_cache[0] != key:
+            self._shape_cache = (key, Disc(ego_radius), [Disc(r) for r in key[1]])
+        return self._shape_cache[1], self._shape_cache[2]
+
+
+def _shifted_positions(positions: np.ndarray, y0: np.ndarray) -> np.ndarray:
+    """The last plan's positions ``(T+1, d)`` shifted one step: ``(T, d)``, starting at ``y0``.
+
+    Row ``t`` is :math:`y^{prev}_{t+1} - y^{prev}_1 + y_0` (the last row repeated at the
+    end): the plan as it continues from the current position.
+    """
+    shifted = np.concatenate([positions[2:], positions[-1:]], axis=0)
+    return shifted - positions[1] + y0
+

@@ -1,0 +1,32 @@
+"""Rendering hook of :class:`filters.wrapper.SafetyFilterWrapper`: it draws the
+first-step halfspace boundaries in the environment's frames (matplotlib on first use)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+
+class RenderHookMixin:
+    """The wrapper's render hook (mixed into :class:`filters.wrapper.SafetyFilterWrapper`,
+    whose attributes it uses)."""
+
+    def _install_render_hook(self) -> None:
+        hooks = self._base.render_hooks
+        if self._hook is not None and self._hook in hooks:
+            hooks.remove(self._hook)
+        self._hook = None
+        if self.draw_halfspaces and self.risk != "none":
+            self._hook = self._draw_halfspaces
+            hooks.append(self._hook)
+
+    def _draw_halfspaces(self, ax: Any) -> None:
+        """Draw the first-step halfspace boundary of every obstacle (one line collection)."""
+        halfspaces = self._last_halfspaces
+        if halfspaces is None or halfspaces.normals.shape[0] == 0:
+            return
+        from filters.plotting import draw_halfspaces
+
+        drawn = draw_halfspaces(ax, halfspaces.normals[:, 0], halfspaces.offsets[:, 0],
+                                reuse=self._halfspace_lines)
+        if drawn is not None:
+            self._halfspace_lines = drawn

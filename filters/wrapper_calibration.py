@@ -1,0 +1,188 @@
+"""Calibration glue of :class:`filters.wrapper.SafetyFilterWrapper`.
+
+The held-out calibration run at construction (``risk="conformal"``,
+``epsilon="auto"``: split conformal, calibrate on held-out braking episodes, then run),
+its per-process snapshots, and the per-step feed of the online calibration
+(:class:`filters.calibration.OnlineCalibration`) and the calibrated risk options.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from typing import Any
+
+import numpy as np
+
+from filters.calibration import OnlineCalibration
+from filters.constants import EPSILON
+
+CALIBRATION_EPISODES = 5
+"""Held-out episodes run at construction for ``risk="conformal"`` / ``epsilon="auto"``.
+
+A braking episode of the 8 s (40-step) scenarios gives ``41 - k`` realised positions
+per obstacle at look-ahead ``k``; five give 155-200 per look-ahead for one obstacle, so
+the 200-score windows of the calibration (:class:`filters.calibration.OnlineCalibration`)
+are full, or nearly, from step 0 (more episodes mostly push older scores out of the
+windows, at ~0.1 s each here)."""
+
+CALIBRATION_SEED = 1_000_000_000
+"""First seed of the held-out calibration episodes (episode ``i`` uses it ``+ i``).
+
+Far above the evaluation seeds (``--seed`` + episode index), so that the data the
+filter is calibrated on is never the data it is evaluated on."""
+
+CALIBRATION_MEMORIES = ("episode", "persistent")
+"""``"episode"``: every ``reset`` restores the calibrated state; ``"persistent"``: it
+carries over from episode to episode (the order of the episodes then matters)."""
+
+_MAX_CALIBRATION_STEPS = 10_000
+"""Safety cap on the steps of one held-out episode (the environment truncates earlier)."""
+
+_SNAPSHOTS: dict[tuple, OnlineCalibration] = {}
+"""Calibrated states of this process, by environment and settings (see ``_snapshot_key``)."""
+
+_MAX_SNAPSHOTS = 32
+
+
+def calibration_settings(
+    risk: str,
+    epsilon: float | str = EPSILON,
+    *,
+    calibration_episodes: int | None = None,
+    calibration_seed: int = CALIBRATION_SEED,
+    calibration_memory: str = "episode",
+    **_other: Any,
+) -> dict[str, Any] | None:
+    """The held-out calibration a :class:`filters.wrapper.SafetyFilterWrapper` with these
+    keywords runs.
+
+    ``None`` if it runs none (no conformal margin, no ``epsilon="auto"``, or
+    ``risk="none"``); else the resolved ``calibration_episodes``, ``calibration_seed``
+    and ``calibration_memory`` (defaults filled in), for run keys and records. Other
+    wrapper keywords are accepted and ignored, so ``calibration_settings(**kwargs)``
+    works on a wrapper's keyword dict. Values are not validated here (the wrapper does).
+    """
+    if risk == "none" or not (risk == "conformal" or epsilon == "auto"):
+        return None
+    episodes = CALIBRATION_EPISODES if calibration_episodes is None else calibration_episodes
+    return {"calibration_episodes": episodes, "calibration_seed": calibration_seed,
+            "calibration_memory": calibration_memory}
+
+
+def _plain_settings(value: object) -> tuple | None:
+    """A hashable canonical form of plain settings, or ``None`` if ``value`` holds others.
+
+    Plain: ``None``, bools, numbers, strings, and tuples, lists, string-keyed dicts and
+    frozen dataclasses of plain values (types included, so ``1`` and ``1.0`` differ). A
+    dataclass is read through the fields that define its equality (``compare=True``):
+    derived caches such as the noise laws' scaled mean array are left out.
+    """
+    if value is None or isinstance(value, bool | int | float | str):
+        return (type(value).__qualname__, value)
+    if isinstance(value, tuple | list):
+        items = tuple(_plain_settings(item) for item in value)
+        return None if any(item is None for item in items) else (type(value).__qualname__, items)
+    if isinstance(value, dict):
+        if not all(isinstance(name, str) for name in value):
+            return None
+        items = tuple((name, _plain_settings(value[name])) for name in sorted(value))
+        return None if any(item is None for _, item in items) else ("dict", items)
+    if (dataclasses.is_dataclass(value) and not isinstance(value, type)
+            and value.__dataclass_params__.frozen):
+        cls = type(value)
+        items = tuple((f.name, _plain_settings(getattr(value, f.name)))
+                      for f in dataclasses.fields(value) if f.compare)
+        return None if any(item is None for _, item in items) else (
+            f"{cls.__module__}.{cls.__qualname__}", items)
+    return None
+
+
+
+class CalibrationMixin:
+    """The wrapper's calibration methods (mixed into
+    :class:`filters.wrapper.SafetyFilterWrapper`, whose attributes they use)."""
+
+    def _calibrate(self) -> None:
+        """Score the realised obstacle positions against the predictions issued for now."""
+        base = self._base
+        predictions = np.asarray(base.predictions, dtype=float)[:, :, : self.horizon]
+        if np.all(np.isfinite(predictions)):
+            self._calibration.update(predictions, np.asarray(base.obstacle_positions))
+
+    def _warm_up_calibration(self) -> None:
+        """Feed ``calibration_episodes`` held-out braking episodes to the calibration.
+
+        Sets the state every episode starts from (``calibration_memory="episode"``) and
+        :attr:`calibration_time`. The base environment is driven directly (the wrappers
+        in between keep no record of these episodes); its seed state and render mode
+        are restored afterwards.
+        """
+        begin = time.perf_counter()
+        key = self._snapshot_key() if self.calibration_episodes else None
+        if key is not None and key in _SNAPSHOTS:
+            self._calibration = _SNAPSHOTS[key].copy()
+            self._calibrated = _SNAPSHOTS[key].copy()
+            self.calibration_time = time.perf_counter() - begin
+            return
+        base = self._base
+        saved = {name: getattr(base, name) for name in ("_np_random", "_np_random_seed",
+                                                         "render_mode") if hasattr(base, name)}
+        try:
+            if "render_mode" in saved:
+                base.render_mode = None  # no window or trail for held-out episodes
+            for episode in range(self.calibration_episodes):
+                base.reset(seed=self.calibration_seed + episode)
+                self._calibration.reset()
+                self._calibrate()
+                for _ in range(_MAX_CALIBRATION_STEPS):
+                    brake = self._mpc.braking_input(np.asarray(base.ego_state, dtype=float))
+                    _, _, terminated, truncated, _ = base.step(brake.astype(np.float32))
+                    self._calibrate()
+                    if terminated or truncated:
+                        break
+        finally:
+            for name, value in saved.items():
+                setattr(base, name, value)
+        self._calibration.reset()
+        if self.epsilon == "auto" and self.calibration_episodes:
+            self._calibration.radii()  # the bootstrap runs once here, not in every episode
+        self._calibrated = self._calibration.copy()
+        if key is not None:
+            if len(_SNAPSHOTS) >= _MAX_SNAPSHOTS:
+                del _SNAPSHOTS[next(iter(_SNAPSHOTS))]
+            _SNAPSHOTS[key] = self._calibration.copy()
+        self.calibration_time = time.perf_counter() - begin
+
+    def _snapshot_key(self) -> tuple | None:
+        """What determines the held-out calibration, or ``None`` if it cannot be told.
+
+        The held-out episodes depend only on the environment's construction (its
+        ``gym.make`` id and keywords: the scenario, noise, predictor, samples ...; the
+        ego's braking follows from its dynamics and bounds), the seeds, the horizon and
+        the calibration's settings. When the keywords are plain values (numbers, strings,
+        frozen dataclasses of them, as the scenarios, noise models and stress cases are),
+        the calibrated state is computed once per process and copied to every wrapper
+        of the same environment and settings (the evaluation builds one wrapper per
+        episode). Anything else (a callable predictor, an environment not made by
+        ``gym.make``) gives ``None``: no sharing.
+        """
+        base = self._base
+        spec = getattr(base, "spec", None)
+        kwargs = _plain_settings(dict(spec.kwargs)) if spec is not None else None
+        if kwargs is None:
+            return None
+        return (type(base).__module__, type(base).__qualname__, spec.id, kwargs,
+                _plain_settings(spec.max_episode_steps), self.horizon,
+                self._calibration.conformal.alpha, self.epsilon == "auto",
+                self.calibration_episodes, self.calibration_seed)
+
+    def _risk_options(self) -> dict[str, Any]:
+        """Risk settings of this step (the calibrated ones per look-ahead step)."""
+        options: dict[str, Any] = dict(risk=self.risk, alpha=self.alpha, delta=self.delta,
+                                       epsilon=self.epsilon)
+        if self.epsilon == "auto":
+            options["epsilon"] = self._calibration.radii()
+        if self.risk == "conformal":
+            options["conformal_margins"] = self._calibration.margins()
+        return options
