@@ -16,14 +16,18 @@ the chord between its samples, which is off the true arc by at most
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from agents.evaluation.contacts import (  # noqa: F401  (re-exported)
+    CollisionMark,
+    StepClearance,
+    find_collisions,
+    step_clearance,
+)
 from agents.evaluation.evaluate import EpisodeRecord, Trajectory
 from agents.evaluation.summary import RISK_ORDER, SummaryRow, short_name
 from filters.errors import InvalidArrayError, InvalidParameterError
@@ -69,162 +73,6 @@ def _arena(ax, bounds=((-5.0, -5.0), (5.0, 5.0))) -> None:
     ax.grid(alpha=0.3)
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
-
-
-# ---------------------------------------------------------------------------- clearance
-@dataclass(frozen=True)
-class StepClearance:
-    """Closest approach of the ego and one obstacle during one step.
-
-    Attributes
-    ----------
-    clearance
-        :math:`\\min_{s \\in [0, dt]} \\|y(s) - p(s)\\| - r_A - r_O`, in m.
-    closest
-        The time ``s`` of that minimum within the step, in s.
-    contact
-        The first ``s`` at which the clearance reaches 0 (``nan`` if it stays > 0), in s.
-    """
-
-    clearance: float
-    closest: float
-    contact: float
-
-
-def step_clearance(
-    ego_position: np.ndarray,
-    ego_velocity: np.ndarray,
-    ego_input: np.ndarray,
-    obstacle_start: np.ndarray,
-    obstacle_end: np.ndarray,
-    *,
-    radius_sum: float,
-    dt: float,
-) -> StepClearance:
-    r"""Exact minimum clearance over one step: ego on its arc, obstacle on its chord.
-
-    .. math::
-        \Delta(s) = (p - q_0) + s\,(v - (q_1 - q_0)/dt) + \tfrac{s^2}{2} u,
-        \qquad s \in [0, dt]
-
-    :math:`\|\Delta(s)\|^2` is a quartic in s; its minimum is at an end point or at a
-    real root of its cubic derivative, and the first contact is the smallest root
-    of :math:`\|\Delta(s)\|^2 = (r_A + r_O)^2` in the step.
-
-    Parameters
-    ----------
-    ego_position, ego_velocity, ego_input
-        Ego position (m), velocity (m/s) and the input held over the step (m/s²).
-    obstacle_start, obstacle_end
-        Obstacle positions at the start and the end of the step, in m.
-    radius_sum
-        :math:`r_A + r_O`, in m, ``>= 0``.
-    dt
-        Step length, in s, ``> 0``.
-
-    Raises
-    ------
-    InvalidArrayError
-        If a vector is not finite.
-    InvalidParameterError
-        If ``dt <= 0`` or ``radius_sum < 0``.
-    """
-    vectors = [np.asarray(v, dtype=float) for v in
-               (ego_position, ego_velocity, ego_input, obstacle_start, obstacle_end)]
-    if not all(np.all(np.isfinite(v)) for v in vectors):
-        raise InvalidArrayError(f"step_clearance needs finite vectors, got {vectors}")
-    if not (math.isfinite(dt) and dt > 0):
-        raise InvalidParameterError(f"dt must be finite and > 0 (s), got {dt!r}")
-    if not (math.isfinite(radius_sum) and radius_sum >= 0):
-        raise InvalidParameterError(f"radius_sum must be finite and >= 0 (m), got {radius_sum!r}")
-    p, v, u, q0, q1 = vectors
-    d0, d1, d2 = p - q0, v - (q1 - q0) / dt, 0.5 * u
-    # ||d0 + d1 s + d2 s²||² = c4 s⁴ + c3 s³ + c2 s² + c1 s + c0
-    quartic = np.array([d2 @ d2, 2 * d1 @ d2, d1 @ d1 + 2 * d0 @ d2, 2 * d0 @ d1, d0 @ d0])
-    derivative = np.polyder(quartic)
-    candidates = [0.0, dt] + [float(r.real) for r in _roots(derivative)
-                              if abs(r.imag) < 1e-9 and 0.0 < r.real < dt]
-    values = [np.polyval(quartic, s) for s in candidates]
-    best = int(np.argmin(values))
-    closest = candidates[best]
-    clearance = math.sqrt(max(values[best], 0.0)) - radius_sum
-    contact = math.nan
-    if clearance <= 0.0:
-        if np.polyval(quartic, 0.0) <= radius_sum**2:
-            contact = 0.0
-        else:
-            shifted = quartic.copy()
-            shifted[-1] -= radius_sum**2
-            roots = [float(r.real) for r in _roots(shifted)
-                     if abs(r.imag) < 1e-7 and -1e-12 <= r.real <= closest + 1e-12]
-            contact = min(roots) if roots else closest
-    return StepClearance(clearance=clearance, closest=closest, contact=contact)
-
-
-def _roots(coefficients: np.ndarray) -> np.ndarray:
-    scale = np.max(np.abs(coefficients))
-    if scale == 0.0:
-        return np.zeros(0)
-    trimmed = np.trim_zeros(np.where(np.abs(coefficients) <= 1e-14 * scale, 0.0, coefficients),
-                            "f")
-    return np.roots(trimmed) if trimmed.size > 1 else np.zeros(0)
-
-
-@dataclass(frozen=True)
-class CollisionMark:
-    """Where and when the ego first touches one obstacle in an episode.
-
-    ``step`` is the 1-based step during which contact happens; ``time`` the
-    contact time from the episode start, in s; positions at that instant, in m;
-    ``exact`` is ``False`` when the ego was taken on the chord between its samples.
-    """
-
-    obstacle: int
-    step: int
-    time: float
-    ego_position: np.ndarray
-    obstacle_position: np.ndarray
-    clearance: float
-    exact: bool
-
-
-def find_collisions(trajectory: Any, *, dt: float | None = None) -> list[CollisionMark]:
-    """First contact of the ego with each obstacle, in continuous time.
-
-    Uses ``trajectory.ego_velocities``, ``.inputs`` and ``.dt`` when present (exact);
-    otherwise the ego is taken on the chord between its samples (``exact=False``)
-    with step length ``dt`` (default ``trajectory.dt``, else 0.2 s).
-    ``clearance`` is the deepest clearance of that step, in m.
-    """
-    ego = np.asarray(trajectory.ego, dtype=float)
-    obstacles = np.asarray(trajectory.obstacles, dtype=float)
-    if obstacles.ndim != 3 or obstacles.shape[0] != ego.shape[0]:
-        raise InvalidArrayError(f"obstacles must have shape ({ego.shape[0]}, n, 2), got "
-                                f"{obstacles.shape}")
-    radii = np.asarray(trajectory.obstacle_radii, dtype=float) + float(trajectory.ego_radius)
-    velocities = getattr(trajectory, "ego_velocities", None)
-    inputs = getattr(trajectory, "inputs", None)
-    step_length = float(dt if dt is not None else getattr(trajectory, "dt", 0.2))
-    exact = velocities is not None and inputs is not None
-    marks = []
-    for i in range(obstacles.shape[1]):
-        for k in range(ego.shape[0] - 1):
-            if exact:
-                v, u = np.asarray(velocities[k], float), np.asarray(inputs[k], float)
-            else:
-                v, u = (ego[k + 1] - ego[k]) / step_length, np.zeros(2)
-            result = step_clearance(ego[k], v, u, obstacles[k, i], obstacles[k + 1, i],
-                                    radius_sum=float(radii[i]), dt=step_length)
-            if result.clearance <= 0.0:
-                s = result.contact
-                marks.append(CollisionMark(
-                    obstacle=i, step=k + 1, time=k * step_length + s,
-                    ego_position=ego[k] + s * v + 0.5 * s * s * u,
-                    obstacle_position=obstacles[k, i]
-                    + (s / step_length) * (obstacles[k + 1, i] - obstacles[k, i]),
-                    clearance=result.clearance, exact=exact))
-                break
-    return marks
 
 
 # ---------------------------------------------------------------------------- figures
