@@ -15,7 +15,7 @@ def run(args: argparse.Namespace) -> int:
 
     ``--scaling``: :func:`benchmarks.suite.run_scaling` on the full or ``--quick`` grid
     (``--obstacles/--horizons/--samples/--steps`` override its axes); ``--training``:
-    :func:`benchmarks.suite.benchmark_training`; otherwise
+    :func:`benchmarks.training.benchmark_training`; otherwise
     :func:`benchmarks.suite.run_benchmarks`.
     """
     if args.scaling:
@@ -33,7 +33,7 @@ def run(args: argparse.Namespace) -> int:
                           policy=not args.no_policy, family=args.family))
         return 0
     if args.training:
-        from benchmarks.suite import benchmark_training
+        from benchmarks.training import benchmark_training
 
         print(benchmark_training(args.timesteps, args.chunk, args.seed).format())
         return 0

@@ -16,8 +16,9 @@ from safe_nav_env.dynamics import double_integrator
 from safe_nav_env.errors import ConfigError, InvalidActionError, ScenarioError
 from safe_nav_env.noise import NoiseModel, resolve_noise
 from safe_nav_env.obstacles import ObstacleModel, distance_to_collision
+from safe_nav_env.options import _option, _resolve_scenario
 from safe_nav_env.predictors import Predictor, check_predictions, resolve_predictor
-from safe_nav_env.scenarios import SCENARIOS, Scenario, ScenarioFactory
+from safe_nav_env.scenarios import Scenario, ScenarioFactory
 from safe_nav_env.starts import RandomStart, resolve_random_start
 
 _EGO_SIZE = 6  # ego position, ego velocity, goal - ego position
@@ -28,47 +29,6 @@ _BIG = float(np.finfo(np.float32).max)
 def _read_only(array: np.ndarray) -> np.ndarray:
     array.flags.writeable = False
     return array
-
-
-def _option(
-    name: str, value: Any, *, low: float = 0.0, strict: bool = False, integer: bool = False
-) -> Any:
-    """Validate a numeric constructor option; raise :class:`ConfigError` naming it."""
-    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
-        raise ConfigError(f"{name} must be a number, got {value!r}")
-    if integer and int(value) != value:
-        raise ConfigError(f"{name} must be an integer, got {value!r}")
-    if not math.isfinite(value) or (value <= low if strict else value < low):
-        relation = ">" if strict else ">="
-        raise ConfigError(f"{name} must be finite and {relation} {low}, got {value!r}")
-    return int(value) if integer else float(value)
-
-
-def _resolve_scenario(value: Any, path: str = "scenario") -> Scenario | ScenarioFactory:
-    if isinstance(value, Scenario) or (callable(value) and not isinstance(value, type)):
-        return value
-    if isinstance(value, str):
-        if value not in SCENARIOS:
-            raise ScenarioError(
-                f"{path}: unknown scenario {value!r}; choose one of {sorted(SCENARIOS)} or pass "
-                "a Scenario"
-            )
-        return SCENARIOS[value]
-    if isinstance(value, Mapping):
-        try:
-            return Scenario(**value)
-        except TypeError as exc:  # a missing or unknown field
-            raise ScenarioError(f"{path}: {exc}; got fields {sorted(value)}") from exc
-    if value is None:
-        raise ConfigError(
-            f"{path} is required: pass scenario=safe_nav_env.Scenario(...), a name in "
-            f"{sorted(SCENARIOS)}, or a function rng -> Scenario, e.g. "
-            "gym.make('SafeNav/Custom-v0', scenario=my_scenario)"
-        )
-    raise ScenarioError(
-        f"{path} must be a Scenario, a scenario name, a mapping or a function rng -> Scenario, "
-        f"got {value!r}"
-    )
 
 
 class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
