@@ -12,7 +12,7 @@ both ends, and write :math:`\lambda = s / T_s \in [0, 1]`. Between the samples
 
 * the obstacle moves on the chord between its positions,
   :math:`o(\lambda) = (1-\lambda) o_t + \lambda o_{t+1}` (the environment's own
-  continuous-time model, DESIGN.md section 5);
+  continuous-time model, docs/design.md);
 * the ego, under the constant input :math:`u_t`, follows
   :math:`y(\lambda) = (1-\lambda) y_t + \lambda y_{t+1} - \tfrac{T_s^2}{2}
   \lambda(1-\lambda) u_t`, its chord plus a bow whose size along :math:`h` is at most

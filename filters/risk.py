@@ -1,11 +1,11 @@
 """Empirical risk metrics of sampled losses.
 
 The paper's three (mean, CVaR, Wasserstein DR-CVaR) and, beyond the paper
-(``DESIGN.md`` section 5), two chance constraints built from the first two
+(the design page of the docs, docs/design.md), two chance constraints built from the first two
 sample moments (``"gaussian_cc"``, ``"moment_dr"``) and an online conformal
 margin (``"conformal"``).
 
-Conventions (see ``DESIGN.md`` section 1): a *loss* is bad when large, and
+Conventions (see the design page of the docs, docs/design.md): a *loss* is bad when large, and
 ``alpha`` is the tail mass, so :math:`\\mathrm{CVaR}_\\alpha` averages the worst
 ``alpha`` fraction of the samples; ``alpha = 1`` gives the mean. For the chance
 constraints ``alpha`` is the allowed violation probability. Every metric is

@@ -155,7 +155,7 @@ class SafetyFilterWrapper(CalibrationMixin, HalfspaceRowsMixin, RenderHookMixin,
     Q, Q_terminal, R
         Filter weights on state deviation (n, n), terminal state deviation (n, n)
         and input deviation (m, m). Defaults are the authors' effective weights
-        4 I, 25 I and I (DESIGN.md); the first-input objective uses ``R`` only.
+        4 I, 25 I and I (docs/design.md); the first-input objective uses ``R`` only.
     policy
         If given, the reference is the policy rolled out over the horizon on the
         obstacles' predicted mean motion (:class:`filters.references.PolicyRolloutReference`);

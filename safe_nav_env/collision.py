@@ -6,7 +6,7 @@ constant input :math:`u` follows the arc
 .. math::  y(s) = p + s\,v + \tfrac{s^2}{2} u,
 
 and obstacle :math:`i` is taken to move on the chord between its realised positions,
-:math:`o_i(s) = o_i + \tfrac{s}{T_s}(o_i' - o_i)` (DESIGN.md, section 5). Their relative
+:math:`o_i(s) = o_i + \tfrac{s}{T_s}(o_i' - o_i)` (docs/design.md). Their relative
 position is a quadratic in the normalised time :math:`\tau = s / T_s \in [0, 1]`,
 
 .. math::  r(\tau) = d_0 + \tau\,w + \tau^2 c, \qquad

@@ -1,7 +1,7 @@
 r"""The guarantee audit: did each risk formulation's promise hold on what really happened?
 
 Every risk formulation of :mod:`filters.risk` makes a promise about the *loss* of
-DESIGN.md section 1, the intrusion depth
+docs/design.md, the intrusion depth
 
 .. math::
 

@@ -294,7 +294,7 @@ def audit_table(rows: Sequence[AuditRow]) -> str:
 AUDIT_NOTE = (
     "Loss ℓ = b + r − h·p of each obstacle's step-1 halfspace h·y ≤ b (r = r_A + r_O), at "
     "the obstacle's realised position p one step later: the intrusion depth the risk bounds "
-    "(DESIGN.md section 1). *active*: the steps where the applied plan's step-1 position lay "
+    "(docs/design.md). *active*: the steps where the applied plan's step-1 position lay "
     "within the inter-sample bow margin + 1 mm of the offset, or beyond it "
     "(agents/evaluation/audit.py); *all*: every step-1 halfspace, active or not. "
     "The promised quantity is in bold. Intervals (95 %): Wilson for P(ℓ > δ), which "
