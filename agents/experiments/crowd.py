@@ -21,19 +21,17 @@ Output folder::
 from __future__ import annotations
 
 import math
-import time
 from collections import defaultdict
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from agents.evaluation.campaign import EvaluationOutputs, describe_run, output_folder
-from agents.evaluation.evaluate import evaluate
+from agents.evaluation.campaign import EvaluationOutputs
 from agents.evaluation.executors import Executor
 from agents.evaluation.records import EpisodeRecord, EpisodeSpec
-from agents.evaluation.summary import summarise, wilson_interval
-from agents.experiments.scenes import scene_setting, scene_specs
+from agents.evaluation.summary import wilson_interval
+from agents.experiments.scenes import run_scene_suite, scene_setting, scene_specs
 
 __all__ = ["CROWD_SETTINGS", "CrowdRow", "crowd_rows", "crowd_specs", "crowd_table",
            "run_crowd"]
@@ -178,29 +176,11 @@ def run_crowd(
     InvalidParameterError, PolicyFileError, RunMismatchError, ...
         As :func:`agents.evaluation.evaluate.evaluate`, before any episode runs.
     """
-    output = output_folder(output)
-    if planner == "ppo" and not policy_path:
-        from agents.training.ppo import pretrained_policy_path
-
-        policy_path = str(pretrained_policy_path(CROWD_POLICY))
-    specs = crowd_specs(settings, risks, episodes=episodes, seed=seed, planner=planner,
-                        reference=reference, policy_path=policy_path, alpha=alpha,
-                        delta=delta, epsilon=epsilon, filter_options=filter_options or "",
-                        env_options=env_options or "")
-    start = time.perf_counter()
-    records = evaluate(specs=specs, vary=("env_options",), workers=workers, executor=executor,
-                       csv_path=output / "episodes.csv", progress=progress,
-                       overwrite=overwrite)
-    wall = time.perf_counter() - start
-    rows = crowd_rows(records)
-    markdown = crowd_table(rows)
-    run_settings = (f"alpha {alpha}, delta {delta} m, epsilon {epsilon} m, {episodes} test "
-                    f"cases per cell (seeds {seed}..{seed + episodes - 1})")
-    (output / "summary.md").write_text(
-        "# Interactive crowds (CrowdNav's circle crossing)\n\n"
-        + describe_run(records, planner=planner, reference=reference, settings=run_settings)
-        + f"- this call: {wall:.1f} s wall time on {workers} worker(s)\n\n" + markdown)
-    files = {"episodes": output / "episodes.csv", "run_key": output / "episodes.run.json",
-             "summary": output / "summary.md"}
-    return EvaluationOutputs(records, summarise(records), markdown,
-                             time.perf_counter() - start, files, reused=records.reused)
+    return run_scene_suite(
+        output, "Crowd", CROWD_SETTINGS, settings, risks,
+        table=lambda records: crowd_table(crowd_rows(records)),
+        title="Interactive crowds (CrowdNav's circle crossing)", shipped_policy=CROWD_POLICY,
+        episodes=episodes, seed=seed, workers=workers, planner=planner, reference=reference,
+        policy_path=policy_path, alpha=alpha, delta=delta, epsilon=epsilon,
+        filter_options=filter_options, env_options=env_options, executor=executor,
+        progress=progress, overwrite=overwrite)

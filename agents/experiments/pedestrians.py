@@ -24,7 +24,6 @@ Output folder::
 from __future__ import annotations
 
 import math
-import time
 from collections import defaultdict
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -34,12 +33,11 @@ from typing import Any
 import numpy as np
 
 from agents.evaluation.audit import decode_losses
-from agents.evaluation.campaign import EvaluationOutputs, describe_run, output_folder
-from agents.evaluation.evaluate import evaluate
+from agents.evaluation.campaign import EvaluationOutputs
 from agents.evaluation.executors import Executor
 from agents.evaluation.records import EpisodeRecord
-from agents.evaluation.summary import summarise, wilson_interval
-from agents.experiments.scenes import scene_setting, scene_specs
+from agents.evaluation.summary import wilson_interval
+from agents.experiments.scenes import run_scene_suite, scene_setting
 from safe_nav_env.pedestrians.recording import SCENES
 
 __all__ = ["PEDESTRIAN_SETTINGS", "PedestrianRow", "pedestrian_rows", "pedestrian_table",
@@ -174,29 +172,12 @@ def run_pedestrians(
     InvalidParameterError, PolicyFileError, RunMismatchError, ...
         As :func:`agents.evaluation.evaluate.evaluate`, before any episode runs.
     """
-    output = output_folder(output)
-    if planner == "ppo" and not policy_path:
-        from agents.policies.loading import pretrained_policy_path
-
-        policy_path = str(pretrained_policy_path(PEDESTRIAN_POLICY))
-    specs = scene_specs("Pedestrians", PEDESTRIAN_SETTINGS, scenes, risks, episodes=episodes,
-                        seed=seed, planner=planner, reference=reference,
-                        policy_path=policy_path, alpha=alpha, delta=delta, epsilon=epsilon,
-                        filter_options=filter_options or "", env_options=env_options or "")
-    start = time.perf_counter()
-    records = evaluate(specs=specs, vary=("env_options",), workers=workers, executor=executor,
-                       csv_path=output / "episodes.csv", progress=progress,
-                       overwrite=overwrite)
-    wall = time.perf_counter() - start
-    markdown = pedestrian_table(pedestrian_rows(records))
-    run_settings = (f"alpha {alpha}, delta {delta} m, epsilon {epsilon} m, {episodes} "
-                    f"episodes per cell (seeds {seed}..{seed + episodes - 1})")
-    (output / "summary.md").write_text(
-        "# Recorded pedestrians (ETH: Pellegrini et al., ICCV 2009; UCY: Lerner, "
-        "Chrysanthou & Lischinski, Eurographics 2007)\n\n"
-        + describe_run(records, planner=planner, reference=reference, settings=run_settings)
-        + f"- this call: {wall:.1f} s wall time on {workers} worker(s)\n\n" + markdown)
-    files = {"episodes": output / "episodes.csv", "run_key": output / "episodes.run.json",
-             "summary": output / "summary.md"}
-    return EvaluationOutputs(records, summarise(records), markdown,
-                             time.perf_counter() - start, files, reused=records.reused)
+    return run_scene_suite(
+        output, "Pedestrians", PEDESTRIAN_SETTINGS, scenes, risks,
+        table=lambda records: pedestrian_table(pedestrian_rows(records)),
+        title="Recorded pedestrians (ETH: Pellegrini et al., ICCV 2009; UCY: Lerner, "
+              "Chrysanthou & Lischinski, Eurographics 2007)",
+        shipped_policy=PEDESTRIAN_POLICY, episodes=episodes, seed=seed, workers=workers,
+        planner=planner, reference=reference, policy_path=policy_path, alpha=alpha,
+        delta=delta, epsilon=epsilon, filter_options=filter_options,
+        env_options=env_options, executor=executor, progress=progress, overwrite=overwrite)
