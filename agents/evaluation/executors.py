@@ -141,31 +141,34 @@ class ProcessExecutor(Executor):
         from concurrent.futures.process import BrokenProcessPool
 
         pending = list(specs)[::-1]  # a stack: episodes are submitted in their order
-        # Two episodes per worker in flight: workers never wait for the parent, and a
-        # broken pool loses at most these (an episode takes 0.05-1 s, a round trip to
-        # a worker well under a millisecond).
-        in_flight: dict[Any, EpisodeSpec] = {}
+        # Episodes go to the workers in chunks (a few ms of work each: one round trip per
+        # chunk, not per episode), at most 16 and at least 8 chunks per worker per run,
+        # two chunks per worker in flight so workers never wait for the parent. A broken
+        # pool loses at most those chunks: their episodes run again, none is yielded twice
+        # (a chunk's records are yielded together when it returns).
+        size = max(1, min(CHUNK_EPISODES, len(pending) // (8 * self.workers)))
+        in_flight: dict[Any, list[EpisodeSpec]] = {}
         lost_in_a_row = 0
         try:
             while pending or in_flight:
                 pool = self._ensure_pool()
                 while pending and len(in_flight) < 2 * self.workers:
-                    spec = pending.pop()
-                    in_flight[pool.submit(run_spec, spec)] = spec
+                    chunk = [pending.pop() for _ in range(min(size, len(pending)))]
+                    in_flight[pool.submit(run_specs_chunk, chunk)] = chunk
                 done, _ = wait(in_flight, return_when=FIRST_COMPLETED)
                 if any(isinstance(f.exception(), BrokenProcessPool) for f in done):
                     done, _ = wait(in_flight)  # a broken pool fails all its futures
-                lost = []
+                lost: list[EpisodeSpec] = []
                 for future in done:
-                    spec = in_flight.pop(future)
+                    chunk = in_flight.pop(future)
                     if isinstance(future.exception(), BrokenProcessPool):
-                        lost.append(spec)
+                        lost.extend(chunk)
                         continue
                     lost_in_a_row = 0
-                    yield future.result()  # run_spec records an episode's own errors
+                    yield from future.result()  # run_spec records an episode's own errors
                 if lost:
                     lost_in_a_row += 1
-                    pending.extend(lost)
+                    pending.extend(lost[::-1])
                     self._restart(lost_in_a_row, left=len(pending))
         finally:
             for future in in_flight:
@@ -195,6 +198,15 @@ class ProcessExecutor(Executor):
                     process.kill()
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
+
+
+CHUNK_EPISODES = 16
+"""Most episodes a local worker runs per task (:class:`ProcessExecutor`)."""
+
+
+def run_specs_chunk(specs: Sequence[EpisodeSpec]) -> list[EpisodeRecord]:
+    """The records of ``specs``, in order (one task of a local worker)."""
+    return [run_spec(spec) for spec in specs]
 
 
 def _ray_task(spec: EpisodeSpec) -> EpisodeRecord:

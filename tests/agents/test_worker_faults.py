@@ -57,13 +57,13 @@ def test_a_killed_worker_loses_and_repeats_no_episode(tmp_path):
                                                                     key=lambda r: r.key())
 
 
-def _dies(spec):
+def _dies(specs):
     os._exit(1)  # the worker process dies with the episode (a segfault, the OOM killer)
 
 
 def test_workers_that_keep_dying_stop_the_run_with_a_clear_error(monkeypatch):
     # Pickled by reference, so the spawned workers import this module and run _dies.
-    monkeypatch.setattr(agents.evaluation.executors, "run_spec", _dies)
+    monkeypatch.setattr(agents.evaluation.executors, "run_specs_chunk", _dies)
     specs = episode_specs(["HeadOn"], ["none"], 2, planner="mpc")
     with ProcessExecutor(2, max_restarts=1) as executor:
         with pytest.raises(WorkersLostError, match="broke 2 times in a row"):
