@@ -150,7 +150,7 @@ def test_offsets_along_equals_safe_halfspaces_with_given_normals(risk):
         fast = offsets_along(normals, samples, **shapes, **options)
         slow = safe_halfspaces(np.zeros((horizon, 2)), samples[:, :, :horizon], **shapes,
                                normals=normals, **options)
-        assert np.array_equal(fast, slow.offsets)
+        np.testing.assert_allclose(fast, slow.offsets, rtol=1e-12, atol=1e-12)
     with pytest.raises(InvalidArrayError, match="non-zero"):
         offsets_along(np.zeros((1, 2, 2)), samples[:1], **dict(shapes, obstacle_shapes=[Disc(1)]))
     bad = samples.copy()
@@ -177,8 +177,8 @@ def test_intersample_rows_unchanged_by_the_fast_start_rows(monkeypatch):
 
     monkeypatch.setattr(intersample, "offsets_along", full)
     slow = intersample_rows(hs, samples, **kwargs)
-    assert np.array_equal(fast.offsets, slow.offsets)
-    assert np.array_equal(fast.normals, slow.normals)
+    np.testing.assert_allclose(fast.offsets, slow.offsets, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(fast.normals, slow.normals, rtol=1e-12, atol=1e-12)
 
 
 def test_offsets_along_refuses_bad_input_with_the_package_errors():
