@@ -32,6 +32,7 @@ from agents.evaluation.executors import Executor
 from agents.evaluation.records import EpisodeRecord, EpisodeSpec
 from agents.evaluation.summary import wilson_interval
 from agents.experiments.scenes import run_scene_suite, scene_setting, scene_specs
+from filters.constants import ALPHA, DELTA, EPSILON
 
 __all__ = ["CROWD_SETTINGS", "CrowdRow", "crowd_rows", "crowd_specs", "crowd_table",
            "run_crowd"]
@@ -144,9 +145,9 @@ def run_crowd(
     planner: str = "ppo",
     reference: str = "rollout",
     policy_path: str = "",
-    alpha: float = 0.2,
-    delta: float = 0.1,
-    epsilon: float = 0.05,
+    alpha: float = ALPHA,
+    delta: float = DELTA,
+    epsilon: float = EPSILON,
     filter_options: dict[str, Any] | str | None = None,
     env_options: dict[str, Any] | str | None = None,
     executor: str | Executor = "process",

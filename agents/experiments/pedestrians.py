@@ -38,6 +38,7 @@ from agents.evaluation.executors import Executor
 from agents.evaluation.records import EpisodeRecord
 from agents.evaluation.summary import wilson_interval
 from agents.experiments.scenes import run_scene_suite, scene_setting
+from filters.constants import ALPHA, DELTA, EPSILON
 from safe_nav_env.pedestrians.recording import SCENES
 
 __all__ = ["PEDESTRIAN_SETTINGS", "PedestrianRow", "pedestrian_rows", "pedestrian_table",
@@ -140,9 +141,9 @@ def run_pedestrians(
     planner: str = "mpc",
     reference: str = "rollout",
     policy_path: str = "",
-    alpha: float = 0.2,
-    delta: float = 0.1,
-    epsilon: float = 0.05,
+    alpha: float = ALPHA,
+    delta: float = DELTA,
+    epsilon: float = EPSILON,
     filter_options: dict[str, Any] | str | None = None,
     env_options: dict[str, Any] | str | None = None,
     executor: str | Executor = "process",
