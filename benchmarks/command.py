@@ -35,7 +35,8 @@ def run(args: argparse.Namespace) -> int:
     if args.training:
         from benchmarks.training import benchmark_training
 
-        print(benchmark_training(args.timesteps, args.chunk, args.seed).format())
+        print(benchmark_training(args.timesteps, args.chunk, args.seed,
+                                 n_envs=args.envs).format())
         return 0
     from benchmarks.suite import run_benchmarks
 

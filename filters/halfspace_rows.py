@@ -12,7 +12,7 @@ import numpy as np
 from filters.errors import InvalidArrayError, InvalidParameterError
 from filters.geometry import Disc
 from filters.halfspaces import Halfspaces, safe_halfspaces
-from filters.intersample import intersample_rows
+from filters.intersample import intersample_halfspaces
 from filters.normals import clearest_normals, nearside_normals
 from filters.protocol import FilterableEnv
 
@@ -80,17 +80,19 @@ class HalfspaceRowsMixin:
             given = (nearside_normals(samples, origins, y0) if self.normals == "nearside"
                      else clearest_normals(samples, origins, y0, self._clearest_plan(y0)))
         options = self._risk_options()
-        halfspaces = safe_halfspaces(
-            origins, samples, ego_shape=ego_shape, obstacle_shapes=obstacle_shapes,
-            support=self.support, previous_normals=previous, ego_velocity=x0[2:],
-            normals=given, **options)
-        self._halfspaces_made = halfspaces
         if not self.intersample:
+            halfspaces = safe_halfspaces(
+                origins, samples, ego_shape=ego_shape, obstacle_shapes=obstacle_shapes,
+                support=self.support, previous_normals=previous, ego_velocity=x0[2:],
+                normals=given, **options)
+            self._halfspaces_made = halfspaces
             return halfspaces.normals, halfspaces.offsets, (halfspaces.normals,
                                                             halfspaces.offsets)
-        rows = intersample_rows(
-            halfspaces, samples, ego_shape=ego_shape, obstacle_shapes=obstacle_shapes,
-            input_bounds=base.input_bounds, dt=float(base.dt), support=self.support, **options)
+        halfspaces, rows = intersample_halfspaces(
+            origins, samples, ego_shape=ego_shape, obstacle_shapes=obstacle_shapes,
+            input_bounds=base.input_bounds, dt=float(base.dt), support=self.support,
+            previous_normals=previous, ego_velocity=x0[2:], normals=given, **options)
+        self._halfspaces_made = halfspaces
         return halfspaces.normals, halfspaces.offsets, (rows.normals, rows.offsets)
 
     def _shapes(self, ego_radius: float, radii: np.ndarray) -> tuple[Disc, list[Disc]]:

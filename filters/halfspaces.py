@@ -35,8 +35,6 @@ The one implementation of the halfspaces, checked against the CVXPY programs of
 
 from __future__ import annotations
 
-import math
-import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -44,8 +42,17 @@ import numpy as np
 
 from filters._validation import finite_array
 from filters.constants import ALPHA, DELTA, EPSILON
-from filters.errors import InvalidArrayError, InvalidParameterError, InvalidTypeError
-from filters.geometry import ConvexPolygon, Disc, Shape, collision_margin
+from filters.geometry import Disc, Shape, collision_margin
+from filters.halfspace_checks import (
+    DEGENERATE_DISTANCE,
+    _check_delta,
+    _check_finite_result,
+    _check_shapes,
+    _checked_inputs,
+    _Inputs,
+    _unit_normals,
+    warn_deprecated_backend,
+)
 from filters.risk import (
     check_alpha,
     check_epsilon_array,
@@ -53,14 +60,9 @@ from filters.risk import (
     check_risk,
     risk_of_samples,
 )
-from filters.support import check_support, dr_cvar_on_polytope
+from filters.support import dr_cvar_on_polytope
 
 __all__ = ["DEGENERATE_DISTANCE", "Halfspaces", "offsets_along", "safe_halfspaces"]
-
-#: Below this distance (metres) between the sample mean and the ego reference the
-#: normal ``h`` is undefined and a fallback direction is used.
-DEGENERATE_DISTANCE = 1e-9
-
 
 
 @dataclass(frozen=True, eq=False)
@@ -262,35 +264,27 @@ def safe_halfspaces(
         If a shape is not a :class:`Disc` or :class:`ConvexPolygon`.
     """
     warn_deprecated_backend(backend, "safe_halfspaces")
-    risk = check_risk(risk)
-    alpha = check_alpha(alpha, risk)
-    delta = _check_delta(delta)
-    y_ref, points = _check_positions(reference_positions, samples)
-    n_obstacles, _, horizon, dim = points.shape
-    epsilon = check_epsilon_array(epsilon, horizon)
-    margins = None
-    if risk == "conformal":
-        margins = check_margins(conformal_margins, (n_obstacles, horizon))
-    shapes = _check_shapes(ego_shape, obstacle_shapes, n_obstacles, dim)
-    polytope = None if support is None else check_support(support, points)
-    previous = None
-    if previous_normals is not None:
-        previous = _finite("previous_normals", previous_normals, (n_obstacles, horizon, dim))
-    velocity = None if ego_velocity is None else _check_velocity(ego_velocity, horizon, dim)
-
-    given = None if normals is None else _check_normals(normals, points.shape)
+    data = _checked_inputs(reference_positions, samples, ego_shape, obstacle_shapes, risk,
+                           alpha, delta, epsilon, support, previous_normals, ego_velocity,
+                           normals, conformal_margins)
     with np.errstate(all="ignore"):  # non-finite samples are reported below, by name
-        if given is None:
-            normals, degenerate = _normals(_sample_means(points), y_ref, previous, velocity)
-        else:
-            normals, degenerate = given, np.zeros(given.shape[:2], dtype=bool)
-        if n_obstacles == 0:
-            offsets = np.zeros((0, horizon))
-            return Halfspaces(normals, offsets, risk, alpha, delta, epsilon, degenerate)
-        offsets = _offsets(points, normals, ego_shape, shapes, risk, alpha, delta, epsilon,
-                           margins, polytope)
-    _check_finite_result(samples if polytope is None else points, normals, offsets)
-    return Halfspaces(normals, offsets, risk, alpha, delta, epsilon, degenerate)
+        normals, degenerate = _step_normals(data)
+        if data.points.shape[0] == 0:
+            offsets = np.zeros((0, data.points.shape[2]))
+            return Halfspaces(normals, offsets, data.risk, data.alpha, data.delta,
+                              data.epsilon, degenerate)
+        offsets = _offsets(data.points, normals, ego_shape, data.shapes, data.risk, data.alpha,
+                           data.delta, data.epsilon, data.margins, data.polytope)
+    _check_finite_result(samples if data.polytope is None else data.points, normals, offsets)
+    return Halfspaces(normals, offsets, data.risk, data.alpha, data.delta, data.epsilon,
+                      degenerate)
+
+
+def _step_normals(data: _Inputs) -> tuple[np.ndarray, np.ndarray]:
+    """The normals ``(n, T, d)`` and the degenerate flags ``(n, T)`` of checked inputs."""
+    if data.given is None:
+        return _normals(_sample_means(data.points), data.y_ref, data.previous, data.velocity)
+    return data.given, np.zeros(data.given.shape[:2], dtype=bool)
 
 
 def _offsets(
@@ -305,8 +299,15 @@ def _offsets(
     margins: np.ndarray | None,
     polytope: tuple[np.ndarray, np.ndarray] | None,
 ) -> np.ndarray:
-    """Offsets :math:`b = -(R(-h \\cdot p) - \\delta + r)`, ``(n, T)``, of checked data."""
-    losses = _losses(points, normals)  # (n, T, N): samples of -h . p
+    """Offsets :math:`b = -(R(-h \\cdot p) - \\delta + r)` of checked data: ``(n, T)`` for
+    normals ``(n, T, d)``, or ``(n, T, r)`` for ``r`` normals per step ``(n, T, r, d)``
+    (each along the step's own samples; no ``polytope`` then)."""
+    losses = _losses(points, normals)  # (n, T, N) or (n, T, r, N): samples of -h . p
+    if normals.ndim == 4:  # per-step (T,) and per-obstacle-step (n, T) settings: a rows axis
+        if isinstance(epsilon, np.ndarray):
+            epsilon = epsilon[:, None]
+        if margins is not None and margins.ndim:
+            margins = margins[..., None]
     if risk == "dr_cvar" and polytope is not None:
         value = dr_cvar_on_polytope(losses, points, normals, polytope, alpha, epsilon)
     else:
@@ -379,155 +380,6 @@ def offsets_along(
     return offsets
 
 
-# --------------------------------------------------------------------------- validation
-
-
-def warn_deprecated_backend(backend: object, caller: str) -> None:
-    """Warn that ``backend=`` is ignored (raise on a value it never accepted)."""
-    if backend is None:
-        return
-    if backend not in ("auto", "numba", "numpy"):
-        raise InvalidParameterError(f"{caller}: backend must be 'auto', 'numba' or 'numpy' "
-                                    f"(deprecated, ignored), got {backend!r}")
-    warnings.warn(f"{caller}: backend={backend!r} is deprecated and ignored: the "
-                  "halfspaces have one implementation", DeprecationWarning, stacklevel=3)
-
-
-def _check_delta(delta: object) -> float:
-    if type(delta) is float and -math.inf < delta < math.inf:
-        return delta
-    try:
-        value = float(delta)  # type: ignore[arg-type]
-    except (TypeError, ValueError) as exc:
-        raise InvalidParameterError(f"delta must be a finite real number, got {delta!r}") from exc
-    if not math.isfinite(value):
-        raise InvalidParameterError(f"delta must be a finite real number (metres), got {delta!r}")
-    return value
-
-
-def _check_positions(reference: object, samples: object) -> tuple[np.ndarray, np.ndarray]:
-    y_ref = np.asarray(reference, dtype=np.float64) if isinstance(reference, np.ndarray) else None
-    if y_ref is None or y_ref.ndim != 2 or not np.isfinite(y_ref).all():
-        y_ref = finite_array("reference_positions", reference, ndim=2)
-    horizon, dim = y_ref.shape
-    if horizon == 0 or dim == 0:
-        raise InvalidArrayError(
-            f"reference_positions must have shape (T, d) with T, d >= 1, got {y_ref.shape}"
-        )
-    try:  # finiteness is checked on the (much smaller) result, see _check_finite_result
-        points = np.asarray(samples, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise InvalidArrayError(f"samples must be a numeric array, got {samples!r}") from exc
-    if points.ndim != 4:
-        raise InvalidArrayError(
-            "samples must have 4 dimensions (n_obstacles, n_samples, T, d), "
-            f"got shape {points.shape}"
-        )
-    if points.shape[2:] != (horizon, dim):
-        raise InvalidArrayError(
-            "samples must have shape (n_obstacles, n_samples, T, d) = "
-            f"(n_obstacles, n_samples, {horizon}, {dim}) to match reference_positions, "
-            f"got {points.shape}"
-        )
-    if points.shape[1] == 0:
-        raise InvalidArrayError(f"samples must hold at least one sample, got shape {points.shape}")
-    return y_ref, points
-
-
-def _check_finite_result(samples: object, normals: np.ndarray, offsets: np.ndarray) -> None:
-    """Raise ``InvalidArrayError`` if the halfspaces are not finite.
-
-    Any NaN/inf sample makes its sample mean, hence its normal or offset, non-finite,
-    so checking the ``(n, T)`` result replaces a pass over every sample.
-    """
-    if math.isfinite(offsets.sum() + normals.sum()):
-        return
-    if np.isfinite(offsets).all() and np.isfinite(normals).all():
-        return  # finite entries whose sum overflowed
-    finite_array("samples", samples)  # names the first non-finite sample
-    raise InvalidArrayError(
-        "samples are too large: the safe halfspaces overflowed (positions are in metres)"
-    )
-
-
-def _check_shapes(
-    ego_shape: object, obstacle_shapes: object, n_obstacles: int, dim: int
-) -> list[Shape]:
-    if (
-        type(ego_shape) is Disc
-        and type(obstacle_shapes) in (list, tuple)
-        and len(obstacle_shapes) == n_obstacles
-        and all(type(shape) is Disc for shape in obstacle_shapes)
-    ):
-        return list(obstacle_shapes)  # the common case, valid in any dimension
-    if isinstance(obstacle_shapes, (str, bytes)) or not isinstance(obstacle_shapes, Sequence):
-        raise InvalidTypeError(
-            f"obstacle_shapes must be a sequence of shapes, got {type(obstacle_shapes).__name__}"
-        )
-    shapes = list(obstacle_shapes)
-    if len(shapes) != n_obstacles:
-        raise InvalidParameterError(
-            f"obstacle_shapes must hold one shape per obstacle ({n_obstacles} from samples), "
-            f"got {len(shapes)}"
-        )
-    named = [("ego_shape", ego_shape)]
-    named += [(f"obstacle_shapes[{i}]", shape) for i, shape in enumerate(shapes)]
-    for name, shape in named:
-        if not isinstance(shape, (Disc, ConvexPolygon)):
-            raise InvalidTypeError(
-                f"{name} must be a Disc or ConvexPolygon, got {type(shape).__name__}"
-            )
-        if isinstance(shape, ConvexPolygon) and dim != 2:
-            raise InvalidArrayError(
-                f"{name} is a ConvexPolygon, which needs d = 2 positions, got d = {dim}"
-            )
-    return shapes
-
-
-def _finite(name: str, value: object, shape: tuple[int, ...]) -> np.ndarray:
-    """:func:`filters._validation.finite_array` with a shape, fast for float64 arrays."""
-    if (type(value) is np.ndarray and value.dtype == np.float64 and value.shape == shape
-            and math.isfinite(float(np.add.reduce(value, axis=None)))):
-        return value
-    return finite_array(name, value, shape=shape)
-
-
-def _check_normals(normals: object, shape: tuple[int, ...]) -> np.ndarray:
-    n_obstacles, _, horizon, dim = shape
-    return _unit_normals(_finite("normals", normals, (n_obstacles, horizon, dim)))
-
-
-def _unit_normals(array: np.ndarray) -> np.ndarray:
-    """``array / |array|`` along the last axis; raises on a zero or non-finite normal."""
-    size = np.sqrt(np.add.reduce(array * array, axis=-1))
-    if size.size and not (size.min() >= DEGENERATE_DISTANCE  # NaN fails too
-                          and math.isfinite(size.max())):
-        if not np.isfinite(size).all():
-            finite_array("normals", array)  # names the first non-finite entry
-        raise InvalidArrayError("normals must be non-zero vectors, got a zero normal")
-    return array / size[..., None]
-
-
-def _check_velocity(ego_velocity: object, horizon: int, dim: int) -> np.ndarray:
-    """The ego velocity as given, ``(d,)`` or ``(T, d)``; broadcast only when a fallback
-    needs it (this check runs every control step, the fallback rarely)."""
-    if (type(ego_velocity) is np.ndarray and ego_velocity.dtype == np.float64
-            and ego_velocity.shape in ((dim,), (horizon, dim))
-            and math.isfinite(float(np.add.reduce(ego_velocity, axis=None)))):
-        return ego_velocity
-    try:
-        velocity = np.asarray(ego_velocity, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise InvalidArrayError(f"ego_velocity must be numeric, got {ego_velocity!r}") from exc
-    if velocity.shape not in ((dim,), (horizon, dim)):
-        raise InvalidArrayError(
-            f"ego_velocity must have shape ({dim},) or ({horizon}, {dim}), got {velocity.shape}"
-        )
-    if not np.isfinite(velocity).all():
-        finite_array("ego_velocity", velocity)  # names the first non-finite entry
-    return velocity
-
-
 # --------------------------------------------------------------------------- closed forms
 
 
@@ -565,11 +417,12 @@ def _normals(
 
 
 def _margins(ego_shape: Shape, shapes: list[Shape], normals: np.ndarray) -> np.ndarray:
-    """Collision margins, shape ``(n, T)`` or ``(n, 1)``; one call per distinct obstacle shape."""
+    """Collision margins, shape ``normals.shape[:-1]``, or ``(n, 1[, 1])`` for discs; one
+    call per distinct obstacle shape."""
     if isinstance(ego_shape, Disc) and all(isinstance(s, Disc) for s in shapes):
         radii = np.array([s.radius for s in shapes])  # unit normals: S = radius
-        return (radii + ego_shape.radius)[:, None]
-    margins = np.empty(normals.shape[:2])
+        return (radii + ego_shape.radius).reshape((-1,) + (1,) * (normals.ndim - 2))
+    margins = np.empty(normals.shape[:-1])
     groups: dict[Shape, list[int]] = {}
     for index, shape in enumerate(shapes):
         groups.setdefault(shape, []).append(index)
@@ -587,10 +440,14 @@ def _sample_means(points: np.ndarray) -> np.ndarray:
 
 
 def _losses(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
-    """Samples of :math:`-h_{i,t} \\cdot p`, shape ``(n, T, N)``, the sample axis last.
+    """Samples of :math:`-h_{i,t} \\cdot p`, shape ``(n, T, N)`` (normals ``(n, T, d)``) or
+    ``(n, T, r, N)`` (normals ``(n, T, r, d)``), the sample axis last.
 
-    One batched product ``(n, T, N, d) @ (n, T, d, 1)``: O(n T N d).
+    One batched product ``(n, T, N, d) @ (n, T, d, 1)`` or ``(n, T, r, d) @ (n, T, d, N)``:
+    O(n T r N d).
     """
+    if normals.ndim == 4:
+        return np.matmul(-normals, points.transpose(0, 2, 3, 1))
     return np.matmul(points.transpose(0, 2, 1, 3), -normals[..., None])[..., 0]
 
 

@@ -63,16 +63,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from filters.constants import DISABLED_OFFSET
+from filters.constants import ALPHA, DELTA, DISABLED_OFFSET, EPSILON
 from filters.geometry import Shape
+from filters.halfspace_checks import _check_finite_result, _checked_inputs
 from filters.halfspaces import (
     Halfspaces,
+    _offsets,
+    _step_normals,
     offsets_along,
     safe_halfspaces,
     warn_deprecated_backend,
 )
 
-__all__ = ["IntersampleRows", "arc_margin", "intersample_rows"]
+__all__ = ["IntersampleRows", "arc_margin", "intersample_halfspaces", "intersample_rows"]
 
 
 def arc_margin(
@@ -168,21 +171,17 @@ def intersample_rows(
     warn_deprecated_backend(backend, "intersample_rows")
     normals, offsets = halfspaces.normals, halfspaces.offsets
     k, horizon, dim = normals.shape
-    margins = arc_margin(normals, input_bounds, dt)
-    rows_n = np.zeros((2 * k, horizon, dim))
-    rows_b = np.full((2 * k, horizon), DISABLED_OFFSET)  # 0 @ y <= 1: off
-    rows_n[:k] = normals
-    rows_b[:k] = offsets - margins
     options = dict(risk=halfspaces.risk, alpha=halfspaces.alpha, delta=halfspaces.delta,
                    epsilon=halfspaces.epsilon)
     options.update(risk_options)
+    start = None
     if k and horizon > 1:
         start = offsets_along(  # safe_halfspaces(..., normals=...) without its re-checks
             normals[:, 1:], samples, ego_shape=ego_shape, obstacle_shapes=obstacle_shapes,
             support=support, **_steps(options, slice(0, horizon - 1)),
         )
-        rows_n[k:, : horizon - 1] = normals[:, 1:]
-        rows_b[k:, : horizon - 1] = start - margins[:, 1:]
+    rows = _rows(normals, offsets, start, input_bounds, dt)
+    margins = rows.margins
     violation = None
     if k and current_position is not None and current_obstacles is not None:
         now = safe_halfspaces(
@@ -192,7 +191,94 @@ def intersample_rows(
         )
         violation = normals[:, 0] @ np.asarray(current_position, dtype=np.float64)
         violation = violation - (now.offsets[:, 0] - margins[:, 0])
-    return IntersampleRows(rows_n, rows_b, margins, violation)
+    return IntersampleRows(rows.normals, rows.offsets, margins, violation)
+
+
+def intersample_halfspaces(
+    reference_positions: object,
+    samples: object,
+    *,
+    ego_shape: Shape,
+    obstacle_shapes: Sequence[Shape],
+    input_bounds: tuple[np.ndarray, np.ndarray],
+    dt: float,
+    risk: str = "dr_cvar",
+    alpha: float = ALPHA,
+    delta: float = DELTA,
+    epsilon: float | object = EPSILON,
+    support: tuple[object, object] | None = None,
+    previous_normals: object | None = None,
+    ego_velocity: object | None = None,
+    normals: object | None = None,
+    conformal_margins: object | None = None,
+) -> tuple[Halfspaces, IntersampleRows]:
+    r"""The step halfspaces and their inter-sample rows in one pass.
+
+    ``safe_halfspaces(reference_positions, samples, ...)`` and
+    ``intersample_rows(that, samples, ...)`` (without the start-row check at the current
+    position) to rounding: the same checks (once) and the same closed forms
+    (:func:`filters.halfspaces.safe_halfspaces`), with the two offsets of each step
+    and obstacle, :math:`b_t(h_{i,t})` (end row) and :math:`b_t(h_{i,t+1})` (start row),
+    computed along the step's samples in one batched product and one CVaR pass over
+    ``(n, T, 2, N)`` losses. The wrapper's per-step path.
+
+    Parameters are those of :func:`filters.safe_halfspaces` (``input_bounds`` in m/s² and
+    ``dt`` in s as for :func:`intersample_rows`).
+
+    Returns
+    -------
+    (Halfspaces, IntersampleRows)
+        The step halfspaces (as :func:`filters.safe_halfspaces`) and the rows
+        (``start_violation`` is ``None``).
+
+    Raises
+    ------
+    InvalidArrayError, InvalidParameterError, InvalidTypeError
+        As :func:`filters.safe_halfspaces`.
+    """
+    options = dict(risk=risk, alpha=alpha, delta=delta, epsilon=epsilon, support=support,
+                   conformal_margins=conformal_margins)
+    data = _checked_inputs(reference_positions, samples, ego_shape, obstacle_shapes,
+                           risk, alpha, delta, epsilon, support, previous_normals,
+                           ego_velocity, normals, conformal_margins)
+    k, _, horizon, dim = data.points.shape
+    if k == 0 or horizon == 1 or data.polytope is not None:  # nothing to batch
+        halfspaces = safe_halfspaces(
+            reference_positions, samples, ego_shape=ego_shape, obstacle_shapes=obstacle_shapes,
+            previous_normals=previous_normals, ego_velocity=ego_velocity, normals=normals,
+            **options)
+        return halfspaces, intersample_rows(
+            halfspaces, samples, ego_shape=ego_shape, obstacle_shapes=obstacle_shapes,
+            input_bounds=input_bounds, dt=dt, **options)
+    with np.errstate(all="ignore"):  # non-finite samples are reported below, by name
+        unit, degenerate = _step_normals(data)
+        both = np.empty((k, horizon, 2, dim))  # step t: h_{i,t} (end), h_{i,t+1} (start)
+        both[:, :, 0] = unit
+        both[:, :-1, 1] = unit[:, 1:]
+        both[:, -1, 1] = unit[:, -1]  # a placeholder: the last start row is off
+        offsets = _offsets(data.points, both, ego_shape, data.shapes, data.risk, data.alpha,
+                           data.delta, data.epsilon, data.margins, None)
+    _check_finite_result(samples, unit, offsets)
+    halfspaces = Halfspaces(unit, np.ascontiguousarray(offsets[:, :, 0]), data.risk,
+                            data.alpha, data.delta, data.epsilon, degenerate)
+    return halfspaces, _rows(unit, halfspaces.offsets, offsets[:, :-1, 1], input_bounds, dt)
+
+
+def _rows(normals: np.ndarray, offsets: np.ndarray, start: np.ndarray | None,
+          input_bounds: tuple[np.ndarray, np.ndarray], dt: float) -> IntersampleRows:
+    """The rows of :class:`IntersampleRows` from the step halfspaces ``(k, T, d)``, ``(k,
+    T)`` and the start offsets ``b_t(h_{i,t+1})``, ``(k, T - 1)`` (``None``: no start
+    rows)."""
+    k, horizon, dim = normals.shape
+    margins = arc_margin(normals, input_bounds, dt)
+    rows_n = np.zeros((2 * k, horizon, dim))
+    rows_b = np.full((2 * k, horizon), DISABLED_OFFSET)  # 0 @ y <= 1: off
+    rows_n[:k] = normals
+    rows_b[:k] = offsets - margins
+    if start is not None:
+        rows_n[k:, : horizon - 1] = normals[:, 1:]
+        rows_b[k:, : horizon - 1] = start - margins[:, 1:]
+    return IntersampleRows(rows_n, rows_b, margins, None)
 
 
 def _steps(options: dict[str, object], steps: slice) -> dict[str, object]:

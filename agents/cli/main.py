@@ -313,6 +313,9 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--chunk", type=_positive_int, default=2048,
                        help="--training: steps per alternating chunk (default 2048: one "
                        "rollout and its update)")
+    bench.add_argument("--envs", type=_positive_int, default=8,
+                       help="--training: in-process vector environments of each model "
+                       "(default 8, train's default)")
     return parser
 
 

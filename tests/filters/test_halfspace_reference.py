@@ -21,6 +21,7 @@ import pytest
 from filters import Disc, intersample_rows, safe_halfspaces
 from filters.halfspace_cvxpy import TIGHT_CLARABEL, cvxpy_halfspace
 from filters.halfspaces import _losses, offsets_along
+from filters.intersample import intersample_halfspaces
 
 #: Relative tolerance of offsets against CVXPY, ``|b - b_ref| <= RTOL (1 + |b_ref|)``
 #: (Clarabel at ``TIGHT_CLARABEL`` reaches about 1e-11 on these instances).
@@ -134,6 +135,73 @@ def test_intersample_start_rows_equal_the_cvxpy_formulation(seed):
                                     epsilon=case["epsilon"]) - arc
             np.testing.assert_allclose(rows.normals[n + i, t], normal, rtol=0, atol=0)
             assert abs(rows.offsets[n + i, t] - expected) <= RTOL * (1 + abs(expected))
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("given", [False, True])
+def test_one_pass_rows_equal_the_cvxpy_formulation(seed, given):
+    """The wrapper's one pass (:func:`filters.intersample.intersample_halfspaces`): end
+    row ``t`` along ``h_t``, start row ``t`` along ``h_{t+1}``, both from the samples of
+    step ``t``, less the arc margin; per-step radii; paper or given normals."""
+    rng = np.random.default_rng([seed, 11, int(given)])
+    case = random_instance(rng)
+    horizon = int(rng.integers(2, 5))
+    n = len(case["obstacles"])
+    case["reference"] = rng.uniform(-4.0, 4.0, (horizon, 2))
+    case["samples"] = case["samples"][:, :, :1] + 0.3 * rng.standard_normal(
+        (n, case["samples"].shape[1], horizon, 2))
+    epsilon = rng.uniform(0.0, 0.3, horizon)
+    normals = rng.standard_normal((n, horizon, 2)) if given else None
+    bounds = (np.array([-10.0, -8.0]), np.array([9.0, 10.0]))
+    hs, rows = intersample_halfspaces(
+        case["reference"], case["samples"], ego_shape=case["ego"],
+        obstacle_shapes=case["obstacles"], input_bounds=bounds, dt=0.2, risk="dr_cvar",
+        alpha=case["alpha"], delta=case["delta"], epsilon=epsilon, normals=normals)
+    for i in range(n):
+        margin = case["ego"].radius + case["obstacles"][i].radius
+        for t in range(horizon):
+            if given:
+                normal = normals[i, t] / np.linalg.norm(normals[i, t])
+            else:
+                towards = case["samples"][i, :, t].mean(axis=0) - case["reference"][t]
+                normal = towards / np.linalg.norm(towards)
+            np.testing.assert_allclose(hs.normals[i, t], normal, rtol=RTOL_NORMALS, atol=0)
+            for row, h in ((i, hs.normals[i, t]), (n + i, hs.normals[i, min(t + 1, horizon - 1)])):
+                if row >= n and t == horizon - 1:
+                    assert rows.offsets[row, t] == 1.0 and not rows.normals[row, t].any()
+                    continue  # the last start row is off
+                arc = 0.2**2 / 8 * np.maximum(-h * bounds[0], -h * bounds[1]).sum()
+                expected = cvxpy_offset(case["samples"][i, :, t], h, margin, risk="dr_cvar",
+                                        alpha=case["alpha"], delta=case["delta"],
+                                        epsilon=float(epsilon[t])) - arc
+                np.testing.assert_allclose(rows.normals[row, t], h, rtol=0, atol=0)
+                assert abs(rows.offsets[row, t] - expected) <= RTOL * (1 + abs(expected))
+            assert abs(hs.offsets[i, t] - rows.offsets[i, t]
+                       - 0.2**2 / 8 * np.maximum(-hs.normals[i, t] * bounds[0],
+                                                 -hs.normals[i, t] * bounds[1]).sum()) <= 1e-12
+
+
+@pytest.mark.parametrize("risk", ["mean", "cvar", "dr_cvar", "gaussian_cc", "moment_dr",
+                                  "conformal"])
+def test_one_pass_rows_equal_the_two_calls(risk):
+    """Every risk: the one pass gives what ``safe_halfspaces`` then ``intersample_rows``
+    give (the reference above covers the paper's risks), to rounding."""
+    rng = np.random.default_rng(len(risk))
+    n, horizon = 3, 6
+    samples = rng.uniform(-3, 3, (n, 1, 1, 2)) + 0.2 * rng.standard_normal((n, 40, horizon, 2))
+    reference = rng.uniform(-3, 3, (horizon, 2))
+    options = dict(ego_shape=Disc(0.3), obstacle_shapes=[Disc(0.2), Disc(0.3), Disc(0.4)],
+                   risk=risk, alpha=0.2, delta=0.1, epsilon=rng.uniform(0, 0.2, horizon),
+                   conformal_margins=rng.uniform(0, 0.5, (n, horizon)))
+    bounds = (np.array([-10.0, -10.0]), np.array([10.0, 10.0]))
+    hs, rows = intersample_halfspaces(reference, samples, input_bounds=bounds, dt=0.2,
+                                      **options)
+    hs2 = safe_halfspaces(reference, samples, **options)
+    rows2 = intersample_rows(hs2, samples, input_bounds=bounds, dt=0.2, **options)
+    np.testing.assert_allclose(hs.normals, hs2.normals, rtol=1e-12, atol=0)
+    np.testing.assert_allclose(hs.offsets, hs2.offsets, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(rows.normals, rows2.normals, rtol=1e-12, atol=0)
+    np.testing.assert_allclose(rows.offsets, rows2.offsets, rtol=1e-12, atol=1e-12)
 
 
 @pytest.mark.parametrize("seed", range(3))
