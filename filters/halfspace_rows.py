@@ -13,6 +13,7 @@ from filters.errors import InvalidArrayError, InvalidParameterError
 from filters.geometry import Disc
 from filters.halfspaces import Halfspaces, safe_halfspaces
 from filters.intersample import intersample_halfspaces
+from filters.mpc.checks import all_finite
 from filters.normals import clearest_normals, nearside_normals
 from filters.protocol import FilterableEnv
 
@@ -61,19 +62,21 @@ class HalfspaceRowsMixin:
                 "(n_obstacles, n_samples, T, d))"
             )
         samples = predictions[:, :, :self.horizon]
-        previous = self._previous_normals
-        if previous is not None and previous.shape[0] == len(radii):
-            # Last step's normals, shifted by one step to line up with this horizon.
-            previous = np.concatenate([previous[:, 1:], previous[:, -1:]], axis=1)
-        else:
-            previous = None
         ego_shape, obstacle_shapes = self._shapes(float(base.ego_radius), radii)
         C = base.dynamics[2]
         y0 = C @ x0
         origins = self._normal_origins(y0, ref_states[1:, :] @ C.T)
-        given = None
-        if len(radii) and self.normals in ("nearside", "clearest"):
-            if not np.isfinite(samples).all():
+        given = previous = velocity = None
+        if not (len(radii) and self.normals in ("nearside", "clearest")):
+            # the paper's normals; a degenerate one falls back to the last step's normals
+            # (shifted by one step to line up with this horizon), then to -velocity
+            previous, velocity = self._previous_normals, x0[2:]
+            if previous is not None and previous.shape[0] == len(radii):
+                previous = np.concatenate([previous[:, 1:], previous[:, -1:]], axis=1)
+            else:
+                previous = None
+        else:
+            if not all_finite(samples):
                 raise InvalidArrayError(
                     "the prediction samples hold NaN or infinite values (at indices "
                     f"{np.argwhere(~np.isfinite(samples))[0].tolist()})")
@@ -83,7 +86,7 @@ class HalfspaceRowsMixin:
         if not self.intersample:
             halfspaces = safe_halfspaces(
                 origins, samples, ego_shape=ego_shape, obstacle_shapes=obstacle_shapes,
-                support=self.support, previous_normals=previous, ego_velocity=x0[2:],
+                support=self.support, previous_normals=previous, ego_velocity=velocity,
                 normals=given, **options)
             self._halfspaces_made = halfspaces
             return halfspaces.normals, halfspaces.offsets, (halfspaces.normals,
@@ -91,7 +94,7 @@ class HalfspaceRowsMixin:
         halfspaces, rows = intersample_halfspaces(
             origins, samples, ego_shape=ego_shape, obstacle_shapes=obstacle_shapes,
             input_bounds=base.input_bounds, dt=float(base.dt), support=self.support,
-            previous_normals=previous, ego_velocity=x0[2:], normals=given, **options)
+            previous_normals=previous, ego_velocity=velocity, normals=given, **options)
         self._halfspaces_made = halfspaces
         return halfspaces.normals, halfspaces.offsets, (rows.normals, rows.offsets)
 

@@ -49,13 +49,19 @@ def _norm(vectors: np.ndarray) -> np.ndarray:
     return np.sqrt(np.add.reduce(vectors * vectors, axis=-1, keepdims=True))
 
 
-def _nearside(means: np.ndarray, reference: np.ndarray, ego: np.ndarray) -> np.ndarray:
-    """:func:`nearside_normals` from the sample means ``(k, T, d)``."""
+def _nearside_directions(means: np.ndarray, reference: np.ndarray,
+                         ego: np.ndarray) -> np.ndarray:
+    """Un-normalised near-side directions ``means - origin``, ``(k, T, d)`` (a new array)."""
     to_reference = reference[None] - means
     to_ego = ego[None, None] - means
-    near = np.einsum("ktd,ktd->kt", to_reference, to_ego) > 0.0
+    near = np.add.reduce(to_reference * to_ego, axis=-1) > 0.0
     origin = np.where(near[..., None], reference[None], ego[None, None])
-    diff = means - origin
+    return means - origin
+
+
+def _nearside(means: np.ndarray, reference: np.ndarray, ego: np.ndarray) -> np.ndarray:
+    """:func:`nearside_normals` from the sample means ``(k, T, d)``."""
+    diff = _nearside_directions(means, reference, ego)
     size = _norm(diff)
     ok = size > 1e-9
     if ok.all():  # the usual case: the fallback below would not be picked anywhere
@@ -118,27 +124,24 @@ def clearest_normals(samples: np.ndarray, reference: np.ndarray, ego: np.ndarray
     """
     means = _means(samples)
     if plan is None:
-        normals = _nearside(means, reference, ego)
+        diff = _nearside_directions(means, reference, ego)
     else:
         to_reference = means - reference[None]
         to_plan = means - plan[None]
-        d_reference, d_plan = _norm(to_reference), _norm(to_plan)
-        use_reference = d_reference >= d_plan
-        diff = np.where(use_reference, to_reference, to_plan)
-        size = np.where(use_reference, d_reference, d_plan)
-        normals = diff / np.maximum(size, 1e-12)
-        if not (size > 1e-9).all():
-            normals = np.where(size > 1e-9, normals, 0.0)
-    first = means[:, 0] - ego  # (k, d): the first step's normal starts at the ego
-    first_size = _norm(first)
-    normals[:, 0] = np.where(first_size > 1e-9, first / np.maximum(first_size, 1e-12), 0.0)
-    degenerate = _norm(normals) < 0.5
-    if degenerate.any():  # an origin on the mean: the direction from the ego, else an axis
-        from_ego = means - ego[None, None]  # (k, T, d)
-        ego_size = _norm(from_ego)
-        ego_normals = np.where(ego_size > 1e-9, from_ego / np.maximum(ego_size, 1e-12), 0.0)
-        axis = np.zeros(means.shape[-1])
-        axis[0] = 1.0
-        fallback = np.where(ego_size > 1e-9, ego_normals, axis)
-        normals = np.where(degenerate, fallback, normals)
-    return normals
+        use_reference = np.add.reduce(to_reference * to_reference, axis=-1) >= np.add.reduce(
+            to_plan * to_plan, axis=-1)  # the farther origin (squared distances)
+        diff = np.where(use_reference[..., None], to_reference, to_plan)
+    diff[:, 0] = means[:, 0] - ego  # the first step's normal starts at the ego
+    size = _norm(diff)
+    usable = size > 1e-9
+    if usable.all():  # the usual case
+        return diff / size
+    # an origin on the mean: the direction from the ego, else an axis
+    normals = np.where(usable, diff / np.maximum(size, 1e-12), 0.0)
+    from_ego = means - ego[None, None]  # (k, T, d)
+    ego_size = _norm(from_ego)
+    ego_normals = np.where(ego_size > 1e-9, from_ego / np.maximum(ego_size, 1e-12), 0.0)
+    axis = np.zeros(means.shape[-1])
+    axis[0] = 1.0
+    fallback = np.where(ego_size > 1e-9, ego_normals, axis)
+    return np.where(usable, normals, fallback)

@@ -98,12 +98,32 @@ def hold_action_reference(
     u = np.clip(u, low, high)
     inputs = np.empty((int(horizon), m))
     inputs[:] = u
-    states = np.empty((int(horizon) + 1, n))
-    states[0] = x0
-    bu = B @ u
-    for k in range(int(horizon)):
-        states[k + 1] = A @ states[k] + bu
+    powers, sums = _held_maps(A, B, int(horizon))
+    states = (powers @ x0 + sums @ u).reshape(int(horizon) + 1, n)
     return states, inputs
+
+
+_HELD_MAPS: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
+""":func:`_held_maps` by model and horizon (a few entries: one per environment model)."""
+
+
+def _held_maps(A: np.ndarray, B: np.ndarray, horizon: int) -> tuple[np.ndarray, np.ndarray]:
+    r"""``(P, S)`` with rows ``k = 0..T``: :math:`A^k` and :math:`\sum_{j<k} A^j B`, stacked
+    ``((T+1) n, n)`` and ``((T+1) n, m)``, so that the held-input roll-out is
+    :math:`x_k = A^k x_0 + (\sum_{j<k} A^j B) u` (two products instead of a loop of T)."""
+    key = (A.tobytes(), B.tobytes(), A.shape, B.shape, horizon)
+    maps = _HELD_MAPS.get(key)
+    if maps is None:
+        n, m = B.shape
+        powers, sums = np.empty((horizon + 1, n, n)), np.empty((horizon + 1, n, m))
+        powers[0], sums[0] = np.eye(n), 0.0
+        for k in range(horizon):
+            powers[k + 1] = A @ powers[k]
+            sums[k + 1] = A @ sums[k] + B
+        if len(_HELD_MAPS) >= 16:
+            _HELD_MAPS.clear()
+        maps = _HELD_MAPS[key] = (powers.reshape(-1, n), sums.reshape(-1, m))
+    return maps
 
 
 class PolicyRolloutReference:
