@@ -32,6 +32,8 @@ def test_throughput_ratios_and_projection_follow_their_formulas():
         filter_us={"reference": 10.0, "halfspaces": 600.0, "qp": 300.0, "step": 2000.0})
     assert result.timesteps == 300
     assert "not optimal" not in result.format()  # the share was not measured: no line
+    assert "8 environments" in result.format()
+    assert "1 environment," in dataclasses.replace(result, n_envs=1).format()
     measured = dataclasses.replace(result, not_optimal_share=0.25,
                                    filter_us={**result.filter_us, "qp_not_optimal": 120.0})
     assert "120 on the 25 % of steps not optimal" in measured.format()
@@ -53,3 +55,5 @@ def test_training_benchmark_options_are_checked(capsys):
     assert main(["bench", "--training", "--timesteps", "0"]) == 2
     assert main(["bench", "--training", "--chunk", "-1"]) == 2
     assert "--chunk" in capsys.readouterr().err
+    assert main(["bench", "--training", "--envs", "0"]) == 2
+    assert "--envs" in capsys.readouterr().err
