@@ -100,8 +100,9 @@ def arc_margin(
     numpy.ndarray
         Shape ``normals.shape[:-1]``, ``>= 0`` when the box contains 0.
     """
-    low, high = (np.asarray(bound, dtype=np.float64) for bound in input_bounds)
-    worst = np.maximum(-normals * low, -normals * high).sum(axis=-1)
+    low, high = input_bounds
+    worst = np.add.reduce(np.maximum(normals * -np.asarray(low, dtype=np.float64),
+                                     normals * -np.asarray(high, dtype=np.float64)), axis=-1)
     return (dt * dt / 8.0) * worst
 
 

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from filters.halfspaces import _sample_means
+
 __all__ = ["clearest_normals", "nearside_normals"]
 
 
@@ -40,8 +42,9 @@ def nearside_normals(samples: np.ndarray, reference: np.ndarray, ego: np.ndarray
 
 
 def _means(samples: np.ndarray) -> np.ndarray:
-    """Sample means :math:`\\bar p_{i,t}`, ``(k, T, d)``, of ``(k, N, T, d)`` samples."""
-    return np.add.reduce(samples, axis=1) / samples.shape[1]
+    """Sample means :math:`\\bar p_{i,t}`, ``(k, T, d)``, of ``(k, N, T, d)`` samples
+    (:func:`filters.halfspaces._sample_means`: one product)."""
+    return _sample_means(np.asarray(samples, dtype=np.float64))
 
 
 def _norm(vectors: np.ndarray) -> np.ndarray:
