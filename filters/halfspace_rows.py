@@ -1,8 +1,8 @@
 """Per-step halfspace rows of :class:`filters.wrapper.SafetyFilterWrapper`.
 
-Where the normals start (the ``normals`` option), the step's safe halfspaces
-(:func:`filters.safe_halfspaces`) and the inter-sample rows
-(:func:`filters.intersample_rows`) the QP is given.
+Where the normals start (the ``normals`` option), the step's safe halfspaces and the
+inter-sample rows the QP is given (:func:`filters.intersample.intersample_halfspaces`,
+or :func:`filters.safe_halfspaces` without the inter-sample rows).
 """
 
 from __future__ import annotations
@@ -51,8 +51,9 @@ class HalfspaceRowsMixin:
         inter-sample rows, if set); the halfspaces are kept for :attr:`_last_halfspaces`.
 
         The normals start at :meth:`_normal_origins` (``"nearside"``, ``"clearest"``: the
-        rules of :mod:`filters.normals`); :func:`filters.safe_halfspaces` gives the
-        offsets, :func:`filters.intersample_rows` the inter-sample rows.
+        rules of :mod:`filters.normals`); :func:`filters.intersample.intersample_halfspaces`
+        gives the halfspaces and the inter-sample rows in one pass
+        (:func:`filters.safe_halfspaces` without the inter-sample rows).
         """
         predictions = np.asarray(base.predictions, dtype=float)
         if predictions.ndim != 4 or predictions.shape[2] < self.horizon:
