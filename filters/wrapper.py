@@ -367,10 +367,6 @@ class SafetyFilterWrapper(CalibrationMixin, HalfspaceRowsMixin, RenderHookMixin,
             if self.risk != "none":
                 self.calibration_episodes = CALIBRATION_EPISODES if episodes is None else episodes
         self._mpc: MPCSafetyFilter | None = None
-        # One filter per number of obstacles it holds rows for (built on first use): an
-        # episode runs on the one sized for the obstacles present at its reset, without
-        # disabled rows for absent ones (each costs the QP solver work at every step).
-        self._filters: dict[int, MPCSafetyFilter] = {}
         self._previous_normals: np.ndarray | None = None
         self._halfspaces_made: Halfspaces | None = None  # the last step's halfspaces
         self._last_plan: np.ndarray | None = None
@@ -379,7 +375,7 @@ class SafetyFilterWrapper(CalibrationMixin, HalfspaceRowsMixin, RenderHookMixin,
         self._halfspace_lines: Any = None  # the hook's line collection, reused per frame
         self._shape_cache: tuple[tuple, Disc, list[Disc]] | None = None
         if self.risk != "none":  # builds (and so validates) the weights and bounds now
-            self._mpc = self._sized_filter(self._full_size(len(np.asarray(base.obstacle_radii))))
+            self._mpc = self._build_filter(max(1, len(np.asarray(base.obstacle_radii))))
         if self._calibration is not None:
             self._warm_up_calibration()
 
@@ -392,18 +388,6 @@ class SafetyFilterWrapper(CalibrationMixin, HalfspaceRowsMixin, RenderHookMixin,
         """Halfspace rows per obstacle and step: 2 with the inter-sample rows, else 1."""
         return 2 if self.intersample else 1
 
-    def _full_size(self, n_obstacles: int) -> int:
-        """Obstacles a filter needs rows for to serve any step: at least the environment's
-        ``max_obstacles`` (if it has one) and at least one."""
-        return max(1, n_obstacles, int(getattr(self._base, "max_obstacles", 0)))
-
-    def _sized_filter(self, n_obstacles: int) -> MPCSafetyFilter:
-        """The filter with rows for ``n_obstacles`` obstacles (built once per size)."""
-        mpc = self._filters.get(n_obstacles)
-        if mpc is None:
-            mpc = self._filters[n_obstacles] = self._build_filter(n_obstacles)
-        return mpc
-
     def _build_filter(self, n_obstacles: int) -> MPCSafetyFilter:
         base = self._base
         A, B, C = base.dynamics
@@ -414,10 +398,11 @@ class SafetyFilterWrapper(CalibrationMixin, HalfspaceRowsMixin, RenderHookMixin,
                 float(base.dt), base.input_bounds, base.position_bounds,
                 stop_time=self.stop_time,
             )
+        rows = max(n_obstacles, int(getattr(base, "max_obstacles", 0)))
         return MPCSafetyFilter(
             A, B, C, horizon=self.horizon, Q=Q, Q_terminal=Q_terminal, R=R,
             input_bounds=base.input_bounds, position_bounds=base.position_bounds,
-            n_obstacles=self.rows_per_obstacle * n_obstacles, soft=self.soft,
+            n_obstacles=self.rows_per_obstacle * rows, soft=self.soft,
             objective=self.objective, later_input_weight=self.later_input_weight,
             terminal_set=terminal_set, fallback=self.fallback,
         )
@@ -426,7 +411,6 @@ class SafetyFilterWrapper(CalibrationMixin, HalfspaceRowsMixin, RenderHookMixin,
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         obs, info = self.env.reset(seed=seed, options=options)
         if self._mpc is not None:
-            self._mpc = self._sized_filter(max(1, len(np.asarray(self._base.obstacle_radii))))
             self._mpc.reset()
         if self._calibration is not None:
             if self.calibration_memory == "episode":
@@ -479,9 +463,7 @@ class SafetyFilterWrapper(CalibrationMixin, HalfspaceRowsMixin, RenderHookMixin,
         radii = np.asarray(base.obstacle_radii, dtype=float)
         mpc = self._mpc
         if mpc is None or self._rows * radii.shape[0] > mpc.n_obstacles:
-            # more obstacles than at the reset: the filter that serves every step
-            mpc = self._mpc = self._sized_filter(self._full_size(len(radii)))
-            mpc.reset()
+            mpc = self._mpc = self._build_filter(len(radii))
         begin = time.perf_counter()
         try:
             if not finite:
