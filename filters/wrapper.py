@@ -104,6 +104,15 @@ class SafetyFilterWrapper(CalibrationMixin, HalfspaceRowsMixin, RenderHookMixin,
         ``"auto"``: a radius per look-ahead step estimated online from the realised
         against the predicted positions (:class:`filters.calibration.WassersteinRadius`,
         0.05 m until enough data; see ``calibration_episodes``).
+    adaptive_epsilon
+        With ``risk="dr_cvar"`` and a numeric ``epsilon``: the radius per look-ahead step
+        is calibrated online (:class:`filters.calibration.AdaptiveRadius`): a conformal
+        quantile, moved by adaptive conformal inference, of the radius each observed
+        obstacle position needed to lie within the DR-CVaR bound of its prediction for
+        every normal, at miscoverage ``alpha``; ``epsilon`` is the radius before any
+        data. It widens when the predictions understate the noise and narrows when they
+        do not (its guarantee: the filter guide). Ignored for other risks and with
+        ``epsilon="auto"``. Default ``False``.
     horizon
         Filter horizon T in steps; at most the environment's prediction horizon.
         ``None`` uses the prediction horizon.
@@ -255,6 +264,7 @@ class SafetyFilterWrapper(CalibrationMixin, HalfspaceRowsMixin, RenderHookMixin,
         calibration_episodes: int | None = None,
         calibration_seed: int = CALIBRATION_SEED,
         calibration_memory: str = "episode",
+        adaptive_epsilon: bool = False,
         compiled_rollout: bool | None = None,
         fast_path: bool | None = None,
     ) -> None:
@@ -268,7 +278,8 @@ class SafetyFilterWrapper(CalibrationMixin, HalfspaceRowsMixin, RenderHookMixin,
             intervention_penalty=intervention_penalty, support=support,
             draw_halfspaces=draw_halfspaces, calibration_episodes=calibration_episodes,
             calibration_seed=calibration_seed, calibration_memory=calibration_memory,
-            compiled_rollout=compiled_rollout, fast_path=fast_path,
+            adaptive_epsilon=adaptive_epsilon, compiled_rollout=compiled_rollout,
+            fast_path=fast_path,
         )
         gym.Wrapper.__init__(self, env)
         self._unwrapped: FilterableEnv = env.unwrapped  # type: ignore[assignment]
@@ -306,7 +317,8 @@ class SafetyFilterWrapper(CalibrationMixin, HalfspaceRowsMixin, RenderHookMixin,
             low_inclusive=False, high_inclusive=False,
         )
         for name, flag in (("intersample", intersample), ("terminal", terminal),
-                           ("soft", soft), ("draw_halfspaces", draw_halfspaces)):
+                           ("soft", soft), ("draw_halfspaces", draw_halfspaces),
+                           ("adaptive_epsilon", adaptive_epsilon)):
             if not isinstance(flag, (bool, np.bool_)):
                 raise InvalidTypeError(f"{name} must be a bool, got {flag!r}")
         for name, value in (("compiled_rollout", compiled_rollout), ("fast_path", fast_path)):
@@ -359,10 +371,14 @@ class SafetyFilterWrapper(CalibrationMixin, HalfspaceRowsMixin, RenderHookMixin,
         self._calibrated: OnlineCalibration | None = None  # the state each episode starts from
         self.calibration_episodes = 0
         self.calibration_time = 0.0
-        if self.risk == "conformal" or self.epsilon == "auto":
+        self.adaptive_epsilon = (bool(adaptive_epsilon) and self.risk == "dr_cvar"
+                                 and self.epsilon != "auto")
+        if self.risk == "conformal" or self.epsilon == "auto" or self.adaptive_epsilon:
             # alpha is the conformal miscoverage; with epsilon="auto" alone it is unused
             self._calibration = OnlineCalibration(
-                self.horizon, self.alpha if self.risk == "conformal" else 0.2
+                self.horizon, self.alpha if self.risk == "conformal" else 0.2,
+                **({"adaptive_alpha": self.alpha, "radius_fallback": self.epsilon}
+                   if self.adaptive_epsilon else {}),
             )
             if self.risk != "none":
                 self.calibration_episodes = CALIBRATION_EPISODES if episodes is None else episodes
