@@ -292,7 +292,8 @@ class AdaptiveRadius:
 
         \\epsilon_k = \\alpha\\, q_k ,
 
-    so that :math:`\\mathrm{CVaR}_\\alpha + \\epsilon_k/\\alpha = \\mathrm{CVaR}_\\alpha + q_k`.
+    so that :math:`\\mathrm{CVaR}_\\alpha + \\epsilon_k/\\alpha = \\mathrm{CVaR}_\\alpha + q_k`
+    (never below ``floor``: :math:`\\epsilon_k = \\max(\\epsilon_{\\min}, \\alpha q_k)`).
     When the realised positions stray farther from the predictions than their samples
     say (a spread understated, a bias), the scores grow and the radius with them; when
     the samples describe reality the scores are mostly 0 and the radius shrinks. ACI
@@ -321,6 +322,11 @@ class AdaptiveRadius:
         Radius (m) before any score at a look-ahead (default 0.05, the paper's
         hand-tuned radius); with scores but too few for the current level, the
         largest score seen gives the radius.
+    floor
+        Smallest radius :math:`\\epsilon_{\\min}` (m, default 0: the radius follows the
+        data both ways). A floor at a hand-tuned radius makes the calibration widen
+        only: the radius then comes back down to the floor, not below, when the
+        predictions match.
     n_directions
         Of :func:`dr_cvar_scores`.
 
@@ -339,11 +345,14 @@ class AdaptiveRadius:
         window: int = 200,
         gamma: float = 0.005,
         fallback: float = 0.05,
+        floor: float = 0.0,
         n_directions: int = 64,
     ) -> None:
         self.alpha = check_alpha(alpha)
         self.fallback = scalar_in_range("fallback", fallback, low=0.0, high=math.inf,
                                         high_inclusive=False)
+        self.floor = scalar_in_range("floor", floor, low=0.0, high=math.inf,
+                                     high_inclusive=False)
         self.n_directions = integer_at_least("n_directions", n_directions, low=3)
         level = self.alpha if miscoverage is None else miscoverage
         if isinstance(level, bool) or not isinstance(level, int | float) or not 0 < level < 1:
@@ -380,14 +389,14 @@ class AdaptiveRadius:
             self.scores.update_scores(r.lookahead, values)
 
     def radius(self, lookahead: int) -> float:
-        """:math:`\\epsilon_k = \\alpha q_k` in m for look-ahead ``k`` in ``1..T``.
+        """:math:`\\epsilon_k = \\max(\\epsilon_{\\min}, \\alpha q_k)` in m at look-ahead ``k``.
 
         ``fallback`` before any score at ``k``; the largest score seen times
         :math:`\\alpha` while the window is too short for the current level (never a
         radius smaller than the data asked for).
         """
         margin = self.scores.margin(lookahead)
-        return self.fallback if math.isinf(margin) else self.alpha * margin
+        return self.fallback if math.isinf(margin) else max(self.floor, self.alpha * margin)
 
     def radii(self) -> np.ndarray:
         """Radii for every look-ahead, shape ``(T,)``, m (``epsilon=`` of ``safe_halfspaces``)."""

@@ -109,10 +109,11 @@ class SafetyFilterWrapper(CalibrationMixin, HalfspaceRowsMixin, RenderHookMixin,
         is calibrated online (:class:`filters.calibration.AdaptiveRadius`): a conformal
         quantile, moved by adaptive conformal inference, of the radius each observed
         obstacle position needed to lie within the DR-CVaR bound of its prediction for
-        every normal, at miscoverage ``alpha``; ``epsilon`` is the radius before any
-        data. It widens when the predictions understate the noise and narrows when they
-        do not (its guarantee: the filter guide). Ignored for other risks and with
-        ``epsilon="auto"``. Default ``False``.
+        every normal, at miscoverage ``alpha``; ``epsilon`` is then the smallest radius
+        and the radius before any data (``epsilon=0``: the radius follows the data both
+        ways). It widens when the predictions understate the noise and comes back down
+        when they do not (its guarantee: the filter guide). Ignored for other risks and
+        with ``epsilon="auto"``. Default ``False``.
     horizon
         Filter horizon T in steps; at most the environment's prediction horizon.
         ``None`` uses the prediction horizon.
@@ -377,8 +378,8 @@ class SafetyFilterWrapper(CalibrationMixin, HalfspaceRowsMixin, RenderHookMixin,
             # alpha is the conformal miscoverage; with epsilon="auto" alone it is unused
             self._calibration = OnlineCalibration(
                 self.horizon, self.alpha if self.risk == "conformal" else 0.2,
-                **({"adaptive_alpha": self.alpha, "radius_fallback": self.epsilon}
-                   if self.adaptive_epsilon else {}),
+                **({"adaptive_alpha": self.alpha, "radius_fallback": self.epsilon,
+                    "adaptive": {"floor": self.epsilon}} if self.adaptive_epsilon else {}),
             )
             if self.risk != "none":
                 self.calibration_episodes = CALIBRATION_EPISODES if episodes is None else episodes

@@ -116,6 +116,23 @@ def test_radius_stays_small_or_shrinks_when_the_predictions_match():
     assert np.all(radius.radii() < 0.05)
 
 
+def test_a_floor_makes_the_radius_widen_only():
+    rng = np.random.default_rng(5)
+    free = AdaptiveRadius(0.2, horizon=HORIZON)
+    floored = AdaptiveRadius(0.2, horizon=HORIZON, floor=0.03)
+    for ratio in (1.0, 2.0, 1.0):
+        state = rng.bit_generator.state
+        _feed(free, rng, ratio, 100)
+        rng.bit_generator.state = state
+        _feed(floored, rng, ratio, 100)
+        np.testing.assert_array_equal(floored.radii(), np.maximum(free.radii(), 0.03))
+        if ratio == 2.0:
+            assert np.all(floored.radii() > 0.03)  # widened above the floor
+    assert np.all(floored.radii() == 0.03)  # back down to the floor, not below
+    with pytest.raises(InvalidParameterError, match="floor"):
+        AdaptiveRadius(0.2, horizon=2, floor=-0.1)
+
+
 def test_coverage_of_the_radius_is_near_its_miscoverage_on_exchangeable_data():
     rng = np.random.default_rng(3)
     radius = AdaptiveRadius(0.2, horizon=HORIZON, gamma=0.0)
@@ -149,7 +166,7 @@ def test_online_calibration_feeds_the_adaptive_radius_and_keeps_the_wasserstein_
 
 def test_wrapper_uses_the_adaptive_radii_in_its_halfspaces():
     env = SafetyFilterWrapper(gym.make("SafeNav/HeadOn-v0"), adaptive_epsilon=True,
-                              calibration_episodes=2)
+                              epsilon=0.0, calibration_episodes=2)  # no floor
     assert env.adaptive_epsilon and env.calibration_episodes == 2
     env.reset(seed=0)
     base = env.unwrapped
@@ -157,7 +174,7 @@ def test_wrapper_uses_the_adaptive_radii_in_its_halfspaces():
         radii = env._calibration.adaptive_radii()  # in force for this step
         samples = np.array(base.predictions[:, :, :10])
         _, _, _, _, info = env.step(np.zeros(2))
-    assert not np.allclose(radii, 0.05)  # calibrated from step 0, not the fallback
+    assert np.all(radii > 0.0)  # calibrated from step 0, not the fallback (0)
     assert np.all(np.diff(radii) > -0.02)  # wider further ahead (errors grow along the lane)
     # b = -(CVaR_a(-h.p) + eps_k / a) + delta - r for the reported normals h.
     report = info["filter"]
