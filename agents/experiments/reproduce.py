@@ -56,15 +56,10 @@ from pathlib import Path
 
 from agents.evaluation.summary import short_name
 from agents.experiments.encounters import (
-    INFEASIBLE_STATUSES,
-    RISKS,
     EncounterJob,
     EncounterRecord,
-    encounter_spec,
-    make_encounter_env,
     paper_monte_carlo,
     run_encounter,
-    run_encounters,
 )
 from agents.experiments.paper_figures import example_one, plot_example_one, plot_halfspace_times
 from agents.experiments.paper_settings import (
@@ -75,63 +70,23 @@ from agents.experiments.paper_settings import (
     PRESETS,
     TOLERANCE_M,
     ReproductionPreset,
-    authors_weights,
     paper_duration,
 )
 from agents.experiments.table_one import EXAMPLE_ONE
 from agents.experiments.windows import (
-    EPISODE_COLUMNS,
-    WINDOW_AFTER,
-    WINDOW_BEFORE,
     WindowRow,
     _series,
     _summary_rows,
     closest_approach_sample,
-    closest_approach_window,
     resolve_windows,
     summarise_windows,
-    window_minimum,
     write_episodes_csv,
 )
 from filters.errors import InvalidParameterError
 from filters.risk import PAPER_RISKS
 from safe_nav_env.constants import DT
 
-__all__ = [
-    "EPISODE_COLUMNS",
-    "INFEASIBLE_STATUSES",
-    "PAPER_FILTER_TIME_MS",
-    "PAPER_SCENARIOS",
-    "PAPER_WINDOWS",
-    "PAPER_WORST_DISTANCE",
-    "PRESETS",
-    "RISKS",
-    "TOLERANCE_M",
-    "WINDOW_AFTER",
-    "WINDOW_BEFORE",
-    "EncounterJob",
-    "EncounterRecord",
-    "ReproductionPreset",
-    "WindowRow",
-    "authors_weights",
-    "closest_approach_sample",
-    "closest_approach_window",
-    "compare_with_paper",
-    "encounter_spec",
-    "example_one",
-    "make_encounter_env",
-    "paper_duration",
-    "paper_monte_carlo",
-    "plot_example_one",
-    "plot_halfspace_times",
-    "reproduce",
-    "resolve_windows",
-    "run_encounter",
-    "run_encounters",
-    "summarise_windows",
-    "window_minimum",
-    "write_episodes_csv",
-]
+__all__ = ["compare_with_paper", "reproduce"]
 
 
 # ---------------------------------------------------------------------------- Monte Carlo report

@@ -7,19 +7,22 @@ import math
 import numpy as np
 import pytest
 
-from agents.experiments.reproduce import (
-    PAPER_WINDOWS,
-    PRESETS,
+from agents.experiments.encounters import (
     EncounterJob,
     EncounterRecord,
-    authors_weights,
-    closest_approach_window,
-    compare_with_paper,
     make_encounter_env,
-    paper_duration,
-    reproduce,
-    resolve_windows,
     run_encounter,
+)
+from agents.experiments.paper_settings import (
+    PAPER_WINDOWS,
+    PRESETS,
+    authors_weights,
+    paper_duration,
+)
+from agents.experiments.reproduce import compare_with_paper, reproduce
+from agents.experiments.windows import (
+    closest_approach_window,
+    resolve_windows,
     summarise_windows,
     window_minimum,
 )
