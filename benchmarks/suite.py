@@ -35,10 +35,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-# Re-exported: --training lives in benchmarks.training (redundant aliases mark the re-export).
-from benchmarks.training import TrainingThroughput as TrainingThroughput
-from benchmarks.training import benchmark_training as benchmark_training
-
 if TYPE_CHECKING:
     from benchmarks.scaling import ScalingGrid
 
