@@ -36,12 +36,15 @@ from __future__ import annotations
 
 import time
 from collections import Counter
-from dataclasses import asdict, dataclass, field
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
-from filters.mpc import FilterStatus, MPCSafetyFilter
+from filters.mpc import FilterResult, FilterStatus, MPCSafetyFilter
 from safe_nav_env.constants import ARENA_HALF_WIDTH, DT, EGO_RADIUS, EGO_START_SPEED
+from safe_nav_env.dynamics import double_integrator
 
 __all__ = ["FilterQPBenchmark", "benchmark_filter_qp", "format_filter_qp", "make_instances"]
 
@@ -50,15 +53,6 @@ SPEED = EGO_START_SPEED  # m/s, ego reference speed
 RADIUS = EGO_RADIUS  # m, ego and obstacle disc radii
 ARENA = ARENA_HALF_WIDTH  # m, arena [-5, 5]^2
 INPUT_LIMIT = 5.0  # m/s^2 per axis
-
-
-def double_integrator(ts: float = TS) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(A, B, C)`` of the planar double integrator with sampling time ``ts`` (s)."""
-    eye, zero = np.eye(2), np.zeros((2, 2))
-    A = np.block([[eye, ts * eye], [zero, eye]])
-    B = np.vstack([0.5 * ts**2 * eye, ts * eye])
-    C = np.hstack([eye, zero])
-    return A, B, C
 
 
 def filter_kwargs(horizon: int, n_obstacles: int) -> dict:
@@ -72,6 +66,72 @@ def filter_kwargs(horizon: int, n_obstacles: int) -> dict:
         "position_bounds": (-ARENA, ARENA),
         "n_obstacles": n_obstacles,
     }
+
+
+def straight_reference(
+    x: np.ndarray, lane: float, horizon: int, *, stop_x: float | None = None
+) -> np.ndarray:
+    """Reference (T+1, 4) at :data:`SPEED` along +x on the ego's lane; row 0 is ``x``.
+
+    With ``stop_x`` (m) the reference stops there (zero velocity from then on).
+    """
+    reference = np.empty((horizon + 1, 4))
+    reference[:, 0] = x[0] + SPEED * TS * np.arange(horizon + 1)
+    reference[:, 1] = lane
+    reference[:, 2:] = (SPEED, 0.0)
+    if stop_x is not None:
+        stopped = reference[:, 0] >= stop_x
+        reference[stopped, 0] = max(stop_x, x[0])
+        reference[stopped, 2] = 0.0
+    reference[0] = x
+    return reference
+
+
+def crossing_start(
+    rng: np.random.Generator, n_obstacles: int, area: tuple[float, float, float] = (-2.0, 3.0, 1.5)
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A crossing episode's start: ego state (4,), obstacle positions and velocities (n, 2).
+
+    The ego starts at x = -4.5 m at :data:`SPEED` along +x on a lane y ~ U(-1, 1) m; the
+    obstacles in ``[x_low, x_high] x [-y_half, y_half]`` (``area``, m) with speeds
+    U(0, 1) m/s in uniform directions.
+    """
+    x_low, x_high, y_half = area
+    x = np.array([-4.5, rng.uniform(-1.0, 1.0), SPEED, 0.0])
+    obstacles = np.column_stack(
+        [rng.uniform(x_low, x_high, n_obstacles), rng.uniform(-y_half, y_half, n_obstacles)]
+    )
+    speed = rng.uniform(0.0, 1.0, n_obstacles)
+    heading = rng.uniform(0.0, 2.0 * np.pi, n_obstacles)
+    velocities = speed[:, None] * np.column_stack([np.cos(heading), np.sin(heading)])
+    return x, obstacles, velocities
+
+
+def timed_solves(
+    mpc: Any, problems: Sequence[tuple[bool, np.ndarray, np.ndarray, Any, np.ndarray | None]]
+) -> tuple[list[float], list[FilterResult]]:
+    """Solve each ``(new_episode, x0, reference_states, halfspaces, reference_inputs)`` in turn.
+
+    ``mpc`` (an :class:`MPCSafetyFilter` or :class:`filters.CVXPYSafetyFilter`) is reset
+    at each new episode. Returns the wall time of each ``solve`` call in ms and the results.
+    """
+    times, results = [], []
+    for new_episode, x0, reference_states, halfspaces, reference_inputs in problems:
+        if new_episode:
+            mpc.reset()
+        begin = time.perf_counter()
+        results.append(mpc.solve(x0, reference_states, halfspaces,
+                                 reference_inputs=reference_inputs))
+        times.append(1e3 * (time.perf_counter() - begin))
+    return times, results
+
+
+def max_input_gap(first: Sequence[FilterResult], second: Sequence[FilterResult]) -> float:
+    """Largest ``|u_first - u_second|`` (m/s²) over the steps both solved optimally (NaN: none)."""
+    gaps = [float(np.max(np.abs(a.inputs - b.inputs)))
+            for a, b in zip(first, second, strict=True)
+            if a.status == b.status == FilterStatus.OPTIMAL]
+    return max(gaps, default=float("nan"))
 
 
 @dataclass(frozen=True)
@@ -101,7 +161,7 @@ def make_instances(
     n_steps: int, n_obstacles: int, horizon: int, rng: np.random.Generator
 ) -> list[Instance]:
     """Simulate crossing episodes with the fast filter in the loop; record each step's QP."""
-    A, B, C = double_integrator()
+    A, B, C = double_integrator(TS)
     mpc = MPCSafetyFilter(A, B, C, **filter_kwargs(horizon, n_obstacles))
     steps = np.arange(1, horizon + 1)[:, None] * TS  # (T, 1)
     instances: list[Instance] = []
@@ -109,21 +169,11 @@ def make_instances(
     while len(instances) < n_steps:
         if new_episode:
             mpc.reset()
-            x = np.array([-4.5, rng.uniform(-1.0, 1.0), SPEED, 0.0])
+            x, obstacles, velocities = crossing_start(rng, n_obstacles)
             lane = x[1]
-            obstacles = np.column_stack(
-                [rng.uniform(-2.0, 3.0, n_obstacles), rng.uniform(-1.5, 1.5, n_obstacles)]
-            )
-            speed = rng.uniform(0.0, 1.0, n_obstacles)
-            heading = rng.uniform(0.0, 2.0 * np.pi, n_obstacles)
-            velocities = speed[:, None] * np.column_stack([np.cos(heading), np.sin(heading)])
             margins = rng.uniform(0.0, 0.15, n_obstacles)
             step_in_episode = 0
-        reference = np.empty((horizon + 1, 4))
-        reference[:, 0] = x[0] + SPEED * TS * np.arange(horizon + 1)
-        reference[:, 1] = lane
-        reference[:, 2:] = (SPEED, 0.0)
-        reference[0] = x
+        reference = straight_reference(x, lane, horizon)
         predicted = obstacles[:, None, :] + velocities[:, None, :] * steps[None]
         normals, offsets = _halfspaces(reference[1:, :2], predicted, margins)
         instances.append(Instance(x.copy(), reference, normals, offsets, new_episode))
@@ -162,10 +212,6 @@ class FilterQPBenchmark:
     reference_inputs_median_ms: float = float("nan")  # that pass, all steps
     backend: str = "clarabel"  # the back end of ours (``"auto"`` resolved)
 
-    def as_dict(self) -> dict:
-        """Plain ``dict`` (for CSV/JSON)."""
-        return asdict(self)
-
 
 def benchmark_filter_qp(
     n_steps: int = 500, n_obstacles: int = 3, horizon: int = 10, seed: int = 0,
@@ -196,7 +242,7 @@ def benchmark_filter_qp(
 
     rng = np.random.default_rng(seed)
     instances = make_instances(n_steps, n_obstacles, horizon, rng)
-    A, B, C = double_integrator()
+    A, B, C = double_integrator(TS)
     ours = MPCSafetyFilter(A, B, C, backend=backend, **filter_kwargs(horizon, n_obstacles))
     with_inputs = MPCSafetyFilter(A, B, C, backend=backend,
                                   **filter_kwargs(horizon, n_obstacles))

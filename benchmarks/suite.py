@@ -35,6 +35,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from benchmarks.filter_qp import max_input_gap, timed_solves
+
 if TYPE_CHECKING:
     from benchmarks.scaling import ScalingGrid
 
@@ -58,7 +60,7 @@ class FilterStepBenchmark:
     backend: str = ""  # what backend="auto" (ours) picked
     backend_qp_ms: dict[str, float] | None = None  # explicit back ends, same steps
     backend_step_ms: dict[str, float] | None = None  # halfspaces + that QP, per step
-    backend_difference: dict[str, float] | None = None  # max |u - u_clarabel|, both solved
+    backend_difference: dict[str, float] | None = None  # max |u - u_clarabel|, both optimal
 
     def format(self) -> str:
         statuses = ", ".join(f"{k} {v}" for k, v in sorted(self.statuses.items()))
@@ -134,7 +136,7 @@ def benchmark_filter_step(n_steps: int = 500, seed: int = 0, *,
             base.dt, base.input_bounds, base.position_bounds))
     ours = MPCSafetyFilter(A, B, C, **weights)  # backend="auto"
     halfspace_ms, qp_ms, step_ms, needed_qp = [], [], [], []
-    instances = []
+    problems = []
     statuses: dict[str, int] = {}
     episode = 0
     while len(step_ms) < n_steps:
@@ -142,16 +144,15 @@ def benchmark_filter_step(n_steps: int = 500, seed: int = 0, *,
         ours.reset()
         episode += 1
         done = False
-        instances.append(None)  # episode boundary: reset the reference filter too
+        new_episode = True  # reset the other filters too
         ego_shape = Disc(base.ego_radius)  # built once per episode, as the wrapper does
         obstacle_shapes = [Disc(r) for r in base.obstacle_radii]
         while not done and len(step_ms) < n_steps:
             x0 = np.asarray(base.ego_state, dtype=float)
             ref_states, ref_inputs = planner.plan(x0, base.goal)
-            predictions = base.predictions
+            predictions = base.predictions[:, :, :10]
             begin = time.perf_counter()
             shapes = dict(ego_shape=ego_shape, obstacle_shapes=obstacle_shapes)
-            predictions = predictions[:, :, :10]
             rows = safe_halfspaces(ref_states[1:] @ C.T, predictions, risk="dr_cvar",
                                    ego_velocity=x0[2:], **shapes)
             if continuous:
@@ -165,41 +166,19 @@ def benchmark_filter_step(n_steps: int = 500, seed: int = 0, *,
             qp_ms.append(1e3 * (end - middle))
             step_ms.append(1e3 * (end - begin))
             needed_qp.append(ours.last_qp_solves > 0)
-            instances.append((x0, ref_states, hs, ref_inputs))
+            problems.append((new_episode, x0, ref_states, hs, ref_inputs))
+            new_episode = False
             statuses[result.status.value] = statuses.get(result.status.value, 0) + 1
             _, _, terminated, truncated, _ = env.step(result.inputs[0].astype(np.float32))
             done = terminated or truncated
-    backend_qp: dict[str, list[float]] = {}
-    backend_inputs: dict[str, list] = {}
+    backend_qp, backend_results = {}, {}
     for name in ("daqp", "clarabel"):
         explicit = MPCSafetyFilter(A, B, C, backend=name, **weights)
-        backend_qp[name], backend_inputs[name] = [], []
-        for instance in instances:
-            if instance is None:
-                explicit.reset()
-                continue
-            x0, ref_states, hs, ref_inputs = instance
-            begin = time.perf_counter()
-            answer = explicit.solve(x0, ref_states, hs, reference_inputs=ref_inputs)
-            backend_qp[name].append(1e3 * (time.perf_counter() - begin))
-            backend_inputs[name].append(answer.inputs if answer.solved else None)
-    difference = {}
-    for name in backend_inputs:
-        gaps = [float(np.max(np.abs(a - b))) for a, b in zip(
-            backend_inputs[name], backend_inputs["clarabel"], strict=True)
-            if a is not None and b is not None]
-        difference[name] = max(gaps) if gaps else float("nan")
+        backend_qp[name], backend_results[name] = timed_solves(explicit, problems)
+    difference = {name: max_input_gap(results, backend_results["clarabel"])
+                  for name, results in backend_results.items()}
     halfspaces_each = np.asarray(halfspace_ms)
-    reference = CVXPYSafetyFilter(A, B, C, **weights)
-    cvxpy_ms = []
-    for instance in instances:
-        if instance is None:
-            reference.reset()
-            continue
-        x0, ref_states, hs, ref_inputs = instance
-        begin = time.perf_counter()
-        reference.solve(x0, ref_states, hs, reference_inputs=ref_inputs)
-        cvxpy_ms.append(1e3 * (time.perf_counter() - begin))
+    cvxpy_ms, _ = timed_solves(CVXPYSafetyFilter(A, B, C, **weights), problems)
     env.close()
     step = float(np.median(step_ms))
     mask = np.asarray(needed_qp)
