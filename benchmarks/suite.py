@@ -15,9 +15,9 @@ is a ratio against a reference measured in the same run:
     training steps per second with the DR-CVaR filter in the loop against without it,
     interleaved runs.
 
-(b) also times the policy roll-out reference (:func:`benchmark_rollout_reference`: the
-``predict`` loop with SB3's model and with :class:`agents.NumpyPolicy`) against the QP
-of the same run,
+(b) also times the policy roll-out reference
+(:func:`benchmarks.policy.benchmark_rollout_reference`: the ``predict`` loop with SB3's
+model and with :class:`agents.NumpyPolicy`) against the QP of the same run,
 and both step by step in the evaluation's control loop (:func:`benchmark_control_loop`).
 
 ``safe-nav bench --scaling`` (:func:`run_scaling`) times the filter step on the grid
@@ -207,6 +207,7 @@ def run_benchmarks(filter_steps: int = 500, table_repeats: int = 100, seed: int 
     from agents.experiments.table_one import format_table_one, halfspace_timing_table
     from benchmarks.env import benchmark as env_benchmark
     from benchmarks.filter_qp import benchmark_filter_qp, format_filter_qp
+    from benchmarks.policy import benchmark_rollout_reference, format_rollout_reference
 
     parts = [f"python {platform.python_version()}, numpy {np.__version__}, "
              f"{platform.machine()}; medians; ratios measured in this run"]
@@ -227,58 +228,6 @@ def run_benchmarks(filter_steps: int = 500, table_repeats: int = 100, seed: int 
     parts.append("(c) unfiltered environment, gym.make, N_s = 100, T = 10:\n" + "\n".join(
         f"    {env_id:<28} {rate:8.0f} steps/s" for env_id, rate in rates.items()))
     return "\n\n".join(parts)
-
-
-# --------------------------------------------------------------------------- --scaling
-def benchmark_rollout_reference(
-    horizon: int = 10, steps: int = 200, seed: int = 0, path: str | None = None
-) -> dict[str, float]:
-    """Median wall time (ms) of one roll-out reference (``T - 1`` policy calls) per step.
-
-    On the states of unfiltered MultiObstacle episodes of the shipped PPO policy (recorded
-    first, then replayed to each maker in a loop of its own: the same states for all),
-    :class:`filters.references.PolicyRolloutReference` with: ``"sb3"`` the SB3
-    model's ``predict`` at each look-ahead step; ``"numpy"`` the :class:`agents.NumpyPolicy`
-    export called the same way (what ``safe-nav evaluate`` runs); ``"hold"`` the
-    held-action reference, for scale.
-    """
-    import gymnasium as gym
-
-    import safe_nav_env  # noqa: F401
-    from agents.policies.numpy_policy import NumpyPolicy
-    from agents.training.ppo import load_ppo, set_torch_threads
-    from filters.references import PolicyRolloutReference, hold_action_reference
-
-    set_torch_threads(1)
-    model = load_ppo(path)
-    makers = {"sb3": PolicyRolloutReference(model),
-              "numpy": PolicyRolloutReference(NumpyPolicy.from_sb3(model)),
-              "hold": hold_action_reference}
-    env = gym.make("SafeNav/MultiObstacle-v0", horizon=horizon)
-    base = env.unwrapped
-    fields = ("ego_state", "predictions", "obstacle_positions", "obstacle_velocities")
-    situations = []  # what a reference maker reads, recorded along the episodes
-    episode, done = 0, True
-    for _ in range(steps):
-        if done:
-            obs, _ = env.reset(seed=seed + episode)
-            episode += 1
-        action, _ = model.predict(obs, deterministic=True)
-        situations.append(({name: getattr(base, name) for name in fields}, action))
-        obs, _, terminated, truncated, _ = env.step(action)
-        done = terminated or truncated
-    times: dict[str, list[float]] = {}
-    for name, maker in makers.items():  # each in a loop of its own, as a control loop runs
-        maker(base, situations[0][1], horizon)  # first call: torch's kernels
-        times[name] = []
-        for state, action in situations:
-            for field, value in state.items():
-                setattr(base, field, value)
-            begin = time.perf_counter()
-            maker(base, action, horizon)
-            times[name].append(1e3 * (time.perf_counter() - begin))
-    env.close()
-    return {name: float(np.median(values)) for name, values in times.items()}
 
 
 @dataclass(frozen=True)
@@ -343,17 +292,7 @@ def benchmark_control_loop(steps: int = 500, seed: int = 0) -> ControlLoopTiming
     )
 
 
-def format_rollout_reference(rollout: dict[str, float], horizon: int = 10) -> str:
-    """The roll-out timings of :func:`benchmark_rollout_reference` as one paragraph."""
-    numpy_ms = rollout["numpy"]
-    return (
-        f"roll-out reference, T = {horizon} ({horizon - 1} policy calls), MultiObstacle, "
-        f"medians: SB3 predict {rollout['sb3']:.3f} ms, NumpyPolicy.predict "
-        f"{numpy_ms:.3f} ms ({rollout['sb3'] / numpy_ms:.1f}x faster); the held action "
-        f"{rollout['hold']:.4f} ms"
-    )
-
-
+# --------------------------------------------------------------------------- --scaling
 def run_scaling(
     grid: ScalingGrid | None = None,
     *,
@@ -426,7 +365,11 @@ def run_scaling(
         f"{per_sample_ns.max():.1f} ns over the grid (fixed costs dominate the small points)",
     ]
     if policy:
-        from agents.policies.numpy_policy import benchmark_numpy_policy
+        from benchmarks.policy import (
+            benchmark_numpy_policy,
+            benchmark_rollout_reference,
+            format_rollout_reference,
+        )
 
         parts.append(benchmark_numpy_policy(seed=seed).format())
         parts.append(format_rollout_reference(benchmark_rollout_reference(seed=seed)))
