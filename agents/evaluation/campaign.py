@@ -25,7 +25,7 @@ from typing import Any
 
 from agents.errors import OutputPathError
 from agents.evaluation.evaluate import episode_specs, evaluate
-from agents.evaluation.executors import Executor, make_executor
+from agents.evaluation.executors import Executor
 from agents.evaluation.records import (
     PAPER_SCENARIOS,
     EpisodeRecord,
@@ -268,18 +268,9 @@ def run_sweep(
     specs = [spec for delta in deltas for epsilon in epsilons
              for spec in episode_specs(scenarios, ["dr_cvar"], episodes, seed, delta=delta,
                                        epsilon=epsilon, **common)]
-    own = not isinstance(executor, Executor)
-    runner = make_executor(executor, workers) if own else executor
-    try:
-        all_records = evaluate(specs=specs, vary=("epsilon", "delta"), workers=workers,
-                               executor=runner, csv_path=output / "sweep.csv",
-                               progress=progress, overwrite=overwrite)
-    except BaseException:
-        if own:
-            runner.terminate()
-        raise
-    if own:
-        runner.close()
+    all_records = evaluate(specs=specs, vary=("epsilon", "delta"), workers=workers,
+                           executor=executor, csv_path=output / "sweep.csv",
+                           progress=progress, overwrite=overwrite)
     points = []
     for delta in deltas:
         for epsilon in epsilons:
