@@ -416,13 +416,9 @@ def plot_scaling(points: Sequence[ScalingPoint], path: str | Path) -> Path:
     number of samples processed, ``n_obstacles * T * N_s``, with a slope-1 guide
     (linear work) through the larger half of the points.
     """
-    import matplotlib
+    from agents.evaluation.plots import pyplot, save_figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    plt = pyplot()
     fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2))
     n_samples = min(p.n_samples for p in points)
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
@@ -469,6 +465,4 @@ def plot_scaling(points: Sequence[ScalingPoint], path: str | Path) -> Path:
                  fontsize=7, loc="upper left")
     right.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)

@@ -48,7 +48,8 @@ GIF_LEGEND = (
 """Legend of the environment's frames (colours of :mod:`safe_nav_env.rendering`)."""
 
 
-def _pyplot():
+def pyplot():
+    """``matplotlib.pyplot`` on the Agg backend (imported on first use)."""
     import matplotlib
 
     matplotlib.use("Agg", force=False)
@@ -57,11 +58,12 @@ def _pyplot():
     return plt
 
 
-def _save(fig, path: str | Path) -> Path:
+def save_figure(fig, path: str | Path) -> Path:
+    """Save ``fig`` to ``path`` (folders made; 120 dpi, tight box), close it, return the path."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120, bbox_inches="tight")
-    _pyplot().close(fig)
+    pyplot().close(fig)
     return path
 
 
@@ -91,7 +93,7 @@ def plot_trajectories(
     """
     if every < 1:
         raise InvalidParameterError(f"every must be >= 1, got {every!r}")
-    plt = _pyplot()
+    plt = pyplot()
     if bounds is None:
         bounds = _fit_bounds(trajectories.values())
     (x0, y0), (x1, y1) = bounds
@@ -140,7 +142,7 @@ def plot_trajectories(
     ax.plot([], [], "o", color="0.5", alpha=0.3, ms=10, label=f"discs to scale, {period}")
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
     ax.set_title(title or "Ego paths with and without the safety filter")
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def _fit_bounds(trajectories: Any, margin: float = 0.5) -> tuple[tuple[float, float], ...]:
@@ -164,7 +166,7 @@ def plot_distance_boxplots(records: Sequence[EpisodeRecord], path: str | Path) -
 
     The paper's Fig. 4, right column.
     """
-    plt = _pyplot()
+    plt = pyplot()
     scenarios = sorted({r.scenario for r in records})
     fig, axes = plt.subplots(1, len(scenarios), figsize=(3.2 * len(scenarios), 3.6),
                              squeeze=False, sharey=True)
@@ -189,7 +191,7 @@ def plot_distance_boxplots(records: Sequence[EpisodeRecord], path: str | Path) -
     fig.suptitle("Smallest distance to collision per episode, by filter risk "
                  f"(up to {n // max(1, len({r.risk for r in records}))} episodes per box; "
                  "whiskers: min and max)", fontsize=10)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_window_boxplots(
@@ -213,7 +215,7 @@ def plot_window_boxplots(
     windows
         ``windows[scenario] = (first, last)``: sample indices, both included.
     """
-    plt = _pyplot()
+    plt = pyplot()
     scenarios = list(distances)
     fig, axes = plt.subplots(1, len(scenarios), figsize=(3.6 * len(scenarios), 3.6),
                              squeeze=False)
@@ -243,7 +245,7 @@ def plot_window_boxplots(
     axes[0][-1].legend(fontsize=7)
     if title:
         fig.suptitle(title, y=1.04)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_collision_rates(
@@ -258,7 +260,7 @@ def plot_collision_rates(
     is drawn as a thick line at 0 (gid ``"zero-bar"``) so it cannot be mistaken for
     a missing one.
     """
-    plt = _pyplot()
+    plt = pyplot()
     scenarios = sorted({r.scenario for r in rows})
     risks = sorted({r.risk for r in rows}, key=lambda r: RISK_ORDER.get(r, 9))
     width = 0.8 / max(1, len(risks))
@@ -296,7 +298,7 @@ def plot_collision_rates(
               frameon=False)
     ax.grid(alpha=0.3, axis="y")
     ax.set_title(title, fontsize=10)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_safe_polytopes(
@@ -310,7 +312,7 @@ def plot_safe_polytopes(
     """
     from filters.plotting import safe_polygon
 
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(8.5, 5))
     _arena(ax, bounds)
     low, high = np.asarray(bounds[0]), np.asarray(bounds[1])
@@ -343,7 +345,7 @@ def plot_safe_polytopes(
     ax.plot(*trajectory.goal, "k*", ms=12, label="goal")
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     ax.set_title(title or "Safe polytopes along a filtered episode")
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def save_gif(
@@ -435,7 +437,7 @@ def plot_sweep(points: Sequence[dict], path: str | Path) -> Path:
     ``points`` are dicts with ``epsilon``, ``delta``, ``collision_rate``,
     ``mean_intervention`` (and optionally ``goal_rate``).
     """
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(6.5, 4.5))
     deltas = sorted({p["delta"] for p in points})
     for delta in deltas:
@@ -451,4 +453,4 @@ def plot_sweep(points: Sequence[dict], path: str | Path) -> Path:
                  fontsize=10)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, title="risk bound δ (m)", title_fontsize=8)
-    return _save(fig, path)
+    return save_figure(fig, path)

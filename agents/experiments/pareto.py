@@ -135,10 +135,9 @@ def plot_pareto(
             raise InvalidParameterError(f"panel {name!r} has no points")
     if isinstance(columns, bool) or not isinstance(columns, int) or columns < 1:
         raise InvalidParameterError(f"columns must be an integer >= 1, got {columns!r}")
-    import matplotlib
+    from agents.evaluation.plots import pyplot, save_figure
 
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     labels: list[str] = []
     for points in panels.values():
@@ -193,8 +192,4 @@ def plot_pareto(
                frameon=False, bbox_to_anchor=(0.5, -0.02 - 0.03 * math.ceil(len(labels) / 4)))
     fig.suptitle(title or "Collision rate against time to goal, per method", fontsize=11)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120, bbox_inches="tight")
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)

@@ -18,13 +18,13 @@ from safe_nav_env.collision import swept_clearance
 def captured(monkeypatch):
     """Keep the figures the plot functions save, to inspect their artists."""
     figures = []
-    save = plots._save
+    save = plots.save_figure
 
     def keep(fig, path):
         figures.append(fig)
         return save(fig, path)
 
-    monkeypatch.setattr(plots, "_save", keep)
+    monkeypatch.setattr(plots, "save_figure", keep)
     return figures
 
 
