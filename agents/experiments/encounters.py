@@ -23,6 +23,7 @@ from agents.experiments.paper_settings import (
     ReproductionPreset,
     paper_duration,
 )
+from filters._validation import integer_at_least
 from filters.errors import InvalidParameterError
 from filters.risk import PAPER_RISKS
 from safe_nav_env.scenarios import scenario_name
@@ -268,8 +269,7 @@ def run_encounters(
     jobs: Sequence[EncounterJob], *, workers: int = 1, progress: bool = False,
 ) -> list[EncounterRecord]:
     """Run ``jobs`` (in ``workers`` processes) and return their records in job order."""
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        raise InvalidParameterError(f"workers must be an integer >= 1, got {workers!r}")
+    integer_at_least("workers", workers)
     iterator: Iterator[EncounterRecord]
     if workers == 1 or len(jobs) <= 1:
         iterator = map(run_encounter, jobs)
@@ -330,8 +330,7 @@ def paper_monte_carlo(
             raise InvalidParameterError(f"risk must be one of {FILTER_RISKS}, got {risk!r}")
     for scenario in scenarios:
         paper_duration(scenario)
-    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
-        raise InvalidParameterError(f"episodes must be an integer >= 1, got {episodes!r}")
+    integer_at_least("episodes", episodes)
     jobs = [EncounterJob(preset, scenario, risk, seed + i)
             for scenario in scenarios for risk in risks for i in range(episodes)]
     return run_encounters(jobs, workers=workers, progress=progress)

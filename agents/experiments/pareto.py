@@ -15,6 +15,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from filters._validation import integer_at_least
 from filters.errors import InvalidParameterError
 
 __all__ = ["TIME_LABEL", "ParetoPoint", "dominated", "plot_pareto", "point_from_summary"]
@@ -133,8 +134,7 @@ def plot_pareto(
     for name, points in panels.items():
         if not points:
             raise InvalidParameterError(f"panel {name!r} has no points")
-    if isinstance(columns, bool) or not isinstance(columns, int) or columns < 1:
-        raise InvalidParameterError(f"columns must be an integer >= 1, got {columns!r}")
+    integer_at_least("columns", columns)
     from agents.evaluation.plots import pyplot, save_figure
 
     plt = pyplot()
