@@ -77,6 +77,12 @@ def _arena(ax, bounds=((-5.0, -5.0), (5.0, 5.0))) -> None:
     ax.set_ylabel("y (m)")
 
 
+def _discs(ax, path: np.ndarray, radius: float, instants: Any, **style: Any) -> None:
+    """Discs of ``radius`` (m) at the ``path`` positions of the given ``instants``, to scale."""
+    for t in instants:
+        ax.add_patch(pyplot().Circle(path[t], radius, **style))
+
+
 # ---------------------------------------------------------------------------- figures
 def plot_trajectories(
     trajectories: Mapping[str, Any], path: str | Path, *, title: str = "", every: int = 5,
@@ -109,17 +115,15 @@ def plot_trajectories(
         instants = sorted(set(range(0, len(ego), every)) | {len(ego) - 1})
         ax.plot(ego[:, 0], ego[:, 1], "-o", ms=2, color=color,
                 label=f"ego, {RISK_LABELS.get(risk, risk)}")
-        for t in instants:
-            ax.add_patch(plt.Circle(ego[t], traj.ego_radius, facecolor=color, alpha=0.12,
-                                    edgecolor=color, lw=0.6))
+        _discs(ax, ego, traj.ego_radius, instants, facecolor=color, alpha=0.12,
+               edgecolor=color, lw=0.6)
         if not drawn_obstacles and traj.obstacles.size:
             for i in range(traj.obstacles.shape[1]):
                 path_i = traj.obstacles[:, i]
                 ax.plot(path_i[:, 0], path_i[:, 1], "-", color="k", lw=1,
                         label="obstacles (realised paths)" if i == 0 else None)
-                for t in instants:
-                    ax.add_patch(plt.Circle(path_i[t], traj.obstacle_radii[i], facecolor="k",
-                                            alpha=0.12, edgecolor="k", lw=0.6))
+                _discs(ax, path_i, traj.obstacle_radii[i], instants, facecolor="k",
+                       alpha=0.12, edgecolor="k", lw=0.6)
             ax.plot(*traj.goal, "k*", ms=12, label="goal")
             drawn_obstacles = True
         for mark in find_collisions(traj):
@@ -329,16 +333,15 @@ def plot_safe_polytopes(
     ego = trajectory.ego
     ax.plot(ego[:, 0], ego[:, 1], "-o", color="tab:blue", ms=3,
             label="ego path (disc to scale)")
-    for t in range(0, len(ego), every):
-        ax.add_patch(plt.Circle(ego[t], trajectory.ego_radius, color="tab:blue", alpha=0.15))
+    _discs(ax, ego, trajectory.ego_radius, range(0, len(ego), every), color="tab:blue",
+           alpha=0.15)
     colors = plt.cm.autumn(np.linspace(0, 0.8, max(1, trajectory.obstacles.shape[1])))
     for i in range(trajectory.obstacles.shape[1]):
         path_i = trajectory.obstacles[:, i]
         ax.plot(path_i[:, 0], path_i[:, 1], "-", color=colors[i],
                 label=f"obstacle {i + 1} (realised path)")
-        for t in range(0, len(path_i), every):
-            ax.add_patch(plt.Circle(path_i[t], trajectory.obstacle_radii[i], color=colors[i],
-                                    alpha=0.15))
+        _discs(ax, path_i, trajectory.obstacle_radii[i], range(0, len(path_i), every),
+               color=colors[i], alpha=0.15)
     fallback = [t + 1 for t, s in enumerate(trajectory.statuses) if s in FALLBACK_STATUSES]
     if fallback:
         ax.plot(ego[fallback, 0], ego[fallback, 1], "kx", ms=8, label="fallback step")
