@@ -199,7 +199,7 @@ class FilterQPBenchmark:
     cvxpy_p90_ms: float
     cvxpy_compile_ms: float
     ratio: float  # cvxpy median / ours median, over the steps where ours solved a QP
-    max_input_difference: float  # over steps both solved, in m/s^2
+    max_input_difference: float  # over steps both solved optimally, in m/s^2 (NaN: none)
     statuses: dict[str, int] = field(default_factory=dict)  # ours
     agreement: float = 1.0  # share of steps where both gave the same status
     qp_steps: int = 0  # steps where ours solved at least one QP (the headline's steps)
@@ -258,9 +258,7 @@ def benchmark_filter_qp(
         with_inputs.solve(instance.x0, instance.reference_states, halfspaces)
 
     ours_ms, ours_solver_ms, cvxpy_ms, inputs_ms = [], [], [], []
-    qp_calls, iterations, shortcut_calls = [], [], []
-    statuses: Counter[str] = Counter()
-    same, difference = 0, 0.0
+    qp_calls, shortcut_calls, fast_results, slow_results = [], [], [], []
     for instance in instances:
         if instance.new_episode:
             ours.reset()
@@ -272,7 +270,6 @@ def benchmark_filter_qp(
         ours_ms.append(1e3 * (time.perf_counter() - begin))
         ours_solver_ms.append(1e3 * fast.solve_time)
         qp_calls.append(ours.last_qp_solves)
-        iterations.append(fast.iterations)
         begin = time.perf_counter()
         slow = reference.solve(instance.x0, instance.reference_states, halfspaces)
         cvxpy_ms.append(1e3 * (time.perf_counter() - begin))
@@ -282,15 +279,14 @@ def benchmark_filter_qp(
         )
         inputs_ms.append(1e3 * (time.perf_counter() - begin))
         shortcut_calls.append(with_inputs.last_qp_solves)
-        statuses[fast.status.value] += 1
-        same += fast.status == slow.status
-        if fast.status == slow.status == FilterStatus.OPTIMAL:
-            difference = max(difference, float(np.max(np.abs(fast.inputs - slow.inputs))))
+        fast_results.append(fast)
+        slow_results.append(slow)
 
     ours_all, cvxpy_all = np.array(ours_ms), np.array(cvxpy_ms)
     calls = np.array(qp_calls)
     qp = calls > 0  # ours solved a QP: the headline's steps
-    constrained = qp & (np.array(iterations) > 0)
+    constrained = qp & (np.array([r.iterations for r in fast_results]) > 0)
+    same = sum(a.status == b.status for a, b in zip(fast_results, slow_results, strict=True))
     ours_median = float(np.median(ours_all[qp])) if qp.any() else float("nan")
     cvxpy_median = float(np.median(cvxpy_all[qp])) if qp.any() else float("nan")
     return FilterQPBenchmark(
@@ -304,8 +300,8 @@ def benchmark_filter_qp(
         cvxpy_p90_ms=float(np.percentile(cvxpy_ms, 90)),
         cvxpy_compile_ms=compile_ms,
         ratio=cvxpy_median / ours_median,
-        max_input_difference=difference,
-        statuses=dict(statuses),
+        max_input_difference=max_input_gap(fast_results, slow_results),
+        statuses=dict(Counter(r.status.value for r in fast_results)),
         agreement=same / len(instances),
         qp_steps=int(qp.sum()),
         shortcut_steps=int((calls == 0).sum()),
