@@ -225,12 +225,6 @@ def _failed_encounter(job: EncounterJob, error: str, start: float) -> EncounterR
         wall_time=time.perf_counter() - start)
 
 
-def _worker_init() -> None:
-    import os
-
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
-
-
 def run_encounters(
     jobs: Sequence[EncounterJob], *, workers: int = 1, progress: bool = False,
 ) -> list[EncounterRecord]:
@@ -243,9 +237,11 @@ def run_encounters(
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
+    from agents.evaluation.executors import worker_init
+
     context = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(max_workers=workers, mp_context=context,
-                             initializer=_worker_init) as pool:
+                             initializer=worker_init) as pool:
         chunk = max(1, min(16, len(jobs) // (4 * workers) or 1))
         return list(_progress(pool.map(run_encounter, jobs, chunksize=chunk), len(jobs),
                               progress))
