@@ -200,8 +200,7 @@ def make_figures(
     scenarios = [scenario_name(s) for s in scenarios]
     # One rendered run (MultiObstacle if evaluated, DR-CVaR if evaluated) also gives the
     # safe-polytope figure and the animation; every other run only its trajectory.
-    featured = ("MultiObstacle" if "MultiObstacle" in scenarios else scenarios[0],
-                "dr_cvar" if "dr_cvar" in risks else risks[-1])
+    featured = plots.featured_run(scenarios, risks)
     featured_trajectory = None
     for scenario in scenarios:
         trajectories = {}
@@ -220,14 +219,10 @@ def make_figures(
                                                               folder / "distance_boxplots.png")
     files["collision_rates"] = plots.plot_collision_rates(rows, folder / "collision_rates.png")
     if featured_trajectory is not None:
-        scenario, risk = featured
-        files["safe_polytopes"] = plots.plot_safe_polytopes(
-            featured_trajectory, folder / "safe_polytopes.png",
-            title=f"{short_name(scenario)}: {risk} safe polytopes")
-        if featured_trajectory.frames:
-            files["animation"] = plots.save_gif(
-                featured_trajectory.frames, folder / "episode.gif",
-                label=f"{plots.RISK_LABELS.get(risk, risk)}, {short_name(scenario)}, seed {seed}")
+        name, risk = short_name(featured[0]), featured[1]
+        files.update(plots.polytope_figures(
+            featured_trajectory, folder, title=f"{name}: {risk} safe polytopes",
+            label=f"{plots.RISK_LABELS.get(risk, risk)}, {name}, seed {seed}"))
     return files
 
 

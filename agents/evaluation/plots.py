@@ -351,6 +351,24 @@ def plot_safe_polytopes(
     return save_figure(fig, path)
 
 
+def featured_run(scenarios: Sequence[str], risks: Sequence[str]) -> tuple[str, str]:
+    """The ``(scenario, risk)`` whose rendered run gives the safe-polytope figure and the
+    animation: MultiObstacle and DR-CVaR when evaluated, else the first scenario and the
+    last risk (the names as given: short names or gym ids)."""
+    multi = [s for s in scenarios if short_name(s) == "MultiObstacle"]
+    return (multi[0] if multi else scenarios[0], "dr_cvar" if "dr_cvar" in risks else risks[-1])
+
+
+def polytope_figures(trajectory: Any, folder: Path, *, title: str, label: str
+                     ) -> dict[str, Path]:
+    """``safe_polytopes.png`` of a rendered run and, when it has frames, ``episode.gif``."""
+    files = {"safe_polytopes": plot_safe_polytopes(trajectory, folder / "safe_polytopes.png",
+                                                   title=title)}
+    if trajectory.frames:
+        files["animation"] = save_gif(trajectory.frames, folder / "episode.gif", label=label)
+    return files
+
+
 def save_gif(
     frames: Sequence[np.ndarray],
     path: str | Path,

@@ -273,24 +273,18 @@ def _monte_carlo_figures(
             files[f"trajectories_{name}"] = plots.plot_trajectories(
                 first_seed, folder / f"trajectories_{name}.png", every=3,
                 title=f"{name}, seed {seed}, preset {preset.name}")
-    risks = list(dict.fromkeys(r.risk for r in records))
-    featured = ("SafeNav/MultiObstacle-v0" if "SafeNav/MultiObstacle-v0" in scenarios
-                else scenarios[0], "dr_cvar" if "dr_cvar" in risks else risks[-1])
+    featured = plots.featured_run(scenarios, list(dict.fromkeys(r.risk for r in records)))
     if featured[1] != "none":
         record = run_encounter(EncounterJob(preset, featured[0], featured[1], seed, render=True,
                                             record_halfspaces=True))
         if not record.error:
-            from agents.evaluation.plots import RISK_LABELS
-
-            name = short_name(featured[0])
-            files["safe_polytopes"] = plots.plot_safe_polytopes(
-                record, folder / "safe_polytopes.png",
-                title=f"{name}: {featured[1]} safe polytopes, seed {seed}")
-            label = (f"{RISK_LABELS.get(featured[1], featured[1])} (alpha {preset.alpha:g}, "
-                     f"delta {preset.delta_for(featured[1]):g} m, eps {preset.epsilon:g} m), "
+            name, risk = short_name(featured[0]), featured[1]
+            label = (f"{plots.RISK_LABELS.get(risk, risk)} (alpha {preset.alpha:g}, "
+                     f"delta {preset.delta_for(risk):g} m, eps {preset.epsilon:g} m), "
                      f"{name}, seed {seed}, preset {preset.name}")
-            files["animation"] = plots.save_gif(record.frames, folder / "episode.gif",
-                                                label=label)
+            files.update(plots.polytope_figures(
+                record, folder, title=f"{name}: {risk} safe polytopes, seed {seed}",
+                label=label))
     return files
 
 
