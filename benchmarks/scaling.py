@@ -67,6 +67,7 @@ from benchmarks.filter_qp import (
     timed_solves,
 )
 from filters import Disc, FilterStatus, MPCSafetyFilter, safe_halfspaces
+from filters._validation import integer_at_least
 from filters.errors import InvalidParameterError
 from filters.mpc.result import StepData
 
@@ -104,15 +105,11 @@ class ScalingGrid:
     def __post_init__(self) -> None:
         for name in ("obstacles", "horizons", "samples"):
             values = getattr(self, name)
-            if not values or any(int(v) != v or v < 1 for v in values):
-                raise InvalidParameterError(
-                    f"ScalingGrid.{name} must be a non-empty tuple of integers >= 1, "
-                    f"got {values!r}"
-                )
-        if int(self.steps) != self.steps or self.steps < 2:
-            raise InvalidParameterError(
-                f"ScalingGrid.steps must be an integer >= 2, got {self.steps!r}"
-            )
+            if not values:
+                raise InvalidParameterError(f"ScalingGrid.{name} must not be empty")
+            for value in values:
+                integer_at_least(f"ScalingGrid.{name}", value)
+        integer_at_least("ScalingGrid.steps", self.steps, low=2)
 
     @property
     def points(self) -> list[tuple[int, int, int]]:
