@@ -8,9 +8,9 @@ Trajectories are read duck-typed: ``ego`` (steps+1, 2), ``obstacles``
 (steps+1, n, 2), ``obstacle_radii`` (n,), ``ego_radius`` and ``goal``
 (:class:`agents.evaluation.evaluate.Trajectory` has them). A trajectory that also carries
 ``ego_velocities`` (steps+1, 2), ``inputs`` (steps, 2) and ``dt`` (as
-:class:`agents.experiments.reproduce.EncounterRecord` does) gets its collisions located in
-continuous time exactly (:func:`step_clearance`); without them the ego is taken on
-the chord between its samples, which is off the true arc by at most
+:class:`agents.experiments.encounters.EncounterRecord` does) gets its collisions located
+in continuous time exactly (:func:`agents.evaluation.contacts.step_clearance`); without
+them the ego is taken on the chord between its samples, which is off the true arc by at most
 ``dt² a_max / 8`` (0.05 m at 10 m/s², dt = 0.2 s) and is labelled so.
 """
 
@@ -22,12 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from agents.evaluation.contacts import (  # noqa: F401  (re-exported)
-    CollisionMark,
-    StepClearance,
-    find_collisions,
-    step_clearance,
-)
+from agents.evaluation.contacts import find_collisions
 from agents.evaluation.evaluate import EpisodeRecord, Trajectory
 from agents.evaluation.summary import RISK_ORDER, SummaryRow, short_name
 from filters.errors import InvalidArrayError, InvalidParameterError
@@ -93,8 +88,9 @@ def plot_trajectories(
     ``bounds`` ``((x_min, y_min), (x_max, y_max))`` in m; default: the paths, the
     discs and the goal with a 0.5 m margin. The discs (ego in the risk's colour,
     obstacles in black) are drawn to scale at every ``every``-th sample and at the end.
-    Each first contact with an obstacle (:func:`find_collisions`) is marked with an
-    ``x`` at the ego's centre, both discs drawn at that instant with a thick outline,
+    Each first contact with an obstacle
+    (:func:`agents.evaluation.contacts.find_collisions`) is marked with an ``x`` at the
+    ego's centre, both discs drawn at that instant with a thick outline,
     and the contact time.
     """
     if every < 1:
