@@ -277,7 +277,8 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--planners", choices=list(PLANNERS), nargs="+",
                           default=list(DEFAULT_PLANNERS),
                           help="--suite stress: the reference planners (goal: the "
-                          "obstacle-blind go-to-goal controller)")
+                          "obstacle-blind go-to-goal controller; --planner mpc or goal "
+                          "alone replaces them)")
 
     reproduce = sub.add_parser("reproduce", help="reproduce the paper's figures and tables",
                                **_FORMAT)
@@ -482,8 +483,9 @@ def _evaluate_on(args: argparse.Namespace, executor: Any) -> int:
         output = args.output if args.output != Path("results/evaluate") else Path(
             "results/stress")
         common.pop("noise")
-        common.pop("planner")  # --planners
-        outputs = run_stress(output, args.cases, args.methods, planners=args.planners,
+        planner = common.pop("planner")  # one --planner other than ppo replaces --planners
+        planners = args.planners if planner == "ppo" else [planner]
+        outputs = run_stress(output, args.cases, args.methods, planners=planners,
                              delta=args.delta, epsilon=args.epsilon, plots=not args.no_plots,
                              **common)
     elif args.suite in ("crowd", "pedestrians"):
