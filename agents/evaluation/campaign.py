@@ -106,7 +106,9 @@ def describe_run(records: Sequence[EpisodeRecord], *, planner: str, reference: s
         for path, sha in policies or [("", "")]:
             lines.append(f"- policy: `{policy_file(path)}` (SHA-256 `{sha or 'unknown'}`)")
     else:
-        lines.append("- planner: the obstacle-agnostic MPC (no policy file)")
+        blind = "obstacle-blind go-to-goal controller" if planner == "goal" else (
+            "obstacle-agnostic MPC")
+        lines.append(f"- planner: the {blind} (no policy file)")
     lines.append(f"- planner `{planner}`, reference `{reference}`, {settings}")
     options = sorted({(r.filter_options, r.env_options) for r in records})
     for filter_options, env_options in options:

@@ -161,6 +161,10 @@ def _load_planner(spec: EpisodeSpec, env: Any) -> tuple[Any, str]:
         from agents.planners import MPCReferencePlanner
 
         return MPCReferencePlanner.from_env(env), ""
+    if spec.planner == "goal":
+        from agents.policies.go_to_goal import GoToGoalPolicy
+
+        return GoToGoalPolicy.from_env(env), ""
     return load_policy(spec.policy_path, sha256=spec.policy_sha256)
 
 
@@ -218,7 +222,7 @@ def make_env(spec: EpisodeSpec, *, render_mode: str | None = None, policy: Any =
             is_normalised_policy,
         )
 
-        normalised = spec.planner != "mpc" and is_normalised_policy(planner, env.action_space)
+        normalised = spec.planner == "ppo" and is_normalised_policy(planner, env.action_space)
         if spec.planner == "mpc":
             filter_kwargs["reference"] = planner
         elif spec.reference == "rollout":
@@ -257,7 +261,8 @@ def _reusable_env(spec: EpisodeSpec, sha: str) -> tuple[EpisodeSpec | None, Any,
     cache key (``None`` if the environment is not reusable, see :func:`_resets_fully`),
     the environment and the planner.
     """
-    load_policy(spec.policy_path, sha256=spec.policy_sha256)  # cached; raises if changed
+    if spec.planner == "ppo":
+        load_policy(spec.policy_path, sha256=spec.policy_sha256)  # cached; raises if changed
     key = dataclasses.replace(spec, seed=0, policy_sha256=sha)
     if key in _ENV_CACHE:
         _ENV_CACHE.move_to_end(key)
@@ -332,7 +337,7 @@ def run_episode(
     recorder = None
     sha = ""
     reuse = (reuse_env and policy is None and env_kwargs is None and not render
-             and spec.planner == "ppo")
+             and spec.planner in ("ppo", "goal"))  # stateless planners
     cache_key = None
     try:
         if policy is None and spec.planner == "ppo":
@@ -506,6 +511,19 @@ class EpisodeStats:
         """Why the first continuous-time collision happened (see :class:`EpisodeRecord`)."""
         return collision_cause(self.collisions, self.sampled_collisions, self.status_list)
 
+    def infeasibility(self) -> dict[str, Any]:
+        """First infeasible step and the statuses around the first collision (see
+        :class:`EpisodeRecord`)."""
+        first = next((i + 1 for i, status in enumerate(self.status_list)
+                      if status in FALLBACK_STATUSES), 0)
+        before = at = ""
+        if any(self.collisions):
+            k = self.collisions.index(True)  # 0-based index of the first colliding step
+            at = self.status_list[k] if k < len(self.status_list) else ""
+            before = self.status_list[k - 1] if 0 < k <= len(self.status_list) else ""
+        return dict(first_infeasible_step=first, status_before_collision=before,
+                    status_at_collision=at)
+
     def summary(self) -> dict[str, Any]:
         """The record's columns that describe what happened."""
         counts = Counter(self.status_list)
@@ -520,6 +538,7 @@ class EpisodeStats:
             collision_steps=sum(self.collisions),
             first_collision_step=self.collisions.index(True) + 1 if any(self.collisions) else 0,
             collision_cause=self.collision_cause(),
+            **self.infeasibility(),
             sampled_collision=any(self.sampled_collisions),
             sampled_collision_steps=sum(self.sampled_collisions),
             min_distance=self.min_distance if math.isfinite(self.min_distance) else math.nan,

@@ -116,8 +116,9 @@ def test_settings_that_would_be_silently_ignored_are_refused():
     with pytest.raises(InvalidParameterError, match="'Custom' only"):  # would replace HeadOn
         EpisodeSpec("HeadOn", "none", 0, env_options={"scenario": "Overtaking"})
     assert EpisodeSpec("Custom", "none", 0, env_options={"scenario": "Overtaking"})
-    with pytest.raises(InvalidParameterError, match="planner 'mpc'.*uses no policy file"):
-        EpisodeSpec("HeadOn", "none", 0, planner="mpc", policy_path="policy.zip")
+    for planner in ("mpc", "goal"):
+        with pytest.raises(InvalidParameterError, match=f"planner '{planner}'.*uses no policy"):
+            EpisodeSpec("HeadOn", "none", 0, planner=planner, policy_path="policy.zip")
 
 
 def test_scenario_spellings_become_the_canonical_name():
@@ -196,6 +197,22 @@ def test_collision_cause(steps, cause):
     assert summary["sampled_collision"] == any(s[2] for s in steps)
     first = next((i + 1 for i, s in enumerate(steps) if s[1]), 0)
     assert summary["first_collision_step"] == first
+
+
+@pytest.mark.parametrize(("steps", "explained"), [
+    ([("optimal", False, False)] * 3, (0, "", "")),
+    # Infeasible at step 3 (soft), collision at step 5: the statuses before and at it.
+    ([("optimal", False, False)] * 2 + [("soft", False, False), ("recovery", False, False),
+                                        ("soft", True, True)], (3, "recovery", "soft")),
+    # A collision in step 1 has no status before it.
+    ([("optimal", True, True), ("brake", False, False)], (2, "", "optimal")),
+    ([("passthrough", False, False), ("passthrough", True, False)],
+     (0, "passthrough", "passthrough")),
+])
+def test_first_infeasible_step_and_statuses_around_the_collision(steps, explained):
+    summary = _stats(steps).summary()
+    assert (summary["first_infeasible_step"], summary["status_before_collision"],
+            summary["status_at_collision"]) == explained
 
 
 def test_status_shares_and_the_first_error_reason():
