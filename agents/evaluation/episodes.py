@@ -288,6 +288,9 @@ class EpisodeRecord:
     status_before_collision, status_at_collision
         For a collided episode, the filter status at the step before the first
         collision (empty if the collision is in step 1) and at that step; else empty.
+    standing_collision
+        Whether the first collision happened with the ego standing still (speed below
+        0.1 m/s over the whole step): on recorded data, someone walked into it.
     sampled_collision, sampled_collision_steps
         The same at the sample instants only.
     min_distance, min_swept_distance
@@ -345,6 +348,7 @@ class EpisodeRecord:
     first_infeasible_step: int = 0
     status_before_collision: str = ""
     status_at_collision: str = ""
+    standing_collision: bool = False
     sampled_collision: bool = False
     sampled_collision_steps: int = 0
     min_distance: float = math.nan

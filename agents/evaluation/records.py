@@ -101,6 +101,8 @@ COLUMN_DOCS: dict[str, tuple[str, str]] = {
                                     "(empty without a collision or if it is in step 1)"),
     "status_at_collision": ("", "Filter status at the first colliding step (empty without "
                                 "a collision)"),
+    "standing_collision": ("bool", "Whether the first collision happened with the ego standing "
+                                   "still (speed below 0.1 m/s over the whole step)"),
     "sampled_collision": ("bool", "Whether the ego collided at the sample instants (the "
                                   "paper's statistic)"),
     "sampled_collision_steps": ("steps", "Steps with a collision at the sample instants"),

@@ -42,6 +42,10 @@ __all__ = ["EpisodeStats", "Trajectory", "TrajectoryRecorder", "check_policy",
 FALLBACK_WINDOW = 2
 """A collision is blamed on a fallback if one ran this many steps before it, or at it."""
 
+STANDING_SPEED = 0.1
+"""Ego speed (m/s) below which a collision counts as one with the ego standing still
+(``standing_collision``): someone walked into a robot that was not moving."""
+
 
 def collision_cause(collisions: Sequence[bool], sampled_collisions: Sequence[bool],
                     statuses: Sequence[str]) -> str:
@@ -406,6 +410,12 @@ def _policy_name(spec: EpisodeSpec, policy: Any) -> str:
     return str(policy_file(spec.policy_path))
 
 
+def _obstacle_ids(base: Any) -> np.ndarray | None:
+    """The environment's obstacle identity per row (``obstacle_ids``), or ``None``."""
+    ids = getattr(base, "obstacle_ids", None)
+    return None if ids is None else np.array(ids, dtype=np.int64)
+
+
 def run_spec(spec: EpisodeSpec) -> EpisodeRecord:
     """The record of one episode (what the executors run in their workers)."""
     return run_episode(spec)[0]
@@ -427,6 +437,9 @@ class EpisodeStats:
         self.status_list: list[str] = []
         self.collisions: list[bool] = []
         self.sampled_collisions: list[bool] = []
+        self.standing_collision = False
+        self._speed = 0.0
+        self._ids: np.ndarray | None = None
         self.first_error = ""
         self.episode_return = 0.0
         self.dt = DT
@@ -439,6 +452,8 @@ class EpisodeStats:
         self.dt = float(base.dt)
         self.intersample = intersample
         self._position = np.asarray(base.ego_state[:2], dtype=float).copy()
+        self._speed = float(np.linalg.norm(np.asarray(base.ego_state, dtype=float)[2:4]))
+        self._ids = _obstacle_ids(base)
         self._distance(info)
 
     def _distance(self, info: dict[str, Any]) -> None:
@@ -456,6 +471,12 @@ class EpisodeStats:
         self.episode_return += float(reward)
         self._distance(info)
         collision = bool(info.get("collision", False))
+        # The ego's velocity is linear in time over a step (constant input), so its speed
+        # stays below the larger of the two ends: standing throughout when both are.
+        speed = float(np.linalg.norm(np.asarray(base.ego_state, dtype=float)[2:4]))
+        if collision and not any(self.collisions):
+            self.standing_collision = max(self._speed, speed) < STANDING_SPEED
+        self._speed = speed
         self.collisions.append(collision)
         # Before the continuous-time environment, "collision" was the sampled flag.
         self.sampled_collisions.append(bool(info.get("sampled_collision", collision)))
@@ -472,9 +493,10 @@ class EpisodeStats:
             self.first_error = f"step {self.steps}: {reason}".replace("\n", " ")[:300]
         self.interventions.append(float(report["intervention"]))
         self.filter_times.append(float(report["filter_time"]))
-        self._audit(base, report)
+        ids, self._ids = self._ids, _obstacle_ids(base)
+        self._audit(base, report, ids)
 
-    def _audit(self, base: Any, report: Any) -> None:
+    def _audit(self, base: Any, report: Any, ids: np.ndarray | None = None) -> None:
         """The realised losses of the step's active first-step halfspaces.
 
         See :mod:`agents.evaluation.audit`.
@@ -482,7 +504,11 @@ class EpisodeStats:
         ``base`` has already stepped: its obstacle positions are the realised ones at the
         step the halfspaces' ``k = 1`` predicted. Steps without halfspaces or a plan
         (pass-through, status ``"error"``) are not audited, nor are steps with
-        non-finite data (which the filter reports as ``"error"`` anyway).
+        non-finite data (which the filter reports as ``"error"`` anyway). Where the
+        environment names the obstacle in each row (``obstacle_ids``: the slots of
+        ``SafeNav/Pedestrians-v0``), ``ids`` are those before the step: a row is audited
+        only if it held the same obstacle before and after (not an empty slot, not one
+        that passed to another pedestrian).
         """
         names = report.keys()
         if not all(name in names for name in ("normals", "offsets", "planned_states")):
@@ -504,6 +530,10 @@ class EpisodeStats:
             return
         margins = arc_margin(h, base.input_bounds, float(base.dt)) if self.intersample else 0.0
         active, losses = first_step_losses(h, b, y1, realised, radii, margins=margins)
+        now = _obstacle_ids(base)
+        if ids is not None and now is not None:
+            same = (ids[: len(h)] >= 0) & (ids[: len(h)] == now[: len(h)])
+            active, losses = active[same], losses[same]
         self.audit.extend(float(v) for v in losses[active])
         self.audit_all.extend(float(v) for v in losses)
 
@@ -539,6 +569,7 @@ class EpisodeStats:
             first_collision_step=self.collisions.index(True) + 1 if any(self.collisions) else 0,
             collision_cause=self.collision_cause(),
             **self.infeasibility(),
+            standing_collision=self.standing_collision,
             sampled_collision=any(self.sampled_collisions),
             sampled_collision_steps=sum(self.sampled_collisions),
             min_distance=self.min_distance if math.isfinite(self.min_distance) else math.nan,

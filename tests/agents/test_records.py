@@ -227,3 +227,25 @@ def test_status_shares_and_the_first_error_reason():
     assert summary["first_error"] == "step 8: NaN action"
     assert summary["fallback_steps"] == 5  # every step whose constraints did not all hold
     assert summary["min_swept_distance"] == pytest.approx(0.4)
+
+
+@pytest.mark.parametrize(("speeds", "standing"), [
+    # Speed at the start of each step, then at its end: the collision is in the last step.
+    ([0.0, 0.0, 0.05], True),    # below 0.1 m/s at both ends of the colliding step
+    ([0.0, 0.5, 0.0], False),    # braked to rest during the colliding step: it moved
+    ([0.0, 0.0, 0.1], False),    # 0.1 m/s is moving
+    ([0.3, 0.0, 0.0], True),     # stopped before the colliding step
+])
+def test_standing_collision_flags_a_collision_with_the_ego_at_rest(speeds, standing):
+    class Base(_Base):
+        ego_state = np.array([0.0, 0.0, speeds[0], 0.0])
+
+    base = Base()
+    stats = EpisodeStats()
+    stats.start(base, {})
+    for i, speed in enumerate(speeds[1:]):
+        base.ego_state = np.array([0.0, 0.0, 0.0, speed])
+        stats.step(base, 0.0, _info("optimal", i == len(speeds) - 2, False))
+    assert stats.summary()["standing_collision"] is standing
+    # No collision: never standing_collision.
+    assert _stats([("optimal", False, False)] * 2).summary()["standing_collision"] is False
