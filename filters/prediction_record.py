@@ -192,6 +192,8 @@ class PredictionRecord:
                         continue
                     now = positions[current]
             predicted = old[rows, :, k - 1]  # (n_obs, N_s, d)
+            if predicted.shape[0] == 0:  # nobody to score (every row empty)
+                continue
             mean = predicted.mean(axis=1)
             errors = now - mean
             scores = np.sqrt((errors * errors).sum(axis=-1))

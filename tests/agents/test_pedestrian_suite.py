@@ -35,3 +35,11 @@ def test_the_cli_runs_the_suite_with_its_scenes(tmp_path, capsys):
     assert code == 0
     summary = (tmp_path / "summary.md").read_text()  # two scenes in one run
     assert "| hotel | none | 1 |" in summary and "| eth | none | 1 |" in summary
+
+
+def test_the_calibrated_filter_runs_on_a_scene_with_empty_slots(tmp_path):
+    # eth has moments with nobody near the ego: the calibration (held-out episodes,
+    # then the run) must score only the pedestrians present, by identity.
+    outputs = run_pedestrians(tmp_path, ["eth"], ["conformal"], episodes=2, workers=1,
+                              planner="mpc", progress=False)
+    assert [r.error for r in outputs.records] == ["", ""]

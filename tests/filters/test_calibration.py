@@ -134,6 +134,10 @@ def test_record_ids_are_validated():
     record.update(np.zeros((2, 3, 2, 2)), np.zeros((2, 2)), ids=np.array([-1, 7]))
     (k1,) = record.update(np.ones((3, 3, 2, 2)), np.zeros((3, 2)), ids=np.array([3, 7, 9]))
     assert k1.ids.tolist() == [7] and k1.errors.shape == (1, 2)
+    # Every row empty at both steps: nothing to score, no empty realisation.
+    empty = PredictionRecord(horizon=2)
+    for _ in range(3):
+        assert empty.update(np.zeros((2, 3, 2, 2)), np.zeros((2, 2)), ids=[-1, -1]) == ()
 
 
 # --------------------------------------------------------------------------- conformal
