@@ -137,18 +137,23 @@ class OnlineCalibration:
         return copy.deepcopy(self, shared)
 
     def update(
-        self, samples: object, realised_positions: object, present: object | None = None
+        self, samples: object, realised_positions: object, present: object | None = None,
+        ids: object | None = None,
     ) -> tuple[Realisation, ...]:
         """Record this step (see :meth:`PredictionRecord.update`) and update both estimators.
 
         ``present`` is an optional boolean mask ``(n_rows,)`` selecting the real
-        obstacles of padded arrays (``info["obstacle_present"]``).
+        obstacles of padded arrays (``info["obstacle_present"]``). ``ids`` (one integer
+        per row, negative for an empty row) makes each prediction meet the realised
+        position of its own obstacle when rows change hands (the slots of
+        ``SafeNav/Pedestrians-v0``, ``env.unwrapped.obstacle_ids``).
         """
         if present is not None:
             mask = np.asarray(present, dtype=bool)
             samples = np.asarray(samples)[mask]
             realised_positions = np.asarray(realised_positions)[mask]
-        realised = self.record.update(samples, realised_positions)
+            ids = None if ids is None else np.asarray(ids)[mask]
+        realised = self.record.update(samples, realised_positions, ids)
         self.conformal.update(realised)
         if self.adaptive is None:
             self.wasserstein.update(realised)

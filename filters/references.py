@@ -42,21 +42,6 @@ class Policy(Protocol):
     ) -> tuple[np.ndarray, Any]: ...
 
 
-def rollout(A: np.ndarray, B: np.ndarray, x0: np.ndarray, inputs: np.ndarray) -> np.ndarray:
-    """States of ``x_{k+1} = A x_k + B u_k`` from ``x0`` under ``inputs`` (T, m).
-
-    Returns
-    -------
-    numpy.ndarray
-        Shape ``(T+1, n)``, row 0 is ``x0``.
-    """
-    states = np.empty((inputs.shape[0] + 1, x0.shape[0]))
-    states[0] = x0
-    for k, u in enumerate(inputs):
-        states[k + 1] = A @ states[k] + B @ u
-    return states
-
-
 def hold_action_reference(
     env: FilterableEnv, action: np.ndarray, horizon: int
 ) -> tuple[np.ndarray, np.ndarray]:

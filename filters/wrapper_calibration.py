@@ -108,11 +108,17 @@ class CalibrationMixin:
     :class:`filters.wrapper.SafetyFilterWrapper`, whose attributes they use)."""
 
     def _calibrate(self) -> None:
-        """Score the realised obstacle positions against the predictions issued for now."""
+        """Score the realised obstacle positions against the predictions issued for now.
+
+        An environment whose obstacle rows change hands names the obstacle in each row
+        (``obstacle_ids``, negative for an empty row): each prediction is then scored
+        against its own obstacle's position only.
+        """
         base = self._base
         predictions = np.asarray(base.predictions, dtype=float)[:, :, : self.horizon]
         if np.all(np.isfinite(predictions)):
-            self._calibration.update(predictions, np.asarray(base.obstacle_positions))
+            self._calibration.update(predictions, np.asarray(base.obstacle_positions),
+                                     ids=getattr(base, "obstacle_ids", None))
 
     def _warm_up_calibration(self) -> None:
         """Feed ``calibration_episodes`` held-out braking episodes to the calibration.

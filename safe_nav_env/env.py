@@ -10,6 +10,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from safe_nav_env.actuation import Actuation, resolve_actuation
 from safe_nav_env.collision import swept_clearance
 from safe_nav_env.constants import DT, HORIZON, MAX_ACCELERATION
 from safe_nav_env.dynamics import double_integrator
@@ -166,6 +167,9 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         goal from the states a safety filter leads it into. ``None`` (default) or ``0``:
         the scenario's start, always; a probability in (0, 1]; a mapping of
         :class:`~safe_nav_env.starts.RandomStart` fields; or a ``RandomStart``.
+    actuator_lag, drag
+        Ego actuation the filter does not model (:mod:`safe_nav_env.actuation`): actuator
+        time constant ``τ`` in s, linear drag ``c`` in 1/s (>= 0; default 0: off).
 
     Raises
     ------
@@ -197,6 +201,8 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         pad_info: bool | None = None,
         predictor: Predictor | str | None = None,
         random_start: RandomStart | float | Mapping[str, Any] | None = None,
+        actuator_lag: float = 0.0,
+        drag: float = 0.0,
     ) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ConfigError(
@@ -230,15 +236,14 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         )
         self.predictor: Predictor | None = resolve_predictor(predictor)
         self.random_start: RandomStart | None = resolve_random_start(random_start)
+        self.actuation: Actuation | None = resolve_actuation(actuator_lag, drag, self.dt)
         self._history: list[np.ndarray] = []
 
         # What a safety filter reads (filters.protocol.FilterableEnv).
         self.dynamics: tuple[np.ndarray, np.ndarray, np.ndarray] = double_integrator(self.dt)
         bound = np.full(2, self.max_acceleration)
-        self.input_bounds: tuple[np.ndarray, np.ndarray] = (
-            _read_only(-bound),
-            _read_only(bound.copy()),
-        )
+        self.input_bounds: tuple[np.ndarray, np.ndarray] = (_read_only(-bound),
+                                                           _read_only(bound.copy()))
         self.render_hooks: list[Callable[[Any], None]] = []
 
         self.action_space = spaces.Box(-self.max_acceleration, self.max_acceleration, (2,),
@@ -288,10 +293,8 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         arena = np.array(scenario.arena, dtype=np.float64)
         self._arena = scenario.arena
         self._goal = scenario.goal
-        self.position_bounds: tuple[np.ndarray, np.ndarray] = (
-            _read_only(arena[0]),
-            _read_only(arena[1]),
-        )
+        self.position_bounds: tuple[np.ndarray, np.ndarray] = (_read_only(arena[0]),
+                                                              _read_only(arena[1]))
         self.ego_state: np.ndarray = _read_only(np.array(scenario.ego_start, dtype=np.float64))
         self.obstacle_positions: np.ndarray = _read_only(self._model.starts.copy())
         self.obstacle_velocities: np.ndarray = _read_only(self._model.initial_velocities.copy())
@@ -322,7 +325,8 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
     ) -> np.ndarray:
         """Observation the agent would receive in the given (hypothetical) situation.
 
-        Uses the current goal; does not touch the environment's state.
+        Uses the current goal; does not touch the environment's state. Returns the
+        float32 vector laid out as in the class docstring.
 
         Parameters
         ----------
@@ -330,11 +334,6 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
             ``[p_x, p_y, v_x, v_y]``, shape ``(4,)``.
         obstacle_positions, obstacle_velocities
             Shape ``(n, 2)`` each, in m and m/s; ``n`` may differ from the scenario's.
-
-        Returns
-        -------
-        numpy.ndarray
-            Float32 vector laid out as in the class docstring.
         """
         x = np.asarray(ego_state, dtype=np.float64)
         positions = np.asarray(obstacle_positions, dtype=np.float64)
@@ -527,6 +526,8 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         half_dt2 = 0.5 * dt * dt
         start = self.ego_state.tolist()
         px, py, vx, vy = start
+        if self.actuation is not None:  # lag and drag: the acceleration really held
+            ux, uy = self.actuation.apply(ux, uy, vx, vy, first=self.step_count == 0)
         # x_{t+1} = A x_t + B u_t: p + T_s v + T_s²/2 u, v + T_s u.
         px, py = px + dt * vx + half_dt2 * ux, py + dt * vy + half_dt2 * uy
         vx, vy = vx + dt * ux, vy + dt * uy

@@ -102,7 +102,10 @@ class PedestrianEnv(SafeNavEnv):
       :mod:`safe_nav_env.pedestrians.residuals`. ``obstacle_velocities`` are the
       predictor's velocity estimates (past only).
     * **Extra info**: ``obstacle_present`` (K,), ``pedestrian_index`` (K,) (index in
-      :attr:`recording`, -1 for an absent slot), ``recording_step``, ``scene``.
+      :attr:`recording`, -1 for an absent slot), ``recording_step``, ``scene``. The same
+      indices are :attr:`obstacle_ids` on ``env.unwrapped``: a safety filter's online
+      calibration pairs each prediction with its own pedestrian's realised position
+      through them, also when a slot passes to another pedestrian.
 
     Parameters
     ----------
@@ -280,6 +283,17 @@ class PedestrianEnv(SafeNavEnv):
             )
         self._start_step = None if start_step is None else int(start_step)
         return super().reset(seed=seed, options=options or None)
+
+    @property
+    def obstacle_ids(self) -> np.ndarray | None:
+        """The pedestrian in each slot (index in :attr:`recording`; -1: absent), ``(K,)``.
+
+        ``None`` before the first reset. Read by
+        :meth:`filters.calibration.OnlineCalibration.update` (``ids=``).
+        """
+        if self._model is not self._replay:
+            return None
+        return _read_only(self._replay.slots.copy())
 
     # ---------------------------------------------------- observation and info
 

@@ -165,7 +165,7 @@ def test_unsupported_policies_are_refused():
 
 
 def test_benchmark_numpy_policy_reports_medians_and_agreement():
-    from agents.policies.numpy_policy import benchmark_numpy_policy
+    from benchmarks.policy import benchmark_numpy_policy
 
     timing = benchmark_numpy_policy(calls=40, batch=8, seed=1)
     assert timing.calls == 40 and timing.batch == 8
@@ -176,7 +176,7 @@ def test_benchmark_numpy_policy_reports_medians_and_agreement():
 
 
 def test_rollout_reference_timing_covers_every_path():
-    from benchmarks.suite import benchmark_rollout_reference, format_rollout_reference
+    from benchmarks.policy import benchmark_rollout_reference, format_rollout_reference
 
     medians = benchmark_rollout_reference(horizon=5, steps=4)
     assert set(medians) == {"sb3", "numpy", "hold"}
