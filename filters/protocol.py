@@ -49,6 +49,10 @@ class FilterableEnv(Protocol):
     render_hooks
         Callables ``hook(ax)`` that the renderer calls with the matplotlib axes
         after drawing the scene, so a wrapper can draw its halfspaces.
+
+    Optional: ``max_speed``, the ego's speed limit ``||v||_2 <= max_speed`` in m/s
+    (the velocity is the state's second half), which the filter then keeps; ``inf`` or
+    absent: none.
     """
 
     dt: float

@@ -152,7 +152,7 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         Bound of each action component, in m/s² (default 10).
     max_speed
         Speed limit ``v_max`` of the ego, in m/s, ``> 0`` (default
-        :data:`~safe_nav_env.constants.MAX_SPEED`, 3 m/s); ``inf`` switches it off. A
+        :data:`~safe_nav_env.constants.MAX_SPEED`, 3 m/s); ``inf`` or ``None`` switch it off. A
         scenario whose ego starts faster is refused at :meth:`reset`.
     max_obstacles
         Obstacle slots in the observation (default 4).
@@ -199,7 +199,7 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         episode_length: float | None = None,
         dt: float = DT,
         max_acceleration: float = MAX_ACCELERATION,
-        max_speed: float = MAX_SPEED,
+        max_speed: float | None = MAX_SPEED,
         max_obstacles: int = 4,
         progress_weight: float = 1.0,
         arrival_bonus: float = 10.0,

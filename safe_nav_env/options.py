@@ -32,14 +32,16 @@ def _option(
 
 
 def _speed_option(value: Any) -> float:
-    """Validate ``max_speed`` (m/s): a number ``> 0``, ``inf`` for no speed limit."""
-    if not isinstance(value, bool) and isinstance(value, int | float | np.integer | np.floating) \
-            and value == math.inf:
+    """Validate ``max_speed`` (m/s): a number ``> 0``; ``inf`` or ``None`` (JSON's
+    ``null``, for the command line) for no speed limit."""
+    if value is None or (not isinstance(value, bool) and value == math.inf
+                         and isinstance(value, int | float | np.integer | np.floating)):
         return math.inf
     try:
         return _option("max_speed", value, strict=True)
     except ConfigError:
-        raise ConfigError(f"max_speed must be a number > 0 (in m/s) or inf (no speed limit), "
+        raise ConfigError(f"max_speed must be a number > 0 (in m/s), or inf or None (no speed "
+                          f"limit), "
                           f"got {value!r}") from None
 
 
