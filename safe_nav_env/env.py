@@ -124,8 +124,8 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
     protocol, on ``env.unwrapped``): :attr:`dt`, :attr:`dynamics`, :attr:`ego_state`,
     :attr:`ego_radius`, :attr:`obstacle_radii`, :attr:`obstacle_positions`,
     :attr:`obstacle_velocities`, :attr:`predictions`, :attr:`input_bounds`,
-    :attr:`position_bounds`, :attr:`goal`, :attr:`render_hooks` and :meth:`observe`; and
-    :attr:`max_speed`, which the wrapper passes to the filter as its speed limit.
+    :attr:`position_bounds`, :attr:`goal`, :attr:`render_hooks`, :meth:`observe`; and
+    :attr:`max_speed` and :meth:`applied_input`, for the filter's speed limit.
     They describe the current episode once :meth:`reset` has been called.
 
     Parameters
@@ -566,6 +566,11 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
                 self.render()
         obs = self._observe(self.ego_state, delta, self.obstacle_velocities, centre)
         return obs, reward, bool(terminated), bool(truncated), info
+
+    def applied_input(self, state: np.ndarray, action: np.ndarray) -> np.ndarray:
+        """The input applied for ``action`` at ``state`` (the box, then the speed limit)."""
+        return np.array(applied_acceleration((state[2], state[3]), (action[0], action[1]),
+                                             self.dt, self.max_acceleration, self.max_speed))
 
     def render(self) -> np.ndarray | None:
         """Draw the scene with matplotlib (imported here, not at package import).

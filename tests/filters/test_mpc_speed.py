@@ -206,3 +206,28 @@ def test_the_recovery_takes_the_least_violation_then_the_lowest_speed():
         ours = float(np.sum(result.states[1:, 2:] ** 2) + 1e-2 * np.sum(result.inputs ** 2))
         assert ours <= slowest.value + 1e-3 * (1.0 + slowest.value)
         assert np.all(_speeds(result.states[1:]) <= problem.max_speed + 1e-6)
+
+
+def test_the_references_are_rolled_out_under_the_env_speed_limit():
+    """The held-action and policy roll-out references apply the environment's own input
+    (``applied_input``): the held action's reference is the ego's motion when the env is
+    stepped with that action."""
+    from filters.references import PolicyRolloutReference, hold_action_reference
+
+    env = gym.make("SafeNav/HeadOn-v0", max_speed=2.0)
+    env.reset(seed=0)
+    base = env.unwrapped
+    action = np.array([10.0, 4.0])
+    states, inputs = hold_action_reference(base, action, 6)
+    for k in range(6):
+        np.testing.assert_allclose(base.ego_state, states[k], rtol=0, atol=1e-12)
+        *_, info = env.step(action)
+        np.testing.assert_allclose(info["acceleration"], inputs[k], rtol=0, atol=1e-12)
+    assert np.max(_speeds(states)) <= 2.0 + 1e-12
+
+    class Push:
+        def predict(self, observation, deterministic=True):
+            return np.array([10.0, -10.0]), None
+
+    states, _ = PolicyRolloutReference(Push())(base, action, 10)
+    assert np.max(_speeds(states)) <= 2.0 + 1e-12
