@@ -46,7 +46,7 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
     **Action**: the acceleration ``u`` in m/s², a float32
     ``Box(-max_acceleration, max_acceleration, (2,))`` (default ±10 m/s² per axis,
     ample for the paper's manoeuvres). Actions outside the box are clipped. **Speed
-    limit** ``||v||_2 <= max_speed`` (3 m/s): an action whose next velocity leaves that
+    limit** ``||v||_2 <= max_speed`` (5 m/s): an action whose next velocity leaves that
     disc is replaced by the closest one that keeps it (the velocity projected onto the
     disc, within the box: :func:`~safe_nav_env.dynamics.applied_acceleration`).
 
@@ -152,7 +152,7 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         Bound of each action component, in m/s² (default 10).
     max_speed
         Speed limit ``v_max`` of the ego, in m/s, ``> 0`` (default
-        :data:`~safe_nav_env.constants.MAX_SPEED`, 3 m/s); ``inf`` or ``None`` switch it off. A
+        :data:`~safe_nav_env.constants.MAX_SPEED`, 5 m/s); ``inf`` or ``None`` switch it off. A
         scenario whose ego starts faster is refused at :meth:`reset`.
     max_obstacles
         Obstacle slots in the observation (default 4).
