@@ -50,6 +50,9 @@ def hold_action_reference(
     .. math:: u^r_k = \\operatorname{clip}(a, u_{min}, u_{max}),\\quad
               x^r_{k+1} = A x^r_k + B u^r_k,\\quad x^r_0 = x_t.
 
+    With an environment that has ``applied_input`` (a speed limit), :math:`u^r_k` is the
+    input the environment would apply for the clipped action at :math:`x^r_k`.
+
     A NaN entry of ``action`` stays NaN (``np.clip``'s result).
 
     Returns
@@ -85,6 +88,12 @@ def hold_action_reference(
     inputs[:] = u
     states = np.empty((int(horizon) + 1, n))
     states[0] = x0
+    apply = getattr(env, "applied_input", None)  # the speed limit, if the env has one
+    if apply is not None and np.isfinite(u).all():
+        for k in range(int(horizon)):
+            inputs[k] = apply(states[k], u)
+            states[k + 1] = A @ states[k] + B @ inputs[k]
+        return states, inputs
     bu = B @ u
     for k in range(int(horizon)):
         states[k + 1] = A @ states[k] + bu
@@ -105,7 +114,8 @@ class PolicyRolloutReference:
     samples for look-ahead step :math:`k` (m), :math:`v` the obstacles' current
     velocities (m/s), ``observe`` the environment's own observation
     (:meth:`filters.protocol.FilterableEnv.observe`: the one definition) and ``clip``
-    the input box (m/s², a NaN stays NaN). The environment is not stepped.
+    the input box (m/s², a NaN stays NaN), then, if the environment has
+    ``applied_input``, its speed limit. The environment is not stepped.
 
     Parameters
     ----------
@@ -140,10 +150,13 @@ class PolicyRolloutReference:
         states[0] = env.ego_state
         inputs[0] = np.clip(action, low, high)
         observe, predict = env.observe, self.policy.predict
+        apply = getattr(env, "applied_input", None)  # the speed limit, if the env has one
         for k in range(horizon):
             if k > 0:
                 proposal, _ = predict(observe(states[k], predicted_means[:, k - 1], velocities),
                                       deterministic=True)
                 inputs[k] = np.clip(np.asarray(proposal, dtype=float).reshape(-1), low, high)
+            if apply is not None and np.isfinite(inputs[k]).all():
+                inputs[k] = apply(states[k], inputs[k])
             states[k + 1] = A @ states[k] + B @ inputs[k]
         return states, inputs

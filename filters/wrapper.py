@@ -152,9 +152,10 @@ class SafetyFilterWrapper(CalibrationMixin, HalfspaceRowsMixin, RenderHookMixin,
         flip; ``"nearside"`` while there is no optimal plan; see
         :func:`filters.normals.clearest_normals`).
     fallback
-        ``"soft"`` (default): when the hard QP is infeasible, the exact-penalty QP with
-        halfspace and arena rows softened (it equals the hard solution whenever that is
-        feasible), which brings the ego back towards safety and into the arena;
+        ``"soft"`` (default): when the hard QP is infeasible, the exact-penalty recovery
+        QP with the halfspace rows softened: the least violation, then the lowest speed
+        (it brakes; arena rows softened too only if they cannot hold, which brings the
+        ego back into the arena; :mod:`filters.mpc.recovery`);
         ``"paper"``: the paper's Remark, the last optimal plan shifted, then braking.
     terminal
         Add the terminal condition that the plan ends able to stop inside the arena
@@ -226,6 +227,11 @@ class SafetyFilterWrapper(CalibrationMixin, HalfspaceRowsMixin, RenderHookMixin,
 
     Notes
     -----
+    The speed limit is ``env.unwrapped.max_speed`` (m/s; ``inf`` or absent: none): every
+    QP keeps the plan's velocities in the polygon inscribed in the speed disc
+    (:class:`filters.mpc.MPCProblem`), so the environment's own limit never has to
+    change the filtered action.
+
     ``info["filter"]`` is a :class:`FilterReport`: the status, the proposed and the
     applied action, the intervention size, the timings, the slack and the halfspaces
     (safe side ``normals @ y <= offsets``). Statuses: ``"optimal"``; ``"soft"`` (some
@@ -422,6 +428,7 @@ class SafetyFilterWrapper(CalibrationMixin, HalfspaceRowsMixin, RenderHookMixin,
             n_obstacles=self.rows_per_obstacle * rows, soft=self.soft,
             objective=self.objective, later_input_weight=self.later_input_weight,
             terminal_set=terminal_set, fallback=self.fallback,
+            max_speed=float(getattr(base, "max_speed", np.inf)),
         )
 
     # ------------------------------------------------------------------ gym API

@@ -171,7 +171,8 @@ def encounter_spec(job: EncounterJob) -> EpisodeSpec:
         fallback=preset.fallback, objective="trajectory", normals="paper", intersample=False,
         terminal=False)
     env_options = dict(episode_length=paper_duration(job.scenario),
-                       max_acceleration=preset.max_acceleration)
+                       max_acceleration=preset.max_acceleration,
+                       max_speed=None)  # the paper's ego has no speed limit
     return EpisodeSpec(scenario=scenario_name(job.scenario, warn=False), risk=job.risk,
                        seed=int(job.seed), planner="mpc", alpha=preset.alpha,
                        delta=preset.delta_for(job.risk), epsilon=preset.epsilon,
