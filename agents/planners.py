@@ -58,7 +58,8 @@ class MPCReferencePlanner:
         + \sum_{t=1}^{T-1} (x_t - x_g)^\top Q (x_t - x_g)
         + (x_T - x_g)^\top Q_T (x_T - x_g)
 
-    subject to the ego dynamics and input and arena bounds, with
+    subject to the ego dynamics, input and arena bounds and the speed limit (the polygon
+    inscribed in :math:`\|v_t\| \le v_\max`, as in the safety filter), with
     :math:`x_g = [g, 0]` the goal position at rest. With
     ``convention="authors_code"`` (the authors' code, read as written):
 
@@ -88,12 +89,16 @@ class MPCReferencePlanner:
         Scalar weights (times identity) or matrices, read in ``convention``.
     convention
         ``"quadratic"`` or ``"authors_code"`` (see above).
+    max_speed
+        Speed limit in m/s kept on every planned step (``"quadratic"`` only; ``inf``,
+        the default: none).
 
     Raises
     ------
     InvalidParameterError
         If ``convention`` is unknown, the horizon is not a positive integer, or
-        ``position_bounds`` is given with ``convention="authors_code"``.
+        ``position_bounds`` or a finite ``max_speed`` is given with
+        ``convention="authors_code"``.
     InvalidArrayError
         If a weight or bound has the wrong shape or is not finite.
     """
@@ -109,6 +114,7 @@ class MPCReferencePlanner:
         Q_terminal: float | np.ndarray = 3.0,
         R: float | np.ndarray = 1.0,
         convention: str = "quadratic",
+        max_speed: float = np.inf,
     ) -> None:
         if convention not in CONVENTIONS:
             raise InvalidParameterError(
@@ -133,13 +139,14 @@ class MPCReferencePlanner:
             self._qp: MPCSafetyFilter | None = MPCSafetyFilter(
                 A, B, C, horizon=self.horizon, Q=weights[0], Q_terminal=weights[1],
                 R=weights[2], input_bounds=input_bounds, position_bounds=position_bounds,
-                n_obstacles=0,
+                n_obstacles=0, max_speed=max_speed,
             )
             return
-        if position_bounds is not None:
+        if position_bounds is not None or max_speed != np.inf:
             raise InvalidParameterError(
-                "position_bounds must be None with convention='authors_code' (the authors' "
-                f"planner has no position bound), got {position_bounds!r}")
+                "position_bounds must be None and max_speed inf with "
+                "convention='authors_code' (the authors' planner has neither bound), got "
+                f"position_bounds={position_bounds!r}, max_speed={max_speed!r}")
         self._qp = None
         low, high = (np.broadcast_to(np.asarray(b, dtype=float), (m,)) for b in input_bounds)
         if not (np.all(np.isfinite(low)) and np.all(np.isfinite(high)) and np.all(low <= high)):
@@ -152,13 +159,14 @@ class MPCReferencePlanner:
     def from_env(cls, env: Any, **kwargs: Any) -> MPCReferencePlanner:
         """Build the planner from a ``safe_nav_env`` environment (or any wrapper of one).
 
-        The input bounds are the environment's; the arena bounds the position in the
-        ``"quadratic"`` convention only.
+        The input bounds are the environment's; the arena and the speed limit
+        (``env.unwrapped.max_speed``) bound the plan in the ``"quadratic"`` convention only.
         """
         base: FilterableEnv = env.unwrapped
         kwargs.setdefault("horizon", 10)
         if kwargs.get("convention", "quadratic") == "quadratic":
             kwargs.setdefault("position_bounds", base.position_bounds)
+            kwargs.setdefault("max_speed", float(getattr(base, "max_speed", np.inf)))
         return cls(base.dynamics, input_bounds=base.input_bounds, **kwargs)
 
     def effective_weights(self) -> dict[str, np.ndarray]:

@@ -36,12 +36,15 @@ from __future__ import annotations
 
 import time
 from collections import Counter
-from dataclasses import asdict, dataclass, field
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
-from filters.mpc import FilterStatus, MPCSafetyFilter
+from filters.mpc import FilterResult, FilterStatus, MPCSafetyFilter
 from safe_nav_env.constants import ARENA_HALF_WIDTH, DT, EGO_RADIUS, EGO_START_SPEED
+from safe_nav_env.dynamics import double_integrator
 
 __all__ = ["FilterQPBenchmark", "benchmark_filter_qp", "format_filter_qp", "make_instances"]
 
@@ -50,15 +53,6 @@ SPEED = EGO_START_SPEED  # m/s, ego reference speed
 RADIUS = EGO_RADIUS  # m, ego and obstacle disc radii
 ARENA = ARENA_HALF_WIDTH  # m, arena [-5, 5]^2
 INPUT_LIMIT = 5.0  # m/s^2 per axis
-
-
-def double_integrator(ts: float = TS) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(A, B, C)`` of the planar double integrator with sampling time ``ts`` (s)."""
-    eye, zero = np.eye(2), np.zeros((2, 2))
-    A = np.block([[eye, ts * eye], [zero, eye]])
-    B = np.vstack([0.5 * ts**2 * eye, ts * eye])
-    C = np.hstack([eye, zero])
-    return A, B, C
 
 
 def filter_kwargs(horizon: int, n_obstacles: int) -> dict:
@@ -72,6 +66,72 @@ def filter_kwargs(horizon: int, n_obstacles: int) -> dict:
         "position_bounds": (-ARENA, ARENA),
         "n_obstacles": n_obstacles,
     }
+
+
+def straight_reference(
+    x: np.ndarray, lane: float, horizon: int, *, stop_x: float | None = None
+) -> np.ndarray:
+    """Reference (T+1, 4) at :data:`SPEED` along +x on the ego's lane; row 0 is ``x``.
+
+    With ``stop_x`` (m) the reference stops there (zero velocity from then on).
+    """
+    reference = np.empty((horizon + 1, 4))
+    reference[:, 0] = x[0] + SPEED * TS * np.arange(horizon + 1)
+    reference[:, 1] = lane
+    reference[:, 2:] = (SPEED, 0.0)
+    if stop_x is not None:
+        stopped = reference[:, 0] >= stop_x
+        reference[stopped, 0] = max(stop_x, x[0])
+        reference[stopped, 2] = 0.0
+    reference[0] = x
+    return reference
+
+
+def crossing_start(
+    rng: np.random.Generator, n_obstacles: int, area: tuple[float, float, float] = (-2.0, 3.0, 1.5)
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A crossing episode's start: ego state (4,), obstacle positions and velocities (n, 2).
+
+    The ego starts at x = -4.5 m at :data:`SPEED` along +x on a lane y ~ U(-1, 1) m; the
+    obstacles in ``[x_low, x_high] x [-y_half, y_half]`` (``area``, m) with speeds
+    U(0, 1) m/s in uniform directions.
+    """
+    x_low, x_high, y_half = area
+    x = np.array([-4.5, rng.uniform(-1.0, 1.0), SPEED, 0.0])
+    obstacles = np.column_stack(
+        [rng.uniform(x_low, x_high, n_obstacles), rng.uniform(-y_half, y_half, n_obstacles)]
+    )
+    speed = rng.uniform(0.0, 1.0, n_obstacles)
+    heading = rng.uniform(0.0, 2.0 * np.pi, n_obstacles)
+    velocities = speed[:, None] * np.column_stack([np.cos(heading), np.sin(heading)])
+    return x, obstacles, velocities
+
+
+def timed_solves(
+    mpc: Any, problems: Sequence[tuple[bool, np.ndarray, np.ndarray, Any, np.ndarray | None]]
+) -> tuple[list[float], list[FilterResult]]:
+    """Solve each ``(new_episode, x0, reference_states, halfspaces, reference_inputs)`` in turn.
+
+    ``mpc`` (an :class:`MPCSafetyFilter` or :class:`filters.CVXPYSafetyFilter`) is reset
+    at each new episode. Returns the wall time of each ``solve`` call in ms and the results.
+    """
+    times, results = [], []
+    for new_episode, x0, reference_states, halfspaces, reference_inputs in problems:
+        if new_episode:
+            mpc.reset()
+        begin = time.perf_counter()
+        results.append(mpc.solve(x0, reference_states, halfspaces,
+                                 reference_inputs=reference_inputs))
+        times.append(1e3 * (time.perf_counter() - begin))
+    return times, results
+
+
+def max_input_gap(first: Sequence[FilterResult], second: Sequence[FilterResult]) -> float:
+    """Largest ``|u_first - u_second|`` (m/s²) over the steps both solved optimally (NaN: none)."""
+    gaps = [float(np.max(np.abs(a.inputs - b.inputs)))
+            for a, b in zip(first, second, strict=True)
+            if a.status == b.status == FilterStatus.OPTIMAL]
+    return max(gaps, default=float("nan"))
 
 
 @dataclass(frozen=True)
@@ -101,7 +161,7 @@ def make_instances(
     n_steps: int, n_obstacles: int, horizon: int, rng: np.random.Generator
 ) -> list[Instance]:
     """Simulate crossing episodes with the fast filter in the loop; record each step's QP."""
-    A, B, C = double_integrator()
+    A, B, C = double_integrator(TS)
     mpc = MPCSafetyFilter(A, B, C, **filter_kwargs(horizon, n_obstacles))
     steps = np.arange(1, horizon + 1)[:, None] * TS  # (T, 1)
     instances: list[Instance] = []
@@ -109,21 +169,11 @@ def make_instances(
     while len(instances) < n_steps:
         if new_episode:
             mpc.reset()
-            x = np.array([-4.5, rng.uniform(-1.0, 1.0), SPEED, 0.0])
+            x, obstacles, velocities = crossing_start(rng, n_obstacles)
             lane = x[1]
-            obstacles = np.column_stack(
-                [rng.uniform(-2.0, 3.0, n_obstacles), rng.uniform(-1.5, 1.5, n_obstacles)]
-            )
-            speed = rng.uniform(0.0, 1.0, n_obstacles)
-            heading = rng.uniform(0.0, 2.0 * np.pi, n_obstacles)
-            velocities = speed[:, None] * np.column_stack([np.cos(heading), np.sin(heading)])
             margins = rng.uniform(0.0, 0.15, n_obstacles)
             step_in_episode = 0
-        reference = np.empty((horizon + 1, 4))
-        reference[:, 0] = x[0] + SPEED * TS * np.arange(horizon + 1)
-        reference[:, 1] = lane
-        reference[:, 2:] = (SPEED, 0.0)
-        reference[0] = x
+        reference = straight_reference(x, lane, horizon)
         predicted = obstacles[:, None, :] + velocities[:, None, :] * steps[None]
         normals, offsets = _halfspaces(reference[1:, :2], predicted, margins)
         instances.append(Instance(x.copy(), reference, normals, offsets, new_episode))
@@ -149,7 +199,7 @@ class FilterQPBenchmark:
     cvxpy_p90_ms: float
     cvxpy_compile_ms: float
     ratio: float  # cvxpy median / ours median, over the steps where ours solved a QP
-    max_input_difference: float  # over steps both solved, in m/s^2
+    max_input_difference: float  # over steps both solved optimally, in m/s^2 (NaN: none)
     statuses: dict[str, int] = field(default_factory=dict)  # ours
     agreement: float = 1.0  # share of steps where both gave the same status
     qp_steps: int = 0  # steps where ours solved at least one QP (the headline's steps)
@@ -161,10 +211,6 @@ class FilterQPBenchmark:
     reference_inputs_shortcut_steps: int = 0  # pass with reference_inputs = 0
     reference_inputs_median_ms: float = float("nan")  # that pass, all steps
     backend: str = "clarabel"  # the back end of ours (``"auto"`` resolved)
-
-    def as_dict(self) -> dict:
-        """Plain ``dict`` (for CSV/JSON)."""
-        return asdict(self)
 
 
 def benchmark_filter_qp(
@@ -196,7 +242,7 @@ def benchmark_filter_qp(
 
     rng = np.random.default_rng(seed)
     instances = make_instances(n_steps, n_obstacles, horizon, rng)
-    A, B, C = double_integrator()
+    A, B, C = double_integrator(TS)
     ours = MPCSafetyFilter(A, B, C, backend=backend, **filter_kwargs(horizon, n_obstacles))
     with_inputs = MPCSafetyFilter(A, B, C, backend=backend,
                                   **filter_kwargs(horizon, n_obstacles))
@@ -212,9 +258,7 @@ def benchmark_filter_qp(
         with_inputs.solve(instance.x0, instance.reference_states, halfspaces)
 
     ours_ms, ours_solver_ms, cvxpy_ms, inputs_ms = [], [], [], []
-    qp_calls, iterations, shortcut_calls = [], [], []
-    statuses: Counter[str] = Counter()
-    same, difference = 0, 0.0
+    qp_calls, shortcut_calls, fast_results, slow_results = [], [], [], []
     for instance in instances:
         if instance.new_episode:
             ours.reset()
@@ -226,7 +270,6 @@ def benchmark_filter_qp(
         ours_ms.append(1e3 * (time.perf_counter() - begin))
         ours_solver_ms.append(1e3 * fast.solve_time)
         qp_calls.append(ours.last_qp_solves)
-        iterations.append(fast.iterations)
         begin = time.perf_counter()
         slow = reference.solve(instance.x0, instance.reference_states, halfspaces)
         cvxpy_ms.append(1e3 * (time.perf_counter() - begin))
@@ -236,15 +279,14 @@ def benchmark_filter_qp(
         )
         inputs_ms.append(1e3 * (time.perf_counter() - begin))
         shortcut_calls.append(with_inputs.last_qp_solves)
-        statuses[fast.status.value] += 1
-        same += fast.status == slow.status
-        if fast.status == slow.status == FilterStatus.OPTIMAL:
-            difference = max(difference, float(np.max(np.abs(fast.inputs - slow.inputs))))
+        fast_results.append(fast)
+        slow_results.append(slow)
 
     ours_all, cvxpy_all = np.array(ours_ms), np.array(cvxpy_ms)
     calls = np.array(qp_calls)
     qp = calls > 0  # ours solved a QP: the headline's steps
-    constrained = qp & (np.array(iterations) > 0)
+    constrained = qp & (np.array([r.iterations for r in fast_results]) > 0)
+    same = sum(a.status == b.status for a, b in zip(fast_results, slow_results, strict=True))
     ours_median = float(np.median(ours_all[qp])) if qp.any() else float("nan")
     cvxpy_median = float(np.median(cvxpy_all[qp])) if qp.any() else float("nan")
     return FilterQPBenchmark(
@@ -258,8 +300,8 @@ def benchmark_filter_qp(
         cvxpy_p90_ms=float(np.percentile(cvxpy_ms, 90)),
         cvxpy_compile_ms=compile_ms,
         ratio=cvxpy_median / ours_median,
-        max_input_difference=difference,
-        statuses=dict(statuses),
+        max_input_difference=max_input_gap(fast_results, slow_results),
+        statuses=dict(Counter(r.status.value for r in fast_results)),
         agreement=same / len(instances),
         qp_steps=int(qp.sum()),
         shortcut_steps=int((calls == 0).sum()),

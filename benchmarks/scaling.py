@@ -52,11 +52,22 @@ from collections import Counter
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from benchmarks.filter_qp import RADIUS, SPEED, TS, double_integrator, filter_kwargs
+from benchmarks.filter_qp import (
+    RADIUS,
+    TS,
+    crossing_start,
+    double_integrator,
+    filter_kwargs,
+    max_input_gap,
+    straight_reference,
+    timed_solves,
+)
 from filters import Disc, FilterStatus, MPCSafetyFilter, safe_halfspaces
+from filters._validation import integer_at_least
 from filters.errors import InvalidParameterError
 from filters.mpc.result import StepData
 
@@ -68,7 +79,6 @@ __all__ = [
     "ScalingPoint",
     "benchmark_point",
     "benchmark_scaling",
-    "cvxpy_filter_class",
     "format_scaling_table",
     "make_scaling_instances",
     "obstacle_area",
@@ -95,15 +105,11 @@ class ScalingGrid:
     def __post_init__(self) -> None:
         for name in ("obstacles", "horizons", "samples"):
             values = getattr(self, name)
-            if not values or any(int(v) != v or v < 1 for v in values):
-                raise InvalidParameterError(
-                    f"ScalingGrid.{name} must be a non-empty tuple of integers >= 1, "
-                    f"got {values!r}"
-                )
-        if int(self.steps) != self.steps or self.steps < 2:
-            raise InvalidParameterError(
-                f"ScalingGrid.steps must be an integer >= 2, got {self.steps!r}"
-            )
+            if not values:
+                raise InvalidParameterError(f"ScalingGrid.{name} must not be empty")
+            for value in values:
+                integer_at_least(f"ScalingGrid.{name}", value)
+        integer_at_least("ScalingGrid.steps", self.steps, low=2)
 
     @property
     def points(self) -> list[tuple[int, int, int]]:
@@ -118,13 +124,6 @@ QUICK_GRID = ScalingGrid(obstacles=(1, 3, 10), horizons=(10, 40), samples=(100,)
 """A subset that runs in well under a minute."""
 
 
-def cvxpy_filter_class() -> type:
-    """The CVXPY reference filter class, :class:`filters.CVXPYSafetyFilter`."""
-    from filters import CVXPYSafetyFilter
-
-    return CVXPYSafetyFilter
-
-
 @dataclass(frozen=True)
 class Instance:
     """One control step: state, reference (T+1, 4) and prediction samples (n, N_s, T, 2)."""
@@ -133,23 +132,6 @@ class Instance:
     reference_states: np.ndarray
     samples: np.ndarray
     new_episode: bool
-
-
-def _reference(x: np.ndarray, lane: float, horizon: int, kind: str = "straight") -> np.ndarray:
-    """Straight-line reference at :data:`SPEED` along +x on the ego's lane; row 0 is ``x``.
-
-    ``kind="goal"``: it stops at ``x =`` :data:`GOAL_X` (zero velocity from there on).
-    """
-    reference = np.empty((horizon + 1, 4))
-    reference[:, 0] = x[0] + SPEED * TS * np.arange(horizon + 1)
-    reference[:, 1] = lane
-    reference[:, 2:] = (SPEED, 0.0)
-    if kind == "goal":
-        stopped = reference[:, 0] >= GOAL_X
-        reference[stopped, 0] = max(GOAL_X, x[0])
-        reference[stopped, 2] = 0.0
-    reference[0] = x
-    return reference
 
 
 def obstacle_area(n_obstacles: int) -> tuple[float, float, float]:
@@ -180,26 +162,20 @@ def make_scaling_instances(
     """
     if family not in FAMILIES:
         raise InvalidParameterError(f"family must be one of {FAMILIES}, got {family!r}")
-    A, B, C = double_integrator()
+    A, B, C = double_integrator(TS)
     mpc = MPCSafetyFilter(A, B, C, **filter_kwargs(horizon, n_obstacles))
     ego_shape, shapes = Disc(RADIUS), [Disc(RADIUS)] * n_obstacles
     steps = np.arange(1, horizon + 1)[:, None] * TS  # (T, 1), s
-    x_low, x_high, y_half = obstacle_area(n_obstacles)
     instances: list[Instance] = []
     new_episode = True
     while len(instances) < n_steps:
         if new_episode:
             mpc.reset()
-            x = np.array([-4.5, rng.uniform(-1.0, 1.0), SPEED, 0.0])
+            x, obstacles, velocities = crossing_start(rng, n_obstacles, obstacle_area(n_obstacles))
             lane = x[1]
-            obstacles = np.column_stack(
-                [rng.uniform(x_low, x_high, n_obstacles), rng.uniform(-y_half, y_half, n_obstacles)]
-            )
-            speed = rng.uniform(0.0, 1.0, n_obstacles)
-            heading = rng.uniform(0.0, 2.0 * np.pi, n_obstacles)
-            velocities = speed[:, None] * np.column_stack([np.cos(heading), np.sin(heading)])
             step_in_episode = 0
-        reference_states = _reference(x, lane, horizon, family)
+        reference_states = straight_reference(x, lane, horizon,
+                                              stop_x=GOAL_X if family == "goal" else None)
         nominal = obstacles[:, None, :] + velocities[:, None, :] * steps[None]  # (n, T, 2)
         samples = nominal[:, None] + PREDICTION_STD * rng.standard_normal(
             (n_obstacles, n_samples, horizon, 2))
@@ -275,26 +251,26 @@ def benchmark_point(
     rng = np.random.default_rng([seed, n_obstacles, horizon, n_samples])
     instances = make_scaling_instances(steps, n_obstacles, horizon, n_samples, rng,
                                        family=family)
-    A, B, C = double_integrator()
+    A, B, C = double_integrator(TS)
     kwargs = filter_kwargs(horizon, n_obstacles)
     ego_shape, shapes = Disc(RADIUS), [Disc(RADIUS)] * n_obstacles
+
+    def halfspaces(instance: Instance) -> Any:
+        return safe_halfspaces(instance.reference_states[1:, :2], instance.samples,
+                               ego_shape=ego_shape, obstacle_shapes=shapes, risk="dr_cvar",
+                               ego_velocity=instance.x0[2:])
 
     ours = MPCSafetyFilter(A, B, C, **kwargs)  # backend="auto"
     for instance in instances[: min(20, len(instances))]:  # build the lazily made QPs
         if instance.new_episode:
             ours.reset()
-        hs = safe_halfspaces(instance.reference_states[1:, :2], instance.samples,
-                             ego_shape=ego_shape, obstacle_shapes=shapes, risk="dr_cvar",
-                             ego_velocity=instance.x0[2:])
-        ours.solve(instance.x0, instance.reference_states, hs)
+        ours.solve(instance.x0, instance.reference_states, halfspaces(instance))
     halfspace_ms, qp_ms, step_ms, recorded, results = [], [], [], [], []
     for instance in instances:
         if instance.new_episode:
             ours.reset()
         begin = time.perf_counter()
-        hs = safe_halfspaces(instance.reference_states[1:, :2], instance.samples,
-                             ego_shape=ego_shape, obstacle_shapes=shapes, risk="dr_cvar",
-                             ego_velocity=instance.x0[2:])
+        hs = halfspaces(instance)
         middle = time.perf_counter()
         result = ours.solve(instance.x0, instance.reference_states, hs)
         end = time.perf_counter()
@@ -303,53 +279,34 @@ def benchmark_point(
         step_ms.append(1e3 * (end - begin))
         recorded.append(hs)
         results.append(result)
+    problems = [(instance.new_episode, instance.x0, instance.reference_states, hs, None)
+                for instance, hs in zip(instances, recorded, strict=True)]
 
-    reference = cvxpy_filter_class()(A, B, C, **kwargs)
-    first = instances[0]
+    from filters import CVXPYSafetyFilter  # imports cvxpy: only when benchmarking
+
+    reference = CVXPYSafetyFilter(A, B, C, **kwargs)
     begin = time.perf_counter()
-    reference.solve(first.x0, first.reference_states, recorded[0])
+    reference.solve(*problems[0][1:4])
     compile_ms = 1e3 * (time.perf_counter() - begin)
-    cvxpy_ms, same, difference = [], 0, 0.0
-    statuses: Counter[str] = Counter()
-    for instance, hs, fast in zip(instances, recorded, results, strict=True):
-        if instance.new_episode:
-            reference.reset()
-        begin = time.perf_counter()
-        slow = reference.solve(instance.x0, instance.reference_states, hs)
-        cvxpy_ms.append(1e3 * (time.perf_counter() - begin))
-        statuses[fast.status.value] += 1
-        same += fast.status == slow.status
-        if fast.status == slow.status == FilterStatus.OPTIMAL:
-            difference = max(difference, float(np.max(np.abs(fast.inputs - slow.inputs))))
+    cvxpy_ms, slow = timed_solves(reference, problems)
+    statuses = Counter(result.status.value for result in results)
+    same = sum(a.status == b.status for a, b in zip(results, slow, strict=True))
 
-    backend_ms: dict[str, list[float]] = {}
-    backend_inputs: dict[str, list] = {}
-    per_qp: dict[str, list[tuple[float, float, int, bool]]] = {"clarabel": []}
-    zero_inputs = np.zeros((horizon, B.shape[1]))
-    hard_steps = [StepData(instance.x0, instance.reference_states[1:], zero_inputs,
-                           np.asarray(hs.normals), np.asarray(hs.offsets))
-                  for instance, hs in zip(instances, recorded, strict=True)]
+    backend_ms, backend_results = {}, {}
     for name in ("daqp", "clarabel"):
         explicit = MPCSafetyFilter(A, B, C, backend=name, **kwargs)
-        backend_ms[name], backend_inputs[name] = [], []
-        for instance, hs in zip(instances, recorded, strict=True):
-            if instance.new_episode:
-                explicit.reset()
-            begin = time.perf_counter()
-            answer = explicit.solve(instance.x0, instance.reference_states, hs)
-            backend_ms[name].append(1e3 * (time.perf_counter() - begin))
-            backend_inputs[name].append(
-                answer.inputs if answer.status == FilterStatus.OPTIMAL else None)
-        if name in per_qp:  # the hard QP alone, the same QP at every step, in a pass of its own
-            for step in hard_steps:
-                begin, begin_cpu = time.perf_counter(), time.thread_time()
-                solution = explicit._primary.solve(step)
-                end_cpu, end = time.thread_time(), time.perf_counter()
-                per_qp[name].append((1e3 * (end - begin), 1e3 * (end_cpu - begin_cpu),
-                                     solution.iterations, solution.found))
-    between = [float(np.max(np.abs(a - b))) for a, b in zip(
-        backend_inputs["daqp"], backend_inputs["clarabel"], strict=True)
-        if a is not None and b is not None]
+        backend_ms[name], backend_results[name] = timed_solves(explicit, problems)
+    # Clarabel's hard QP alone, the same QP at every step, in a pass of its own.
+    zero_inputs = np.zeros((horizon, B.shape[1]))
+    per_qp = []
+    for instance, hs in zip(instances, recorded, strict=True):
+        step = StepData(instance.x0, instance.reference_states[1:], zero_inputs,
+                        np.asarray(hs.normals), np.asarray(hs.offsets))
+        begin, begin_cpu = time.perf_counter(), time.thread_time()
+        solution = explicit._primary.solve(step)
+        end_cpu, end = time.thread_time(), time.perf_counter()
+        per_qp.append((1e3 * (end - begin), 1e3 * (end_cpu - begin_cpu),
+                       solution.iterations, solution.found))
 
     step, qp, cvxpy_median = (float(np.median(v)) for v in (step_ms, qp_ms, cvxpy_ms))
     return ScalingPoint(
@@ -357,12 +314,13 @@ def benchmark_point(
         halfspaces_ms=float(np.median(halfspace_ms)), qp_ms=qp, step_ms=step,
         step_p90_ms=float(np.percentile(step_ms, 90)), cvxpy_ms=cvxpy_median,
         cvxpy_compile_ms=compile_ms, ratio=cvxpy_median / step, qp_ratio=cvxpy_median / qp,
-        agreement=same / len(instances), max_input_difference=difference,
+        agreement=same / len(instances), max_input_difference=max_input_gap(results, slow),
         statuses=dict(statuses), backend=_backend_label(ours),
         daqp_qp_ms=float(np.median(backend_ms["daqp"])),
         clarabel_qp_ms=float(np.median(backend_ms["clarabel"])),
-        daqp_clarabel_difference=max(between) if between else float("nan"),
-        **_per_qp_fields("clarabel", per_qp["clarabel"]),
+        daqp_clarabel_difference=max_input_gap(backend_results["daqp"],
+                                               backend_results["clarabel"]),
+        **_per_qp_fields("clarabel", per_qp),
         family=family,
     )
 
@@ -455,13 +413,9 @@ def plot_scaling(points: Sequence[ScalingPoint], path: str | Path) -> Path:
     number of samples processed, ``n_obstacles * T * N_s``, with a slope-1 guide
     (linear work) through the larger half of the points.
     """
-    import matplotlib
+    from agents.evaluation.plots import pyplot, save_figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    plt = pyplot()
     fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2))
     n_samples = min(p.n_samples for p in points)
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
@@ -508,6 +462,4 @@ def plot_scaling(points: Sequence[ScalingPoint], path: str | Path) -> Path:
                  fontsize=7, loc="upper left")
     right.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)

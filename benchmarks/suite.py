@@ -15,9 +15,9 @@ is a ratio against a reference measured in the same run:
     training steps per second with the DR-CVaR filter in the loop against without it,
     interleaved runs.
 
-(b) also times the policy roll-out reference (:func:`benchmark_rollout_reference`: the
-``predict`` loop with SB3's model and with :class:`agents.NumpyPolicy`) against the QP
-of the same run,
+(b) also times the policy roll-out reference
+(:func:`benchmarks.policy.benchmark_rollout_reference`: the ``predict`` loop with SB3's
+model and with :class:`agents.NumpyPolicy`) against the QP of the same run,
 and both step by step in the evaluation's control loop (:func:`benchmark_control_loop`).
 
 ``safe-nav bench --scaling`` (:func:`run_scaling`) times the filter step on the grid
@@ -35,9 +35,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-# Re-exported: --training lives in benchmarks.training (redundant aliases mark the re-export).
-from benchmarks.training import TrainingThroughput as TrainingThroughput
-from benchmarks.training import benchmark_training as benchmark_training
+from benchmarks.filter_qp import max_input_gap, timed_solves
 
 if TYPE_CHECKING:
     from benchmarks.scaling import ScalingGrid
@@ -62,7 +60,7 @@ class FilterStepBenchmark:
     backend: str = ""  # what backend="auto" (ours) picked
     backend_qp_ms: dict[str, float] | None = None  # explicit back ends, same steps
     backend_step_ms: dict[str, float] | None = None  # halfspaces + that QP, per step
-    backend_difference: dict[str, float] | None = None  # max |u - u_clarabel|, both solved
+    backend_difference: dict[str, float] | None = None  # max |u - u_clarabel|, both optimal
 
     def format(self) -> str:
         statuses = ", ".join(f"{k} {v}" for k, v in sorted(self.statuses.items()))
@@ -138,7 +136,7 @@ def benchmark_filter_step(n_steps: int = 500, seed: int = 0, *,
             base.dt, base.input_bounds, base.position_bounds))
     ours = MPCSafetyFilter(A, B, C, **weights)  # backend="auto"
     halfspace_ms, qp_ms, step_ms, needed_qp = [], [], [], []
-    instances = []
+    problems = []
     statuses: dict[str, int] = {}
     episode = 0
     while len(step_ms) < n_steps:
@@ -146,16 +144,15 @@ def benchmark_filter_step(n_steps: int = 500, seed: int = 0, *,
         ours.reset()
         episode += 1
         done = False
-        instances.append(None)  # episode boundary: reset the reference filter too
+        new_episode = True  # reset the other filters too
         ego_shape = Disc(base.ego_radius)  # built once per episode, as the wrapper does
         obstacle_shapes = [Disc(r) for r in base.obstacle_radii]
         while not done and len(step_ms) < n_steps:
             x0 = np.asarray(base.ego_state, dtype=float)
             ref_states, ref_inputs = planner.plan(x0, base.goal)
-            predictions = base.predictions
+            predictions = base.predictions[:, :, :10]
             begin = time.perf_counter()
             shapes = dict(ego_shape=ego_shape, obstacle_shapes=obstacle_shapes)
-            predictions = predictions[:, :, :10]
             rows = safe_halfspaces(ref_states[1:] @ C.T, predictions, risk="dr_cvar",
                                    ego_velocity=x0[2:], **shapes)
             if continuous:
@@ -169,41 +166,19 @@ def benchmark_filter_step(n_steps: int = 500, seed: int = 0, *,
             qp_ms.append(1e3 * (end - middle))
             step_ms.append(1e3 * (end - begin))
             needed_qp.append(ours.last_qp_solves > 0)
-            instances.append((x0, ref_states, hs, ref_inputs))
+            problems.append((new_episode, x0, ref_states, hs, ref_inputs))
+            new_episode = False
             statuses[result.status.value] = statuses.get(result.status.value, 0) + 1
             _, _, terminated, truncated, _ = env.step(result.inputs[0].astype(np.float32))
             done = terminated or truncated
-    backend_qp: dict[str, list[float]] = {}
-    backend_inputs: dict[str, list] = {}
+    backend_qp, backend_results = {}, {}
     for name in ("daqp", "clarabel"):
         explicit = MPCSafetyFilter(A, B, C, backend=name, **weights)
-        backend_qp[name], backend_inputs[name] = [], []
-        for instance in instances:
-            if instance is None:
-                explicit.reset()
-                continue
-            x0, ref_states, hs, ref_inputs = instance
-            begin = time.perf_counter()
-            answer = explicit.solve(x0, ref_states, hs, reference_inputs=ref_inputs)
-            backend_qp[name].append(1e3 * (time.perf_counter() - begin))
-            backend_inputs[name].append(answer.inputs if answer.solved else None)
-    difference = {}
-    for name in backend_inputs:
-        gaps = [float(np.max(np.abs(a - b))) for a, b in zip(
-            backend_inputs[name], backend_inputs["clarabel"], strict=True)
-            if a is not None and b is not None]
-        difference[name] = max(gaps) if gaps else float("nan")
+        backend_qp[name], backend_results[name] = timed_solves(explicit, problems)
+    difference = {name: max_input_gap(results, backend_results["clarabel"])
+                  for name, results in backend_results.items()}
     halfspaces_each = np.asarray(halfspace_ms)
-    reference = CVXPYSafetyFilter(A, B, C, **weights)
-    cvxpy_ms = []
-    for instance in instances:
-        if instance is None:
-            reference.reset()
-            continue
-        x0, ref_states, hs, ref_inputs = instance
-        begin = time.perf_counter()
-        reference.solve(x0, ref_states, hs, reference_inputs=ref_inputs)
-        cvxpy_ms.append(1e3 * (time.perf_counter() - begin))
+    cvxpy_ms, _ = timed_solves(CVXPYSafetyFilter(A, B, C, **weights), problems)
     env.close()
     step = float(np.median(step_ms))
     mask = np.asarray(needed_qp)
@@ -232,6 +207,7 @@ def run_benchmarks(filter_steps: int = 500, table_repeats: int = 100, seed: int 
     from agents.experiments.table_one import format_table_one, halfspace_timing_table
     from benchmarks.env import benchmark as env_benchmark
     from benchmarks.filter_qp import benchmark_filter_qp, format_filter_qp
+    from benchmarks.policy import benchmark_rollout_reference, format_rollout_reference
 
     parts = [f"python {platform.python_version()}, numpy {np.__version__}, "
              f"{platform.machine()}; medians; ratios measured in this run"]
@@ -252,58 +228,6 @@ def run_benchmarks(filter_steps: int = 500, table_repeats: int = 100, seed: int 
     parts.append("(c) unfiltered environment, gym.make, N_s = 100, T = 10:\n" + "\n".join(
         f"    {env_id:<28} {rate:8.0f} steps/s" for env_id, rate in rates.items()))
     return "\n\n".join(parts)
-
-
-# --------------------------------------------------------------------------- --scaling
-def benchmark_rollout_reference(
-    horizon: int = 10, steps: int = 200, seed: int = 0, path: str | None = None
-) -> dict[str, float]:
-    """Median wall time (ms) of one roll-out reference (``T - 1`` policy calls) per step.
-
-    On the states of unfiltered MultiObstacle episodes of the shipped PPO policy (recorded
-    first, then replayed to each maker in a loop of its own: the same states for all),
-    :class:`filters.references.PolicyRolloutReference` with: ``"sb3"`` the SB3
-    model's ``predict`` at each look-ahead step; ``"numpy"`` the :class:`agents.NumpyPolicy`
-    export called the same way (what ``safe-nav evaluate`` runs); ``"hold"`` the
-    held-action reference, for scale.
-    """
-    import gymnasium as gym
-
-    import safe_nav_env  # noqa: F401
-    from agents.policies.numpy_policy import NumpyPolicy
-    from agents.training.ppo import load_ppo, set_torch_threads
-    from filters.references import PolicyRolloutReference, hold_action_reference
-
-    set_torch_threads(1)
-    model = load_ppo(path)
-    makers = {"sb3": PolicyRolloutReference(model),
-              "numpy": PolicyRolloutReference(NumpyPolicy.from_sb3(model)),
-              "hold": hold_action_reference}
-    env = gym.make("SafeNav/MultiObstacle-v0", horizon=horizon)
-    base = env.unwrapped
-    fields = ("ego_state", "predictions", "obstacle_positions", "obstacle_velocities")
-    situations = []  # what a reference maker reads, recorded along the episodes
-    episode, done = 0, True
-    for _ in range(steps):
-        if done:
-            obs, _ = env.reset(seed=seed + episode)
-            episode += 1
-        action, _ = model.predict(obs, deterministic=True)
-        situations.append(({name: getattr(base, name) for name in fields}, action))
-        obs, _, terminated, truncated, _ = env.step(action)
-        done = terminated or truncated
-    times: dict[str, list[float]] = {}
-    for name, maker in makers.items():  # each in a loop of its own, as a control loop runs
-        maker(base, situations[0][1], horizon)  # first call: torch's kernels
-        times[name] = []
-        for state, action in situations:
-            for field, value in state.items():
-                setattr(base, field, value)
-            begin = time.perf_counter()
-            maker(base, action, horizon)
-            times[name].append(1e3 * (time.perf_counter() - begin))
-    env.close()
-    return {name: float(np.median(values)) for name, values in times.items()}
 
 
 @dataclass(frozen=True)
@@ -368,17 +292,7 @@ def benchmark_control_loop(steps: int = 500, seed: int = 0) -> ControlLoopTiming
     )
 
 
-def format_rollout_reference(rollout: dict[str, float], horizon: int = 10) -> str:
-    """The roll-out timings of :func:`benchmark_rollout_reference` as one paragraph."""
-    numpy_ms = rollout["numpy"]
-    return (
-        f"roll-out reference, T = {horizon} ({horizon - 1} policy calls), MultiObstacle, "
-        f"medians: SB3 predict {rollout['sb3']:.3f} ms, NumpyPolicy.predict "
-        f"{numpy_ms:.3f} ms ({rollout['sb3'] / numpy_ms:.1f}x faster); the held action "
-        f"{rollout['hold']:.4f} ms"
-    )
-
-
+# --------------------------------------------------------------------------- --scaling
 def run_scaling(
     grid: ScalingGrid | None = None,
     *,
@@ -451,7 +365,11 @@ def run_scaling(
         f"{per_sample_ns.max():.1f} ns over the grid (fixed costs dominate the small points)",
     ]
     if policy:
-        from agents.policies.numpy_policy import benchmark_numpy_policy
+        from benchmarks.policy import (
+            benchmark_numpy_policy,
+            benchmark_rollout_reference,
+            format_rollout_reference,
+        )
 
         parts.append(benchmark_numpy_policy(seed=seed).format())
         parts.append(format_rollout_reference(benchmark_rollout_reference(seed=seed)))

@@ -73,19 +73,6 @@ class TrainingThroughput:
         """Median over the back-to-back pairs of filtered over plain wall rate."""
         return float(np.median(np.asarray(self.filtered_wall) / np.asarray(self.plain_wall)))
 
-    def projected_ratio(self, speedups: dict[str, float]) -> float:
-        """The ratio if the halfspaces and the QP were ``speedups`` times faster.
-
-        .. math:: t' = t - t_h - t_q + t_h / s_h + t_q / s_q
-
-        per filtered step (wall, the filter reports' times), against the same plain rate.
-        A projection, not a measurement: the rest of the step is taken as it was.
-        """
-        t = 1e-6 * self.filter_us["step"]
-        h, q = 1e-6 * self.filter_us["halfspaces"], 1e-6 * self.filter_us["qp"]
-        projected = t - h - q + h / speedups["halfspaces"] + q / speedups["qp"]
-        return float(1.0 / projected / np.median(self.plain_wall))
-
     def format(self) -> str:
         us = self.filter_us
         plain_us = 1e6 / float(np.median(self.plain_wall))

@@ -12,6 +12,8 @@ Three pieces, usable on their own or chained (a filter wrapper does the chaining
   :func:`filters.safe_halfspaces`.
 * :class:`WassersteinRadius`: per look-ahead, a data-driven Wasserstein radius for
   ``risk="dr_cvar"`` (``epsilon`` of shape ``(T,)``).
+* :class:`AdaptiveRadius`: per look-ahead, DR-CVaR's radius from a conformal quantile
+  (with ACI) of the radii the realisations needed (``adaptive_epsilon=True``).
 * :class:`OnlineCalibration` (this module) chains the three for a filter wrapper.
 
 No gym or environment import: the inputs are plain arrays. Every random draw (the
@@ -26,21 +28,25 @@ The pieces live in :mod:`filters.prediction_record`, :mod:`filters.conformal` an
 from __future__ import annotations
 
 import copy
+import dataclasses
 
 import numpy as np
 
-from filters.conformal import ConformalMargin, conformal_rank
+from filters.conformal import AdaptiveRadius, ConformalMargin, conformal_rank, dr_cvar_scores
+from filters.errors import InvalidParameterError
 from filters.prediction_record import PredictionRecord, Realisation
 from filters.wasserstein import WassersteinRadius, sliced_wasserstein_max
 from filters.wasserstein import _grid_slack as _grid_slack  # noqa: F401 - used by the tests
 
 __all__ = [
+    "AdaptiveRadius",
     "ConformalMargin",
     "OnlineCalibration",
     "PredictionRecord",
     "Realisation",
     "WassersteinRadius",
     "conformal_rank",
+    "dr_cvar_scores",
     "sliced_wasserstein_max",
 ]
 
@@ -76,6 +82,13 @@ class OnlineCalibration:
     conformal, wasserstein
         Extra keyword arguments of :class:`ConformalMargin` / :class:`WassersteinRadius`
         (e.g. ``{"gamma": 0.01}``, ``{"confidence": 0.95, "seed": 1}``).
+    adaptive_alpha
+        If given, the CVaR tail mass of an :class:`AdaptiveRadius` (fallback
+        ``radius_fallback``) fed as well, read by :meth:`adaptive_radii`; the record then
+        keeps every sample (the scores need the CVaR of all ``N_s``), and the
+        Wasserstein radius still gets the first ``keep_samples``.
+    adaptive
+        Extra keyword arguments of :class:`AdaptiveRadius` (e.g. ``{"gamma": 0.01}``).
     """
 
     def __init__(
@@ -88,8 +101,14 @@ class OnlineCalibration:
         keep_samples: int = 20,
         conformal: dict | None = None,
         wasserstein: dict | None = None,
+        adaptive_alpha: float | None = None,
+        adaptive: dict | None = None,
     ) -> None:
-        self.record = PredictionRecord(horizon, keep_samples=keep_samples)
+        self.keep_samples = keep_samples
+        self.adaptive = None if adaptive_alpha is None else AdaptiveRadius(
+            adaptive_alpha, horizon=horizon, fallback=radius_fallback, **(adaptive or {}))
+        self.record = PredictionRecord(
+            horizon, keep_samples=keep_samples if self.adaptive is None else None)
         self.conformal = ConformalMargin(alpha, horizon=horizon, fallback=margin_fallback,
                                          **(conformal or {}))
         self.wasserstein = WassersteinRadius(horizon=horizon, fallback=radius_fallback,
@@ -118,20 +137,32 @@ class OnlineCalibration:
         return copy.deepcopy(self, shared)
 
     def update(
-        self, samples: object, realised_positions: object, present: object | None = None
+        self, samples: object, realised_positions: object, present: object | None = None,
+        ids: object | None = None,
     ) -> tuple[Realisation, ...]:
         """Record this step (see :meth:`PredictionRecord.update`) and update both estimators.
 
         ``present`` is an optional boolean mask ``(n_rows,)`` selecting the real
-        obstacles of padded arrays (``info["obstacle_present"]``).
+        obstacles of padded arrays (``info["obstacle_present"]``). ``ids`` (one integer
+        per row, negative for an empty row) makes each prediction meet the realised
+        position of its own obstacle when rows change hands (the slots of
+        ``SafeNav/Pedestrians-v0``, ``env.unwrapped.obstacle_ids``).
         """
         if present is not None:
             mask = np.asarray(present, dtype=bool)
             samples = np.asarray(samples)[mask]
             realised_positions = np.asarray(realised_positions)[mask]
-        realised = self.record.update(samples, realised_positions)
+            ids = None if ids is None else np.asarray(ids)[mask]
+        realised = self.record.update(samples, realised_positions, ids)
         self.conformal.update(realised)
-        self.wasserstein.update(realised)
+        if self.adaptive is None:
+            self.wasserstein.update(realised)
+            return realised
+        self.adaptive.update(realised)
+        keep = self.keep_samples  # the Wasserstein radius sees what it saw without adaptive
+        self.wasserstein.update([
+            dataclasses.replace(r, predicted_errors=r.predicted_errors[:, :keep])
+            for r in realised])
         return realised
 
     def margins(self) -> np.ndarray:
@@ -141,3 +172,16 @@ class OnlineCalibration:
     def radii(self) -> np.ndarray:
         """Wasserstein radii ``(T,)``, m (``epsilon=``)."""
         return self.wasserstein.radii()
+
+    def adaptive_radii(self) -> np.ndarray:
+        """Radii ``(T,)`` of the :class:`AdaptiveRadius`, m (``epsilon=``).
+
+        Raises
+        ------
+        InvalidParameterError
+            If this calibration was built without ``adaptive_alpha``.
+        """
+        if self.adaptive is None:
+            raise InvalidParameterError(
+                "adaptive_radii() needs an OnlineCalibration built with adaptive_alpha=...")
+        return self.adaptive.radii()

@@ -4,6 +4,9 @@
 :class:`filters.prediction_record.PredictionRecord` per look-ahead and returns their
 split-conformal quantile (the margins of ``risk="conformal"`` of
 :func:`filters.safe_halfspaces`); :func:`conformal_rank` is the rank of that quantile.
+:class:`AdaptiveRadius` runs the same machinery on :func:`dr_cvar_scores`, the radius
+each realisation needed, and gives DR-CVaR's Wasserstein radius per look-ahead
+(``adaptive_epsilon=True`` of :class:`filters.SafetyFilterWrapper`).
 """
 
 from __future__ import annotations
@@ -17,11 +20,12 @@ import numpy as np
 
 from filters._validation import finite_array, integer_at_least, scalar_in_range
 from filters.errors import InvalidArrayError, InvalidParameterError
+from filters.risk import check_alpha, cvar_last_axis
 
 if TYPE_CHECKING:
     from filters.prediction_record import Realisation
 
-__all__ = ["ConformalMargin", "conformal_rank"]
+__all__ = ["AdaptiveRadius", "ConformalMargin", "conformal_rank", "dr_cvar_scores"]
 
 
 def _fallback(value: object) -> float | str:
@@ -29,8 +33,6 @@ def _fallback(value: object) -> float | str:
         return "max"
     number = scalar_in_range("fallback", value, low=0.0)
     return number
-
-
 
 def conformal_rank(n: int, alpha: float) -> int:
     """:math:`\\lceil (n+1)(1-\\alpha) \\rceil`, the split-conformal rank among ``n`` scores.
@@ -190,3 +192,212 @@ class ConformalMargin:
         if k > self.horizon:
             raise InvalidParameterError(f"lookahead must be in 1..{self.horizon}, got {k}")
         return k - 1
+
+
+def _circle(count: int) -> np.ndarray:
+    """``count`` unit directions evenly spaced on the full circle, shape ``(count, 2)``."""
+    angles = 2.0 * np.pi * np.arange(count) / count
+    return np.stack([np.cos(angles), np.sin(angles)], axis=-1)
+
+
+def dr_cvar_scores(
+    errors: object, predicted_errors: object, alpha: float, *, n_directions: int = 64
+) -> np.ndarray:
+    """The shift beyond :math:`\\mathrm{CVaR}_\\alpha` each realisation needed, one per obstacle.
+
+    For a realised error :math:`e = p - \\hat\\mu` and the predictor's own errors
+    :math:`\\xi_j = \\hat p_j - \\hat\\mu` (``j = 1..N_s``), the score is an upper bound on
+
+    .. math::
+
+        s^\\star = \\Big(\\sup_{\\lVert u \\rVert = 1}\\; u \\cdot e
+        - \\mathrm{CVaR}_\\alpha(u \\cdot \\xi)\\Big)_+ ,
+
+    the smallest :math:`s \\ge 0` with
+    :math:`-h \\cdot p \\le \\mathrm{CVaR}_\\alpha(-h \\cdot \\hat p) + s`
+    for *every* unit normal :math:`h` (``u = -h``; CVaR is translation equivariant).
+    So a DR-CVaR halfspace with radius :math:`\\epsilon \\ge \\alpha s` (unbounded support:
+    :math:`R = \\mathrm{CVaR}_\\alpha + \\epsilon/\\alpha`) bounds the realised position,
+    whatever normal the filter picks: the realised loss of an ego on the halfspace's
+    boundary is at most :math:`\\delta`. The supremum is taken over ``n_directions``
+    directions :math:`u_m` on the circle and made an upper bound with their spacing:
+    :math:`f(u) = u \\cdot e - \\mathrm{CVaR}_\\alpha(u \\cdot \\xi)` is Lipschitz with
+    constant :math:`L = \\lVert e \\rVert + \\mathrm{CVaR}_\\alpha(\\lVert \\xi \\rVert)`
+    (CVaR is monotone, subadditive and positively homogeneous), and every unit ``u`` is
+    within :math:`2 \\sin(\\pi / 2M)` of a grid direction, so
+
+    .. math::
+
+        s = \\Big(\\max_m f(u_m) + 2 \\sin\\tfrac{\\pi}{2M} L\\Big)_+ \\;\\ge\\; s^\\star .
+
+    In ``d = 1`` the directions are :math:`\\pm 1` and the score is exact.
+
+    Parameters
+    ----------
+    errors
+        :math:`e`, shape ``(n_obs, d)``, m (:attr:`Realisation.errors`).
+    predicted_errors
+        :math:`\\xi`, shape ``(n_obs, N_s, d)``, m (:attr:`Realisation.predicted_errors`).
+    alpha
+        CVaR tail mass in :math:`(0, 1]`.
+    n_directions
+        ``M`` for ``d = 2`` (default 64: the bound's slack is 0.025 L).
+
+    Returns
+    -------
+    numpy.ndarray
+        Shape ``(n_obs,)``, m, ``>= 0``.
+
+    Raises
+    ------
+    InvalidArrayError
+        For non-finite or mismatched arrays, no samples, or ``d`` not 1 or 2.
+    InvalidParameterError
+        For ``alpha`` outside :math:`(0, 1]` or ``n_directions < 3``.
+    """
+    alpha = check_alpha(alpha)
+    e = finite_array("errors", errors, ndim=2)
+    xi = finite_array("predicted_errors", predicted_errors, ndim=3)
+    n_obs, dim = e.shape
+    if xi.shape[0] != n_obs or xi.shape[2] != dim or xi.shape[1] == 0:
+        raise InvalidArrayError(
+            f"predicted_errors must have shape ({n_obs}, N_s >= 1, {dim}) to match errors "
+            f"{e.shape}, got {xi.shape}")
+    if dim == 1:
+        directions, slack = np.array([[1.0], [-1.0]]), 0.0
+    elif dim == 2:
+        count = integer_at_least("n_directions", n_directions, low=3)
+        directions, slack = _circle(count), 2.0 * math.sin(math.pi / (2.0 * count))
+    else:
+        raise InvalidArrayError(f"dr_cvar_scores supports d = 1 or 2 positions, got d = {dim}")
+    projected = directions @ xi.transpose(0, 2, 1)  # (n_obs, M, N_s)
+    gap = e @ directions.T - cvar_last_axis(projected, alpha, overwrite=True)  # (n_obs, M)
+    worst = gap.max(axis=1)
+    if slack:
+        norms = np.sqrt((xi * xi).sum(axis=-1))
+        worst += slack * (np.sqrt((e * e).sum(axis=-1)) + cvar_last_axis(norms, alpha))
+    return np.maximum(worst, 0.0)
+
+
+class AdaptiveRadius:
+    """DR-CVaR's Wasserstein radius per look-ahead, from the radii the realisations needed.
+
+    Each realisation at look-ahead ``k`` (one per obstacle and step) gets the score
+    :math:`s` of :func:`dr_cvar_scores`: the shift beyond the predicted CVaR it
+    needed for every normal. A :class:`ConformalMargin` at target miscoverage
+    ``miscoverage`` keeps these scores (sliding window, split-conformal quantile
+    :math:`q_k`, adaptive conformal inference on the level) and the radius is
+
+    .. math::
+
+        \\epsilon_k = \\alpha\\, q_k ,
+
+    so that :math:`\\mathrm{CVaR}_\\alpha + \\epsilon_k/\\alpha = \\mathrm{CVaR}_\\alpha + q_k`
+    (never below ``floor``: :math:`\\epsilon_k = \\max(\\epsilon_{\\min}, \\alpha q_k)`).
+    When the realised positions stray farther from the predictions than their samples
+    say (a spread understated, a bias), the scores grow and the radius with them; when
+    the samples describe reality the scores are mostly 0 and the radius shrinks. ACI
+    moves the level on the observed miscoverage: a realisation whose score exceeds the
+    current :math:`q_k` is an error (``err = 1``), i.e. *some* normal's halfspace would
+    not have held the realised position at its risk level.
+
+    Guarantees (those of :class:`ConformalMargin` applied to these scores, per
+    look-ahead, pooled over obstacles): with exchangeable scores and ``gamma = 0``,
+    :math:`P(s \\le q_k) \\ge 1 - \\text{miscoverage}`; with ``gamma > 0`` and any
+    sequence, Gibbs & Candès' long-run bound on the fraction of errors (see
+    :class:`ConformalMargin`, and the filter guide for what it does not promise).
+
+    Parameters
+    ----------
+    alpha
+        The CVaR tail mass of the halfspaces, in :math:`(0, 1]`.
+    horizon
+        ``T``.
+    miscoverage
+        Target fraction of realisations outside the bound, in :math:`(0, 1)` (default
+        ``alpha``).
+    window, gamma
+        Of :class:`ConformalMargin` (defaults 200 and 0.005).
+    fallback
+        Radius (m) before any score at a look-ahead (default 0.05, the paper's
+        hand-tuned radius); with scores but too few for the current level, the
+        largest score seen gives the radius.
+    floor
+        Smallest radius :math:`\\epsilon_{\\min}` (m, default 0: the radius follows the
+        data both ways). A floor at a hand-tuned radius makes the calibration widen
+        only: the radius then comes back down to the floor, not below, when the
+        predictions match.
+    n_directions
+        Of :func:`dr_cvar_scores`.
+
+    Raises
+    ------
+    InvalidParameterError
+        For a parameter outside its domain.
+    """
+
+    def __init__(
+        self,
+        alpha: float,
+        *,
+        horizon: int,
+        miscoverage: float | None = None,
+        window: int = 200,
+        gamma: float = 0.005,
+        fallback: float = 0.05,
+        floor: float = 0.0,
+        n_directions: int = 64,
+    ) -> None:
+        self.alpha = check_alpha(alpha)
+        self.fallback = scalar_in_range("fallback", fallback, low=0.0, high=math.inf,
+                                        high_inclusive=False)
+        self.floor = scalar_in_range("floor", floor, low=0.0, high=math.inf,
+                                     high_inclusive=False)
+        self.n_directions = integer_at_least("n_directions", n_directions, low=3)
+        level = self.alpha if miscoverage is None else miscoverage
+        if isinstance(level, bool) or not isinstance(level, int | float) or not 0 < level < 1:
+            raise InvalidParameterError(
+                f"miscoverage must lie in (0, 1), got {level!r} (with alpha = 1, pass it "
+                "explicitly)")
+        self.scores = ConformalMargin(level, horizon=horizon, window=window, gamma=gamma,
+                                      fallback="max")
+
+    @property
+    def horizon(self) -> int:
+        """``T``."""
+        return self.scores.horizon
+
+    def update(self, realisations: tuple[Realisation, ...] | list[Realisation]) -> None:
+        """Score and feed the output of :meth:`PredictionRecord.update` (all samples kept).
+
+        The realisations of one step are scored in one call of :func:`dr_cvar_scores`
+        when their arrays have the same shapes (they do within an episode).
+        """
+        kept = [r for r in realisations if r.lookahead <= self.horizon]
+        if not kept:
+            return
+        shapes = {(r.errors.shape, r.predicted_errors.shape) for r in kept}
+        if len(shapes) == 1:
+            scores = dr_cvar_scores(
+                np.concatenate([r.errors for r in kept]),
+                np.concatenate([r.predicted_errors for r in kept]), self.alpha,
+                n_directions=self.n_directions).reshape(len(kept), -1)
+        else:
+            scores = [dr_cvar_scores(r.errors, r.predicted_errors, self.alpha,
+                                     n_directions=self.n_directions) for r in kept]
+        for r, values in zip(kept, scores, strict=True):
+            self.scores.update_scores(r.lookahead, values)
+
+    def radius(self, lookahead: int) -> float:
+        """:math:`\\epsilon_k = \\max(\\epsilon_{\\min}, \\alpha q_k)` in m at look-ahead ``k``.
+
+        ``fallback`` before any score at ``k``; the largest score seen times
+        :math:`\\alpha` while the window is too short for the current level (never a
+        radius smaller than the data asked for).
+        """
+        margin = self.scores.margin(lookahead)
+        return self.fallback if math.isinf(margin) else max(self.floor, self.alpha * margin)
+
+    def radii(self) -> np.ndarray:
+        """Radii for every look-ahead, shape ``(T,)``, m (``epsilon=`` of ``safe_halfspaces``)."""
+        return np.array([self.radius(k) for k in range(1, self.horizon + 1)])

@@ -16,6 +16,9 @@ EPSILON = 0.05
 r"""Wasserstein radius :math:`\epsilon` in m of DR-CVaR's ambiguity set."""
 HORIZON = 10
 """MPC horizon :math:`T` in steps (2 s at the paper's :math:`T_s = 0.2` s)."""
+SPEED_SIDES = 8
+r"""Sides :math:`M` of the polygon inscribed in the speed disc :math:`\|v\| \le v_\max`
+that the MPC keeps (its rows :math:`h_j^\top v \le v_\max \cos(\pi/M)`)."""
 
 DISABLED_OFFSET = 1.0
 """Offset written in unused halfspace rows: the row reads ``0 @ y <= 1``."""

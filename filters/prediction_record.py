@@ -9,7 +9,7 @@ time arrives: the scores of :class:`filters.conformal.ConformalMargin` and the e
 Timeline (one call of :meth:`PredictionRecord.update` per control step ``t``): the
 environment reports the realised positions :math:`p_t` (``(n_obs, d)``) and samples
 :math:`\\hat p^{(j)}_{t+k}`, ``k = 1..T``. The samples issued at :math:`t - k` for
-look-ahead ``k`` are compared with :math:`p_t`:
+look-ahead ``k`` are compared with :math:`p_t`, obstacle by obstacle:
 
 .. math::
 
@@ -25,6 +25,13 @@ Why the Euclidean score: for every unit normal :math:`h`, Cauchy-Schwarz gives
 filter picks (the normal depends on the ego reference, which is chosen after the
 margin). An :math:`h`-projected score would be tighter but only valid for the
 normal it was computed with.
+
+Which row is which obstacle: by default row ``i`` is the same obstacle at every step.
+Where rows change hands (the ``K`` nearest pedestrians of a recorded scene fill ``K``
+slots, and a slot passes to a newcomer), the caller passes ``ids``: one identity per row,
+negative for an empty row. A prediction issued for obstacle ``n`` is then compared with
+the position of obstacle ``n`` only, wherever its row is now; an obstacle that has left,
+and an empty row, give no score.
 """
 
 from __future__ import annotations
@@ -54,6 +61,9 @@ class Realisation:
         :math:`e = p_{\\text{realised}} - \\hat\\mu`, shape ``(n_obs, d)``, m.
     scores
         :math:`s = \\lVert e \\rVert_2`, shape ``(n_obs,)``, m.
+    ids
+        Identity of each scored obstacle, ``(n_obs,)`` (the row index when the caller
+        gave no ``ids``).
     predicted_errors
         The predictor's own errors :math:`\\hat p^{(j)} - \\hat\\mu`, shape
         ``(n_obs, m, d)`` with ``m <= N_s`` (the first ``keep_samples`` samples), m.
@@ -67,6 +77,7 @@ class Realisation:
     scores: np.ndarray
     predicted_errors: np.ndarray
     n_samples: int
+    ids: np.ndarray | None = None
 
 
 class PredictionRecord:
@@ -97,7 +108,8 @@ class PredictionRecord:
         self.keep_samples = (None if keep_samples is None
                              else integer_at_least("keep_samples", keep_samples))
         self.memory = integer_at_least("memory", memory)
-        self._pending: deque[tuple[int, np.ndarray]] = deque(maxlen=self.horizon)
+        self._pending: deque[tuple[int, np.ndarray, np.ndarray | None]] = deque(
+            maxlen=self.horizon)
         self._scores: list[deque[np.ndarray]] = [
             deque(maxlen=self.memory) for _ in range(self.horizon)
         ]
@@ -107,7 +119,9 @@ class PredictionRecord:
         """Forget the pending predictions (call at an episode boundary); keep the scores."""
         self._pending.clear()
 
-    def update(self, samples: object, realised_positions: object) -> tuple[Realisation, ...]:
+    def update(
+        self, samples: object, realised_positions: object, ids: object | None = None
+    ) -> tuple[Realisation, ...]:
         """Match ``realised_positions`` with earlier predictions, then store ``samples``.
 
         Parameters
@@ -117,18 +131,24 @@ class PredictionRecord:
             ``(n_obs, N_s, T', d)`` with ``T' >= 1`` (only the first ``T`` steps are kept), m.
         realised_positions
             Positions realised now, :math:`p_t`, shape ``(n_obs, d)``, m.
+        ids
+            Identity of the obstacle in each row, integers ``(n_obs,)``, distinct among
+            the rows ``>= 0``; a negative id marks an empty row (neither scored nor
+            stored). ``None``: row ``i`` is obstacle ``i`` at every step.
 
         Returns
         -------
         tuple of Realisation
             One per look-ahead ``k`` whose prediction (issued ``k`` steps ago, in this
-            episode) is realised now, in increasing ``k``; empty on the first call.
+            episode) is realised now for at least one obstacle, in increasing ``k``;
+            empty on the first call.
 
         Raises
         ------
         InvalidArrayError
-            If an array has the wrong shape or holds NaN/inf, or the obstacle count or
-            dimension changed without :meth:`reset`.
+            If an array has the wrong shape or holds NaN/inf, ``ids`` repeats an id or
+            has the wrong shape, or (without ``ids``) the obstacle count or dimension
+            changed without :meth:`reset`.
         """
         points = finite_array("samples", samples, ndim=4)
         positions = finite_array("realised_positions", realised_positions, ndim=2)
@@ -142,29 +162,51 @@ class PredictionRecord:
                 f"realised_positions must have shape ({n_obs}, {dim}) to match samples "
                 f"{points.shape}, got {positions.shape}"
             )
-        if self._pending and self._pending[-1][1].shape[0::3] != (n_obs, dim):
+        identities = None if ids is None else _identities(ids, n_obs)
+        if self._pending:
             old = self._pending[-1][1].shape
-            raise InvalidArrayError(
-                f"samples have shape {points.shape} but the pending ones {old}: the obstacle "
-                "count or dimension changed; call reset() at an episode boundary"
-            )
+            if old[3] != dim or (identities is None and old[0] != n_obs):
+                raise InvalidArrayError(
+                    f"samples have shape {points.shape} but the pending ones {old}: the "
+                    "obstacle count or dimension changed; call reset() at an episode boundary "
+                    "(or pass ids)"
+                )
+        if identities is not None:  # keep the occupied rows only
+            occupied = identities >= 0
+            if not occupied.all():
+                points, positions = points[occupied], positions[occupied]
+                identities = identities[occupied]
         realised = []
-        for issued, old in reversed(self._pending):  # newest first: k = 1, 2, ...
+        for issued, old, old_ids in reversed(self._pending):  # newest first: k = 1, 2, ...
             k = self.step - issued
             if k > old.shape[2]:
                 continue
-            predicted = old[:, :, k - 1]  # (n_obs, N_s, d)
+            now, rows = positions, slice(None)
+            if identities is not None or old_ids is not None:
+                now_ids = np.arange(n_obs) if identities is None else identities
+                then_ids = np.arange(old.shape[0]) if old_ids is None else old_ids
+                if not np.array_equal(now_ids, then_ids):  # pair obstacle by obstacle
+                    _, rows, current = np.intersect1d(then_ids, now_ids, assume_unique=True,
+                                                      return_indices=True)
+                    if rows.size == 0:
+                        continue
+                    now = positions[current]
+            predicted = old[rows, :, k - 1]  # (n_obs, N_s, d)
+            if predicted.shape[0] == 0:  # nobody to score (every row empty)
+                continue
             mean = predicted.mean(axis=1)
-            errors = positions - mean
+            errors = now - mean
             scores = np.sqrt((errors * errors).sum(axis=-1))
             kept = predicted if self.keep_samples is None else predicted[:, : self.keep_samples]
             own = kept - mean[:, None, :]
-            for array in (errors, scores, own):
+            scored = (np.arange(old.shape[0]) if old_ids is None else old_ids)[rows]
+            for array in (errors, scores, own, scored):
                 array.flags.writeable = False
             self._scores[k - 1].append(scores)
-            realised.append(Realisation(k, self.step, errors, scores, own, predicted.shape[1]))
+            realised.append(Realisation(k, self.step, errors, scores, own, predicted.shape[1],
+                                        scored))
         stored = np.array(points[:, :, : self.horizon], dtype=np.float64)
-        self._pending.append((self.step, stored))
+        self._pending.append((self.step, stored, identities))
         self.step += 1
         return tuple(sorted(realised, key=lambda r: r.lookahead))
 
@@ -175,3 +217,18 @@ class PredictionRecord:
             raise InvalidParameterError(f"lookahead must be in 1..{self.horizon}, got {k}")
         kept = self._scores[k - 1]
         return np.concatenate(list(kept)) if kept else np.zeros(0)
+
+
+def _identities(ids: object, n_obs: int) -> np.ndarray:
+    """``ids`` as a read-only int64 array ``(n_obs,)``, distinct among the values ``>= 0``."""
+    array = np.asarray(ids)
+    if array.shape != (n_obs,) or not (array.size == 0 or np.issubdtype(array.dtype, np.integer)):
+        raise InvalidArrayError(
+            f"ids must be {n_obs} integers (one per row, negative: empty row), got {ids!r}"
+        )
+    identities = array.astype(np.int64)
+    occupied = identities[identities >= 0]
+    if np.unique(occupied).size != occupied.size:
+        raise InvalidArrayError(f"ids must be distinct among the occupied rows, got {ids!r}")
+    identities.flags.writeable = False
+    return identities

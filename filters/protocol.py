@@ -49,6 +49,13 @@ class FilterableEnv(Protocol):
     render_hooks
         Callables ``hook(ax)`` that the renderer calls with the matplotlib axes
         after drawing the scene, so a wrapper can draw its halfspaces.
+
+    Optional: ``max_speed``, the ego's speed limit ``||v||_2 <= max_speed`` in m/s
+    (the velocity is the state's second half), which the filter then keeps; ``inf`` or
+    absent: none. ``applied_input(state, action) -> u``, the input the environment
+    applies for a finite ``action`` at ``state`` (clipped to the box and to the speed
+    limit), which the reference makers use to roll their references out as the
+    environment would; absent: the action clipped to the box.
     """
 
     dt: float

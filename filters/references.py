@@ -42,21 +42,6 @@ class Policy(Protocol):
     ) -> tuple[np.ndarray, Any]: ...
 
 
-def rollout(A: np.ndarray, B: np.ndarray, x0: np.ndarray, inputs: np.ndarray) -> np.ndarray:
-    """States of ``x_{k+1} = A x_k + B u_k`` from ``x0`` under ``inputs`` (T, m).
-
-    Returns
-    -------
-    numpy.ndarray
-        Shape ``(T+1, n)``, row 0 is ``x0``.
-    """
-    states = np.empty((inputs.shape[0] + 1, x0.shape[0]))
-    states[0] = x0
-    for k, u in enumerate(inputs):
-        states[k + 1] = A @ states[k] + B @ u
-    return states
-
-
 def hold_action_reference(
     env: FilterableEnv, action: np.ndarray, horizon: int
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -64,6 +49,9 @@ def hold_action_reference(
 
     .. math:: u^r_k = \\operatorname{clip}(a, u_{min}, u_{max}),\\quad
               x^r_{k+1} = A x^r_k + B u^r_k,\\quad x^r_0 = x_t.
+
+    With an environment that has ``applied_input`` (a speed limit), :math:`u^r_k` is the
+    input the environment would apply for the clipped action at :math:`x^r_k`.
 
     A NaN entry of ``action`` stays NaN (``np.clip``'s result).
 
@@ -98,6 +86,14 @@ def hold_action_reference(
     u = np.clip(u, low, high)
     inputs = np.empty((int(horizon), m))
     inputs[:] = u
+    apply = getattr(env, "applied_input", None)  # the speed limit, if the env has one
+    if apply is not None and np.isfinite(u).all():
+        states = np.empty((int(horizon) + 1, n))
+        states[0] = x0
+        for k in range(int(horizon)):
+            inputs[k] = apply(states[k], u)
+            states[k + 1] = A @ states[k] + B @ inputs[k]
+        return states, inputs
     powers, sums = _held_maps(A, B, int(horizon))
     states = (powers @ x0 + sums @ u).reshape(int(horizon) + 1, n)
     return states, inputs
@@ -140,7 +136,8 @@ class PolicyRolloutReference:
     samples for look-ahead step :math:`k` (m), :math:`v` the obstacles' current
     velocities (m/s), ``observe`` the environment's own observation
     (:meth:`filters.protocol.FilterableEnv.observe`: the one definition) and ``clip``
-    the input box (m/s², a NaN stays NaN). The environment is not stepped.
+    the input box (m/s², a NaN stays NaN), then, if the environment has
+    ``applied_input``, its speed limit. The environment is not stepped.
 
     Parameters
     ----------
@@ -175,10 +172,13 @@ class PolicyRolloutReference:
         states[0] = env.ego_state
         inputs[0] = np.clip(action, low, high)
         observe, predict = env.observe, self.policy.predict
+        apply = getattr(env, "applied_input", None)  # the speed limit, if the env has one
         for k in range(horizon):
             if k > 0:
                 proposal, _ = predict(observe(states[k], predicted_means[:, k - 1], velocities),
                                       deterministic=True)
                 inputs[k] = np.clip(np.asarray(proposal, dtype=float).reshape(-1), low, high)
+            if apply is not None and np.isfinite(inputs[k]).all():
+                inputs[k] = apply(states[k], inputs[k])
             states[k + 1] = A @ states[k] + B @ inputs[k]
         return states, inputs

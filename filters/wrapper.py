@@ -104,6 +104,16 @@ class SafetyFilterWrapper(CalibrationMixin, HalfspaceRowsMixin, RenderHookMixin,
         ``"auto"``: a radius per look-ahead step estimated online from the realised
         against the predicted positions (:class:`filters.calibration.WassersteinRadius`,
         0.05 m until enough data; see ``calibration_episodes``).
+    adaptive_epsilon
+        With ``risk="dr_cvar"`` and a numeric ``epsilon``: the radius per look-ahead step
+        is calibrated online (:class:`filters.calibration.AdaptiveRadius`): a conformal
+        quantile, moved by adaptive conformal inference, of the radius each observed
+        obstacle position needed to lie within the DR-CVaR bound of its prediction for
+        every normal, at miscoverage ``alpha``; ``epsilon`` is then the smallest radius
+        and the radius before any data (``epsilon=0``: the radius follows the data both
+        ways). It widens when the predictions understate the noise and comes back down
+        when they do not (its guarantee: the filter guide). Ignored for other risks and
+        with ``epsilon="auto"``. Default ``False``.
     horizon
         Filter horizon T in steps; at most the environment's prediction horizon.
         ``None`` uses the prediction horizon.
@@ -142,9 +152,10 @@ class SafetyFilterWrapper(CalibrationMixin, HalfspaceRowsMixin, RenderHookMixin,
         flip; ``"nearside"`` while there is no optimal plan; see
         :func:`filters.normals.clearest_normals`).
     fallback
-        ``"soft"`` (default): when the hard QP is infeasible, the exact-penalty QP with
-        halfspace and arena rows softened (it equals the hard solution whenever that is
-        feasible), which brings the ego back towards safety and into the arena;
+        ``"soft"`` (default): when the hard QP is infeasible, the exact-penalty recovery
+        QP with the halfspace rows softened: the least violation, then the lowest speed
+        (it brakes; arena rows softened too only if they cannot hold, which brings the
+        ego back into the arena; :mod:`filters.mpc.recovery`);
         ``"paper"``: the paper's Remark, the last optimal plan shifted, then braking.
     terminal
         Add the terminal condition that the plan ends able to stop inside the arena
@@ -216,6 +227,11 @@ class SafetyFilterWrapper(CalibrationMixin, HalfspaceRowsMixin, RenderHookMixin,
 
     Notes
     -----
+    The speed limit is ``env.unwrapped.max_speed`` (m/s; ``inf`` or absent: none): every
+    QP keeps the plan's velocities in the polygon inscribed in the speed disc
+    (:class:`filters.mpc.MPCProblem`), so the environment's own limit never has to
+    change the filtered action.
+
     ``info["filter"]`` is a :class:`FilterReport`: the status, the proposed and the
     applied action, the intervention size, the timings, the slack and the halfspaces
     (safe side ``normals @ y <= offsets``). Statuses: ``"optimal"``; ``"soft"`` (some
@@ -255,6 +271,7 @@ class SafetyFilterWrapper(CalibrationMixin, HalfspaceRowsMixin, RenderHookMixin,
         calibration_episodes: int | None = None,
         calibration_seed: int = CALIBRATION_SEED,
         calibration_memory: str = "episode",
+        adaptive_epsilon: bool = False,
         compiled_rollout: bool | None = None,
         fast_path: bool | None = None,
     ) -> None:
@@ -268,7 +285,8 @@ class SafetyFilterWrapper(CalibrationMixin, HalfspaceRowsMixin, RenderHookMixin,
             intervention_penalty=intervention_penalty, support=support,
             draw_halfspaces=draw_halfspaces, calibration_episodes=calibration_episodes,
             calibration_seed=calibration_seed, calibration_memory=calibration_memory,
-            compiled_rollout=compiled_rollout, fast_path=fast_path,
+            adaptive_epsilon=adaptive_epsilon, compiled_rollout=compiled_rollout,
+            fast_path=fast_path,
         )
         gym.Wrapper.__init__(self, env)
         self._unwrapped: FilterableEnv = env.unwrapped  # type: ignore[assignment]
@@ -306,7 +324,8 @@ class SafetyFilterWrapper(CalibrationMixin, HalfspaceRowsMixin, RenderHookMixin,
             low_inclusive=False, high_inclusive=False,
         )
         for name, flag in (("intersample", intersample), ("terminal", terminal),
-                           ("soft", soft), ("draw_halfspaces", draw_halfspaces)):
+                           ("soft", soft), ("draw_halfspaces", draw_halfspaces),
+                           ("adaptive_epsilon", adaptive_epsilon)):
             if not isinstance(flag, (bool, np.bool_)):
                 raise InvalidTypeError(f"{name} must be a bool, got {flag!r}")
         for name, value in (("compiled_rollout", compiled_rollout), ("fast_path", fast_path)):
@@ -359,10 +378,14 @@ class SafetyFilterWrapper(CalibrationMixin, HalfspaceRowsMixin, RenderHookMixin,
         self._calibrated: OnlineCalibration | None = None  # the state each episode starts from
         self.calibration_episodes = 0
         self.calibration_time = 0.0
-        if self.risk == "conformal" or self.epsilon == "auto":
+        self.adaptive_epsilon = (bool(adaptive_epsilon) and self.risk == "dr_cvar"
+                                 and self.epsilon != "auto")
+        if self.risk == "conformal" or self.epsilon == "auto" or self.adaptive_epsilon:
             # alpha is the conformal miscoverage; with epsilon="auto" alone it is unused
             self._calibration = OnlineCalibration(
-                self.horizon, self.alpha if self.risk == "conformal" else 0.2
+                self.horizon, self.alpha if self.risk == "conformal" else 0.2,
+                **({"adaptive_alpha": self.alpha, "radius_fallback": self.epsilon,
+                    "adaptive": {"floor": self.epsilon}} if self.adaptive_epsilon else {}),
             )
             if self.risk != "none":
                 self.calibration_episodes = CALIBRATION_EPISODES if episodes is None else episodes
@@ -405,6 +428,7 @@ class SafetyFilterWrapper(CalibrationMixin, HalfspaceRowsMixin, RenderHookMixin,
             n_obstacles=self.rows_per_obstacle * rows, soft=self.soft,
             objective=self.objective, later_input_weight=self.later_input_weight,
             terminal_set=terminal_set, fallback=self.fallback,
+            max_speed=float(getattr(base, "max_speed", np.inf)),
         )
 
     # ------------------------------------------------------------------ gym API

@@ -1,9 +1,10 @@
 """Calibration glue of :class:`filters.wrapper.SafetyFilterWrapper`.
 
 The held-out calibration run at construction (``risk="conformal"``,
-``epsilon="auto"``: split conformal, calibrate on held-out braking episodes, then run),
-its per-process snapshots, and the per-step feed of the online calibration
-(:class:`filters.calibration.OnlineCalibration`) and the calibrated risk options.
+``epsilon="auto"``, ``adaptive_epsilon=True``: split conformal, calibrate on held-out
+braking episodes, then run), its per-process snapshots, and the per-step feed of the
+online calibration (:class:`filters.calibration.OnlineCalibration`) and the calibrated
+risk options.
 """
 
 from __future__ import annotations
@@ -52,18 +53,21 @@ def calibration_settings(
     calibration_episodes: int | None = None,
     calibration_seed: int = CALIBRATION_SEED,
     calibration_memory: str = "episode",
+    adaptive_epsilon: bool = False,
     **_other: Any,
 ) -> dict[str, Any] | None:
     """The held-out calibration a :class:`filters.wrapper.SafetyFilterWrapper` with these
     keywords runs.
 
-    ``None`` if it runs none (no conformal margin, no ``epsilon="auto"``, or
-    ``risk="none"``); else the resolved ``calibration_episodes``, ``calibration_seed``
-    and ``calibration_memory`` (defaults filled in), for run keys and records. Other
-    wrapper keywords are accepted and ignored, so ``calibration_settings(**kwargs)``
-    works on a wrapper's keyword dict. Values are not validated here (the wrapper does).
+    ``None`` if it runs none (no conformal margin, no ``epsilon="auto"``, no
+    ``adaptive_epsilon`` with ``risk="dr_cvar"``, or ``risk="none"``); else the resolved
+    ``calibration_episodes``, ``calibration_seed`` and ``calibration_memory`` (defaults
+    filled in), for run keys and records. Other wrapper keywords are accepted and
+    ignored, so ``calibration_settings(**kwargs)`` works on a wrapper's keyword dict.
+    Values are not validated here (the wrapper does).
     """
-    if risk == "none" or not (risk == "conformal" or epsilon == "auto"):
+    adaptive = bool(adaptive_epsilon) and risk == "dr_cvar" and epsilon != "auto"
+    if risk == "none" or not (risk == "conformal" or epsilon == "auto" or adaptive):
         return None
     episodes = CALIBRATION_EPISODES if calibration_episodes is None else calibration_episodes
     return {"calibration_episodes": episodes, "calibration_seed": calibration_seed,
@@ -104,11 +108,17 @@ class CalibrationMixin:
     :class:`filters.wrapper.SafetyFilterWrapper`, whose attributes they use)."""
 
     def _calibrate(self) -> None:
-        """Score the realised obstacle positions against the predictions issued for now."""
+        """Score the realised obstacle positions against the predictions issued for now.
+
+        An environment whose obstacle rows change hands names the obstacle in each row
+        (``obstacle_ids``, negative for an empty row): each prediction is then scored
+        against its own obstacle's position only.
+        """
         base = self._base
         predictions = np.asarray(base.predictions, dtype=float)[:, :, : self.horizon]
         if np.all(np.isfinite(predictions)):
-            self._calibration.update(predictions, np.asarray(base.obstacle_positions))
+            self._calibration.update(predictions, np.asarray(base.obstacle_positions),
+                                     ids=getattr(base, "obstacle_ids", None))
 
     def _warm_up_calibration(self) -> None:
         """Feed ``calibration_episodes`` held-out braking episodes to the calibration.
@@ -175,6 +185,7 @@ class CalibrationMixin:
         return (type(base).__module__, type(base).__qualname__, spec.id, kwargs,
                 _plain_settings(spec.max_episode_steps), self.horizon,
                 self._calibration.conformal.alpha, self.epsilon == "auto",
+                (self.alpha, self.epsilon) if self.adaptive_epsilon else None,
                 self.calibration_episodes, self.calibration_seed)
 
     def _risk_options(self) -> dict[str, Any]:
@@ -183,6 +194,8 @@ class CalibrationMixin:
                                        epsilon=self.epsilon)
         if self.epsilon == "auto":
             options["epsilon"] = self._calibration.radii()
+        elif self.adaptive_epsilon:
+            options["epsilon"] = self._calibration.adaptive_radii()
         if self.risk == "conformal":
             options["conformal_margins"] = self._calibration.margins()
         return options

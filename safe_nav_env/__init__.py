@@ -31,7 +31,12 @@ from safe_nav_env.noise import (
     resolve_noise,
 )
 from safe_nav_env.obstacles import ObstacleModel, distance_to_collision
-from safe_nav_env.predictors import ConstantVelocityKalman, Predictor, resolve_predictor
+from safe_nav_env.predictors import (
+    ConstantVelocityKalman,
+    Predictor,
+    StalePredictor,
+    resolve_predictor,
+)
 from safe_nav_env.registration import ENV_IDS, PEDESTRIANS_ID, register_envs
 from safe_nav_env.scenarios import (
     HEAD_ON,
@@ -80,6 +85,7 @@ __all__ = [
     "Scenario",
     "ScenarioError",
     "ScenarioNameWarning",
+    "StalePredictor",
     "StressCase",
     "StudentT",
     "distance_to_collision",

@@ -24,5 +24,9 @@ MAX_ACCELERATION = 10.0
 """Input bound in m/s² per axis: the action space is ``[-10, 10]²``."""
 EGO_START_SPEED = 1.5
 """Speed in m/s along +x at which the ego starts in the paper's scenarios."""
+MAX_SPEED = 5.0
+r"""Speed limit :math:`v_\max` of the ego in m/s: the environment keeps
+:math:`\|v\|_2 \le v_\max`. Chosen by measurement on the paper's scenes (at 3 m/s the
+filtered MPC planner collided head-on; see CHANGELOG.md)."""
 PAPER_SCENARIOS = ("HeadOn", "Overtaking", "Intersection", "MultiObstacle")
 """The paper's four scenarios (gym ids ``SafeNav/<name>-v0``)."""

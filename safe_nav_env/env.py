@@ -10,13 +10,15 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from safe_nav_env.actuation import Actuation, resolve_actuation
 from safe_nav_env.collision import swept_clearance
-from safe_nav_env.constants import DT, HORIZON, MAX_ACCELERATION
-from safe_nav_env.dynamics import double_integrator
-from safe_nav_env.errors import ConfigError, InvalidActionError, ScenarioError
+from safe_nav_env.constants import DT, HORIZON, MAX_ACCELERATION, MAX_SPEED
+from safe_nav_env.dynamics import applied_acceleration, double_integrator, parse_action
+from safe_nav_env.errors import ConfigError, ScenarioError
+from safe_nav_env.info import _padded
 from safe_nav_env.noise import NoiseModel, resolve_noise
 from safe_nav_env.obstacles import ObstacleModel, distance_to_collision
-from safe_nav_env.options import _option, _resolve_scenario
+from safe_nav_env.options import _check_start_speed, _option, _resolve_scenario, _speed_option
 from safe_nav_env.predictors import Predictor, check_predictions, resolve_predictor
 from safe_nav_env.scenarios import Scenario, ScenarioFactory
 from safe_nav_env.starts import RandomStart, resolve_random_start
@@ -44,7 +46,10 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
 
     **Action**: the acceleration ``u`` in m/s², a float32
     ``Box(-max_acceleration, max_acceleration, (2,))`` (default ±10 m/s² per axis,
-    ample for the paper's manoeuvres). Actions outside the box are clipped.
+    ample for the paper's manoeuvres). Actions outside the box are clipped. **Speed
+    limit** ``||v||_2 <= max_speed`` (5 m/s): an action whose next velocity leaves that
+    disc is replaced by the closest one that keeps it (the velocity projected onto the
+    disc, within the box: :func:`~safe_nav_env.dynamics.applied_acceleration`).
 
     **Observation**: a float32 vector of length ``6 + 5 * max_obstacles`` (26 by default)::
 
@@ -59,7 +64,8 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
     Obstacles fill the slots nearest first (by centre distance to the ego); when a
     scenario has more than ``max_obstacles`` obstacles the farthest are left out of
     the observation (they still move, collide and appear in ``info``). The space's
-    bounds are ±float32 max (flags in ``[0, 1]``): positions are not clipped.
+    bounds are ±float32 max (flags in ``[0, 1]``; the ego velocity in
+    ``[-max_speed, max_speed]``): positions are not clipped.
 
     **Reward** (every weight is a constructor option, so a ``gym.make`` keyword)::
 
@@ -104,6 +110,9 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         sampled statistic; it implies ``collision``).
     ``is_success``, ``distance_to_goal``, ``ego_state``, ``out_of_bounds``, ``time``
         Goal reached; ``||y - g||`` in m; ``x`` (4,); ego outside the arena; time in s.
+    ``acceleration`` (2,)
+        The input applied over the last step (the action clipped to the box and the
+        speed limit), in m/s²; zeros after :meth:`reset`.
 
     With ``pad_info`` the per-obstacle entries have ``max_obstacles`` rows and
     ``info["obstacle_present"]`` marks the real ones; absent obstacles are
@@ -116,7 +125,8 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
     protocol, on ``env.unwrapped``): :attr:`dt`, :attr:`dynamics`, :attr:`ego_state`,
     :attr:`ego_radius`, :attr:`obstacle_radii`, :attr:`obstacle_positions`,
     :attr:`obstacle_velocities`, :attr:`predictions`, :attr:`input_bounds`,
-    :attr:`position_bounds`, :attr:`goal`, :attr:`render_hooks` and :meth:`observe`.
+    :attr:`position_bounds`, :attr:`goal`, :attr:`render_hooks`, :meth:`observe`; and
+    :attr:`max_speed` and :meth:`applied_input`, for the filter's speed limit.
     They describe the current episode once :meth:`reset` has been called.
 
     Parameters
@@ -141,6 +151,10 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         Sampling time in s (default 0.2).
     max_acceleration
         Bound of each action component, in m/s² (default 10).
+    max_speed
+        Speed limit ``v_max`` of the ego, in m/s, ``> 0`` (default
+        :data:`~safe_nav_env.constants.MAX_SPEED`, 5 m/s); ``inf`` or ``None`` switch it off. A
+        scenario whose ego starts faster is refused at :meth:`reset`.
     max_obstacles
         Obstacle slots in the observation (default 4).
     progress_weight, arrival_bonus, control_cost_weight, collision_penalty, time_penalty
@@ -166,6 +180,9 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         goal from the states a safety filter leads it into. ``None`` (default) or ``0``:
         the scenario's start, always; a probability in (0, 1]; a mapping of
         :class:`~safe_nav_env.starts.RandomStart` fields; or a ``RandomStart``.
+    actuator_lag, drag
+        Ego actuation the filter does not model (:mod:`safe_nav_env.actuation`): actuator
+        time constant ``τ`` in s, linear drag ``c`` in 1/s (>= 0; default 0: off).
 
     Raises
     ------
@@ -186,6 +203,7 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         episode_length: float | None = None,
         dt: float = DT,
         max_acceleration: float = MAX_ACCELERATION,
+        max_speed: float | None = MAX_SPEED,
         max_obstacles: int = 4,
         progress_weight: float = 1.0,
         arrival_bonus: float = 10.0,
@@ -197,6 +215,8 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         pad_info: bool | None = None,
         predictor: Predictor | str | None = None,
         random_start: RandomStart | float | Mapping[str, Any] | None = None,
+        actuator_lag: float = 0.0,
+        drag: float = 0.0,
     ) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ConfigError(
@@ -210,13 +230,11 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
             None if n_samples is None else _option("n_samples", n_samples, low=1, integer=True)
         )
         self.horizon: int = _option("horizon", horizon, low=1, integer=True)
-        self._episode_length = (
-            None
-            if episode_length is None
-            else _option("episode_length", episode_length, strict=True)
-        )
+        self._episode_length = None if episode_length is None else _option(
+            "episode_length", episode_length, strict=True)
         self.dt: float = _option("dt", dt, strict=True)
         self.max_acceleration = _option("max_acceleration", max_acceleration, strict=True)
+        self.max_speed: float = _speed_option(max_speed)
         self.max_obstacles: int = _option("max_obstacles", max_obstacles, integer=True)
         self.progress_weight = _option("progress_weight", progress_weight)
         self.arrival_bonus = _option("arrival_bonus", arrival_bonus)
@@ -230,15 +248,14 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         )
         self.predictor: Predictor | None = resolve_predictor(predictor)
         self.random_start: RandomStart | None = resolve_random_start(random_start)
+        self.actuation: Actuation | None = resolve_actuation(actuator_lag, drag, self.dt)
         self._history: list[np.ndarray] = []
 
         # What a safety filter reads (filters.protocol.FilterableEnv).
         self.dynamics: tuple[np.ndarray, np.ndarray, np.ndarray] = double_integrator(self.dt)
         bound = np.full(2, self.max_acceleration)
-        self.input_bounds: tuple[np.ndarray, np.ndarray] = (
-            _read_only(-bound),
-            _read_only(bound.copy()),
-        )
+        self.input_bounds: tuple[np.ndarray, np.ndarray] = (_read_only(-bound),
+                                                           _read_only(bound.copy()))
         self.render_hooks: list[Callable[[Any], None]] = []
 
         self.action_space = spaces.Box(-self.max_acceleration, self.max_acceleration, (2,),
@@ -247,6 +264,7 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         low, high = np.full(size, -_BIG, np.float32), np.full(size, _BIG, np.float32)
         flags = _EGO_SIZE + _SLOT_SIZE * np.arange(self.max_obstacles) + 4
         low[flags], high[flags] = 0.0, 1.0
+        low[2:4], high[2:4] = max(-self.max_speed, -_BIG), min(self.max_speed, _BIG)
         self.observation_space = spaces.Box(low, high, dtype=np.float32)
 
         self._renderer: Any = None
@@ -288,10 +306,8 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         arena = np.array(scenario.arena, dtype=np.float64)
         self._arena = scenario.arena
         self._goal = scenario.goal
-        self.position_bounds: tuple[np.ndarray, np.ndarray] = (
-            _read_only(arena[0]),
-            _read_only(arena[1]),
-        )
+        self.position_bounds: tuple[np.ndarray, np.ndarray] = (_read_only(arena[0]),
+                                                              _read_only(arena[1]))
         self.ego_state: np.ndarray = _read_only(np.array(scenario.ego_start, dtype=np.float64))
         self.obstacle_positions: np.ndarray = _read_only(self._model.starts.copy())
         self.obstacle_velocities: np.ndarray = _read_only(self._model.initial_velocities.copy())
@@ -299,6 +315,7 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
             np.zeros((self._model.n, self.n_samples, self.horizon, 2))
         )
         self.step_count = 0
+        self._applied = _read_only(np.zeros(2))
         start, goal = scenario.ego_start, scenario.goal
         self._distance_to_goal = math.hypot(start[0] - goal[0], start[1] - goal[1])
 
@@ -322,7 +339,8 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
     ) -> np.ndarray:
         """Observation the agent would receive in the given (hypothetical) situation.
 
-        Uses the current goal; does not touch the environment's state.
+        Uses the current goal; does not touch the environment's state. Returns the
+        float32 vector laid out as in the class docstring.
 
         Parameters
         ----------
@@ -330,11 +348,6 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
             ``[p_x, p_y, v_x, v_y]``, shape ``(4,)``.
         obstacle_positions, obstacle_velocities
             Shape ``(n, 2)`` each, in m and m/s; ``n`` may differ from the scenario's.
-
-        Returns
-        -------
-        numpy.ndarray
-            Float32 vector laid out as in the class docstring.
         """
         x = np.asarray(ego_state, dtype=np.float64)
         positions = np.asarray(obstacle_positions, dtype=np.float64)
@@ -401,26 +414,11 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
             "ego_state": self.ego_state,
             "out_of_bounds": not (low[0] <= px <= high[0] and low[1] <= py <= high[1]),
             "time": self.step_count * self.dt,
+            "acceleration": self._applied,
         }
         if self.pad_info:
-            info.update(self._padded(info))
+            info.update(_padded(info, self._model.n, self.max_obstacles))
         return info
-
-    def _padded(self, info: dict[str, Any]) -> dict[str, Any]:
-        n, rows = self._model.n, self.max_obstacles
-        padded: dict[str, Any] = {}
-        for key, fill in (("predictions", np.inf), ("obstacle_positions", np.inf),
-                          ("obstacle_velocities", 0.0), ("distance_to_collision", np.inf),
-                          ("swept_distance_to_collision", np.inf)):
-            value = info[key]
-            array = np.empty((rows, *value.shape[1:]))
-            array[:n] = value
-            array[n:] = fill  # only the padding rows: no second pass over the data
-            padded[key] = _read_only(array)
-        present = np.zeros(rows, dtype=bool)
-        present[:n] = True
-        padded["obstacle_present"] = present
-        return padded
 
     # ------------------------------------------------------------------- API
 
@@ -463,6 +461,7 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         self.obstacle_velocities = _read_only(model.velocities)
         if self.random_start is not None:
             self._draw_start()
+        _check_start_speed(scenario.name, self.ego_state, self.max_speed)
         self.predictions = _read_only(
             model.predict(self.np_random, self.noise.prediction, self.n_samples, self.horizon)
             if self.predictor is None else self._predict_from_history(reset=True)
@@ -487,6 +486,9 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         )
         if drawn is not None:
             start, goal = drawn
+            speed = math.hypot(start[2], start[3])
+            if speed > self.max_speed:  # the draw's speed, capped at the limit
+                start[2:4] *= self.max_speed / speed
             self.ego_state = _read_only(start)
             self.goal = _read_only(goal)
             self._goal = (float(goal[0]), float(goal[1]))
@@ -502,31 +504,24 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         time, see the class docstring) and at the new positions (sampled), the reward
         follows, and the predictions for the ``T`` steps after the new state are drawn.
 
+        The applied input (``info["acceleration"]``) is the action after the actuation
+        options, clipped to the box and the speed limit (:func:`~.dynamics.applied_acceleration`).
+
         Raises
         ------
         InvalidActionError
             If ``action`` does not have 2 entries or holds NaN or infinite values.
         """
-        try:
-            u = np.asarray(action, dtype=np.float64).ravel()
-        except (TypeError, ValueError) as exc:
-            raise InvalidActionError(
-                f"action must be 2 accelerations (a_x, a_y) in m/s², shape (2,), got {action!r}"
-            ) from exc
-        if u.shape != (2,):  # a scalar is not broadcast to both axes
-            raise InvalidActionError(
-                f"action must have shape (2,) (a_x, a_y in m/s²), got shape {np.shape(action)}: "
-                f"{action!r}")
-        ux, uy = u.tolist()
-        if not (math.isfinite(ux) and math.isfinite(uy)):
-            raise InvalidActionError(f"action must be finite, got {action!r}")
-        a_max = self.max_acceleration
-        ux = min(max(ux, -a_max), a_max)
-        uy = min(max(uy, -a_max), a_max)
         dt = self.dt
         half_dt2 = 0.5 * dt * dt
         start = self.ego_state.tolist()
         px, py, vx, vy = start
+        u = np.clip(parse_action(action), -self.max_acceleration, self.max_acceleration)
+        if self.actuation is not None:  # lag and drag the filter does not model
+            u = self.actuation.apply(*u.tolist(), vx, vy, first=self.step_count == 0)
+        ux, uy = applied_acceleration((vx, vy), tuple(u), dt, self.max_acceleration,
+                                      self.max_speed)  # the box and the speed limit hold last
+        self._applied = _read_only(np.array((ux, uy)))
         # x_{t+1} = A x_t + B u_t: p + T_s v + T_s²/2 u, v + T_s u.
         px, py = px + dt * vx + half_dt2 * ux, py + dt * vy + half_dt2 * uy
         vx, vy = vx + dt * ux, vy + dt * uy
@@ -570,6 +565,11 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
                 self.render()
         obs = self._observe(self.ego_state, delta, self.obstacle_velocities, centre)
         return obs, reward, bool(terminated), bool(truncated), info
+
+    def applied_input(self, state: np.ndarray, action: np.ndarray) -> np.ndarray:
+        """The input applied for ``action`` at ``state`` (the box, then the speed limit)."""
+        return np.array(applied_acceleration((state[2], state[3]), (action[0], action[1]),
+                                             self.dt, self.max_acceleration, self.max_speed))
 
     def render(self) -> np.ndarray | None:
         """Draw the scene with matplotlib (imported here, not at package import).

@@ -20,6 +20,8 @@ After the step the anchor moves to ``\\bar p_{t+1}``. A turning obstacle (see
 :class:`~safe_nav_env.scenarios.ObstacleSpec`) rotates its velocity by the
 increment of its heading schedule ``θ(s) = sign(ω) min(|ω| max(s - s_0, 0), Θ)``
 each step. An obstacle with zero velocity keeps ``\\bar p_{t+1} = a`` (its start).
+A stopping obstacle (``stop_window``) has ``\\bar p_{t+1} = \\Pi(p_t)`` once halted; its
+nominal velocity ``v_t``, and so the predictions below, keep the lane speed.
 
 Predictions
 -----------
@@ -37,6 +39,7 @@ constant-velocity trajectory from the obstacle's current position plus noise.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -104,6 +107,12 @@ class ObstacleModel:
         Radii, shape ``(n,)``, in m.
     turning
         Whether each obstacle turns in this episode, shape ``(n,)`` (drawn at reset).
+    stop_times
+        When each obstacle halts in this episode, in s (drawn at reset from its
+        ``stop_window``; ``inf``: never), shape ``(n,)``. From the first step that
+        starts at or after its stop time, an obstacle's nominal next position is its
+        current projected position ``Π(p_t)`` (no advance along the lane); its
+        :attr:`velocities` and the predictions keep the lane speed.
     """
 
     def __init__(self, specs: Sequence[ObstacleSpec], dt: float) -> None:
@@ -120,6 +129,11 @@ class ObstacleModel:
         self.turn_angles = np.array([s.turn_angle for s in specs], dtype=np.float64)
         self.can_turn = self.turn_rates != 0.0
         self.any_can_turn = bool(self.can_turn.any())
+        windows = [s.stop_window or (math.inf, math.inf) for s in specs]
+        self.stop_windows = np.array(windows, dtype=np.float64).reshape(self.n, 2)
+        self.can_stop = np.isfinite(self.stop_windows[:, 0])
+        self.any_can_stop = bool(self.can_stop.any())
+        self.stop_times = np.full(self.n, math.inf)
         self.radii.flags.writeable = False
         self.step_count = 0
         self._set_state(self.starts.copy(), self.initial_velocities.copy(), self.starts.copy())
@@ -147,6 +161,10 @@ class ObstacleModel:
             self.turning = self.can_turn & (rng.random(self.n) < self.turn_probabilities)
         else:
             self.turning = np.zeros(self.n, dtype=bool)
+        if self.any_can_stop:
+            low, high = self.stop_windows[:, 0], self.stop_windows[:, 1]
+            draws = low + (high - low) * rng.random(self.n)
+            self.stop_times = np.where(self.can_stop, draws, math.inf)
 
     def heading(self, times: np.ndarray) -> np.ndarray:
         """Heading offset ``θ(s)`` of the turning schedule at ``times`` (s), shape ``(n, ...)``.
@@ -179,6 +197,10 @@ class ObstacleModel:
         :attr:`positions` and :attr:`velocities` are replaced, never modified in place.
         """
         nominal = self.nominal_next()
+        if self.any_can_stop:  # halted obstacles do not advance along their lanes
+            halted = self.stop_times <= self.step_count * self.dt
+            if halted.any():
+                nominal = np.where(halted[:, None], self.projected(), nominal)
         positions = nominal + law.sample(rng, (self.n, 2))
         self.step_count += 1
         if self.any_can_turn and self.turning.any():

@@ -31,6 +31,30 @@ def _option(
     return int(value) if integer else float(value)
 
 
+def _speed_option(value: Any) -> float:
+    """Validate ``max_speed`` (m/s): a number ``> 0``; ``inf`` or ``None`` (JSON's
+    ``null``, for the command line) for no speed limit."""
+    if value is None or (not isinstance(value, bool) and value == math.inf
+                         and isinstance(value, int | float | np.integer | np.floating)):
+        return math.inf
+    try:
+        return _option("max_speed", value, strict=True)
+    except ConfigError:
+        raise ConfigError(f"max_speed must be a number > 0 (in m/s), or inf or None (no speed "
+                          f"limit), "
+                          f"got {value!r}") from None
+
+
+def _check_start_speed(name: str, state: np.ndarray, max_speed: float) -> None:
+    """Raise :class:`ScenarioError` if the ego starts (``state = [p, v]``) faster than
+    ``max_speed`` (m/s)."""
+    speed = math.hypot(state[2], state[3])
+    if speed > max_speed:
+        raise ScenarioError(
+            f"scenario {name!r}: the ego starts at {speed:g} m/s, above "
+            f"max_speed={max_speed:g} m/s; pass a larger max_speed (inf: no limit)")
+
+
 def _resolve_scenario(value: Any, path: str = "scenario") -> Scenario | ScenarioFactory:
     """The scenario (or factory ``rng -> Scenario``) named or described by ``value``.
 

@@ -22,6 +22,8 @@ Built in:
   episodes are bit-for-bit those of an environment without the keyword;
 * :class:`ConstantVelocityKalman` (``"kalman"``): a constant-velocity Kalman filter
   on the observed positions only, no access to the lane;
+* :class:`StalePredictor`: any of these fed the history without its last ``k`` rows,
+  i.e. predictions made ``k`` steps ago (late predictions);
 * any user callable with the signature above.
 
 Pass one to the environment with ``gym.make(id, predictor=...)``. A custom
@@ -43,6 +45,7 @@ __all__ = [
     "PREDICTORS",
     "ConstantVelocityKalman",
     "Predictor",
+    "StalePredictor",
     "check_predictions",
     "resolve_predictor",
 ]
@@ -241,6 +244,62 @@ class ConstantVelocityKalman:
         z = rng.standard_normal((n_obs, int(n_samples), dim, int(horizon)))
         draws = z @ chol.T  # (n_obs, N_s, d, T)
         return future[:, None] + np.swapaxes(draws, -1, -2)
+
+
+class StalePredictor:
+    """Late predictions: a base predictor that sees the positions only ``delay`` steps late.
+
+    At time ``t`` the base predictor is called with the history up to ``t - k``
+    (``k = delay``; at least the first row), so it returns its samples for steps
+    ``t-k+1 .. t-k+T``, and these are handed out as the predictions for ``t+1 .. t+T``:
+    a perception-and-prediction pipeline whose output arrives ``k`` steps
+    (``k T_s`` s) after the positions it was computed from. Each predicted position
+    lags the obstacle's true motion by ``k`` steps (``k T_s v`` m at speed ``v``).
+
+    Parameters
+    ----------
+    base
+        A predictor that uses the history (see :class:`Predictor`; default
+        ``"kalman"``, a :class:`ConstantVelocityKalman`). The environment's own sampler
+        (``None`` / ``"environment"``) predicts from the true current state, not from
+        the history, so it cannot be made late this way.
+    delay
+        ``k``, in steps, an integer ``>= 0`` (0: the base predictor unchanged).
+
+    Raises
+    ------
+    ConfigError
+        If ``base`` is the environment's sampler or not a predictor, or ``delay`` is not
+        an integer ``>= 0``.
+    """
+
+    def __init__(self, base: Predictor | str | None = "kalman", *, delay: int = 1) -> None:
+        resolved = resolve_predictor(base)
+        if resolved is None:
+            raise ConfigError(
+                "StalePredictor needs a predictor that uses the observed history (e.g. "
+                f"'kalman'), not the environment's own sampler; got base={base!r}")
+        if (isinstance(delay, bool) or not isinstance(delay, int | np.integer)
+                or delay < 0):
+            raise ConfigError(f"delay must be an integer >= 0 (steps), got {delay!r}")
+        self.base: Predictor = resolved
+        self.delay = int(delay)
+
+    def __repr__(self) -> str:
+        return f"StalePredictor({self.base!r}, delay={self.delay})"
+
+    def __call__(
+        self,
+        history: np.ndarray,
+        *,
+        dt: float,
+        horizon: int,
+        n_samples: int,
+        rng: np.random.Generator,
+    ) -> np.ndarray:
+        """The base predictor's samples from ``history[: len - delay]`` (at least one row), m."""
+        rows = max(1, len(history) - self.delay)
+        return self.base(history[:rows], dt=dt, horizon=horizon, n_samples=n_samples, rng=rng)
 
 
 def _check_history(history: object) -> np.ndarray:

@@ -111,6 +111,12 @@ class ObstacleSpec:
         Time at which the turn starts, in s, ``>= 0``.
     turn_angle
         Total heading change of the turn, in rad, ``> 0`` (default: no limit).
+    stop_window
+        ``(earliest, latest)`` in s, ``0 <= earliest <= latest``: the obstacle halts at a
+        time drawn uniformly in the window at each reset and holds station there (its
+        realised motion is the reality noise around the halting point), or ``None``
+        (default: never). The predictor is not told: the observed nominal velocity and
+        the environment's predictions keep the lane speed.
 
     Raises
     ------
@@ -125,6 +131,7 @@ class ObstacleSpec:
     turn_probability: float = 1.0
     turn_start: float = 0.0
     turn_angle: float = math.inf
+    stop_window: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -145,6 +152,12 @@ class ObstacleSpec:
             _number(self.turn_angle, "ObstacleSpec.turn_angle", low=0.0, strict=True,
                     allow_inf=True),
         )
+        if self.stop_window is not None:
+            window = _vector(self.stop_window, "ObstacleSpec.stop_window", (2,))
+            if not 0.0 <= window[0] <= window[1]:
+                raise ScenarioError("ObstacleSpec.stop_window must be (earliest, latest) in s "
+                                    f"with 0 <= earliest <= latest, got {self.stop_window!r}")
+            set_(self, "stop_window", window)
 
     @property
     def speed(self) -> float:

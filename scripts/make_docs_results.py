@@ -30,17 +30,6 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def safe_nav_command() -> list[str]:
-    """The ``safe-nav`` console script of this interpreter's environment."""
-    local = Path(sys.executable).with_name("safe-nav")
-    if local.exists():
-        return [str(local)]
-    found = shutil.which("safe-nav")
-    if found is None:
-        raise SystemExit("safe-nav is not installed: pip install -e '.[train]' first")
-    return [found]
-
-
 def machine() -> str:
     cores = os.cpu_count()
     try:
@@ -53,9 +42,9 @@ def machine() -> str:
 
 
 def run(args: list[str]) -> tuple[str, float]:
-    """Run a ``safe-nav`` command; return its stdout and wall time (s)."""
+    """Run ``safe-nav args`` (as ``python -m agents.cli``); return its stdout and wall time (s)."""
     start = time.perf_counter()
-    done = subprocess.run(safe_nav_command() + args, cwd=ROOT, text=True,
+    done = subprocess.run([sys.executable, "-m", "agents.cli", *args], cwd=ROOT, text=True,
                           capture_output=True, check=False)
     elapsed = time.perf_counter() - start
     if done.returncode != 0:

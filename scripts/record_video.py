@@ -114,12 +114,10 @@ def record_episode(
 
     from agents.evaluation.records import EpisodeSpec
     from agents.evaluation.runner import make_env
-    from filters.errors import InvalidParameterError
+    from filters._validation import integer_at_least
 
-    if max_steps is not None and (isinstance(max_steps, bool) or not isinstance(max_steps, int)
-                                  or max_steps < 1):
-        raise InvalidParameterError(f"max_steps must be None or an integer >= 1, "
-                                    f"got {max_steps!r}")
+    if max_steps is not None:
+        integer_at_least("max_steps", max_steps)
     spec = EpisodeSpec(scenario=scenario, risk=risk, seed=seed, planner="ppo",
                        reference="rollout", policy_path=str(policy_path))
     stem = name or f"{spec.scenario}_{spec.risk}_seed{spec.seed}"

@@ -244,13 +244,19 @@ def build_parser() -> argparse.ArgumentParser:
                           help="--sweep: risk bounds, in m (>= 0)")
     from agents.experiments.crowd import CROWD_SETTINGS
     from agents.experiments.pedestrians import PEDESTRIAN_SETTINGS
-    from agents.experiments.stress import STRESS_METHODS
+    from agents.experiments.stress import (
+        DEFAULT_CASES,
+        DEFAULT_METHODS,
+        DEFAULT_PLANNERS,
+        STRESS_METHODS,
+    )
     from safe_nav_env.stress import STRESS_SUITE
 
     evaluate.add_argument("--suite", choices=("scenarios", "stress", "crowd", "pedestrians"),
                           default="scenarios",
-                          help="scenarios: --scenarios x --risks; stress: the stress suite "
-                          "(--cases x --methods, output default results/stress); crowd: "
+                          help="scenarios: --scenarios x --risks; stress: the stress table by "
+                          "failure class (--cases x --planners x --methods, output default "
+                          "results/stress); crowd: "
                           "CrowdNav's circle crossing (--crowd-settings x --risks, "
                           "--episodes test cases, output default results/crowd); "
                           "pedestrians: the ETH/UCY scenes (--scenes x --risks, output "
@@ -262,11 +268,17 @@ def build_parser() -> argparse.ArgumentParser:
                           default=["orca_invisible"],
                           help="--suite crowd: human model and robot visibility")
     evaluate.add_argument("--cases", choices=list(STRESS_SUITE), nargs="+",
-                          default=list(STRESS_SUITE), help="--suite stress: the cases")
+                          default=list(DEFAULT_CASES), help="--suite stress: the failure classes")
     evaluate.add_argument("--methods", choices=list(STRESS_METHODS), nargs="+",
-                          default=list(STRESS_METHODS),
-                          help="--suite stress: the methods (dr_cvar: fixed --epsilon; "
-                          "dr_cvar_auto: epsilon='auto')")
+                          default=list(DEFAULT_METHODS),
+                          help="--suite stress: the filter settings (default: the wrapper's "
+                          "defaults, action held; dr_cvar: fixed --epsilon; dr_cvar_auto: "
+                          "epsilon='auto'; all but default track --reference)")
+    evaluate.add_argument("--planners", choices=list(PLANNERS), nargs="+",
+                          default=list(DEFAULT_PLANNERS),
+                          help="--suite stress: the reference planners (goal: the "
+                          "obstacle-blind go-to-goal controller; --planner mpc or goal "
+                          "alone replaces them)")
 
     reproduce = sub.add_parser("reproduce", help="reproduce the paper's figures and tables",
                                **_FORMAT)
@@ -331,8 +343,8 @@ def _add_evaluation_arguments(parser: argparse.ArgumentParser, *, episodes: int)
                         "the paper's comparison; gaussian_cc, moment_dr and conformal on "
                         "request)")
     parser.add_argument("--planner", choices=PLANNERS, default="ppo",
-                        help="reference planner: the PPO policy or the paper's "
-                        "obstacle-agnostic MPC")
+                        help="reference planner: the PPO policy, the paper's "
+                        "obstacle-agnostic MPC or the obstacle-blind go-to-goal controller")
     parser.add_argument("--reference", choices=REFERENCES, default="rollout",
                         help="PPO reference trajectory: roll the policy out on the predicted "
                         "obstacle motion, or hold its action")
@@ -474,8 +486,11 @@ def _evaluate_on(args: argparse.Namespace, executor: Any) -> int:
         output = args.output if args.output != Path("results/evaluate") else Path(
             "results/stress")
         common.pop("noise")
-        outputs = run_stress(output, args.cases, args.methods, delta=args.delta,
-                             epsilon=args.epsilon, plots=not args.no_plots, **common)
+        planner = common.pop("planner")  # one --planner other than ppo replaces --planners
+        planners = args.planners if planner == "ppo" else [planner]
+        outputs = run_stress(output, args.cases, args.methods, planners=planners,
+                             delta=args.delta, epsilon=args.epsilon, plots=not args.no_plots,
+                             **common)
     elif args.suite in ("crowd", "pedestrians"):
         from agents.experiments.crowd import run_crowd
         from agents.experiments.pedestrians import run_pedestrians

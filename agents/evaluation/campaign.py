@@ -25,7 +25,7 @@ from typing import Any
 
 from agents.errors import OutputPathError
 from agents.evaluation.evaluate import episode_specs, evaluate
-from agents.evaluation.executors import Executor, make_executor
+from agents.evaluation.executors import Executor
 from agents.evaluation.records import (
     PAPER_SCENARIOS,
     EpisodeRecord,
@@ -106,7 +106,9 @@ def describe_run(records: Sequence[EpisodeRecord], *, planner: str, reference: s
         for path, sha in policies or [("", "")]:
             lines.append(f"- policy: `{policy_file(path)}` (SHA-256 `{sha or 'unknown'}`)")
     else:
-        lines.append("- planner: the obstacle-agnostic MPC (no policy file)")
+        blind = "obstacle-blind go-to-goal controller" if planner == "goal" else (
+            "obstacle-agnostic MPC")
+        lines.append(f"- planner: the {blind} (no policy file)")
     lines.append(f"- planner `{planner}`, reference `{reference}`, {settings}")
     options = sorted({(r.filter_options, r.env_options) for r in records})
     for filter_options, env_options in options:
@@ -200,8 +202,7 @@ def make_figures(
     scenarios = [scenario_name(s) for s in scenarios]
     # One rendered run (MultiObstacle if evaluated, DR-CVaR if evaluated) also gives the
     # safe-polytope figure and the animation; every other run only its trajectory.
-    featured = ("MultiObstacle" if "MultiObstacle" in scenarios else scenarios[0],
-                "dr_cvar" if "dr_cvar" in risks else risks[-1])
+    featured = plots.featured_run(scenarios, risks)
     featured_trajectory = None
     for scenario in scenarios:
         trajectories = {}
@@ -220,14 +221,10 @@ def make_figures(
                                                               folder / "distance_boxplots.png")
     files["collision_rates"] = plots.plot_collision_rates(rows, folder / "collision_rates.png")
     if featured_trajectory is not None:
-        scenario, risk = featured
-        files["safe_polytopes"] = plots.plot_safe_polytopes(
-            featured_trajectory, folder / "safe_polytopes.png",
-            title=f"{short_name(scenario)}: {risk} safe polytopes")
-        if featured_trajectory.frames:
-            files["animation"] = plots.save_gif(
-                featured_trajectory.frames, folder / "episode.gif",
-                label=f"{plots.RISK_LABELS.get(risk, risk)}, {short_name(scenario)}, seed {seed}")
+        name, risk = short_name(featured[0]), featured[1]
+        files.update(plots.polytope_figures(
+            featured_trajectory, folder, title=f"{name}: {risk} safe polytopes",
+            label=f"{plots.RISK_LABELS.get(risk, risk)}, {name}, seed {seed}"))
     return files
 
 
@@ -268,18 +265,9 @@ def run_sweep(
     specs = [spec for delta in deltas for epsilon in epsilons
              for spec in episode_specs(scenarios, ["dr_cvar"], episodes, seed, delta=delta,
                                        epsilon=epsilon, **common)]
-    own = not isinstance(executor, Executor)
-    runner = make_executor(executor, workers) if own else executor
-    try:
-        all_records = evaluate(specs=specs, vary=("epsilon", "delta"), workers=workers,
-                               executor=runner, csv_path=output / "sweep.csv",
-                               progress=progress, overwrite=overwrite)
-    except BaseException:
-        if own:
-            runner.terminate()
-        raise
-    if own:
-        runner.close()
+    all_records = evaluate(specs=specs, vary=("epsilon", "delta"), workers=workers,
+                           executor=executor, csv_path=output / "sweep.csv",
+                           progress=progress, overwrite=overwrite)
     points = []
     for delta in deltas:
         for epsilon in epsilons:

@@ -42,8 +42,9 @@ __all__ = [
     "options_json",
 ]
 
-PLANNERS = ("ppo", "mpc")
-"""Reference planners: the shipped PPO policy, or the paper's obstacle-agnostic MPC."""
+PLANNERS = ("ppo", "mpc", "goal")
+"""Reference planners: the shipped PPO policy, the paper's obstacle-agnostic MPC, or the
+obstacle-blind go-to-goal controller (:class:`agents.policies.go_to_goal.GoToGoalPolicy`)."""
 
 REFERENCES = ("rollout", "hold")
 """How the filter makes a reference trajectory from a PPO proposal."""
@@ -126,10 +127,11 @@ class EpisodeSpec:
     seed
         Seed of ``env.reset``: the obstacles' noise and any random scenario data.
     planner
-        ``"ppo"`` or ``"mpc"``.
+        ``"ppo"``, ``"mpc"`` or ``"goal"`` (see :data:`PLANNERS`).
     reference
         ``"rollout"`` (roll the policy out on the predicted mean motion) or
-        ``"hold"`` (hold the proposed action); the MPC planner always uses its plan.
+        ``"hold"`` (hold the proposed action), for ``"ppo"`` and ``"goal"``; the MPC
+        planner always uses its plan.
     alpha, delta, epsilon
         Risk parameters (tail mass, risk bound in m, Wasserstein radius in m);
         ``epsilon`` may be ``"auto"`` (the wrapper's radius estimated online).
@@ -212,9 +214,9 @@ class EpisodeSpec:
                 raise InvalidParameterError(
                     f"noise must be '' or one of {sorted(NOISE_PRESETS)}, got {self.noise!r}")
         set_(self, "policy_path", str(self.policy_path or ""))
-        if self.planner == "mpc" and self.policy_path:  # it would be silently ignored
+        if self.planner != "ppo" and self.policy_path:  # it would be silently ignored
             raise InvalidParameterError(
-                f"planner 'mpc' (the obstacle-agnostic MPC) uses no policy file, got policy_path "
+                f"planner {self.planner!r} uses no policy file, got policy_path "
                 f"{self.policy_path!r} (--policy): drop it, or use planner 'ppo'")
         set_(self, "filter_options", options_json(self.filter_options, "filter_options"))
         clash = sorted({"risk", "alpha", "delta", "epsilon"} & set(_options_dict(
@@ -279,6 +281,16 @@ class EpisodeRecord:
         ``"optimal"``/``"passthrough"``; else ``"inter_sample"`` if that first collision
         is between samples only (no sampled collision at that step); else ``"noise"``
         (the obstacles' noise went beyond the filter's margin). Empty otherwise.
+    first_infeasible_step
+        The first step (1-based) whose hard filter problem had no solution, i.e. whose
+        status is a fallback (``soft``, ``recovery``, ``shifted``, ``brake``, ``error``);
+        0 if none.
+    status_before_collision, status_at_collision
+        For a collided episode, the filter status at the step before the first
+        collision (empty if the collision is in step 1) and at that step; else empty.
+    standing_collision
+        Whether the first collision happened with the ego standing still (speed below
+        0.1 m/s over the whole step): on recorded data, someone walked into it.
     sampled_collision, sampled_collision_steps
         The same at the sample instants only.
     min_distance, min_swept_distance
@@ -333,6 +345,10 @@ class EpisodeRecord:
     collision_steps: int = 0
     first_collision_step: int = 0
     collision_cause: str = ""
+    first_infeasible_step: int = 0
+    status_before_collision: str = ""
+    status_at_collision: str = ""
+    standing_collision: bool = False
     sampled_collision: bool = False
     sampled_collision_steps: int = 0
     min_distance: float = math.nan

@@ -8,9 +8,9 @@ Trajectories are read duck-typed: ``ego`` (steps+1, 2), ``obstacles``
 (steps+1, n, 2), ``obstacle_radii`` (n,), ``ego_radius`` and ``goal``
 (:class:`agents.evaluation.evaluate.Trajectory` has them). A trajectory that also carries
 ``ego_velocities`` (steps+1, 2), ``inputs`` (steps, 2) and ``dt`` (as
-:class:`agents.experiments.reproduce.EncounterRecord` does) gets its collisions located in
-continuous time exactly (:func:`step_clearance`); without them the ego is taken on
-the chord between its samples, which is off the true arc by at most
+:class:`agents.experiments.encounters.EncounterRecord` does) gets its collisions located
+in continuous time exactly (:func:`agents.evaluation.contacts.step_clearance`); without
+them the ego is taken on the chord between its samples, which is off the true arc by at most
 ``dt² a_max / 8`` (0.05 m at 10 m/s², dt = 0.2 s) and is labelled so.
 """
 
@@ -22,12 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from agents.evaluation.contacts import (  # noqa: F401  (re-exported)
-    CollisionMark,
-    StepClearance,
-    find_collisions,
-    step_clearance,
-)
+from agents.evaluation.contacts import find_collisions
 from agents.evaluation.evaluate import EpisodeRecord, Trajectory
 from agents.evaluation.summary import RISK_ORDER, SummaryRow, short_name
 from filters.errors import InvalidArrayError, InvalidParameterError
@@ -48,7 +43,8 @@ GIF_LEGEND = (
 """Legend of the environment's frames (colours of :mod:`safe_nav_env.rendering`)."""
 
 
-def _pyplot():
+def pyplot():
+    """``matplotlib.pyplot`` on the Agg backend (imported on first use)."""
     import matplotlib
 
     matplotlib.use("Agg", force=False)
@@ -57,11 +53,12 @@ def _pyplot():
     return plt
 
 
-def _save(fig, path: str | Path) -> Path:
+def save_figure(fig, path: str | Path) -> Path:
+    """Save ``fig`` to ``path`` (folders made; 120 dpi, tight box), close it, return the path."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120, bbox_inches="tight")
-    _pyplot().close(fig)
+    pyplot().close(fig)
     return path
 
 
@@ -75,6 +72,12 @@ def _arena(ax, bounds=((-5.0, -5.0), (5.0, 5.0))) -> None:
     ax.set_ylabel("y (m)")
 
 
+def _discs(ax, path: np.ndarray, radius: float, instants: Any, **style: Any) -> None:
+    """Discs of ``radius`` (m) at the ``path`` positions of the given ``instants``, to scale."""
+    for t in instants:
+        ax.add_patch(pyplot().Circle(path[t], radius, **style))
+
+
 # ---------------------------------------------------------------------------- figures
 def plot_trajectories(
     trajectories: Mapping[str, Any], path: str | Path, *, title: str = "", every: int = 5,
@@ -85,13 +88,14 @@ def plot_trajectories(
     ``bounds`` ``((x_min, y_min), (x_max, y_max))`` in m; default: the paths, the
     discs and the goal with a 0.5 m margin. The discs (ego in the risk's colour,
     obstacles in black) are drawn to scale at every ``every``-th sample and at the end.
-    Each first contact with an obstacle (:func:`find_collisions`) is marked with an
-    ``x`` at the ego's centre, both discs drawn at that instant with a thick outline,
+    Each first contact with an obstacle
+    (:func:`agents.evaluation.contacts.find_collisions`) is marked with an ``x`` at the
+    ego's centre, both discs drawn at that instant with a thick outline,
     and the contact time.
     """
     if every < 1:
         raise InvalidParameterError(f"every must be >= 1, got {every!r}")
-    plt = _pyplot()
+    plt = pyplot()
     if bounds is None:
         bounds = _fit_bounds(trajectories.values())
     (x0, y0), (x1, y1) = bounds
@@ -107,17 +111,15 @@ def plot_trajectories(
         instants = sorted(set(range(0, len(ego), every)) | {len(ego) - 1})
         ax.plot(ego[:, 0], ego[:, 1], "-o", ms=2, color=color,
                 label=f"ego, {RISK_LABELS.get(risk, risk)}")
-        for t in instants:
-            ax.add_patch(plt.Circle(ego[t], traj.ego_radius, facecolor=color, alpha=0.12,
-                                    edgecolor=color, lw=0.6))
+        _discs(ax, ego, traj.ego_radius, instants, facecolor=color, alpha=0.12,
+               edgecolor=color, lw=0.6)
         if not drawn_obstacles and traj.obstacles.size:
             for i in range(traj.obstacles.shape[1]):
                 path_i = traj.obstacles[:, i]
                 ax.plot(path_i[:, 0], path_i[:, 1], "-", color="k", lw=1,
                         label="obstacles (realised paths)" if i == 0 else None)
-                for t in instants:
-                    ax.add_patch(plt.Circle(path_i[t], traj.obstacle_radii[i], facecolor="k",
-                                            alpha=0.12, edgecolor="k", lw=0.6))
+                _discs(ax, path_i, traj.obstacle_radii[i], instants, facecolor="k",
+                       alpha=0.12, edgecolor="k", lw=0.6)
             ax.plot(*traj.goal, "k*", ms=12, label="goal")
             drawn_obstacles = True
         for mark in find_collisions(traj):
@@ -140,7 +142,7 @@ def plot_trajectories(
     ax.plot([], [], "o", color="0.5", alpha=0.3, ms=10, label=f"discs to scale, {period}")
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
     ax.set_title(title or "Ego paths with and without the safety filter")
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def _fit_bounds(trajectories: Any, margin: float = 0.5) -> tuple[tuple[float, float], ...]:
@@ -164,7 +166,7 @@ def plot_distance_boxplots(records: Sequence[EpisodeRecord], path: str | Path) -
 
     The paper's Fig. 4, right column.
     """
-    plt = _pyplot()
+    plt = pyplot()
     scenarios = sorted({r.scenario for r in records})
     fig, axes = plt.subplots(1, len(scenarios), figsize=(3.2 * len(scenarios), 3.6),
                              squeeze=False, sharey=True)
@@ -189,7 +191,7 @@ def plot_distance_boxplots(records: Sequence[EpisodeRecord], path: str | Path) -
     fig.suptitle("Smallest distance to collision per episode, by filter risk "
                  f"(up to {n // max(1, len({r.risk for r in records}))} episodes per box; "
                  "whiskers: min and max)", fontsize=10)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_window_boxplots(
@@ -213,7 +215,7 @@ def plot_window_boxplots(
     windows
         ``windows[scenario] = (first, last)``: sample indices, both included.
     """
-    plt = _pyplot()
+    plt = pyplot()
     scenarios = list(distances)
     fig, axes = plt.subplots(1, len(scenarios), figsize=(3.6 * len(scenarios), 3.6),
                              squeeze=False)
@@ -243,7 +245,7 @@ def plot_window_boxplots(
     axes[0][-1].legend(fontsize=7)
     if title:
         fig.suptitle(title, y=1.04)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_collision_rates(
@@ -258,7 +260,7 @@ def plot_collision_rates(
     is drawn as a thick line at 0 (gid ``"zero-bar"``) so it cannot be mistaken for
     a missing one.
     """
-    plt = _pyplot()
+    plt = pyplot()
     scenarios = sorted({r.scenario for r in rows})
     risks = sorted({r.risk for r in rows}, key=lambda r: RISK_ORDER.get(r, 9))
     width = 0.8 / max(1, len(risks))
@@ -296,7 +298,7 @@ def plot_collision_rates(
               frameon=False)
     ax.grid(alpha=0.3, axis="y")
     ax.set_title(title, fontsize=10)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_safe_polytopes(
@@ -310,7 +312,7 @@ def plot_safe_polytopes(
     """
     from filters.plotting import safe_polygon
 
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(8.5, 5))
     _arena(ax, bounds)
     low, high = np.asarray(bounds[0]), np.asarray(bounds[1])
@@ -327,23 +329,40 @@ def plot_safe_polytopes(
     ego = trajectory.ego
     ax.plot(ego[:, 0], ego[:, 1], "-o", color="tab:blue", ms=3,
             label="ego path (disc to scale)")
-    for t in range(0, len(ego), every):
-        ax.add_patch(plt.Circle(ego[t], trajectory.ego_radius, color="tab:blue", alpha=0.15))
+    _discs(ax, ego, trajectory.ego_radius, range(0, len(ego), every), color="tab:blue",
+           alpha=0.15)
     colors = plt.cm.autumn(np.linspace(0, 0.8, max(1, trajectory.obstacles.shape[1])))
     for i in range(trajectory.obstacles.shape[1]):
         path_i = trajectory.obstacles[:, i]
         ax.plot(path_i[:, 0], path_i[:, 1], "-", color=colors[i],
                 label=f"obstacle {i + 1} (realised path)")
-        for t in range(0, len(path_i), every):
-            ax.add_patch(plt.Circle(path_i[t], trajectory.obstacle_radii[i], color=colors[i],
-                                    alpha=0.15))
+        _discs(ax, path_i, trajectory.obstacle_radii[i], range(0, len(path_i), every),
+               color=colors[i], alpha=0.15)
     fallback = [t + 1 for t, s in enumerate(trajectory.statuses) if s in FALLBACK_STATUSES]
     if fallback:
         ax.plot(ego[fallback, 0], ego[fallback, 1], "kx", ms=8, label="fallback step")
     ax.plot(*trajectory.goal, "k*", ms=12, label="goal")
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     ax.set_title(title or "Safe polytopes along a filtered episode")
-    return _save(fig, path)
+    return save_figure(fig, path)
+
+
+def featured_run(scenarios: Sequence[str], risks: Sequence[str]) -> tuple[str, str]:
+    """The ``(scenario, risk)`` whose rendered run gives the safe-polytope figure and the
+    animation: MultiObstacle and DR-CVaR when evaluated, else the first scenario and the
+    last risk (the names as given: short names or gym ids)."""
+    multi = [s for s in scenarios if short_name(s) == "MultiObstacle"]
+    return (multi[0] if multi else scenarios[0], "dr_cvar" if "dr_cvar" in risks else risks[-1])
+
+
+def polytope_figures(trajectory: Any, folder: Path, *, title: str, label: str
+                     ) -> dict[str, Path]:
+    """``safe_polytopes.png`` of a rendered run and, when it has frames, ``episode.gif``."""
+    files = {"safe_polytopes": plot_safe_polytopes(trajectory, folder / "safe_polytopes.png",
+                                                   title=title)}
+    if trajectory.frames:
+        files["animation"] = save_gif(trajectory.frames, folder / "episode.gif", label=label)
+    return files
 
 
 def save_gif(
@@ -435,7 +454,7 @@ def plot_sweep(points: Sequence[dict], path: str | Path) -> Path:
     ``points`` are dicts with ``epsilon``, ``delta``, ``collision_rate``,
     ``mean_intervention`` (and optionally ``goal_rate``).
     """
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(6.5, 4.5))
     deltas = sorted({p["delta"] for p in points})
     for delta in deltas:
@@ -451,4 +470,4 @@ def plot_sweep(points: Sequence[dict], path: str | Path) -> Path:
                  fontsize=10)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, title="risk bound δ (m)", title_fontsize=8)
-    return _save(fig, path)
+    return save_figure(fig, path)

@@ -70,8 +70,8 @@ COLUMN_DOCS: dict[str, tuple[str, str]] = {
                      "stress case"),
     "risk": ("", "Risk metric of the safe halfspaces; none is the unfiltered planner"),
     "seed": ("", "Seed of env.reset: the obstacles' noise and any random scenario data"),
-    "planner": ("", "Reference planner: ppo (the policy) or mpc (the paper's obstacle-agnostic "
-                    "MPC)"),
+    "planner": ("", "Reference planner: ppo (the policy), mpc (the paper's obstacle-agnostic "
+                    "MPC) or goal (the obstacle-blind go-to-goal controller)"),
     "reference": ("", "How a PPO proposal becomes a reference: rollout (the policy rolled out "
                       "on the predicted mean motion) or hold (the action held)"),
     "alpha": ("1", "Tail mass α of CVaR and DR-CVaR (α = 1 gives the mean)"),
@@ -94,6 +94,15 @@ COLUMN_DOCS: dict[str, tuple[str, str]] = {
     "collision_cause": ("", "For a collided episode: fallback (a non-optimal filter status at "
                             "the colliding step or the two before), inter_sample (overlap only "
                             "between samples) or noise (noise beyond the margin); else empty"),
+    "first_infeasible_step": ("step", "First step whose hard filter problem had no solution "
+                                      "(status soft, recovery, shifted, brake or error; "
+                                      "1-based; 0: none)"),
+    "status_before_collision": ("", "Filter status at the step before the first collision "
+                                    "(empty without a collision or if it is in step 1)"),
+    "status_at_collision": ("", "Filter status at the first colliding step (empty without "
+                                "a collision)"),
+    "standing_collision": ("bool", "Whether the first collision happened with the ego standing "
+                                   "still (speed below 0.1 m/s over the whole step)"),
     "sampled_collision": ("bool", "Whether the ego collided at the sample instants (the "
                                   "paper's statistic)"),
     "sampled_collision_steps": ("steps", "Steps with a collision at the sample instants"),

@@ -42,6 +42,10 @@ __all__ = ["EpisodeStats", "Trajectory", "TrajectoryRecorder", "check_policy",
 FALLBACK_WINDOW = 2
 """A collision is blamed on a fallback if one ran this many steps before it, or at it."""
 
+STANDING_SPEED = 0.1
+"""Ego speed (m/s) below which a collision counts as one with the ego standing still
+(``standing_collision``): someone walked into a robot that was not moving."""
+
 
 def collision_cause(collisions: Sequence[bool], sampled_collisions: Sequence[bool],
                     statuses: Sequence[str]) -> str:
@@ -161,6 +165,10 @@ def _load_planner(spec: EpisodeSpec, env: Any) -> tuple[Any, str]:
         from agents.planners import MPCReferencePlanner
 
         return MPCReferencePlanner.from_env(env), ""
+    if spec.planner == "goal":
+        from agents.policies.go_to_goal import GoToGoalPolicy
+
+        return GoToGoalPolicy.from_env(env), ""
     return load_policy(spec.policy_path, sha256=spec.policy_sha256)
 
 
@@ -218,7 +226,7 @@ def make_env(spec: EpisodeSpec, *, render_mode: str | None = None, policy: Any =
             is_normalised_policy,
         )
 
-        normalised = spec.planner != "mpc" and is_normalised_policy(planner, env.action_space)
+        normalised = spec.planner == "ppo" and is_normalised_policy(planner, env.action_space)
         if spec.planner == "mpc":
             filter_kwargs["reference"] = planner
         elif spec.reference == "rollout":
@@ -257,7 +265,8 @@ def _reusable_env(spec: EpisodeSpec, sha: str) -> tuple[EpisodeSpec | None, Any,
     cache key (``None`` if the environment is not reusable, see :func:`_resets_fully`),
     the environment and the planner.
     """
-    load_policy(spec.policy_path, sha256=spec.policy_sha256)  # cached; raises if changed
+    if spec.planner == "ppo":
+        load_policy(spec.policy_path, sha256=spec.policy_sha256)  # cached; raises if changed
     key = dataclasses.replace(spec, seed=0, policy_sha256=sha)
     if key in _ENV_CACHE:
         _ENV_CACHE.move_to_end(key)
@@ -332,7 +341,7 @@ def run_episode(
     recorder = None
     sha = ""
     reuse = (reuse_env and policy is None and env_kwargs is None and not render
-             and spec.planner == "ppo")
+             and spec.planner in ("ppo", "goal"))  # stateless planners
     cache_key = None
     try:
         if policy is None and spec.planner == "ppo":
@@ -401,6 +410,12 @@ def _policy_name(spec: EpisodeSpec, policy: Any) -> str:
     return str(policy_file(spec.policy_path))
 
 
+def _obstacle_ids(base: Any) -> np.ndarray | None:
+    """The environment's obstacle identity per row (``obstacle_ids``), or ``None``."""
+    ids = getattr(base, "obstacle_ids", None)
+    return None if ids is None else np.array(ids, dtype=np.int64)
+
+
 def run_spec(spec: EpisodeSpec) -> EpisodeRecord:
     """The record of one episode (what the executors run in their workers)."""
     return run_episode(spec)[0]
@@ -422,6 +437,9 @@ class EpisodeStats:
         self.status_list: list[str] = []
         self.collisions: list[bool] = []
         self.sampled_collisions: list[bool] = []
+        self.standing_collision = False
+        self._speed = 0.0
+        self._ids: np.ndarray | None = None
         self.first_error = ""
         self.episode_return = 0.0
         self.dt = DT
@@ -434,6 +452,8 @@ class EpisodeStats:
         self.dt = float(base.dt)
         self.intersample = intersample
         self._position = np.asarray(base.ego_state[:2], dtype=float).copy()
+        self._speed = float(np.linalg.norm(np.asarray(base.ego_state, dtype=float)[2:4]))
+        self._ids = _obstacle_ids(base)
         self._distance(info)
 
     def _distance(self, info: dict[str, Any]) -> None:
@@ -451,6 +471,12 @@ class EpisodeStats:
         self.episode_return += float(reward)
         self._distance(info)
         collision = bool(info.get("collision", False))
+        # The ego's velocity is linear in time over a step (constant input), so its speed
+        # stays below the larger of the two ends: standing throughout when both are.
+        speed = float(np.linalg.norm(np.asarray(base.ego_state, dtype=float)[2:4]))
+        if collision and not any(self.collisions):
+            self.standing_collision = max(self._speed, speed) < STANDING_SPEED
+        self._speed = speed
         self.collisions.append(collision)
         # Before the continuous-time environment, "collision" was the sampled flag.
         self.sampled_collisions.append(bool(info.get("sampled_collision", collision)))
@@ -467,9 +493,10 @@ class EpisodeStats:
             self.first_error = f"step {self.steps}: {reason}".replace("\n", " ")[:300]
         self.interventions.append(float(report["intervention"]))
         self.filter_times.append(float(report["filter_time"]))
-        self._audit(base, report)
+        ids, self._ids = self._ids, _obstacle_ids(base)
+        self._audit(base, report, ids)
 
-    def _audit(self, base: Any, report: Any) -> None:
+    def _audit(self, base: Any, report: Any, ids: np.ndarray | None = None) -> None:
         """The realised losses of the step's active first-step halfspaces.
 
         See :mod:`agents.evaluation.audit`.
@@ -477,7 +504,11 @@ class EpisodeStats:
         ``base`` has already stepped: its obstacle positions are the realised ones at the
         step the halfspaces' ``k = 1`` predicted. Steps without halfspaces or a plan
         (pass-through, status ``"error"``) are not audited, nor are steps with
-        non-finite data (which the filter reports as ``"error"`` anyway).
+        non-finite data (which the filter reports as ``"error"`` anyway). Where the
+        environment names the obstacle in each row (``obstacle_ids``: the slots of
+        ``SafeNav/Pedestrians-v0``), ``ids`` are those before the step: a row is audited
+        only if it held the same obstacle before and after (not an empty slot, not one
+        that passed to another pedestrian).
         """
         names = report.keys()
         if not all(name in names for name in ("normals", "offsets", "planned_states")):
@@ -499,12 +530,29 @@ class EpisodeStats:
             return
         margins = arc_margin(h, base.input_bounds, float(base.dt)) if self.intersample else 0.0
         active, losses = first_step_losses(h, b, y1, realised, radii, margins=margins)
+        now = _obstacle_ids(base)
+        if ids is not None and now is not None:
+            same = (ids[: len(h)] >= 0) & (ids[: len(h)] == now[: len(h)])
+            active, losses = active[same], losses[same]
         self.audit.extend(float(v) for v in losses[active])
         self.audit_all.extend(float(v) for v in losses)
 
     def collision_cause(self) -> str:
         """Why the first continuous-time collision happened (see :class:`EpisodeRecord`)."""
         return collision_cause(self.collisions, self.sampled_collisions, self.status_list)
+
+    def infeasibility(self) -> dict[str, Any]:
+        """First infeasible step and the statuses around the first collision (see
+        :class:`EpisodeRecord`)."""
+        first = next((i + 1 for i, status in enumerate(self.status_list)
+                      if status in FALLBACK_STATUSES), 0)
+        before = at = ""
+        if any(self.collisions):
+            k = self.collisions.index(True)  # 0-based index of the first colliding step
+            at = self.status_list[k] if k < len(self.status_list) else ""
+            before = self.status_list[k - 1] if 0 < k <= len(self.status_list) else ""
+        return dict(first_infeasible_step=first, status_before_collision=before,
+                    status_at_collision=at)
 
     def summary(self) -> dict[str, Any]:
         """The record's columns that describe what happened."""
@@ -520,6 +568,8 @@ class EpisodeStats:
             collision_steps=sum(self.collisions),
             first_collision_step=self.collisions.index(True) + 1 if any(self.collisions) else 0,
             collision_cause=self.collision_cause(),
+            **self.infeasibility(),
+            standing_collision=self.standing_collision,
             sampled_collision=any(self.sampled_collisions),
             sampled_collision_steps=sum(self.sampled_collisions),
             min_distance=self.min_distance if math.isfinite(self.min_distance) else math.nan,

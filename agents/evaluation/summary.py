@@ -76,6 +76,15 @@ def _group(record: EpisodeRecord) -> tuple[str, str, str, bool]:
     return (record.case or record.scenario, record.planner, record.risk, record.epsilon == AUTO)
 
 
+def _sorted_groups(groups: dict[tuple[str, str, str, bool], list[EpisodeRecord]]) -> list:
+    """``groups.items()`` in table order: scenario, planner, risk (:data:`RISK_ORDER`), auto."""
+    def order(key: tuple[str, str, str, bool]) -> tuple:
+        scenario, planner, risk, auto = key
+        return scenario, planner, RISK_ORDER.get(risk, len(RISK_ORDER)), auto
+
+    return sorted(groups.items(), key=lambda item: order(item[0]))
+
+
 def summarise(records: Iterable[EpisodeRecord]) -> list[SummaryRow]:
     """One :class:`SummaryRow` per (scenario, planner, risk), in a stable order.
 
@@ -86,11 +95,7 @@ def summarise(records: Iterable[EpisodeRecord]) -> list[SummaryRow]:
     for record in records:
         groups[_group(record)].append(record)
     rows = []
-    for (scenario, planner, risk, auto), group in sorted(
-        groups.items(), key=lambda item: (item[0][0], item[0][1],
-                                           RISK_ORDER.get(item[0][2], len(RISK_ORDER)),
-                                           item[0][3])
-    ):
+    for (scenario, planner, risk, auto), group in _sorted_groups(groups):
         ok = [r for r in group if not r.error]
         n = len(ok)
         collisions = sum(r.collision for r in ok)
@@ -227,11 +232,7 @@ def audit_rows(records: Iterable[EpisodeRecord]) -> list[AuditRow]:
         if record.risk != "none" and not record.error:
             groups[_group(record)].append(record)
     rows = []
-    for (scenario, planner, risk, auto), group in sorted(
-        groups.items(), key=lambda item: (item[0][0], item[0][1],
-                                           RISK_ORDER.get(item[0][2], len(RISK_ORDER)),
-                                           item[0][3])
-    ):
+    for (scenario, planner, risk, auto), group in _sorted_groups(groups):
         settings = {(r.alpha, r.delta) for r in group}
         if len(settings) > 1:
             raise InvalidParameterError(

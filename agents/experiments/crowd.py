@@ -71,7 +71,9 @@ class CrowdRow:
 
     Rates are shares of the cases; ``time_to_goal`` (s) is the mean over the successes;
     ``discomfort`` the share of all steps with a clearance below the discomfort
-    distance; ``*_low``, ``*_high`` the Wilson 95 % interval.
+    distance; ``standing_collision`` the share of the cases whose collision came with
+    the robot standing still (below 0.1 m/s: a human walked into it); ``*_low``,
+    ``*_high`` the Wilson 95 % interval.
     """
 
     setting: str
@@ -83,6 +85,7 @@ class CrowdRow:
     collision: float
     collision_low: float
     collision_high: float
+    standing_collision: float
     timeout: float
     time_to_goal: float
     discomfort: float
@@ -108,6 +111,7 @@ def crowd_rows(records: Sequence[EpisodeRecord]) -> list[CrowdRow]:
             success_high=wilson_interval(successes, len(ran))[1],
             collision=collisions / n, collision_low=wilson_interval(collisions, len(ran))[0],
             collision_high=wilson_interval(collisions, len(ran))[1],
+            standing_collision=sum(r.collision and r.standing_collision for r in ran) / n,
             timeout=(len(ran) - successes - collisions) / n,
             time_to_goal=sum(times) / len(times) if times else math.nan,
             discomfort=sum(r.discomfort_steps for r in ran) / steps if steps else math.nan,
@@ -121,16 +125,17 @@ def crowd_table(rows: Sequence[CrowdRow]) -> str:
         text = f"{100 * value:.1f}%"
         return text if low is None else f"{text} [{100 * low:.1f}, {100 * high:.1f}]"
 
-    lines = ["| setting | method | cases | success [95 % CI] | collision [95 % CI] | timeout "
-             "| time to goal (s) | discomfort frequency |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = ["| setting | method | cases | success [95 % CI] | collision [95 % CI] "
+             "| of which standing | timeout | time to goal (s) | discomfort frequency |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for row in rows:
         time_cell = "-" if math.isnan(row.time_to_goal) else f"{row.time_to_goal:.2f}"
         discomfort = "-" if math.isnan(row.discomfort) else f"{row.discomfort:.3f}"
         lines.append(f"| {row.setting} | {row.risk} | {row.cases} | "
                      f"{pct(row.success, row.success_low, row.success_high)} | "
                      f"{pct(row.collision, row.collision_low, row.collision_high)} | "
-                     f"{pct(row.timeout)} | {time_cell} | {discomfort} |")
+                     f"{pct(row.standing_collision)} | {pct(row.timeout)} | {time_cell} | "
+                     f"{discomfort} |")
     return "\n".join(lines) + "\n"
 
 

@@ -11,18 +11,20 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Iterable, Iterator, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from agents.evaluation.records import EpisodeSpec
+from agents.evaluation.trajectory import Trajectory
 from agents.experiments.paper_settings import (
     PAPER_SCENARIOS,
     PRESETS,
     ReproductionPreset,
     paper_duration,
 )
+from filters._validation import integer_at_least
 from filters.errors import InvalidParameterError
 from filters.risk import PAPER_RISKS
 from safe_nav_env.scenarios import scenario_name
@@ -44,55 +46,26 @@ class EncounterJob:
     record_halfspaces: bool = False
 
 
-@dataclass(frozen=True, eq=False)
-class EncounterRecord:
-    """Everything one episode did, step by step (S steps, n obstacles).
+@dataclass(eq=False)
+class EncounterRecord(Trajectory):
+    """Everything one episode did, step by step: its :class:`Trajectory` and what it ran.
 
     Attributes
     ----------
-    ego_states
-        (S+1, 4) ego states ``[p, v]`` at the samples (m, m/s).
-    inputs
-        (S, 2) applied accelerations, in m/s².
-    obstacles
-        (S+1, n, 2) realised obstacle positions, in m.
-    distances
-        (S+1, n) sampled distances to collision, in m (``info["distance_to_collision"]``).
-    swept
-        (S, n) minimum clearance over each step, in m (continuous time,
-        ``info["swept_distance_to_collision"]``).
-    statuses, filter_times
-        The filter's status and its step time (s) at each step.
-    halfspaces, frames
-        Per step ``(normals, offsets)`` and rendered frames, if asked for.
+    preset, scenario, risk, seed
+        The episode (:class:`EncounterJob`).
     error
         Empty, or why the episode stopped early (its partial data are kept).
+    wall_time
+        Time the episode took, in s.
     """
 
-    preset: str
-    scenario: str
-    risk: str
-    seed: int
-    dt: float
-    ego_radius: float
-    obstacle_radii: np.ndarray
-    goal: np.ndarray
-    ego_states: np.ndarray
-    inputs: np.ndarray
-    obstacles: np.ndarray
-    distances: np.ndarray
-    swept: np.ndarray
-    statuses: tuple[str, ...]
-    filter_times: np.ndarray
-    halfspaces: list = field(default_factory=list)
-    frames: list = field(default_factory=list)
+    preset: str = ""
+    scenario: str = ""
+    risk: str = ""
+    seed: int = 0
     error: str = ""
     wall_time: float = 0.0
-
-    @property
-    def ego(self) -> np.ndarray:
-        """(S+1, 2) ego positions, in m."""
-        return self.ego_states[:, :2]
 
     @property
     def ego_velocities(self) -> np.ndarray:
@@ -198,7 +171,8 @@ def encounter_spec(job: EncounterJob) -> EpisodeSpec:
         fallback=preset.fallback, objective="trajectory", normals="paper", intersample=False,
         terminal=False)
     env_options = dict(episode_length=paper_duration(job.scenario),
-                       max_acceleration=preset.max_acceleration)
+                       max_acceleration=preset.max_acceleration,
+                       max_speed=None)  # the paper's ego has no speed limit
     return EpisodeSpec(scenario=scenario_name(job.scenario, warn=False), risk=job.risk,
                        seed=int(job.seed), planner="mpc", alpha=preset.alpha,
                        delta=preset.delta_for(job.risk), epsilon=preset.epsilon,
@@ -234,42 +208,29 @@ def run_encounter(job: EncounterJob) -> EncounterRecord:
                                      reuse_env=False)
     if trajectory is None:
         return _failed_encounter(job, record.error, start)
-    return EncounterRecord(
-        preset=job.preset.name, scenario=job.scenario, risk=job.risk, seed=int(job.seed),
-        dt=trajectory.dt, ego_radius=trajectory.ego_radius,
-        obstacle_radii=trajectory.obstacle_radii, goal=trajectory.goal,
-        ego_states=trajectory.ego_states, inputs=trajectory.inputs,
-        obstacles=trajectory.obstacles, distances=trajectory.distances,
-        swept=trajectory.swept, statuses=tuple(trajectory.statuses),
-        filter_times=trajectory.filter_times,
-        halfspaces=trajectory.halfspaces if job.record_halfspaces else [],
-        frames=trajectory.frames, error=record.error.split(" | ")[0],
-        wall_time=time.perf_counter() - start)
+    if not job.record_halfspaces:
+        trajectory.halfspaces = []
+    return EncounterRecord(**vars(trajectory), preset=job.preset.name, scenario=job.scenario,
+                           risk=job.risk, seed=int(job.seed),
+                           error=record.error.split(" | ")[0],
+                           wall_time=time.perf_counter() - start)
 
 
 def _failed_encounter(job: EncounterJob, error: str, start: float) -> EncounterRecord:
     """The record of an episode that failed before its first state was recorded."""
     return EncounterRecord(
-        preset=job.preset.name, scenario=job.scenario, risk=job.risk, seed=int(job.seed),
-        dt=math.nan, ego_radius=math.nan, obstacle_radii=np.zeros(0), goal=np.zeros(2),
-        ego_states=np.zeros((0, 4)), inputs=np.zeros((0, 2)), obstacles=np.zeros((0, 0, 2)),
-        distances=np.zeros((0, 0)), swept=np.zeros((0, 0)), statuses=(),
-        filter_times=np.zeros(0), error=error.replace("\n", " ")[:500],
+        ego=np.zeros((0, 2)), obstacles=np.zeros((0, 0, 2)), obstacle_radii=np.zeros(0),
+        ego_radius=math.nan, goal=np.zeros(2), halfspaces=[], statuses=[], frames=[],
+        dt=math.nan, preset=job.preset.name, scenario=job.scenario, risk=job.risk,
+        seed=int(job.seed), error=error.replace("\n", " ")[:500],
         wall_time=time.perf_counter() - start)
-
-
-def _worker_init() -> None:
-    import os
-
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 
 def run_encounters(
     jobs: Sequence[EncounterJob], *, workers: int = 1, progress: bool = False,
 ) -> list[EncounterRecord]:
     """Run ``jobs`` (in ``workers`` processes) and return their records in job order."""
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        raise InvalidParameterError(f"workers must be an integer >= 1, got {workers!r}")
+    integer_at_least("workers", workers)
     iterator: Iterator[EncounterRecord]
     if workers == 1 or len(jobs) <= 1:
         iterator = map(run_encounter, jobs)
@@ -277,9 +238,11 @@ def run_encounters(
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
+    from agents.evaluation.executors import worker_init
+
     context = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(max_workers=workers, mp_context=context,
-                             initializer=_worker_init) as pool:
+                             initializer=worker_init) as pool:
         chunk = max(1, min(16, len(jobs) // (4 * workers) or 1))
         return list(_progress(pool.map(run_encounter, jobs, chunksize=chunk), len(jobs),
                               progress))
@@ -330,8 +293,7 @@ def paper_monte_carlo(
             raise InvalidParameterError(f"risk must be one of {FILTER_RISKS}, got {risk!r}")
     for scenario in scenarios:
         paper_duration(scenario)
-    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
-        raise InvalidParameterError(f"episodes must be an integer >= 1, got {episodes!r}")
+    integer_at_least("episodes", episodes)
     jobs = [EncounterJob(preset, scenario, risk, seed + i)
             for scenario in scenarios for risk in risks for i in range(episodes)]
     return run_encounters(jobs, workers=workers, progress=progress)

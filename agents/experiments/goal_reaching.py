@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from filters._validation import integer_at_least
 from filters.errors import InvalidParameterError
 
 GOALS: tuple[tuple[float, float], ...] = ((4.7, 0.0), (1.0, -3.0), (4.5, 2.0), (4.5, -2.0),
@@ -86,8 +87,7 @@ def goal_reaching(
     from safe_nav_env import RandomStart, Scenario
     from safe_nav_env.errors import SafeNavEnvError
 
-    if isinstance(starts, bool) or not isinstance(starts, int) or starts < 1:
-        raise InvalidParameterError(f"starts must be an integer >= 1, got {starts!r}")
+    integer_at_least("starts", starts)
     try:
         start = RandomStart(probability=1.0, near_goal=1.0, goal_distance=distance,
                             max_speed=max_speed, rest=1.0 if max_speed == 0 else 0.0,

@@ -43,10 +43,9 @@ def example_one(seed: int = 0) -> dict:
 
 def plot_example_one(example: dict, path: Path) -> Path:
     """Fig. 2: the samples, the reference and every halfspace boundary."""
-    import matplotlib
+    from agents.evaluation.plots import pyplot, save_figure
 
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     from filters.plotting import draw_halfspace
 
@@ -80,18 +79,14 @@ def plot_example_one(example: dict, path: Path) -> Path:
                  f"α = {EXAMPLE_ONE['alpha']:g}, δ = {EXAMPLE_ONE['delta']:g} m, "
                  f"{EXAMPLE_ONE['n_samples']} samples of N(p, {EXAMPLE_ONE['variance']:g} I)",
                  fontsize=10)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120, bbox_inches="tight")
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def plot_halfspace_times(table: dict, path: Path) -> Path:
     """Fig. 3: CVXPY setup/solve/call and our time per halfspace against N_s (log scale)."""
-    import matplotlib
+    from agents.evaluation.plots import pyplot, save_figure
 
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, ax = plt.subplots(figsize=(6, 4))
     counts = sorted(table["cvxpy"]["dr_cvar"])
@@ -108,7 +103,4 @@ def plot_halfspace_times(table: dict, path: Path) -> Path:
     ax.set_ylabel("time (ms)")
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=7)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120, bbox_inches="tight")
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)

@@ -15,6 +15,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from filters._validation import integer_at_least
 from filters.errors import InvalidParameterError
 
 __all__ = ["TIME_LABEL", "ParetoPoint", "dominated", "plot_pareto", "point_from_summary"]
@@ -133,12 +134,10 @@ def plot_pareto(
     for name, points in panels.items():
         if not points:
             raise InvalidParameterError(f"panel {name!r} has no points")
-    if isinstance(columns, bool) or not isinstance(columns, int) or columns < 1:
-        raise InvalidParameterError(f"columns must be an integer >= 1, got {columns!r}")
-    import matplotlib
+    integer_at_least("columns", columns)
+    from agents.evaluation.plots import pyplot, save_figure
 
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     labels: list[str] = []
     for points in panels.values():
@@ -193,8 +192,4 @@ def plot_pareto(
                frameon=False, bbox_to_anchor=(0.5, -0.02 - 0.03 * math.ceil(len(labels) / 4)))
     fig.suptitle(title or "Collision rate against time to goal, per method", fontsize=11)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120, bbox_inches="tight")
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)

@@ -8,7 +8,9 @@ predictions see the past only (:mod:`safe_nav_env.pedestrians`). The episodes ru
 through :func:`agents.evaluation.evaluate.evaluate`.
 
 Metrics per scene, in the style of ECP-MPC: collision rate (continuous time, Wilson 95
-%), success rate (goal reached without collision), time to goal (mean over the
+%) and the share of the episodes whose collision came with the ego standing still
+(below 0.1 m/s over the colliding step: a pedestrian walked into a robot that was not
+moving), success rate (goal reached without collision), time to goal (mean over the
 successes, s), infeasible share (steps whose hard QP had no solution: a filter status
 other than ``optimal``), miscoverage (the share of first-step halfspaces whose obstacle,
 one step later, intruded deeper than the risk bound: realised loss ``> delta``) and the
@@ -65,6 +67,7 @@ class PedestrianRow:
     collision: float
     collision_low: float
     collision_high: float
+    standing_collision: float
     success: float
     time_to_goal: float
     infeasible: float
@@ -97,7 +100,9 @@ def pedestrian_rows(records: Sequence[EpisodeRecord]) -> list[PedestrianRow]:
         filtered = risk != "none"
         rows.append(PedestrianRow(
             scene=scene, risk=risk, episodes=n, collision=collisions / max(1, n),
-            collision_low=low, collision_high=high, success=len(successes) / max(1, n),
+            collision_low=low, collision_high=high,
+            standing_collision=sum(r.collision and r.standing_collision for r in ran) / max(1, n),
+            success=len(successes) / max(1, n),
             time_to_goal=(float(np.mean([r.time_to_goal for r in successes]))
                           if successes else math.nan),
             infeasible=1.0 - optimal / steps if filtered and steps else math.nan,
@@ -116,14 +121,16 @@ def _cell(value: float, digits: int = 2, percent: bool = False) -> str:
 
 def pedestrian_table(rows: Sequence[PedestrianRow]) -> str:
     """The rows as a Markdown table."""
-    lines = ["| scene | method | episodes | collision [95 % CI] | success | time to goal (s) "
-             "| infeasible steps | miscoverage | min distance, median / worst (m) |",
-             "|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| scene | method | episodes | collision [95 % CI] | of which standing | success "
+             "| time to goal (s) | infeasible steps | miscoverage "
+             "| min distance, median / worst (m) |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for row in rows:
         lines.append(
             f"| {row.scene} | {row.risk} | {row.episodes} | "
             f"{_cell(row.collision, percent=True)} [{100 * row.collision_low:.1f}, "
-            f"{100 * row.collision_high:.1f}] | {_cell(row.success, percent=True)} | "
+            f"{100 * row.collision_high:.1f}] | {_cell(row.standing_collision, percent=True)} | "
+            f"{_cell(row.success, percent=True)} | "
             f"{_cell(row.time_to_goal)} | {_cell(row.infeasible, percent=True)} | "
             f"{_cell(row.miscoverage, percent=True)} | {_cell(row.median_min_distance)} / "
             f"{_cell(row.worst_min_distance)} |")

@@ -56,15 +56,10 @@ from pathlib import Path
 
 from agents.evaluation.summary import short_name
 from agents.experiments.encounters import (
-    INFEASIBLE_STATUSES,
-    RISKS,
     EncounterJob,
     EncounterRecord,
-    encounter_spec,
-    make_encounter_env,
     paper_monte_carlo,
     run_encounter,
-    run_encounters,
 )
 from agents.experiments.paper_figures import example_one, plot_example_one, plot_halfspace_times
 from agents.experiments.paper_settings import (
@@ -75,63 +70,23 @@ from agents.experiments.paper_settings import (
     PRESETS,
     TOLERANCE_M,
     ReproductionPreset,
-    authors_weights,
     paper_duration,
 )
 from agents.experiments.table_one import EXAMPLE_ONE
 from agents.experiments.windows import (
-    EPISODE_COLUMNS,
-    WINDOW_AFTER,
-    WINDOW_BEFORE,
     WindowRow,
     _series,
     _summary_rows,
     closest_approach_sample,
-    closest_approach_window,
     resolve_windows,
     summarise_windows,
-    window_minimum,
     write_episodes_csv,
 )
 from filters.errors import InvalidParameterError
 from filters.risk import PAPER_RISKS
 from safe_nav_env.constants import DT
 
-__all__ = [
-    "EPISODE_COLUMNS",
-    "INFEASIBLE_STATUSES",
-    "PAPER_FILTER_TIME_MS",
-    "PAPER_SCENARIOS",
-    "PAPER_WINDOWS",
-    "PAPER_WORST_DISTANCE",
-    "PRESETS",
-    "RISKS",
-    "TOLERANCE_M",
-    "WINDOW_AFTER",
-    "WINDOW_BEFORE",
-    "EncounterJob",
-    "EncounterRecord",
-    "ReproductionPreset",
-    "WindowRow",
-    "authors_weights",
-    "closest_approach_sample",
-    "closest_approach_window",
-    "compare_with_paper",
-    "encounter_spec",
-    "example_one",
-    "make_encounter_env",
-    "paper_duration",
-    "paper_monte_carlo",
-    "plot_example_one",
-    "plot_halfspace_times",
-    "reproduce",
-    "resolve_windows",
-    "run_encounter",
-    "run_encounters",
-    "summarise_windows",
-    "window_minimum",
-    "write_episodes_csv",
-]
+__all__ = ["compare_with_paper", "reproduce"]
 
 
 # ---------------------------------------------------------------------------- Monte Carlo report
@@ -318,24 +273,18 @@ def _monte_carlo_figures(
             files[f"trajectories_{name}"] = plots.plot_trajectories(
                 first_seed, folder / f"trajectories_{name}.png", every=3,
                 title=f"{name}, seed {seed}, preset {preset.name}")
-    risks = list(dict.fromkeys(r.risk for r in records))
-    featured = ("SafeNav/MultiObstacle-v0" if "SafeNav/MultiObstacle-v0" in scenarios
-                else scenarios[0], "dr_cvar" if "dr_cvar" in risks else risks[-1])
+    featured = plots.featured_run(scenarios, list(dict.fromkeys(r.risk for r in records)))
     if featured[1] != "none":
         record = run_encounter(EncounterJob(preset, featured[0], featured[1], seed, render=True,
                                             record_halfspaces=True))
         if not record.error:
-            from agents.evaluation.plots import RISK_LABELS
-
-            name = short_name(featured[0])
-            files["safe_polytopes"] = plots.plot_safe_polytopes(
-                record, folder / "safe_polytopes.png",
-                title=f"{name}: {featured[1]} safe polytopes, seed {seed}")
-            label = (f"{RISK_LABELS.get(featured[1], featured[1])} (alpha {preset.alpha:g}, "
-                     f"delta {preset.delta_for(featured[1]):g} m, eps {preset.epsilon:g} m), "
+            name, risk = short_name(featured[0]), featured[1]
+            label = (f"{plots.RISK_LABELS.get(risk, risk)} (alpha {preset.alpha:g}, "
+                     f"delta {preset.delta_for(risk):g} m, eps {preset.epsilon:g} m), "
                      f"{name}, seed {seed}, preset {preset.name}")
-            files["animation"] = plots.save_gif(record.frames, folder / "episode.gif",
-                                                label=label)
+            files.update(plots.polytope_figures(
+                record, folder, title=f"{name}: {risk} safe polytopes, seed {seed}",
+                label=label))
     return files
 
 

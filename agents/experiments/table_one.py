@@ -61,9 +61,7 @@ radius (m), samples of N(obstacle, variance I), and the risk parameters."""
 
 _Y_REF = np.array(EXAMPLE_ONE["reference"])
 _OBSTACLE = np.array(EXAMPLE_ONE["obstacle"])
-_RADIUS = OBSTACLE_RADIUS
-_STD = 0.1  # N(p, 0.01 I)
-_ALPHA, _DELTA, _EPSILON = ALPHA, DELTA, EPSILON
+_STD = 0.1  # m: samples of N(p, 0.01 I)
 _GRID = (3, 10)  # obstacles x steps
 
 
@@ -125,24 +123,12 @@ def _time_cvxpy(
 ) -> CvxpyTiming:
     from filters.halfspace_cvxpy import time_cvxpy_halfspace
 
-    times = (
-        np.array(
-            [
-                time_cvxpy_halfspace(
-                    rng.normal(_OBSTACLE, _STD, size=(n_samples, 2)),
-                    _normal(),
-                    2 * _RADIUS,
-                    risk,
-                    alpha=_ALPHA,
-                    delta=_DELTA,
-                    epsilon=_EPSILON,
-                    formulation=formulation,
-                )
-                for _ in range(repeats)
-            ]
-        )
-        * 1e3
-    )
+    normal = _normal()
+    times = 1e3 * np.array([
+        time_cvxpy_halfspace(rng.normal(_OBSTACLE, _STD, size=(n_samples, 2)), normal,
+                             2 * OBSTACLE_RADIUS, risk, alpha=ALPHA, delta=DELTA,
+                             epsilon=EPSILON, formulation=formulation)
+        for _ in range(repeats)])
     mean, median = times.mean(axis=0), np.median(times, axis=0)
     paper = PAPER_TABLE_ONE.get((risk, n_samples), (np.nan, np.nan))
     return CvxpyTiming(
@@ -171,8 +157,8 @@ def _time_ours(
     rng: np.random.Generator, risk: str, n_samples: int, cvxpy_call_ms: float
 ) -> OurTiming:
     n_obstacles, horizon = _GRID
-    disc = Disc(_RADIUS)
-    options = dict(risk=risk, alpha=_ALPHA, delta=_DELTA, epsilon=_EPSILON, ego_shape=disc)
+    disc = Disc(OBSTACLE_RADIUS)
+    options = dict(risk=risk, alpha=ALPHA, delta=DELTA, epsilon=EPSILON, ego_shape=disc)
     single = rng.normal(_OBSTACLE, _STD, size=(1, n_samples, 1, 2))
     grid = rng.normal(_OBSTACLE, _STD, size=(n_obstacles, n_samples, horizon, 2))
     y_one, y_grid = _Y_REF[None], np.tile(_Y_REF, (horizon, 1))

@@ -132,7 +132,6 @@ class WindowRow:
     episodes: int
     failed: int
     window: tuple[int, int]
-    window_source: str
     collisions: int
     sampled_collisions: int
     window_sampled_collisions: int
@@ -140,7 +139,6 @@ class WindowRow:
     window_worst: float
     window_worst_swept: float
     episode_worst: float
-    episode_worst_swept: float
     encounter_window: tuple[int, int]
     encounter_sampled_collisions: int
     encounter_worst: float
@@ -201,7 +199,7 @@ def summarise_windows(records: Sequence[EncounterRecord]) -> list[WindowRow]:
     rows = []
     for (preset, scenario, risk), group in groups.items():
         ok = [r for r in group if not r.error]
-        window, source = windows[scenario]
+        window = windows[scenario][0]
         sampled, swept = _series(ok, "distances"), _series(ok, "swept")
         first, last = window
         in_window = window_minimum(sampled, window) if ok else np.zeros(0)
@@ -213,13 +211,13 @@ def summarise_windows(records: Sequence[EncounterRecord]) -> list[WindowRow]:
         times = np.concatenate([r.filter_times for r in ok]) if ok else np.zeros(0)
         rows.append(WindowRow(
             preset=preset, scenario=scenario, risk=risk, episodes=len(group),
-            failed=len(group) - len(ok), window=window, window_source=source,
+            failed=len(group) - len(ok), window=window,
             collisions=sum(r.collision for r in ok),
             sampled_collisions=sum(r.sampled_collision for r in ok),
             window_sampled_collisions=int(np.sum(in_window <= 0.0)),
             window_collisions=int(np.sum(swept_window <= 0.0)),
             window_worst=_nanmin(in_window), window_worst_swept=_nanmin(swept_window),
-            episode_worst=_nanmin(sampled), episode_worst_swept=_nanmin(swept),
+            episode_worst=_nanmin(sampled),
             encounter_window=encounter,
             encounter_sampled_collisions=int(np.sum(in_encounter <= 0.0)),
             encounter_worst=_nanmin(in_encounter),

@@ -4,8 +4,8 @@ The roll-out reference (:class:`filters.references.PolicyRolloutReference`) asks
 the policy for ``T - 1`` actions at every control step, one after the other (each
 depends on the state the previous one produced), so it cannot be batched. Through
 Stable-Baselines3 most of one ``model.predict`` call is overhead (tensor
-conversion, ``no_grad``, distribution objects; :func:`benchmark_numpy_policy` times
-it). :class:`NumpyPolicy` evaluates the same network with numpy:
+conversion, ``no_grad``, distribution objects; :func:`benchmarks.policy.benchmark_numpy_policy`
+times it). :class:`NumpyPolicy` evaluates the same network with numpy:
 
 .. math::
 
@@ -42,10 +42,8 @@ signature, so it can be passed wherever a policy is expected, e.g.
 from __future__ import annotations
 
 import math
-import time
 import warnings
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -53,13 +51,7 @@ import numpy as np
 
 from filters.errors import InvalidArrayError, InvalidParameterError, InvalidTypeError
 
-__all__ = [
-    "NumpyPolicy",
-    "PolicyTiming",
-    "UnsupportedPolicyError",
-    "benchmark_numpy_policy",
-    "load_numpy_policy",
-]
+__all__ = ["NumpyPolicy", "UnsupportedPolicyError", "load_numpy_policy"]
 
 
 class UnsupportedPolicyError(InvalidTypeError):
@@ -89,31 +81,19 @@ class _Activation:
         return f"_Activation({self.name!r}, {self.parameter})"
 
 
-_tanh = _Activation("tanh")
-_relu = _Activation("relu")
-
-
-def _leaky_relu(slope: float) -> _Activation:
-    return _Activation("leaky_relu", slope)
-
-
-def _elu(alpha: float) -> _Activation:
-    return _Activation("elu", alpha)
-
-
 def _activation(module: Any) -> Callable[[np.ndarray], None] | None:
     """In-place numpy version of a torch activation module, or ``None`` if unknown."""
     from torch import nn
 
     kind = type(module)
     if kind is nn.Tanh:
-        return _tanh
+        return _Activation("tanh")
     if kind is nn.ReLU:
-        return _relu
+        return _Activation("relu")
     if kind is nn.LeakyReLU:
-        return _leaky_relu(float(module.negative_slope))
+        return _Activation("leaky_relu", module.negative_slope)
     if kind is nn.ELU:
-        return _elu(float(module.alpha))
+        return _Activation("elu", module.alpha)
     return None
 
 
@@ -170,14 +150,34 @@ def _checked_actor_critic(model: Any) -> Any:
 
 
 
-class _DeterministicActor:
-    """SB3's ``predict`` for a ``Box`` action space, deterministic only (shared front end).
+class NumpyPolicy:
+    """Deterministic actor of a Stable-Baselines3 ``MlpPolicy`` (PPO/A2C), in numpy.
 
-    Subclasses implement ``_actions(rows)``: float32 observation rows ``(B, n)`` to
-    float32 actions ``(B, m)``, clipped (or un-squashed) as SB3 does.
+    Build it with :meth:`from_sb3`. It holds no mutable state (the weights are
+    read-only arrays), so one instance can serve several environments or threads.
+
+    Attributes
+    ----------
+    observation_space, action_space
+        The model's Gymnasium spaces (``Box``).
+    layers
+        ``(W^T, b, activation)`` per affine layer, policy net then action net
+        (``activation`` is ``None`` for the action net).
+    squash_output
+        Whether the mean is squashed by ``tanh`` and rescaled to the box (gSDE) instead
+        of clipped.
     """
 
-    def __init__(self, observation_space: Any, action_space: Any, squash_output: bool) -> None:
+    def __init__(
+        self,
+        layers: list[Layer],
+        observation_space: Any,
+        action_space: Any,
+        *,
+        squash_output: bool = False,
+    ) -> None:
+        if not layers:
+            raise InvalidParameterError("a NumpyPolicy needs at least one affine layer, got none")
         self.observation_space = observation_space
         self.action_space = action_space
         self.squash_output = bool(squash_output)
@@ -186,9 +186,17 @@ class _DeterministicActor:
         self._action_shape = tuple(action_space.shape)
         self._low = np.asarray(action_space.low, dtype=np.float32).reshape(-1)
         self._high = np.asarray(action_space.high, dtype=np.float32).reshape(-1)
-
-    def _actions(self, rows: np.ndarray) -> np.ndarray:  # pragma: no cover - abstract
-        raise NotImplementedError
+        self.layers = tuple(layers)
+        if layers[0][0].shape[0] != self._n_inputs:
+            raise InvalidArrayError(
+                f"the first layer takes {layers[0][0].shape[0]} inputs, but observations have "
+                f"{self._n_inputs} entries (shape {self._obs_shape})"
+            )
+        if layers[-1][0].shape[1] != self._low.size:
+            raise InvalidArrayError(
+                f"the action net gives {layers[-1][0].shape[1]} outputs, but the action space "
+                f"has {self._low.size} entries (shape {self._action_shape})"
+            )
 
     def _to_box(self, mean_or_squashed: np.ndarray) -> np.ndarray:
         """SB3's last step on float32 network outputs: clip, or rescale ``tanh`` outputs."""
@@ -257,7 +265,7 @@ class _DeterministicActor:
         """
         if not deterministic:
             raise InvalidParameterError(
-                f"{type(self).__name__} computes the deterministic action only (the "
+                "NumpyPolicy computes the deterministic action only (the "
                 "Gaussian's mean); got deterministic=False: use the SB3 model for "
                 "stochastic actions"
             )
@@ -282,48 +290,6 @@ class _DeterministicActor:
                 f"got a single observation of shape {self._obs_shape}: use predict"
             )
         return self._actions(rows).reshape((-1, *self._action_shape))
-
-
-class NumpyPolicy(_DeterministicActor):
-    """Deterministic actor of a Stable-Baselines3 ``MlpPolicy`` (PPO/A2C), in numpy.
-
-    Build it with :meth:`from_sb3`. It holds no mutable state (the weights are
-    read-only arrays), so one instance can serve several environments or threads.
-
-    Attributes
-    ----------
-    observation_space, action_space
-        The model's Gymnasium spaces (``Box``).
-    layers
-        ``(W^T, b, activation)`` per affine layer, policy net then action net
-        (``activation`` is ``None`` for the action net).
-    squash_output
-        Whether the mean is squashed by ``tanh`` and rescaled to the box (gSDE) instead
-        of clipped.
-    """
-
-    def __init__(
-        self,
-        layers: list[Layer],
-        observation_space: Any,
-        action_space: Any,
-        *,
-        squash_output: bool = False,
-    ) -> None:
-        if not layers:
-            raise InvalidParameterError("a NumpyPolicy needs at least one affine layer, got none")
-        super().__init__(observation_space, action_space, squash_output)
-        self.layers = tuple(layers)
-        if layers[0][0].shape[0] != self._n_inputs:
-            raise InvalidArrayError(
-                f"the first layer takes {layers[0][0].shape[0]} inputs, but observations have "
-                f"{self._n_inputs} entries (shape {self._obs_shape})"
-            )
-        if layers[-1][0].shape[1] != self._low.size:
-            raise InvalidArrayError(
-                f"the action net gives {layers[-1][0].shape[1]} outputs, but the action space "
-                f"has {self._low.size} entries (shape {self._action_shape})"
-            )
 
     @classmethod
     def from_sb3(cls, model: Any) -> NumpyPolicy:
@@ -398,71 +364,6 @@ def load_numpy_policy(path: str | Path | None = None) -> NumpyPolicy:
     from agents.policies.loading import load_ppo
 
     return NumpyPolicy.from_sb3(load_ppo(path))
-
-
-@dataclass(frozen=True)
-class PolicyTiming:
-    """Per-call wall times (µs, medians) of one deterministic action, SB3 vs numpy."""
-
-    calls: int
-    sb3_us: float
-    numpy_us: float
-    ratio: float  # sb3 / numpy
-    batch: int
-    sb3_batch_us: float  # one batched call of `batch` observations
-    numpy_batch_us: float
-    max_difference: float  # max |a_numpy - a_sb3| over the timed observations, m/s^2
-
-    def format(self) -> str:
-        return "\n".join([
-            f"policy forward, one observation, {self.calls} calls, medians: SB3 predict "
-            f"{self.sb3_us:.1f} us, NumpyPolicy {self.numpy_us:.1f} us "
-            f"({self.ratio:.1f}x faster)",
-            f"    batch of {self.batch}: SB3 {self.sb3_batch_us:.1f} us, NumpyPolicy "
-            f"{self.numpy_batch_us:.1f} us; max |a_numpy - a_sb3| = {self.max_difference:.2e}",
-        ])
-
-
-def benchmark_numpy_policy(
-    path: str | Path | None = None, *, calls: int = 2000, batch: int = 64, seed: int = 0
-) -> PolicyTiming:
-    """Time ``model.predict(obs, deterministic=True)`` against :class:`NumpyPolicy`.
-
-    The observations are standard-normal draws from ``numpy.random.default_rng(seed)``
-    (the network does not care where they come from); one torch thread, as in the
-    evaluation workers.
-    """
-    from agents.policies.loading import load_ppo, set_torch_threads
-
-    set_torch_threads(1)
-    model = load_ppo(path)
-    policy = NumpyPolicy.from_sb3(model)
-    rng = np.random.default_rng(seed)
-    observations = rng.standard_normal((calls, *policy._obs_shape)).astype(np.float32)
-    sb3_times, numpy_times, difference = [], [], 0.0
-    for obs in observations:
-        begin = time.perf_counter()
-        torch_action, _ = model.predict(obs, deterministic=True)
-        middle = time.perf_counter()
-        numpy_action, _ = policy.predict(obs, deterministic=True)
-        sb3_times.append(middle - begin)
-        numpy_times.append(time.perf_counter() - middle)
-        difference = max(difference, float(np.max(np.abs(numpy_action - torch_action))))
-    sb3_batch, numpy_batch = [], []
-    for start in range(0, calls - batch + 1, batch):
-        rows = observations[start : start + batch]
-        begin = time.perf_counter()
-        model.predict(rows, deterministic=True)
-        middle = time.perf_counter()
-        policy.predict_batch(rows)
-        sb3_batch.append(middle - begin)
-        numpy_batch.append(time.perf_counter() - middle)
-    sb3_us, numpy_us = 1e6 * float(np.median(sb3_times)), 1e6 * float(np.median(numpy_times))
-    return PolicyTiming(
-        calls=calls, sb3_us=sb3_us, numpy_us=numpy_us, ratio=sb3_us / numpy_us, batch=batch,
-        sb3_batch_us=1e6 * float(np.median(sb3_batch)),
-        numpy_batch_us=1e6 * float(np.median(numpy_batch)), max_difference=difference,
-    )
 
 
 def __getattr__(name: str) -> Any:

@@ -33,8 +33,10 @@ import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
 
 from agents.training.wrappers import report_field
+from filters.mpc.result import FilterStatus
+from filters.report import PASSTHROUGH
 
-FILTER_STATUSES = ("optimal", "soft", "recovery", "shifted", "brake", "error", "passthrough")
+FILTER_STATUSES = (*(status.value for status in FilterStatus), PASSTHROUGH)
 """Filter statuses always logged (share 0 when absent), so the CSV columns are fixed;
 any other status seen is logged too."""
 

@@ -38,7 +38,6 @@ which this project needs. The few lines here keep everything on SB3.
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import gymnasium as gym
@@ -47,6 +46,7 @@ from stable_baselines3 import PPO
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper
 
+from filters._validation import scalar_in_range
 from filters.errors import InvalidParameterError, InvalidTypeError
 
 
@@ -73,13 +73,21 @@ def dual_ascent_step(
     InvalidParameterError
         If a value is negative or not finite.
     """
-    for name, value in (("multiplier", multiplier), ("episode_cost", episode_cost),
-                        ("cost_limit", cost_limit)):
-        if not (math.isfinite(value) and value >= 0):
-            raise InvalidParameterError(f"{name} must be finite and >= 0, got {value!r}")
-    if not (math.isfinite(lr) and lr > 0):
-        raise InvalidParameterError(f"lr must be finite and > 0, got {lr!r}")
-    return max(0.0, float(multiplier) + float(lr) * (float(episode_cost) - float(cost_limit)))
+    multiplier = _non_negative("multiplier", multiplier)
+    episode_cost = _non_negative("episode_cost", episode_cost)
+    cost_limit = _non_negative("cost_limit", cost_limit)
+    lr = _positive("lr", lr)
+    return max(0.0, multiplier + lr * (episode_cost - cost_limit))
+
+
+def _non_negative(name: str, value: object) -> float:
+    """``value`` as a finite float >= 0, else :class:`InvalidParameterError` naming ``name``."""
+    return scalar_in_range(name, value, low=0.0, high_inclusive=False)
+
+
+def _positive(name: str, value: object) -> float:
+    """``value`` as a finite float > 0, else :class:`InvalidParameterError` naming ``name``."""
+    return scalar_in_range(name, value, low=0.0, low_inclusive=False, high_inclusive=False)
 
 
 class CostPenaltyVecEnv(VecEnvWrapper):
@@ -169,15 +177,9 @@ class PPOLagrangian(PPO):
 
     def __init__(self, policy: Any, env: Any, *, cost_limit: float = 0.0,
                  lambda_lr: float = 0.05, lambda_init: float = 0.0, **kwargs: Any) -> None:
-        for name, value in (("cost_limit", cost_limit), ("lambda_init", lambda_init)):
-            if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
-                raise InvalidParameterError(f"{name} must be finite and >= 0, got {value!r}")
-        if not (isinstance(lambda_lr, int | float) and math.isfinite(lambda_lr)
-                and lambda_lr > 0):
-            raise InvalidParameterError(f"lambda_lr must be finite and > 0, got {lambda_lr!r}")
-        self.cost_limit = float(cost_limit)
-        self.lambda_lr = float(lambda_lr)
-        self.lagrange_multiplier = float(lambda_init)
+        self.cost_limit = _non_negative("cost_limit", cost_limit)
+        self.lambda_lr = _positive("lambda_lr", lambda_lr)
+        self.lagrange_multiplier = _non_negative("lambda_init", lambda_init)
         self.multiplier_history: list[tuple[int, float, float]] = []
         super().__init__(policy, _as_penalty_env(env), **kwargs)
 

@@ -24,7 +24,6 @@ logger: a stdout table with ``print_metrics``, a CSV next to the model
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,6 +35,7 @@ from agents.policies.loading import (  # noqa: F401  (re-exported)
     pretrained_policy_path,
     set_torch_threads,
 )
+from filters._validation import scalar_in_range
 from filters.errors import InvalidParameterError, InvalidTypeError
 
 DEFAULT_ENV_ID = "SafeNav/RandomCrossing-v0"
@@ -224,17 +224,6 @@ def _check_int(name: str, value: Any, low: int) -> int:
     return int(value)
 
 
-def _check_real(name: str, value: Any, *, low: float, high: float = math.inf,
-                open_low: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise InvalidParameterError(f"{name} must be a finite number, got {value!r}")
-    if value < low or (open_low and value == low) or value > high:
-        left = "(" if open_low else "["
-        right = "]" if math.isfinite(high) else ")"
-        raise InvalidParameterError(f"{name} must be in {left}{low}, {high}{right}, got {value!r}")
-    return float(value)
-
-
 def check_filter_kwargs(env_id: str, env_kwargs: dict[str, Any] | None,
                         filter_kwargs: dict[str, Any]) -> None:
     """Validate the filter options once, before any training.
@@ -257,10 +246,10 @@ def check_filter_kwargs(env_id: str, env_kwargs: dict[str, Any] | None,
     if not isinstance(filter_kwargs, dict):
         raise InvalidTypeError(f"filter_kwargs must be a dict, got {filter_kwargs!r}")
     if "alpha" in filter_kwargs:
-        _check_real("alpha", filter_kwargs["alpha"], low=0.0, high=1.0, open_low=True)
+        scalar_in_range("alpha", filter_kwargs["alpha"], low=0.0, high=1.0, low_inclusive=False)
     for name in ("delta", "epsilon"):
         if name in filter_kwargs:
-            _check_real(name, filter_kwargs[name], low=0.0)
+            scalar_in_range(name, filter_kwargs[name], low=0.0, high_inclusive=False)
     env = gym.make(env_id, **(env_kwargs or {}))
     try:
         SafetyFilterWrapper(env, **filter_kwargs)
@@ -446,9 +435,11 @@ def train_ppo(
     eval_freq = _check_int("eval_freq", eval_freq, 0)
     eval_episodes = _check_int("eval_episodes", eval_episodes, 1)
     torch_threads = _check_int("torch_threads", torch_threads, 1)
-    intervention_penalty = _check_real("intervention_penalty", intervention_penalty, low=0.0)
-    cost_limit = _check_real("cost_limit", cost_limit, low=0.0)
-    lambda_lr = _check_real("lambda_lr", lambda_lr, low=0.0, open_low=True)
+    intervention_penalty = scalar_in_range("intervention_penalty", intervention_penalty, low=0.0,
+                                           high_inclusive=False)
+    cost_limit = scalar_in_range("cost_limit", cost_limit, low=0.0, high_inclusive=False)
+    lambda_lr = scalar_in_range("lambda_lr", lambda_lr, low=0.0, low_inclusive=False,
+                                high_inclusive=False)
     if vec_env not in VEC_ENVS:
         raise InvalidParameterError(f"vec_env must be one of {VEC_ENVS}, got {vec_env!r}")
     if filter_reference not in FILTER_REFERENCES:

@@ -26,7 +26,8 @@ factor (:math:`O(\text{rows}\,T m)` instead of :math:`O(\text{rows}\,(T m)^2)` p
 * ``fixed`` rows, the same every step (only their bounds move with :math:`x_0`):
   the input box :math:`u_\text{low} \le u_t \le u_\text{high}` (axes with a finite side),
   the arena :math:`y_\text{low} \le C x_t \le y_\text{high}` (one two-sided row per step
-  and finite axis, step-major), the terminal rows :math:`G x_T \le g`;
+  and finite axis, step-major), the terminal rows :math:`G x_T \le g`, the speed
+  polygon :math:`S x_t \le s` (step-major; :attr:`~filters.mpc.MPCProblem.speed_rows`);
 * ``halfspace`` rows :math:`a_{i,t}^\top C x_t \le b_{i,t}`, step-major (row
   ``(t - 1) K + i``), written per step from the normals: :math:`a_{i,t}^\top W_t z` with
   :math:`W_t = C \Gamma_t U^{-\top}` precomputed, shape ``(T, d, T m)``.
@@ -100,9 +101,9 @@ class CondensedQP:
     n_fixed
         Number of fixed rows.
     row_slices
-        ``(inputs, arena, terminal)``: where each kind of fixed row sits (the input rows
-        step-major over the axes with a finite side, the arena rows step-major over the
-        arena's finite axes, each two-sided).
+        ``(inputs, arena, terminal, speed)``: where each kind of fixed row sits (the input
+        rows step-major over the axes with a finite side, the arena rows step-major over
+        the arena's finite axes, each two-sided; the speed rows step-major, never soft).
     fixed_soft
         Which fixed rows are soft in this problem (the arena and terminal rows when
         ``"bounds"`` is in its ``soft_rows``).
@@ -149,31 +150,36 @@ class CondensedQP:
         input_axes = np.flatnonzero(np.isfinite(u_low) | np.isfinite(u_high))
         arena_axes = np.flatnonzero(np.isfinite(y_low) | np.isfinite(y_high))
         G, g = p.terminal_set if p.terminal_set is not None else (np.zeros((0, n)), np.zeros(0))
+        S, s = p.speed_rows
+        speed_map = np.einsum("jn,tnk->tjk", S, gamma.reshape(T, n, nu)).reshape(-1, nu)
         input_index = (np.arange(T)[:, None] * m + input_axes[None]).reshape(-1)
         rows = [u_of_z[input_index], W[:, arena_axes].reshape(-1, nu),
-                G @ gamma[(T - 1) * n :] @ u_of_z]
+                G @ gamma[(T - 1) * n :] @ u_of_z, speed_map @ u_of_z]
         self.fixed_rows = np.ascontiguousarray(np.vstack(rows))
         self.fixed_upper = np.concatenate(
-            [np.tile(u_high[input_axes], T), np.tile(y_high[arena_axes], T), g])
+            [np.tile(u_high[input_axes], T), np.tile(y_high[arena_axes], T), g, np.tile(s, T)])
         self.fixed_lower = np.concatenate(
             [np.tile(u_low[input_axes], T), np.tile(y_low[arena_axes], T),
-             np.full(len(g), -np.inf)])
+             np.full(len(g) + T * len(s), -np.inf)])
         self.input_axes, self.arena_axes = input_axes, arena_axes
         self._input_index = input_index
         n_inputs, n_arena = len(input_index), T * len(arena_axes)
-        self.n_fixed = n_inputs + n_arena + len(g)
+        n_bounds = n_inputs + n_arena + len(g)  # the rows "bounds" softens end here
+        self.n_fixed = n_bounds + T * len(s)
         self.fixed_soft = np.zeros(self.n_fixed, dtype=bool)
         if p.soft_bounds:
-            self.fixed_soft[n_inputs:] = True
+            self.fixed_soft[n_inputs:n_bounds] = True
         self.row_slices = (slice(0, n_inputs), slice(n_inputs, n_inputs + n_arena),
-                           slice(n_inputs + n_arena, self.n_fixed))
-        # Shift of the fixed bounds by x0: inputs none, arena C Phi_t x0, terminal G Phi_T x0.
+                           slice(n_inputs + n_arena, n_bounds), slice(n_bounds, self.n_fixed))
+        # Shift of the fixed bounds by x0: inputs none, arena C Phi_t x0, terminal G Phi_T x0,
+        # speed S Phi_t x0.
+        speed_shift = np.einsum("jn,tnk->tjk", S, phi.reshape(T, n, n)).reshape(-1, n)
         shift = np.vstack([np.zeros((n_inputs, n)), C_phi[:, arena_axes].reshape(-1, n),
-                           G @ phi[(T - 1) * n :]])
+                           G @ phi[(T - 1) * n :], speed_shift])
         # One product S x0: the shift of the fixed rows, then the positions C Phi_t x0.
         self._S = matvec_operator(np.vstack([shift, C_phi.reshape(T * d, n)]))
-        # One product E z: u, the positions C Gamma u, the terminal values G Gamma_T u.
-        self._E = matvec_operator(np.vstack([u_of_z, W.reshape(T * d, nu), rows[2]]))
+        # One product E z: u, the positions C Gamma u, the terminal and the speed values.
+        self._E = matvec_operator(np.vstack([u_of_z, W.reshape(T * d, nu), rows[2], rows[3]]))
         self._hi, self._lo = np.isfinite(y_high[arena_axes]), np.isfinite(y_low[arena_axes])
         self.T, self.n, self.m, self.d, self.K, self.nu = T, n, m, d, K, nu
         self._v = np.empty(n + T * n + nu)
@@ -227,7 +233,7 @@ class CondensedQP:
     def bound_slack(self, values: np.ndarray, rows: StepRows) -> np.ndarray:
         """Violations ``max(0, excess)`` of the upper arena faces (by step, then axis), the
         lower faces, then the terminal rows: the filter's order of the bound rows."""
-        _, arena, terminal = self.row_slices
+        _, arena, terminal, _ = self.row_slices
         T = self.T
         up = (values[arena] - rows.upper[arena]).reshape(T, -1)[:, self._hi]
         low = (rows.lower[arena] - values[arena]).reshape(T, -1)[:, self._lo]

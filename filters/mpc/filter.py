@@ -14,10 +14,11 @@ One :meth:`MPCSafetyFilter.solve` call:
    meets every hard row to ``FEASIBILITY_TOLERANCE`` (and every soft row to the back
    end's slack plus that tolerance, when no clipping beyond that tolerance made the
    back end's slacks stale; the slacks reported are always recomputed from the plan);
-5. otherwise **recovers**: ``fallback="soft"`` solves the recovery QP (every halfspace,
-   arena and terminal row softened, exact L1 penalty ``slack_penalty``: it has the hard
-   QP's solution whenever that one is feasible), then brakes if that fails too;
-   ``fallback="paper"`` shifts the last plan, then brakes (:mod:`filters.mpc.recovery`).
+5. otherwise **recovers**: ``fallback="soft"`` solves the recovery QP (the halfspace
+   rows softened, exact L1 penalty ``slack_penalty``; the least violation, then the
+   lowest speed, see :mod:`filters.mpc.recovery`), with the arena and terminal rows
+   softened too only if it is infeasible, then brakes if that fails too;
+   ``fallback="paper"`` shifts the last plan, then brakes.
 
 A step never raises because a QP is infeasible or a solver fails; the
 :class:`~filters.mpc.FilterStatus` says what was returned.
@@ -40,6 +41,7 @@ from filters.constants import (  # noqa: F401  (re-exported: filters.mpc.filter.
     HORIZON,
     INPUT_CLIP_TOLERANCE,
     SLACK_TOLERANCE,
+    SPEED_SIDES,
 )
 from filters.errors import InvalidParameterError, InvalidTypeError
 from filters.mpc._linalg import matvec_operator
@@ -53,12 +55,19 @@ from filters.mpc.backends import (
 )
 from filters.mpc.checks import all_finite, finite_step_array, parse_halfspaces
 from filters.mpc.problem import MPCProblem
-from filters.mpc.recovery import braking_gain, rollout_with_brake, shifted_plan
+from filters.mpc.recovery import (
+    braking_gain,
+    recovery_problems,
+    rollout_with_brake,
+    shifted_plan,
+)
 from filters.mpc.result import (
     FilterResult,
     FilterStatus,
     QPSolution,
     StepData,
+    filter_result,
+    padded_step,
     recovery_status,
 )
 
@@ -139,8 +148,14 @@ class MPCSafetyFilter:
         ``(G, g)``: the plan ends in :math:`G x_T \le g` (e.g.
         :func:`filters.mpc.stopping_terminal_set`); ``None`` (default): none.
     fallback
-        ``"soft"`` (default: the recovery QP, then braking) or ``"paper"`` (shift the
-        last plan, then brake).
+        ``"soft"`` (default: the recovery QPs, which brake, then braking) or ``"paper"``
+        (shift the last plan, then brake).
+    max_speed
+        :math:`v_\max` in m/s: every QP keeps the planned velocities :math:`v_1..v_T`
+        in the ``speed_sides``-gon inscribed in the disc :math:`\|v\| \le v_\max` (hard
+        rows; the state must be ``[position; velocity]``); ``inf`` (default): no limit.
+    speed_sides
+        Sides of that polygon, ``>= 3`` (default :data:`~filters.constants.SPEED_SIDES`).
     backend
         ``"auto"`` (default: DAQP for the hard QP; for QPs with soft rows DAQP while
         ``T m <= 40``, else Clarabel; see :func:`auto_backend`), ``"daqp"`` (the
@@ -200,6 +215,8 @@ class MPCSafetyFilter:
         fallback: str = "soft",
         backend: str = "auto",
         fast_path: bool | None = None,
+        max_speed: float = np.inf,
+        speed_sides: int = SPEED_SIDES,
     ) -> None:
         for name, value in (("soft", soft), ("skip_feasible_reference", skip_feasible_reference)):
             if not isinstance(value, (bool, np.bool_)):
@@ -216,20 +233,20 @@ class MPCSafetyFilter:
             later_input_weight=later_input_weight, input_bounds=input_bounds,
             position_bounds=position_bounds, terminal_set=terminal_set,
             n_obstacles=n_obstacles, soft_rows=frozenset({"halfspaces"} if soft else ()),
-            slack_penalty=slack_penalty,
+            slack_penalty=slack_penalty, max_speed=max_speed, speed_sides=speed_sides,
         )
         self.problem = problem
         self._soft = bool(soft)
         self._skip = bool(skip_feasible_reference)
         self._fallback = fallback
-        recovery_problem = problem.with_soft_rows({"halfspaces", "bounds"})
+        recovery_problem, rescue_problem = recovery_problems(problem)
         recovery_backend = backend
         if backend == "auto":
             if solver_settings is not None:
                 backend = recovery_backend = "clarabel"
             else:
                 backend = auto_backend(problem)
-                recovery_backend = auto_backend(recovery_problem)
+                recovery_backend = auto_backend(rescue_problem)
         self._backend_name = backend
         T, n, m = problem.horizon, problem.n, problem.m
         if brake_gain is None:
@@ -237,9 +254,10 @@ class MPCSafetyFilter:
         else:
             self._brake_gain = finite_array("brake_gain", brake_gain, shape=(m, n))
         self._primary = make_backend(backend, problem, solver_settings)
-        self._recovery = None
+        self._recovery = self._rescue = None  # the recovery QPs: arena hard, then soft
         if fallback == "soft":
             self._recovery = make_backend(recovery_backend, recovery_problem, solver_settings)
+            self._rescue = make_backend(recovery_backend, rescue_problem, solver_settings)
         # Precomputed for the per-step checks (a few NumPy calls per step).
         phi, gamma = problem.rollout
         self._phi, self._gamma = matvec_operator(phi), matvec_operator(gamma)
@@ -248,6 +266,7 @@ class MPCSafetyFilter:
         evaluation, self._eval_offset = problem.check_map
         self._eval = matvec_operator(evaluation)
         self._split = ((T + 1) * n, (T + 1) * n + T * problem.d)
+        self._n_bound = len(self._eval_offset) - self._split[1] - T * len(problem.speed_rows[1])
         # Block-diagonal weights of the cost (8) on the flattened deviations.
         self._R_block = matvec_operator(scipy.linalg.block_diag(*problem.input_weights))
         self._Q_block = matvec_operator(scipy.linalg.block_diag(*problem.state_weights))
@@ -260,8 +279,7 @@ class MPCSafetyFilter:
         self._u_low, self._u_high = u_low, u_high
         self._has_state_cost = problem.has_state_cost
         self._primary_soft_rows = problem.soft_rows
-        self._recovery_soft_rows = (
-            None if self._recovery is None else self._recovery.problem.soft_rows)
+        self._recovery_zeros = (np.zeros((T, n)), self._zero_inputs)
         self._states_shape, self._positions_shape = (T + 1, n), (T, problem.d)
         self._z = np.empty(n + T * m)  # [x0; u] of the evaluation map
         self._plan: np.ndarray | None = None
@@ -330,7 +348,8 @@ class MPCSafetyFilter:
 
     @property
     def last_qp_solves(self) -> int:
-        """QPs solved by the last :meth:`solve`: 0 (shortcut), 1 (hard), 2 (recovery)."""
+        """QPs solved by the last :meth:`solve`: 0 (shortcut), 1 (hard), 2 (recovery), 3 (the
+        arena-soft recovery)."""
         return self._qp_solves
 
     def reset(self) -> None:
@@ -338,7 +357,7 @@ class MPCSafetyFilter:
         at episode start: a reset filter answers as a new one does)."""
         self._plan = None
         self._failures = 0
-        for backend in (self._primary, self._recovery):
+        for backend in (self._primary, self._recovery, self._rescue):
             if hasattr(backend, "reset"):
                 backend.reset()
 
@@ -351,7 +370,8 @@ class MPCSafetyFilter:
         self, x0: np.ndarray, inputs: np.ndarray, normals: np.ndarray, offsets: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Roll-out ``(T + 1, n)``, halfspace excess ``(k, T)``, bound-row excess (1-D, in
-        the order of :attr:`MPCProblem.check_map`); excess ``lhs - rhs`` <= 0: the row holds."""
+        the order of :attr:`MPCProblem.check_map`: arena, terminal, then speed rows);
+        excess ``lhs - rhs`` <= 0: the row holds."""
         z = np.concatenate((x0, inputs.reshape(-1)), out=self._z)
         out = self._eval @ z - self._eval_offset
         split, end = self._split
@@ -393,7 +413,9 @@ class MPCSafetyFilter:
             excess_h = halfspace - np.maximum(
                 solution.halfspace_slack[:k] if fresh else halfspace, 0.0)
         if "bounds" in soft_rows and solution.bound_slack is not None:
-            excess_b = bounds - np.maximum(solution.bound_slack if fresh else bounds, 0.0)
+            nb = self._n_bound  # the speed rows after them are always hard
+            excess_b = bounds.copy()
+            excess_b[:nb] -= np.maximum(solution.bound_slack if fresh else bounds[:nb], 0.0)
         worst = float(np.maximum.reduce(excess_b, initial=-np.inf))
         if k:
             worst = max(worst, float(np.maximum.reduce(excess_h, axis=None)))
@@ -476,7 +498,7 @@ class MPCSafetyFilter:
                         self._cost(inputs, states, ref_states, ref_inputs), start,
                     )
 
-        step = self._padded_step(x0, ref_states, ref_inputs, normals, offsets)
+        step = padded_step(x0, ref_states, ref_inputs, normals, offsets, self._K)
         self._step = step
 
         primary = self._call(self._primary, step)
@@ -499,41 +521,31 @@ class MPCSafetyFilter:
         return self._recover(step, x0, normals, offsets, status_text, iterations, solve_time,
                              start)
 
-    def _padded_step(self, x0: np.ndarray, ref_states: np.ndarray, ref_inputs: np.ndarray,
-                     normals: np.ndarray, offsets: np.ndarray) -> StepData:
-        """The back ends' step data: the halfspaces padded to ``n_obstacles`` rows."""
-        K, k = self._K, normals.shape[0]
-        if k == K:
-            return StepData(x0, ref_states, ref_inputs, normals, offsets)
-        padded_normals = np.zeros((K, self._T, self._d))  # unused rows: 0 @ y <= 1
-        padded_offsets = np.full((K, self._T), DISABLED_OFFSET)
-        padded_normals[:k] = normals
-        padded_offsets[:k] = offsets
-        return StepData(x0, ref_states, ref_inputs, padded_normals, padded_offsets)
-
     def _recover(self, step: StepData, x0: np.ndarray, normals: np.ndarray,
                  offsets: np.ndarray, status_text: str, iterations: int, solve_time: float,
                  start: float) -> FilterResult:
-        """After a failed hard QP: the recovery QP (then braking), or the paper's fallback."""
-        ref_states, ref_inputs = step.ref_states, step.ref_inputs
-        if self._recovery is not None:  # fallback="soft": the recovery QP
-            recovery = self._call(self._recovery, step)
-            answer = self._accept(recovery, self._recovery_soft_rows, x0, normals, offsets)
+        """After a failed hard QP: the recovery QPs (arena hard, then soft; then braking),
+        or the paper's fallback."""
+        prefix = None if self._recovery is not None else shifted_plan(self._plan, self._failures)
+        status_text = f"hard QP: {status_text}"
+        braking = StepData(x0, *self._recovery_zeros, step.normals, step.offsets)
+        for name, backend in (("recovery QP", self._recovery), ("arena-soft QP", self._rescue)):
+            if backend is None:  # fallback="paper": the last plan, shifted
+                break
+            recovery = self._call(backend, braking)
+            answer = self._accept(recovery, backend.problem.soft_rows, x0, normals, offsets)
             iterations += recovery.iterations
             solve_time += recovery.solve_time
             reason = "" if isinstance(answer, tuple) or not answer else f" ({answer})"
-            status_text = f"hard QP: {status_text}; recovery QP: {recovery.status}{reason}"
+            status_text = f"{status_text}; {name}: {recovery.status}{reason}"
             if isinstance(answer, tuple):
                 inputs, states, halfspace, bounds = answer
                 self._plan = inputs
                 slack, bound_total = self._slack(halfspace), self._bound_total(bounds)
-                return self._result(recovery_status(slack, bound_total), inputs, states,
-                                    slack, bound_total, status_text,
-                                    iterations, solve_time,
-                                    self._cost(inputs, states, ref_states, ref_inputs), start)
-            prefix = None
-        else:  # fallback="paper": the last plan, shifted
-            prefix = shifted_plan(self._plan, self._failures)
+                return self._result(
+                    recovery_status(slack, bound_total), inputs, states, slack, bound_total,
+                    status_text, iterations, solve_time,
+                    self._cost(inputs, states, step.ref_states, step.ref_inputs), start)
         return self._brake(x0, normals, offsets, prefix, status_text, iterations, solve_time,
                            step, start)
 
@@ -569,9 +581,10 @@ class MPCSafetyFilter:
         """Violations ``max(0, excess)``, entries <= SLACK_TOLERANCE set to 0."""
         return np.where(halfspace > SLACK_TOLERANCE, halfspace, 0.0)
 
-    @staticmethod
-    def _bound_total(bounds: np.ndarray) -> float:
-        """Total violation of the bound rows, entries <= SLACK_TOLERANCE not counted."""
+    def _bound_total(self, bounds: np.ndarray) -> float:
+        """Total violation of the arena and terminal rows (not the speed rows after them),
+        entries <= SLACK_TOLERANCE not counted."""
+        bounds = bounds[: self._n_bound]
         if not np.maximum.reduce(bounds, initial=-np.inf) > SLACK_TOLERANCE:
             return 0.0
         return float(np.add.reduce(bounds[bounds > SLACK_TOLERANCE]))
@@ -581,15 +594,6 @@ class MPCSafetyFilter:
         slack: np.ndarray | None, bound_slack: float, solver_status: str, iterations: int,
         solve_time: float, objective: float, start: float,
     ) -> FilterResult:
-        for array in (inputs, states, slack):
-            if array is not None:
-                array.setflags(write=False)
-        # FilterResult's fields set directly: its frozen __init__ costs a call per field
-        result = object.__new__(FilterResult)
-        result.__dict__.update({
-            "status": status, "inputs": inputs, "states": states, "solve_time": solve_time,
-            "total_time": time.perf_counter() - start, "slack": slack,
-            "solver_status": solver_status, "iterations": iterations, "objective": objective,
-            "consecutive_failures": self._failures, "bound_slack": bound_slack,
-        })
-        return result
+        return filter_result(status, inputs, states, slack, bound_slack, solver_status,
+                             iterations, solve_time, objective,
+                             time.perf_counter() - start, self._failures)

@@ -15,7 +15,9 @@ unconstrained-optimum gain. Every QP it describes has the form
         & y_\text{low} \le C x_t \ [+ \sigma] ,\quad C x_t \ [- \sigma] \le y_\text{high},
           \quad t = 1..T \quad\text{(the arena)}, \\
         & G x_T \ [- \tau] \le g \quad\text{(terminal set)}, \qquad
-          a_{i,t}^\top C x_t \ [- s_{i,t}] \le b_{i,t}  \quad\text{(halfspaces)},
+          a_{i,t}^\top C x_t \ [- s_{i,t}] \le b_{i,t}  \quad\text{(halfspaces)}, \\
+        & h_j^\top v_t \le v_\max \cos(\pi / M), \quad j = 1..M,\ t = 1..T
+          \quad\text{(speed limit, always hard)},
 
 with the bracketed nonnegative slacks present for the rows named in ``soft_rows``
 (an exact L1 penalty: with :math:`\rho` above the largest multiplier the soft QP has
@@ -26,6 +28,15 @@ the hard one's solution whenever that is feasible). The objectives:
 * ``"first_input"`` (the predictive safety filter of Wabersich & Zeilinger):
   :math:`R_0 = R`, :math:`R_t = w R` for :math:`t \ge 1` with ``w =
   later_input_weight > 0`` (the QP stays strictly convex), :math:`Q_t = 0`.
+
+**Speed limit** (``max_speed`` finite; the state is :math:`x = [p; v]`, ``n = 2 d``):
+the disc :math:`\|v_t\|_2 \le v_\max` is replaced by the regular ``M``-gon
+(``speed_sides``) inscribed in it, with vertices on the axes: unit normals
+:math:`h_j = (\cos\theta_j, \sin\theta_j)`, :math:`\theta_j = (2j - 1)\pi / M`, at
+distance :math:`v_\max \cos(\pi/M)` from the origin (for ``d = 1``: :math:`|v_t| \le
+v_\max`). Inside the disc, so a plan that keeps the rows keeps the speed limit; it
+gives up at most a share :math:`1 - \cos(\pi/M)` of the speed (7.6 % at ``M = 8``)
+between two vertices.
 """
 
 from __future__ import annotations
@@ -38,15 +49,49 @@ import numpy as np
 import scipy.linalg
 
 from filters._validation import finite_array, scalar_in_range
+from filters.constants import SPEED_SIDES
 from filters.errors import InvalidArrayError, InvalidParameterError, InvalidTypeError
 from filters.mpc.checks import box, integer, weight
 
-__all__ = ["OBJECTIVES", "SOFT_ROWS", "MPCProblem"]
+__all__ = ["OBJECTIVES", "SOFT_ROWS", "MPCProblem", "speed_polygon"]
 
 #: The objectives :class:`MPCProblem` accepts.
 OBJECTIVES = ("trajectory", "first_input")
 #: Row groups that can be softened: ``"halfspaces"``, and ``"bounds"`` (arena + terminal).
 SOFT_ROWS = frozenset({"halfspaces", "bounds"})
+
+
+def speed_polygon(max_speed: float, sides: int, dim: int) -> tuple[np.ndarray, np.ndarray]:
+    r"""Rows ``(H, h)``, :math:`H v \le h`, of the ``sides``-gon inscribed in the speed disc.
+
+    Parameters
+    ----------
+    max_speed
+        :math:`v_\max > 0`, in m/s (finite).
+    sides
+        :math:`M \ge 3` for ``dim = 2`` (ignored for ``dim = 1``: the rows are ``±v <= v_max``).
+    dim
+        Velocity dimension ``d``, 1 or 2.
+
+    Returns
+    -------
+    H, h
+        Shapes ``(M, d)`` and ``(M,)``: unit normals at angles :math:`(2j - 1)\pi/M` and
+        offsets :math:`v_\max \cos(\pi/M)` (vertices at radius :math:`v_\max`, on the axes).
+
+    Raises
+    ------
+    InvalidParameterError
+        If ``dim`` is not 1 or 2.
+    """
+    if dim == 1:
+        return np.array([[1.0], [-1.0]]), np.full(2, float(max_speed))
+    if dim != 2:
+        raise InvalidParameterError(
+            f"max_speed: a speed polygon needs 1 or 2 velocity axes, got {dim}")
+    angles = (2.0 * np.arange(1, sides + 1) - 1.0) * np.pi / sides
+    H = np.column_stack([np.cos(angles), np.sin(angles)])
+    return H, np.full(sides, max_speed * np.cos(np.pi / sides))
 
 
 @dataclass(frozen=True, eq=False)
@@ -81,12 +126,19 @@ class MPCProblem:
         Which rows carry slacks: a subset of ``{"halfspaces", "bounds"}``.
     slack_penalty
         :math:`\rho > 0`, cost per m of violation of a soft row.
+    max_speed
+        :math:`v_\max > 0` in m/s, kept on every step ``t = 1..T`` as the inscribed
+        polygon's rows (module docstring), hard in every QP; ``inf`` (default): none.
+        Needs a state ``[position; velocity]`` (``n = 2 d``, ``d`` 1 or 2).
+    speed_sides
+        :math:`M \ge 3`, sides of the polygon (default 8).
 
     Raises
     ------
     InvalidArrayError, InvalidParameterError, InvalidTypeError
         On a wrong shape or non-finite entry, a weight that is not symmetric/(semi)definite,
-        crossed bounds, an unknown objective or soft row, a non-positive penalty.
+        crossed bounds, an unknown objective or soft row, a non-positive penalty, a
+        non-positive ``max_speed`` or one without a ``[position; velocity]`` state.
     """
 
     A: np.ndarray
@@ -104,6 +156,8 @@ class MPCProblem:
     n_obstacles: int = 0
     soft_rows: frozenset[str] = frozenset()
     slack_penalty: float = 1e6
+    max_speed: float = np.inf
+    speed_sides: int = SPEED_SIDES
 
     def __post_init__(self) -> None:
         put = object.__setattr__  # frozen: normalise the fields once, here
@@ -169,6 +223,13 @@ class MPCProblem:
             "slack_penalty", self.slack_penalty, low=0.0, low_inclusive=False, high=np.inf,
             high_inclusive=False,
         ))
+        put(self, "max_speed", scalar_in_range(
+            "max_speed", self.max_speed, low=0.0, low_inclusive=False, high=np.inf))
+        put(self, "speed_sides", integer("speed_sides", self.speed_sides, low=3))
+        if np.isfinite(self.max_speed) and (n != 2 * d or d > 2):
+            raise InvalidParameterError(
+                f"max_speed needs a state [position; velocity] with 1 or 2 axes (n = 2 d), "
+                f"got n = {n}, d = {d}; pass max_speed=inf")
         for array in (self.A, self.B, self.C, self.R, self.Q, self.Q_terminal,
                       *self.input_bounds, *self.position_bounds, *(self.terminal_set or ())):
             if array is not None:
@@ -203,6 +264,18 @@ class MPCProblem:
     def soft_bounds(self) -> bool:
         """Whether the arena and terminal rows carry slacks."""
         return "bounds" in self.soft_rows
+
+    @cached_property
+    def speed_rows(self) -> tuple[np.ndarray, np.ndarray]:
+        r"""``(S, s)``: the speed rows :math:`S x_t \le s` of every step, shapes ``(M, n)``
+        and ``(M,)``, :math:`S = [0\ H]` (:func:`speed_polygon`); ``M = 0`` without a limit."""
+        n, d = self.n, self.d
+        if not np.isfinite(self.max_speed):
+            return np.zeros((0, n)), np.zeros(0)
+        H, h = speed_polygon(self.max_speed, self.speed_sides, d)
+        S = np.zeros((H.shape[0], n))
+        S[:, d:] = H
+        return S, h
 
     # ------------------------------------------------------------------ weights
     @cached_property
@@ -281,7 +354,8 @@ class MPCProblem:
     def check_map(self) -> tuple[np.ndarray, np.ndarray]:
         r"""``(M, r)``: ``M @ [x0; u] - r`` is :math:`[x_0..x_T; C x_1..C x_T]` followed by
         the excess (``lhs - rhs``, <= 0: the row holds) of every bound row, in the back
-        ends' order: upper arena faces (by step, then axis), lower faces, terminal rows.
+        ends' order: upper arena faces (by step, then axis), lower faces, terminal rows;
+        then the speed rows (by step, then side), which are never soft.
         One product checks a whole plan (small NumPy calls cost microseconds each)."""
         T, n, d = self.horizon, self.n, self.d
         evaluation = self.evaluation_map
@@ -292,9 +366,13 @@ class MPCProblem:
         G, g = self.terminal_set if self.terminal_set is not None else (
             np.zeros((0, n)), np.zeros(0))
         columns = evaluation.shape[1]
+        S, s = self.speed_rows
+        states = evaluation[n:split].reshape(T, n, columns)
         rows = [evaluation, positions[:, hi].reshape(-1, columns),
-                -positions[:, lo].reshape(-1, columns), G @ evaluation[T * n : split]]
-        offsets = [np.zeros(split + T * d), np.tile(y_high[hi], T), -np.tile(y_low[lo], T), g]
+                -positions[:, lo].reshape(-1, columns), G @ evaluation[T * n : split],
+                np.einsum("jn,tnc->tjc", S, states).reshape(-1, columns)]
+        offsets = [np.zeros(split + T * d), np.tile(y_high[hi], T), -np.tile(y_low[lo], T), g,
+                   np.tile(s, T)]
         return np.vstack(rows), np.concatenate(offsets)
 
     # ------------------------------------------------------------------ cost

@@ -1,4 +1,24 @@
-r"""The paper's Remark after Problem 2: shift the last plan, then brake.
+r"""What the filter does when the hard QP is infeasible: a recovery QP that brakes, the
+paper's shifted plan, braking.
+
+**The recovery QPs** (``fallback="soft"``, :func:`recovery_problems`) minimise the
+violation of the halfspace rows (exact L1 penalty :math:`\rho`), and then the speed:
+
+.. math::
+
+    \min_u \ \rho \sum_{i,t} s_{i,t} + \sum_{t=1}^{T} w_v \|v_t\|^2
+        + \sum_{t=0}^{T-1} w_u \|u_t\|^2,
+
+with :math:`v_t = N^\top x_t` the part of the state the position does not see (the
+velocity of the double integrator), relative to zero, not to the obstacles; no
+reference is tracked. The speed limit rows stay hard. The arena and terminal rows are
+hard in the first recovery QP, and softened (same :math:`\rho`) in a second one only
+when the first is infeasible (the ego outside the arena, or unable to stop inside it).
+With :math:`\rho` above the multipliers the violation is the least possible; among the
+plans that reach it, the slowest is chosen, so the recovery brakes rather than
+accelerating to the input bound unless that lowers the violation.
+
+**The paper's Remark after Problem 2: shift the last plan, then brake.**
 
 When the QP fails, the paper applies the next input of the last optimal plan,
 shifting it once per failed step, :math:`u^*_j, \dots, u^*_{T-1}` after :math:`j`
@@ -13,10 +33,34 @@ halfspaces or the arena (the paper's rule, kept for reproduction).
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import scipy.linalg
 
-__all__ = ["braking_gain", "rollout_with_brake", "shifted_plan"]
+from filters.mpc.problem import MPCProblem
+
+__all__ = ["RECOVERY_INPUT_WEIGHT", "RECOVERY_SPEED_WEIGHT", "braking_gain",
+           "recovery_problems", "rollout_with_brake", "shifted_plan"]
+
+#: :math:`w_v`, weight of the planned speeds :math:`\|v_t\|^2` in the recovery QPs, per (m/s)².
+RECOVERY_SPEED_WEIGHT = 1.0
+#: :math:`w_u`, weight of the inputs :math:`\|u_t\|^2` in the recovery QPs, per (m/s²)²
+#: (keeps them strictly convex; small, so that braking hard is cheap).
+RECOVERY_INPUT_WEIGHT = 1e-2
+
+
+def recovery_problems(problem: MPCProblem) -> tuple[MPCProblem, MPCProblem]:
+    """The two recovery QPs of ``problem`` (module docstring): halfspace rows soft and the
+    arena and terminal rows hard; then every one of those rows soft. Same model, horizon,
+    bounds, terminal set, rows and speed limit; the braking objective (solved with zero
+    reference states and inputs)."""
+    basis = scipy.linalg.null_space(problem.C)  # the velocity directions, (n, n - d)
+    speed = RECOVERY_SPEED_WEIGHT * basis @ basis.T
+    braking = dataclasses.replace(
+        problem, objective="trajectory", Q=speed, Q_terminal=speed,
+        R=RECOVERY_INPUT_WEIGHT * np.eye(problem.m), soft_rows=frozenset({"halfspaces"}))
+    return braking, braking.with_soft_rows({"halfspaces", "bounds"})
 
 
 def braking_gain(A: np.ndarray, B: np.ndarray, C: np.ndarray) -> np.ndarray:

@@ -13,7 +13,10 @@ from enum import Enum
 
 import numpy as np
 
-__all__ = ["FilterResult", "FilterStatus", "QPSolution", "StepData", "recovery_status"]
+from filters.constants import DISABLED_OFFSET
+
+__all__ = ["FilterResult", "FilterStatus", "QPSolution", "StepData", "filter_result",
+           "padded_step", "recovery_status"]
 
 
 class FilterStatus(str, Enum):
@@ -165,6 +168,40 @@ class StepData:
     ref_inputs: np.ndarray
     normals: np.ndarray
     offsets: np.ndarray
+
+
+def padded_step(x0: np.ndarray, ref_states: np.ndarray, ref_inputs: np.ndarray,
+                normals: np.ndarray, offsets: np.ndarray, K: int) -> StepData:
+    """The back ends' step data: the ``k`` halfspaces padded to ``K`` rows (unused rows
+    read ``0 @ y <= DISABLED_OFFSET``)."""
+    k, T, d = normals.shape
+    if k == K:
+        return StepData(x0, ref_states, ref_inputs, normals, offsets)
+    padded_normals = np.zeros((K, T, d))
+    padded_offsets = np.full((K, T), DISABLED_OFFSET)
+    padded_normals[:k] = normals
+    padded_offsets[:k] = offsets
+    return StepData(x0, ref_states, ref_inputs, padded_normals, padded_offsets)
+
+
+def filter_result(
+    status: FilterStatus, inputs: np.ndarray, states: np.ndarray, slack: np.ndarray | None,
+    bound_slack: float, solver_status: str, iterations: int, solve_time: float,
+    objective: float, total_time: float, failures: int,
+) -> FilterResult:
+    """A :class:`FilterResult` with its arrays made read-only (built without the frozen
+    ``__init__``, which costs a call per field: this runs every filter step)."""
+    for array in (inputs, states, slack):
+        if array is not None:
+            array.setflags(write=False)
+    result = object.__new__(FilterResult)
+    result.__dict__.update({
+        "status": status, "inputs": inputs, "states": states, "solve_time": solve_time,
+        "total_time": total_time, "slack": slack, "solver_status": solver_status,
+        "iterations": iterations, "objective": objective, "consecutive_failures": failures,
+        "bound_slack": bound_slack,
+    })
+    return result
 
 
 def recovery_status(slack: np.ndarray, bound_total: float) -> FilterStatus:

@@ -53,6 +53,9 @@ DISCOMFORT_DISTANCE = 0.2
 TIME_LIMIT = 25.0
 """Episode length, s."""
 
+ROBOT_MAX_SPEED = 1.0
+"""Default ego speed limit, m/s: CrowdNav's robot preferred speed (``v_pref = 1``)."""
+
 _DRAWS = 1000  # start draws per human before giving up
 
 
@@ -81,7 +84,8 @@ class CrowdEnv(SafeNavEnv):
         per step) or a callable (:mod:`safe_nav_env.predictors`). All use the past only.
     **options
         The other :class:`~safe_nav_env.env.SafeNavEnv` options; ``episode_length``
-        defaults to :data:`TIME_LIMIT` and ``terminate_on_collision`` to ``True``.
+        defaults to :data:`TIME_LIMIT`, ``max_speed`` to :data:`ROBOT_MAX_SPEED` (1 m/s)
+        and ``terminate_on_collision`` to ``True``.
 
     Raises
     ------
@@ -116,6 +120,7 @@ class CrowdEnv(SafeNavEnv):
         self.human_speed = _option("human_speed", human_speed, strict=True)
         self.discomfort_distance = _option("discomfort_distance", discomfort_distance)
         options.setdefault("episode_length", TIME_LIMIT)
+        options.setdefault("max_speed", ROBOT_MAX_SPEED)
         options.setdefault("terminate_on_collision", True)
         options.setdefault("max_obstacles", self.n_humans)
         self._episode: Scenario | None = None

@@ -37,6 +37,9 @@ PEDESTRIAN_RADIUS = 0.3
 EGO_SPEED = 1.5
 """Nominal ego speed, m/s (the paper's; people walk at about 1.3 m/s)."""
 
+MAX_SPEED = 2.0
+"""Default ego speed limit, m/s: a walking-pace robot, above the nominal :data:`EGO_SPEED`."""
+
 MIN_SEPARATION = 5.0
 """Least start-goal distance, m (capped at half the diagonal of a small box)."""
 
@@ -102,7 +105,10 @@ class PedestrianEnv(SafeNavEnv):
       :mod:`safe_nav_env.pedestrians.residuals`. ``obstacle_velocities`` are the
       predictor's velocity estimates (past only).
     * **Extra info**: ``obstacle_present`` (K,), ``pedestrian_index`` (K,) (index in
-      :attr:`recording`, -1 for an absent slot), ``recording_step``, ``scene``.
+      :attr:`recording`, -1 for an absent slot), ``recording_step``, ``scene``. The same
+      indices are :attr:`obstacle_ids` on ``env.unwrapped``: a safety filter's online
+      calibration pairs each prediction with its own pedestrian's realised position
+      through them, also when a slot passes to another pedestrian.
 
     Parameters
     ----------
@@ -134,8 +140,8 @@ class PedestrianEnv(SafeNavEnv):
         comparing two recordings episode for episode needs the same ``arena``.
     **options
         The other :class:`~safe_nav_env.env.SafeNavEnv` options (``render_mode``,
-        ``episode_length``, ``max_acceleration``, reward weights, ``goal_tolerance``,
-        ``terminate_on_collision``); ``scenario``, ``noise``, ``predictor`` names of the
+        ``episode_length``, ``max_acceleration``, ``max_speed`` (default :data:`MAX_SPEED`,
+        2 m/s), reward weights, ``goal_tolerance``, ``terminate_on_collision``); ``scenario``, ``noise``, ``predictor`` names of the
         base class, ``pad_info`` and ``random_start`` do not apply.
 
     Raises
@@ -167,6 +173,7 @@ class PedestrianEnv(SafeNavEnv):
                 f"{unsupported} do not apply to SafeNav/Pedestrians-v0 (the scene is the "
                 "recording: pass scene=..., predictor=...)"
             )
+        options.setdefault("max_speed", MAX_SPEED)
         dt = _option("dt", dt, strict=True)
         horizon = _option("horizon", horizon, low=1, integer=True)
         max_obstacles = _option("max_obstacles", max_obstacles, low=1, integer=True)
@@ -280,6 +287,17 @@ class PedestrianEnv(SafeNavEnv):
             )
         self._start_step = None if start_step is None else int(start_step)
         return super().reset(seed=seed, options=options or None)
+
+    @property
+    def obstacle_ids(self) -> np.ndarray | None:
+        """The pedestrian in each slot (index in :attr:`recording`; -1: absent), ``(K,)``.
+
+        ``None`` before the first reset. Read by
+        :meth:`filters.calibration.OnlineCalibration.update` (``ids=``).
+        """
+        if self._model is not self._replay:
+            return None
+        return _read_only(self._replay.slots.copy())
 
     # ---------------------------------------------------- observation and info
 

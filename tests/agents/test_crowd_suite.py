@@ -42,9 +42,11 @@ def test_the_table_counts_success_collision_and_timeout_once_each(tmp_path):
         assert math.isclose(row.success + row.collision + row.timeout, 1.0)
         assert row.success_low <= row.success <= row.success_high
         assert 0.0 <= row.discomfort <= 1.0
+        assert 0.0 <= row.standing_collision <= row.collision
     assert all(setting_of(r) == "orca_invisible" for r in outputs.records)
     summary = (tmp_path / "summary.md").read_text()
     assert "| orca_invisible | dr_cvar | 3 |" in summary and "discomfort frequency" in summary
+    assert "| of which standing |" in summary
 
 
 def test_the_cli_refuses_scenarios_with_the_crowd_suite(tmp_path, capsys):

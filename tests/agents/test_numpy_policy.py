@@ -165,7 +165,7 @@ def test_unsupported_policies_are_refused():
 
 
 def test_benchmark_numpy_policy_reports_medians_and_agreement():
-    from agents.policies.numpy_policy import benchmark_numpy_policy
+    from benchmarks.policy import benchmark_numpy_policy
 
     timing = benchmark_numpy_policy(calls=40, batch=8, seed=1)
     assert timing.calls == 40 and timing.batch == 8
@@ -176,7 +176,7 @@ def test_benchmark_numpy_policy_reports_medians_and_agreement():
 
 
 def test_rollout_reference_timing_covers_every_path():
-    from benchmarks.suite import benchmark_rollout_reference, format_rollout_reference
+    from benchmarks.policy import benchmark_rollout_reference, format_rollout_reference
 
     medians = benchmark_rollout_reference(horizon=5, steps=4)
     assert set(medians) == {"sb3", "numpy", "hold"}
@@ -200,7 +200,8 @@ def test_torch_actor_policy_is_a_deprecated_alias_of_numpy_policy(shipped):
 
 def _plain_rollout(model, base, action, horizon):
     """The readable reference roll-out: SB3's ``predict`` at each look-ahead step, the
-    environment's dynamics and its ``observe`` on the predicted mean obstacle positions."""
+    environment's dynamics (with the input it applies, its speed limit included) and its
+    ``observe`` on the predicted mean obstacle positions."""
     A, B, _ = base.dynamics
     low, high = base.input_bounds
     means = base.predictions.mean(axis=1)  # (n_obstacles, T, 2)
@@ -210,6 +211,7 @@ def _plain_rollout(model, base, action, horizon):
         if k > 0:
             obs = base.observe(x, means[:, k - 1], base.obstacle_velocities)
             u = np.clip(model.predict(obs, deterministic=True)[0], low, high)
+        u = base.applied_input(x, u)
         x = A @ x + B @ u
         states.append(x)
         inputs.append(u)

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from agents.evaluation import plots
+from agents.evaluation.contacts import find_collisions, step_clearance
 from agents.evaluation.summary import SummaryRow
 from filters import InvalidArrayError, InvalidParameterError
 from safe_nav_env.collision import swept_clearance
@@ -18,13 +19,13 @@ from safe_nav_env.collision import swept_clearance
 def captured(monkeypatch):
     """Keep the figures the plot functions save, to inspect their artists."""
     figures = []
-    save = plots._save
+    save = plots.save_figure
 
     def keep(fig, path):
         figures.append(fig)
         return save(fig, path)
 
-    monkeypatch.setattr(plots, "_save", keep)
+    monkeypatch.setattr(plots, "save_figure", keep)
     return figures
 
 
@@ -73,7 +74,7 @@ def test_collisions_between_samples_are_marked_where_and_when(tmp_path, captured
     sampled = (np.linalg.norm(trajectory.ego[:, None] - trajectory.obstacles, axis=2)
                - 0.6).min()
     assert sampled > 0.0  # invisible at the samples
-    (mark,) = plots.find_collisions(trajectory)
+    (mark,) = find_collisions(trajectory)
     assert mark.exact and mark.step == 2 and mark.obstacle == 0
     # The discs (radius sum 0.6) touch when x² + 0.5² = 0.6², on the way in.
     contact_x = -math.sqrt(0.6**2 - 0.5**2)
@@ -106,9 +107,9 @@ def _far():
 
 def test_collision_marks_fall_back_to_the_chord_and_say_so():
     trajectory = _crossing(exact=False)
-    (mark,) = plots.find_collisions(trajectory)
+    (mark,) = find_collisions(trajectory)
     assert not mark.exact and mark.step == 2
-    assert plots.find_collisions(_far()) == []
+    assert find_collisions(_far()) == []
 
 
 def test_step_clearance_equals_dense_sampling_and_the_environment():
@@ -120,7 +121,7 @@ def test_step_clearance_equals_dense_sampling_and_the_environment():
         q0 = p + rng.uniform(-1.5, 1.5, 2)
         q1 = q0 + rng.uniform(-0.5, 0.5, 2)
         radius = 0.6
-        result = plots.step_clearance(p, v, u, q0, q1, radius_sum=radius, dt=dt)
+        result = step_clearance(p, v, u, q0, q1, radius_sum=radius, dt=dt)
         ego = p + s[:, None] * v + 0.5 * s[:, None] ** 2 * u
         obstacle = q0 + (s[:, None] / dt) * (q1 - q0)
         dense = np.linalg.norm(ego - obstacle, axis=1) - radius
@@ -139,11 +140,11 @@ def test_step_clearance_equals_dense_sampling_and_the_environment():
 def test_step_clearance_rejects_bad_input():
     z = np.zeros(2)
     with pytest.raises(InvalidArrayError, match="finite"):
-        plots.step_clearance(z, z, np.array([np.nan, 0.0]), z, z, radius_sum=0.6, dt=0.2)
+        step_clearance(z, z, np.array([np.nan, 0.0]), z, z, radius_sum=0.6, dt=0.2)
     with pytest.raises(InvalidParameterError, match="dt"):
-        plots.step_clearance(z, z, z, z, z, radius_sum=0.6, dt=0.0)
+        step_clearance(z, z, z, z, z, radius_sum=0.6, dt=0.0)
     with pytest.raises(InvalidParameterError, match="radius_sum"):
-        plots.step_clearance(z, z, z, z, z, radius_sum=-1.0, dt=0.2)
+        step_clearance(z, z, z, z, z, radius_sum=-1.0, dt=0.2)
 
 
 def test_gif_has_a_banner_with_the_label_and_legend(tmp_path):

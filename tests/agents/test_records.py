@@ -116,8 +116,9 @@ def test_settings_that_would_be_silently_ignored_are_refused():
     with pytest.raises(InvalidParameterError, match="'Custom' only"):  # would replace HeadOn
         EpisodeSpec("HeadOn", "none", 0, env_options={"scenario": "Overtaking"})
     assert EpisodeSpec("Custom", "none", 0, env_options={"scenario": "Overtaking"})
-    with pytest.raises(InvalidParameterError, match="planner 'mpc'.*uses no policy file"):
-        EpisodeSpec("HeadOn", "none", 0, planner="mpc", policy_path="policy.zip")
+    for planner in ("mpc", "goal"):
+        with pytest.raises(InvalidParameterError, match=f"planner '{planner}'.*uses no policy"):
+            EpisodeSpec("HeadOn", "none", 0, planner=planner, policy_path="policy.zip")
 
 
 def test_scenario_spellings_become_the_canonical_name():
@@ -198,6 +199,22 @@ def test_collision_cause(steps, cause):
     assert summary["first_collision_step"] == first
 
 
+@pytest.mark.parametrize(("steps", "explained"), [
+    ([("optimal", False, False)] * 3, (0, "", "")),
+    # Infeasible at step 3 (soft), collision at step 5: the statuses before and at it.
+    ([("optimal", False, False)] * 2 + [("soft", False, False), ("recovery", False, False),
+                                        ("soft", True, True)], (3, "recovery", "soft")),
+    # A collision in step 1 has no status before it.
+    ([("optimal", True, True), ("brake", False, False)], (2, "", "optimal")),
+    ([("passthrough", False, False), ("passthrough", True, False)],
+     (0, "passthrough", "passthrough")),
+])
+def test_first_infeasible_step_and_statuses_around_the_collision(steps, explained):
+    summary = _stats(steps).summary()
+    assert (summary["first_infeasible_step"], summary["status_before_collision"],
+            summary["status_at_collision"]) == explained
+
+
 def test_status_shares_and_the_first_error_reason():
     steps = ([("optimal", False, False)] * 5 + [("soft", False, False)] * 2
              + [("error", False, False, "NaN action")]
@@ -210,3 +227,25 @@ def test_status_shares_and_the_first_error_reason():
     assert summary["first_error"] == "step 8: NaN action"
     assert summary["fallback_steps"] == 5  # every step whose constraints did not all hold
     assert summary["min_swept_distance"] == pytest.approx(0.4)
+
+
+@pytest.mark.parametrize(("speeds", "standing"), [
+    # Speed at the start of each step, then at its end: the collision is in the last step.
+    ([0.0, 0.0, 0.05], True),    # below 0.1 m/s at both ends of the colliding step
+    ([0.0, 0.5, 0.0], False),    # braked to rest during the colliding step: it moved
+    ([0.0, 0.0, 0.1], False),    # 0.1 m/s is moving
+    ([0.3, 0.0, 0.0], True),     # stopped before the colliding step
+])
+def test_standing_collision_flags_a_collision_with_the_ego_at_rest(speeds, standing):
+    class Base(_Base):
+        ego_state = np.array([0.0, 0.0, speeds[0], 0.0])
+
+    base = Base()
+    stats = EpisodeStats()
+    stats.start(base, {})
+    for i, speed in enumerate(speeds[1:]):
+        base.ego_state = np.array([0.0, 0.0, 0.0, speed])
+        stats.step(base, 0.0, _info("optimal", i == len(speeds) - 2, False))
+    assert stats.summary()["standing_collision"] is standing
+    # No collision: never standing_collision.
+    assert _stats([("optimal", False, False)] * 2).summary()["standing_collision"] is False

@@ -7,19 +7,22 @@ import math
 import numpy as np
 import pytest
 
-from agents.experiments.reproduce import (
-    PAPER_WINDOWS,
-    PRESETS,
+from agents.experiments.encounters import (
     EncounterJob,
     EncounterRecord,
-    authors_weights,
-    closest_approach_window,
-    compare_with_paper,
     make_encounter_env,
-    paper_duration,
-    reproduce,
-    resolve_windows,
     run_encounter,
+)
+from agents.experiments.paper_settings import (
+    PAPER_WINDOWS,
+    PRESETS,
+    authors_weights,
+    paper_duration,
+)
+from agents.experiments.reproduce import compare_with_paper, reproduce
+from agents.experiments.windows import (
+    closest_approach_window,
+    resolve_windows,
     summarise_windows,
     window_minimum,
 )
@@ -89,6 +92,7 @@ def _record(scenario: str, risk: str, seed: int, distances, swept=None,
              else np.asarray(swept, dtype=float).reshape(-1, 1))
     return EncounterRecord(
         preset="paper", scenario=scenario, risk=risk, seed=seed, dt=0.2, ego_radius=0.3,
+        ego=np.zeros((steps + 1, 2)), halfspaces=[], frames=[],
         obstacle_radii=np.array([0.3]), goal=np.zeros(2), ego_states=np.zeros((steps + 1, 4)),
         inputs=np.zeros((steps, 2)), obstacles=np.zeros((steps + 1, 1, 2)), distances=distances,
         swept=swept, statuses=("optimal",) * steps, filter_times=np.full(steps, 1e-3),

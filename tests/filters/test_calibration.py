@@ -87,6 +87,59 @@ def test_record_reset_forgets_pending_predictions_and_rejects_silent_shape_chang
         PredictionRecord(horizon=0)
 
 
+def test_record_with_ids_scores_each_prediction_against_its_own_obstacle():
+    # Three obstacles a, b, c (ids 10, 11, 12) at fixed, far apart points, every
+    # prediction exact. Two slots: a leaves slot 0 to c at step 1, and comes back in
+    # slot 1 at step 2 (where b was). Paired by id every score is 0; paired by slot
+    # the swaps would score the distance between two obstacles.
+    where = {10: np.array([0.0, 0.0]), 11: np.array([10.0, 0.0]), 12: np.array([0.0, 10.0])}
+    slots = [[10, 11], [12, 11], [12, 10], [-1, 10]]
+
+    def exact(ids: list[int]) -> tuple[np.ndarray, np.ndarray]:
+        positions = np.array([where.get(i, np.array([99.0, 99.0])) for i in ids])
+        return np.broadcast_to(positions[:, None, None, :], (2, 3, 3, 2)).copy(), positions
+
+    record = PredictionRecord(horizon=3)
+    scored = []
+    for ids in slots:
+        samples, positions = exact(ids)
+        for r in record.update(samples, positions, ids=np.array(ids)):
+            np.testing.assert_allclose(r.scores, 0.0, atol=1e-12)
+            scored.append((r.step, r.lookahead, r.ids.tolist()))
+    # Step 1: only b (11) was predicted at step 0 and is still there. Step 2: a (10)
+    # is back, in b's old slot, and meets its own step-0 prediction; c (12) its step-1
+    # one. Step 3: the empty slot (-1) is neither scored nor stored; a meets its step-2
+    # and step-0 predictions, and nobody of step 1 is left.
+    assert scored == [(1, 1, [11]), (2, 1, [12]), (2, 2, [10]), (3, 1, [10]), (3, 3, [10])]
+
+    # Paired by slot (no ids), the same stream scores the swaps.
+    by_slot = PredictionRecord(horizon=3)
+    worst = 0.0
+    for ids in slots:
+        samples, positions = exact(ids)
+        for r in by_slot.update(samples, positions):
+            worst = max(worst, float(r.scores.max()))
+    assert worst >= 10.0
+
+
+def test_record_ids_are_validated():
+    record = PredictionRecord(horizon=2)
+    with pytest.raises(InvalidArrayError, match="distinct"):
+        record.update(np.zeros((2, 3, 2, 2)), np.zeros((2, 2)), ids=np.array([4, 4]))
+    with pytest.raises(InvalidArrayError, match="ids must be 2 integers"):
+        record.update(np.zeros((2, 3, 2, 2)), np.zeros((2, 2)), ids=np.array([0.5, 1.0]))
+    with pytest.raises(InvalidArrayError, match="ids must be 2 integers"):
+        record.update(np.zeros((2, 3, 2, 2)), np.zeros((2, 2)), ids=np.array([1, 2, 3]))
+    # With ids the row count may change between steps (rows are matched by id).
+    record.update(np.zeros((2, 3, 2, 2)), np.zeros((2, 2)), ids=np.array([-1, 7]))
+    (k1,) = record.update(np.ones((3, 3, 2, 2)), np.zeros((3, 2)), ids=np.array([3, 7, 9]))
+    assert k1.ids.tolist() == [7] and k1.errors.shape == (1, 2)
+    # Every row empty at both steps: nothing to score, no empty realisation.
+    empty = PredictionRecord(horizon=2)
+    for _ in range(3):
+        assert empty.update(np.zeros((2, 3, 2, 2)), np.zeros((2, 2)), ids=[-1, -1]) == ()
+
+
 # --------------------------------------------------------------------------- conformal
 
 

@@ -114,7 +114,7 @@ class _System:
 
 
 def test_the_held_action_reference_follows_the_numpy_recursion():
-    env = gym.make("SafeNav/RandomCrossing-v0")
+    env = gym.make("SafeNav/RandomCrossing-v0", max_speed=None)  # the plain recursion
     base = env.unwrapped
     rng = np.random.default_rng(3)
     env.reset(seed=0)

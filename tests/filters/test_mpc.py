@@ -91,9 +91,10 @@ def test_fast_backends_equal_the_cvxpy_reference(backend, objective, mode, termi
         else:
             # A violation of metres costs rho * sum(s) ~ 1e6, which dwarfs the quadratic
             # cost: at the gap 1e-10 the solvers pin u_0 to ~1e-3 and the slacks to ~1e-5;
-            # the later inputs, weighted 1e-2 by first_input, only to ~0.1.
+            # the later inputs, weighted 1e-2 by first_input and by the recovery QP's
+            # braking objective, only to ~0.1.
             np.testing.assert_allclose(ours.inputs[0], theirs.inputs[0], atol=3e-3)
-            loose = 3e-3 if objective == "trajectory" else 0.15
+            loose = 3e-3 if objective == "trajectory" and mode != "recovery" else 0.15
             np.testing.assert_allclose(ours.inputs, theirs.inputs, atol=loose)
         if ours.slack is not None:
             np.testing.assert_allclose(ours.slack, theirs.slack, atol=1e-4)
@@ -146,18 +147,30 @@ def test_recovery_rows_hold_to_their_slack_and_slacks_are_the_violations(backend
     assert reached >= 3
 
 
-def test_exact_penalty_recovery_qp_equals_the_hard_qp_when_feasible():
+def test_exact_penalty_recovery_qps_equal_their_hard_form_when_feasible():
+    """Where every row can hold, both recovery QPs (soft rows, exact L1 penalty) return the
+    minimiser of their braking objective with every row hard (CVXPY), without slack."""
+    from filters.mpc.backends.cvxpy import CVXPYBackend
+    from filters.mpc.result import StepData
+
     mpc = make_filter(terminal_set=TERMINAL, skip_feasible_reference=False)
+    hard_form = CVXPYBackend(dataclasses.replace(mpc._recovery.problem, soft_rows=frozenset()),
+                             solver_settings={"tol_gap_abs": 1e-10, "tol_gap_rel": 1e-10})
     compared = 0
     for instance in mode_instances("hard", 4, 12):
-        hard = solve(mpc, instance)
-        if hard.status is not FilterStatus.OPTIMAL:
+        if solve(mpc, instance).status is not FilterStatus.OPTIMAL:
             continue
         step = mpc._step
-        recovered = mpc._recovery.solve(step)
-        assert recovered.found
-        np.testing.assert_allclose(recovered.inputs, hard.inputs, atol=1e-5)
-        assert np.max(recovered.halfspace_slack) <= 1e-7 and np.max(recovered.bound_slack) <= 1e-7
+        braking = StepData(step.x0, np.zeros_like(step.ref_states),
+                           np.zeros_like(step.ref_inputs), step.normals, step.offsets)
+        expected = hard_form.solve(braking)
+        assert expected.found
+        for backend in (mpc._recovery, mpc._rescue):
+            recovered = backend.solve(braking)
+            assert recovered.found
+            np.testing.assert_allclose(recovered.inputs, expected.inputs, atol=1e-4)
+            assert np.max(recovered.halfspace_slack) <= 1e-7
+            assert recovered.bound_slack is None or np.max(recovered.bound_slack) <= 1e-7
         compared += 1
     assert compared >= 8
 
@@ -194,27 +207,31 @@ def test_answers_slightly_outside_the_input_box_are_clipped_and_checked(excess):
     from filters.mpc.filter import INPUT_CLIP_TOLERANCE
 
     mpc = make_filter("daqp", n_obstacles=3)
-    recovery = mpc._recovery
-    real = recovery.solve
+    answers = []
 
-    def outside(step):  # the true recovery answer, pushed out of the box where it binds
-        solution = real(step)
-        if solution.inputs is None:
-            return solution
-        inputs = solution.inputs.copy()
-        inputs[inputs >= 5.0 - 1e-9] += excess
-        inputs[inputs <= -5.0 + 1e-9] -= excess
-        return dataclasses.replace(solution, inputs=inputs)
+    def pushed(real):
+        def outside(step):  # the true recovery answer, pushed out of the box where it binds
+            solution = real(step)
+            if solution.inputs is None:
+                return solution
+            answers.append(solution.inputs)
+            inputs = solution.inputs.copy()
+            inputs[inputs >= 5.0 - 1e-9] += excess
+            inputs[inputs <= -5.0 + 1e-9] -= excess
+            return dataclasses.replace(solution, inputs=inputs)
+        return outside
 
-    recovery.solve = outside
+    for backend in (mpc._recovery, mpc._rescue):  # arena hard, then soft
+        backend.solve = pushed(backend.solve)
     saturated = 0
     for instance in mode_instances("recovery", 5, 10):
         mpc.reset()
+        answers.clear()
         result = solve(mpc, instance)
-        if mpc.last_qp_solves < 2:
-            continue  # the hard QP answered
-        plan = real(mpc._step).inputs
-        if plan is None or not np.any(np.abs(plan) >= 5.0 - 1e-9):
+        if mpc.last_qp_solves < 2 or not answers:
+            continue  # the hard QP answered, or no recovery QP did
+        plan = answers[0]  # the first recovery QP that answered
+        if not np.any(np.abs(plan) >= 5.0 - 1e-9):
             continue
         saturated += 1
         if excess < 1e-4:
@@ -270,7 +287,9 @@ def test_zero_normal_rows_with_positive_offsets_are_switched_off(backend):
         ours = solve(mpc, instance)
         switched = solve(mpc, {**instance, "halfspaces": padded})
         assert ours.status == switched.status
-        np.testing.assert_allclose(ours.inputs, switched.inputs, atol=1e-5)
+        # a recovery answer's later inputs are weighted 1e-2: determined to ~1e-4
+        np.testing.assert_allclose(ours.inputs, switched.inputs,
+                                   atol=1e-5 if mpc.last_qp_solves < 2 else 1e-4)
         assert switched.slack is None or np.all(switched.slack[3:] == 0.0)
 
 
@@ -454,6 +473,7 @@ def test_failed_solvers_give_a_status_not_an_exception(mode, message):
     result = solve(soft, instance)  # the recovery QP answers
     assert result.status is FilterStatus.OPTIMAL and message in result.solver_status
     soft._recovery = Broken(soft._recovery, mode)
+    soft._rescue = Broken(soft._rescue, mode)
     result = solve(soft, instance)
     assert result.status is FilterStatus.BRAKE and result.consecutive_failures == 2
     paper = make_filter(fallback="paper")

@@ -195,8 +195,9 @@ def test_daqp_solves_soft_rows_itself_and_bad_settings_raise():
     for mode in ("hard", "soft"):
         mpc = make("daqp", 10, "trajectory", mode)
         assert isinstance(mpc._primary, DAQPBackend)
-        assert isinstance(mpc._recovery, DAQPBackend)
-        assert mpc._recovery.problem.soft_rows == {"halfspaces", "bounds"}
+        assert isinstance(mpc._recovery, DAQPBackend) and isinstance(mpc._rescue, DAQPBackend)
+        assert mpc._recovery.problem.soft_rows == {"halfspaces"}
+        assert mpc._rescue.problem.soft_rows == {"halfspaces", "bounds"}
     with pytest.raises(InvalidParameterError, match="no_such"):
         make("daqp", 10, "trajectory", "hard", solver_settings={"no_such": 1})
     with pytest.raises(InvalidTypeError, match="solver_settings"):

@@ -88,8 +88,9 @@ def test_the_recovery_qp_equals_its_cvxpy_formulation(backend):
     with CVXPY's (the L1 penalty leaves the later inputs weakly determined, so the
     inputs are compared through what they cost and violate)."""
     mpc = make_filter(backend, terminal_set=TERMINAL)
-    problem = mpc._recovery.problem
+    problem = mpc._rescue.problem  # the second recovery QP: arena and terminal soft too
     assert problem.soft_rows == {"halfspaces", "bounds"}
+    assert mpc._recovery.problem.soft_rows == {"halfspaces"}
     reference = CVXPYBackend(problem, solver_settings=TIGHT)
     rng = np.random.default_rng(5)
     rho = problem.slack_penalty
@@ -103,7 +104,7 @@ def test_the_recovery_qp_equals_its_cvxpy_formulation(backend):
             case["x0"][0], case["x0"][2] = -5.0 - rng.uniform(0.05, 0.5), -1.0
         inputs = case.get("reference_inputs", np.zeros((10, 2)))
         step = StepData(case["x0"], case["reference_states"][1:], inputs, padded_n, padded_o)
-        answers = [backend_.solve(step) for backend_ in (mpc._recovery, reference)]
+        answers = [backend_.solve(step) for backend_ in (mpc._rescue, reference)]
         assert all(answer.found for answer in answers)
         totals = []
         for answer in answers:
@@ -180,12 +181,12 @@ def test_a_failed_solve_returns_a_status_never_raises(backend, failure):
             return QPSolution(True, "Solved", np.full((10, 2), np.nan))
         return QPSolution(False, "PrimalInfeasible")
 
-    for backend_ in (mpc._primary, mpc._recovery):
+    for backend_ in (mpc._primary, mpc._recovery, mpc._rescue):
         backend_.solve = broken
     result = solve(mpc, case)
     assert result.status is FilterStatus.BRAKE
     assert result.inputs.shape == (10, 2) and np.isfinite(result.inputs).all()
-    assert mpc.last_qp_solves == 2
+    assert mpc.last_qp_solves == 3  # the hard QP and both recovery QPs
     assert "hard QP" in result.solver_status
 
 

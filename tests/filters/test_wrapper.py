@@ -128,7 +128,8 @@ def _trap_scenario() -> Scenario:
 
 def test_infeasible_steps_fall_back_without_raising():
     env = SafetyFilterWrapper(
-        gym.make("SafeNav/Custom-v0", scenario=_trap_scenario(), max_acceleration=1.0),
+        gym.make("SafeNav/Custom-v0", scenario=_trap_scenario(), max_acceleration=1.0,
+                 max_speed=5.0),
         risk="dr_cvar", fallback="paper", terminal=False)
     env.reset(seed=0)
     statuses = []
@@ -146,7 +147,8 @@ def test_infeasible_steps_fall_back_without_raising():
 
 def test_infeasible_steps_recover_with_the_default_fallback():
     env = SafetyFilterWrapper(
-        gym.make("SafeNav/Custom-v0", scenario=_trap_scenario(), max_acceleration=1.0),
+        gym.make("SafeNav/Custom-v0", scenario=_trap_scenario(), max_acceleration=1.0,
+                 max_speed=5.0),
         risk="dr_cvar")
     env.reset(seed=0)
     _, _, _, _, info = env.step(np.zeros(2, dtype=np.float32))
@@ -160,7 +162,8 @@ def test_infeasible_steps_recover_with_the_default_fallback():
 
 def test_soft_mode_reports_slack_instead_of_falling_back():
     env = SafetyFilterWrapper(
-        gym.make("SafeNav/Custom-v0", scenario=_trap_scenario(), max_acceleration=1.0),
+        gym.make("SafeNav/Custom-v0", scenario=_trap_scenario(), max_acceleration=1.0,
+                 max_speed=5.0),
         risk="dr_cvar", soft=True, terminal=False)  # only the halfspaces are at stake
     env.reset(seed=0)
     _, _, _, _, info = env.step(np.zeros(2, dtype=np.float32))

@@ -226,7 +226,7 @@ def test_the_wrapper_takes_the_plan_only_after_an_optimal_step():
         if report.status == "error":
             break
         before = SimpleNamespace(dynamics=base.dynamics, input_bounds=base.input_bounds,
-                                 ego_state=x0)
+                                 ego_state=x0, applied_input=base.applied_input)
         reference, _ = hold_action_reference(before, report.proposed_action, env.horizon)
         plan = None
         if previous[0] is not None and previous[1]:

@@ -86,7 +86,7 @@ def test_env_collision_is_continuous_time(env_id):
         obs, reward, terminated, truncated, info = env.step(action)
         after = np.array(base.obstacle_positions)[:n]
         radii = np.asarray(base.obstacle_radii) + base.ego_radius
-        dense = dense_clearance(state, np.clip(action, -10, 10), base.dt, before[:n],
+        dense = dense_clearance(state, info["acceleration"], base.dt, before[:n],
                                 after, radii)
         swept = np.asarray(info["swept_distance_to_collision"])[:n]
         assert np.all(swept <= dense + 1e-12) and np.all(dense - swept <= 1e-5)
@@ -108,7 +108,7 @@ def test_terminate_on_collision_uses_the_swept_clearance():
                         obstacles=[{"start": (0.0, 0.0), "velocity": (0.0, 0.0)}])
     still = NoiseModel(Gaussian(0.0), Gaussian(0.0), n_samples=10)
     env = gym.make("SafeNav/Custom-v0", scenario=scenario, terminate_on_collision=True,
-                   noise=still)
+                   max_speed=np.inf, noise=still)
     env.reset(seed=0)
     _, reward, terminated, _, info = env.step(np.zeros(2))
     assert info["min_distance_to_collision"] > 0.0

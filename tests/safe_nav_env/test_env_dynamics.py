@@ -10,6 +10,8 @@ import pytest
 
 import safe_nav_env  # noqa: F401  (registers the ids)
 from safe_nav_env import InvalidActionError, double_integrator, single_integrator
+from safe_nav_env.dynamics import applied_acceleration
+from safe_nav_env.errors import ConfigError, ScenarioError
 
 PROTOCOL = {
     "dt": (),
@@ -56,14 +58,100 @@ def test_unwrapped_offers_the_filter_protocol():
 
 
 def test_step_is_the_double_integrator_with_clipped_input():
-    env = gym.make("SafeNav/HeadOn-v0")
+    env = gym.make("SafeNav/HeadOn-v0", max_speed=np.inf)
     env.reset(seed=0)
     A, B, _ = env.unwrapped.dynamics
     for action in ([1.0, -2.0], [25.0, -40.0]):
         x = env.unwrapped.ego_state.copy()
-        env.step(np.array(action, dtype=np.float32))
+        *_, info = env.step(np.array(action, dtype=np.float32))
         u = np.clip(action, -10.0, 10.0)
+        np.testing.assert_array_equal(info["acceleration"], u)
         np.testing.assert_allclose(env.unwrapped.ego_state, A @ x + B @ u, rtol=0, atol=1e-12)
+
+
+def _projection_reference(v, action, dt, a_max, v_max):
+    """The closest input to the clipped action in {|u_i| <= a_max, ||v + dt u|| <= v_max},
+    written as read in CVXPY (the readable reference of applied_acceleration)."""
+    import cvxpy as cp
+
+    u = cp.Variable(2)
+    target = np.clip(action, -a_max, a_max)
+    problem = cp.Problem(cp.Minimize(cp.sum_squares(u - target)),
+                         [cp.abs(u) <= a_max, cp.norm(u + v / dt) <= v_max / dt])
+    problem.solve(solver=cp.CLARABEL, tol_feas=1e-12, tol_gap_abs=1e-12, tol_gap_rel=1e-12)
+    return np.array(u.value)
+
+
+def test_the_speed_limit_is_the_projection_onto_the_disc_within_the_box():
+    """At speeds up to the limit, the applied input is the CVXPY projection (by distance),
+    stays in the box, and the next velocity in the disc; under the limit nothing changes."""
+    rng = np.random.default_rng(11)
+    dt, a_max, v_max = 0.2, 10.0, 3.0
+    limited = 0
+    for _ in range(300):
+        speed, heading = v_max * np.sqrt(rng.uniform()), rng.uniform(0, 2 * np.pi)
+        v = speed * np.array([np.cos(heading), np.sin(heading)])
+        action = rng.uniform(-15.0, 15.0, 2)
+        u = np.array(applied_acceleration(tuple(v), tuple(action), dt, a_max, v_max))
+        assert np.all(np.abs(u) <= a_max) and np.hypot(*(v + dt * u)) <= v_max * (1 + 1e-12)
+        if np.hypot(*(v + dt * np.clip(action, -a_max, a_max))) <= v_max:
+            np.testing.assert_array_equal(u, np.clip(action, -a_max, a_max))
+            continue
+        limited += 1
+        reference = _projection_reference(v, action, dt, a_max, v_max)
+        # Feasible (above) and no farther from the action than the conic solver's answer:
+        # the projection. The solver's distance is accurate to ~1e-9, its point only to
+        # ~1e-4 m/s² along the circle (the distance is flat there to first order).
+        target = np.clip(action, -a_max, a_max)
+        assert np.hypot(*(u - target)) <= np.hypot(*(reference - target)) + 1e-9
+        np.testing.assert_allclose(u, reference, rtol=0, atol=5e-4)
+    assert limited > 100
+
+
+def test_above_the_limit_the_ego_brakes_as_hard_as_the_box_allows():
+    u = applied_acceleration((5.0, -4.0), (10.0, 10.0), 0.2, 10.0, 3.0)
+    assert u == (-10.0, 10.0)  # clip(-v / dt): back under the limit as fast as it can
+
+
+def test_the_env_keeps_the_speed_limit_and_its_observation_bounds():
+    env = gym.make("SafeNav/MultiObstacle-v0", max_speed=2.0)
+    obs, _ = env.reset(seed=0)
+    A, B, _ = env.unwrapped.dynamics
+    np.testing.assert_array_equal(env.observation_space.high[2:4], [2.0, 2.0])
+    np.testing.assert_array_equal(env.observation_space.low[2:4], [-2.0, -2.0])
+    rng = np.random.default_rng(0)
+    for _ in range(30):
+        x = env.unwrapped.ego_state.copy()
+        obs, *_, info = env.step(rng.uniform(-10, 10, 2))
+        assert env.observation_space.contains(obs)
+        assert np.hypot(*env.unwrapped.ego_state[2:]) <= 2.0 * (1 + 1e-12)
+        np.testing.assert_allclose(env.unwrapped.ego_state, A @ x + B @ info["acceleration"],
+                                   rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("value", [0.0, -1.0, np.nan, -np.inf, "3", True])
+def test_a_bad_max_speed_names_the_value(value):
+    with pytest.raises(ConfigError, match="max_speed .*inf.*" + re.escape(repr(value))):
+        gym.make("SafeNav/HeadOn-v0", max_speed=value)
+
+
+def test_a_start_above_the_limit_is_refused_and_inf_switches_the_limit_off():
+    with pytest.raises(ScenarioError, match="1.5 m/s.*max_speed=1"):
+        gym.make("SafeNav/HeadOn-v0", max_speed=1.0).reset(seed=0)
+    env = gym.make("SafeNav/HeadOn-v0", max_speed=np.inf)
+    env.reset(seed=0)
+    assert env.unwrapped.max_speed == np.inf
+    assert env.observation_space.high[2] == np.finfo(np.float32).max
+    for _ in range(5):
+        env.step(np.array([10.0, 10.0]))
+    assert np.hypot(*env.unwrapped.ego_state[2:]) > 5.0
+
+
+def test_random_starts_are_drawn_under_the_limit():
+    env = gym.make("SafeNav/RandomCrossing-v0", max_speed=2.0,
+                   random_start={"probability": 1.0, "rest": 0.0, "max_speed": 6.0})
+    speeds = [np.hypot(*env.reset(seed=seed)[0][2:4]) for seed in range(20)]
+    assert max(speeds) <= 2.0 + 1e-6 and max(speeds) > 1.9
 
 
 @pytest.mark.parametrize("action", [[np.nan, 0.0], [1.0, 2.0, 3.0], [np.inf, 0.0]])

@@ -137,7 +137,7 @@ def test_the_environment_with_the_kalman_predictor_passes_the_checker_and_is_see
 
 
 def test_stress_suite_cases_build_and_break_the_predictions_as_named():
-    assert set(STRESS_SUITE) == {"heavy_tail", "biased", "turning", "crossing5"}
+    assert {"heavy_tail", "biased", "turning", "crossing5"} <= set(STRESS_SUITE)
     for name, case in STRESS_SUITE.items():
         assert case.name == name and case.description
         env = gym.make("SafeNav/Custom-v0", **case.env_kwargs())

@@ -10,12 +10,12 @@ Built once, updated per step (qpmpc's "build once, update per step"):
   :math:`(u, x)` it would see the cost minus the often 100x larger constant
   :math:`\sum x^{r\top} Q x^r`).
 * **Rows**, in Clarabel's form :math:`A z + s = b`: dynamics (zero cone), then the input
-  box, the arena, the terminal rows, the halfspaces, and :math:`-s \le 0` (nonnegative
-  cone). Per step only ``b`` and the halfspace entries :math:`a_{i,t}^\top C` of ``A``
-  change, written with ``DefaultSolver.update`` (partial ``A`` update), so the KKT
-  pattern and its symbolic factorisation are reused. This needs presolve off and the
-  structural zeros kept. Every solve, the first included, writes its data by
-  ``update``: a used solver returns what a fresh one returns.
+  box, the arena, the terminal rows, the speed polygon, the halfspaces, and
+  :math:`-s \le 0` (nonnegative cone). Per step only ``b`` and the halfspace entries
+  :math:`a_{i,t}^\top C` of ``A`` change, written with ``DefaultSolver.update`` (partial
+  ``A`` update), so the KKT pattern and its symbolic factorisation are reused. This
+  needs presolve off and the structural zeros kept. Every solve, the first included,
+  writes its data by ``update``: a used solver returns what a fresh one returns.
 * **Settings** (measured on recorded crossing instances against a 1e-12 solve): no
   equilibration for hard QPs (it would be computed once from placeholder data; off is
   faster and as accurate), on for soft ones (the exact penalty needs it), with the gap
@@ -217,6 +217,11 @@ class ClarabelBackend:
             rhs({}, {T: G}, g)
             bound_rows.extend(range(row, row + G.shape[0]))
             row += G.shape[0]
+        S, s = p.speed_rows  # the speed polygon, always hard
+        for t in range(1, T + 1) if S.shape[0] else ():
+            add(row, x_col(t), S)
+            rhs({}, {t: S}, s)
+            row += S.shape[0]
         hs_row0 = row
 
         # Halfspaces, row hs_row0 + i T + (t - 1): (a_it' C) x_t <= b_it. The pattern covers

@@ -101,6 +101,9 @@ class CVXPYBackend:
         if p.terminal_set is not None and p.terminal_set[0].shape[0]:
             G, g = p.terminal_set
             constraints.append(bounded(G @ x[-1], g))
+        S, s = p.speed_rows  # the speed polygon on v_1..v_T, always hard
+        if S.shape[0]:
+            constraints.append(x @ S.T <= np.tile(s, (T, 1)))
 
         self._hs_slack = (
             cp.Variable((K, T), nonneg=True, name="slack") if (p.soft_halfspaces and K) else None

@@ -338,9 +338,9 @@ class DAQPBackend:
     def _shift_fixed(self, signs: np.ndarray) -> np.ndarray:
         """Active fixed rows of the previous step, moved one step earlier."""
         qp = self.qp
-        inputs, arena, terminal = qp.row_slices
+        inputs, arena, _, speed = qp.row_slices
         out = signs.copy()
-        for part in (inputs, arena):
+        for part in (inputs, arena, speed):
             out[part] = _shift_steps(signs[part].reshape(qp.T, -1)).reshape(-1)
         return out
 

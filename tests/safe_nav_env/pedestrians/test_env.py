@@ -119,6 +119,39 @@ def test_slots_hold_the_nearest_present_pedestrians_and_keep_them():
         previous = model.slots.copy()
 
 
+def test_the_calibration_compares_each_pedestrian_with_its_own_prediction():
+    # A dense scene where slots change hands: every realisation the record returns
+    # (through env.unwrapped.obstacle_ids, as the filter's calibration feeds it) is
+    # the recorded position of the same pedestrian minus the mean of the samples
+    # issued for that pedestrian k steps before.
+    from filters.prediction_record import PredictionRecord
+
+    env = gym.make(ID, scene="students003").unwrapped
+    env.reset(seed=2)
+    record = PredictionRecord(horizon=env.horizon)
+    issued: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # step -> (ids, mean samples)
+    handovers = checked = 0
+    previous = env.obstacle_ids
+    for t, action in enumerate([None, *_actions(40)]):
+        if action is not None:
+            env.step(action)
+        ids = env.obstacle_ids
+        handovers += int(np.sum((previous >= 0) & (ids >= 0) & (previous != ids)))
+        previous = ids
+        means = np.asarray(env.predictions).mean(axis=1)  # (K, T, 2)
+        issued[t] = (ids.copy(), means)
+        j = env._replay.step_index
+        for r in record.update(env.predictions, env.obstacle_positions, ids=ids):
+            then_ids, then_means = issued[t - r.lookahead]
+            for ped, error in zip(r.ids.tolist(), r.errors, strict=True):
+                row = int(np.flatnonzero(then_ids == ped)[0])
+                realised = env.recording.positions[j, ped]
+                np.testing.assert_allclose(error, realised - then_means[row, r.lookahead - 1],
+                                           atol=1e-9)
+                checked += 1
+    assert handovers > 0 and checked > 100
+
+
 def test_a_pedestrian_walking_into_the_standing_ego_is_a_collision(tmp_path):
     # One walker along y = 0 at 1 m/s (0.4 m per 10 frames), two people standing still.
     lines = [f"{10 * f}\t1\t{0.4 * f:.2f}\t0.0" for f in range(31)]

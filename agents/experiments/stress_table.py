@@ -1,0 +1,229 @@
+"""The stress table: one row per (failure class, reference planner, filter setting).
+
+:func:`stress_cells` aggregates the records of ``safe-nav evaluate --suite stress``
+(:mod:`agents.experiments.stress`) per cell: continuous-time collisions with a Wilson
+95 % interval, the goal rate and the mean time to goal, and whether the cell meets the
+target of :data:`TARGET_COLLISION_RATE` and :data:`TARGET_GOAL_RATE` (point estimates).
+For every collided episode it keeps why (:func:`explain_collisions`): the first step
+whose hard filter problem was infeasible (``first_infeasible_step``), the filter status
+before and at the first collision, and the collision cause of
+:class:`~agents.evaluation.records.EpisodeRecord`. The Markdown tables and the CSV
+(:func:`write_cells`) are what ``summary.md`` and ``stress_table.csv`` hold.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from collections import Counter
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+
+import numpy as np
+
+from agents.evaluation.records import EpisodeRecord
+from agents.evaluation.statistics import wilson_interval
+
+__all__ = ["TARGET_COLLISION_RATE", "TARGET_GOAL_RATE", "StressCell", "cells_table",
+           "explain_collisions", "overview_table", "stress_cells", "write_cells"]
+
+TARGET_COLLISION_RATE = 0.01
+"""A cell meets the target with at most this share of collided episodes (continuous time)..."""
+
+TARGET_GOAL_RATE = 0.95
+"""... and at least this share reaching the goal."""
+
+
+@dataclass(frozen=True)
+class StressCell:
+    """The episodes of one (case, planner, method) of the stress suite.
+
+    Attributes
+    ----------
+    case, planner, method
+        The failure class, the reference planner and the filter setting (their names).
+    label
+        The setting's name in tables.
+    episodes, failed
+        Episodes recorded and those that failed (an exception; left out of the rates).
+    collisions, collision_rate, collision_low, collision_high
+        Collided episodes (continuous time), their share and its Wilson 95 % interval.
+    goal_rate, time_to_goal
+        Share reaching the goal; mean time to goal in s over those (NaN if none).
+    meets_target
+        ``collision_rate <= 1 %`` and ``goal_rate >= 95 %``.
+    fallback_collisions, inter_sample_collisions, noise_collisions
+        Collided episodes by ``collision_cause``.
+    infeasible_before
+        Collided episodes whose first infeasible step came at or before the collision.
+    """
+
+    case: str
+    planner: str
+    method: str
+    label: str
+    episodes: int
+    failed: int
+    collisions: int
+    collision_rate: float
+    collision_low: float
+    collision_high: float
+    goal_rate: float
+    time_to_goal: float
+    meets_target: bool
+    fallback_collisions: int = 0
+    inter_sample_collisions: int = 0
+    noise_collisions: int = 0
+    infeasible_before: int = 0
+
+
+def _infeasible_before(record: EpisodeRecord) -> bool:
+    return 0 < record.first_infeasible_step <= record.first_collision_step
+
+
+def stress_cells(
+    records: Sequence[EpisodeRecord],
+    method_of: Callable[[EpisodeRecord], tuple[str, str]],
+    order: Callable[[tuple[str, str, str]], tuple],
+) -> list[StressCell]:
+    """One :class:`StressCell` per (case, planner, method), sorted by ``order``.
+
+    Parameters
+    ----------
+    records
+        The suite's records.
+    method_of
+        ``record -> (method name, label)``.
+    order
+        Sort key of a ``(case, planner, method)``.
+    """
+    groups: dict[tuple[str, str, str], list[EpisodeRecord]] = {}
+    labels: dict[tuple[str, str, str], str] = {}
+    for record in records:
+        method, label = method_of(record)
+        key = (record.case, record.planner, method)
+        groups.setdefault(key, []).append(record)
+        labels[key] = label
+    cells = []
+    for key in sorted(groups, key=order):
+        group = groups[key]
+        ran = [r for r in group if not r.error]
+        n = len(ran)
+        collided = [r for r in ran if r.collision]
+        low, high = wilson_interval(len(collided), n)
+        rate = len(collided) / n if n else math.nan
+        goals = [r for r in ran if r.goal_reached]
+        goal_rate = len(goals) / n if n else math.nan
+        causes = Counter(r.collision_cause for r in collided)
+        cells.append(StressCell(
+            case=key[0], planner=key[1], method=key[2], label=labels[key],
+            episodes=len(group), failed=len(group) - n, collisions=len(collided),
+            collision_rate=rate, collision_low=low, collision_high=high, goal_rate=goal_rate,
+            time_to_goal=float(np.mean([r.time_to_goal for r in goals])) if goals else math.nan,
+            meets_target=bool(n and rate <= TARGET_COLLISION_RATE
+                              and goal_rate >= TARGET_GOAL_RATE),
+            fallback_collisions=causes["fallback"],
+            inter_sample_collisions=causes["inter_sample"], noise_collisions=causes["noise"],
+            infeasible_before=sum(_infeasible_before(r) for r in collided)))
+    return cells
+
+
+def _ttg(cell: StressCell) -> str:
+    return "-" if math.isnan(cell.time_to_goal) else f"{cell.time_to_goal:.2f}"
+
+
+def _mark(cell: StressCell) -> str:
+    return "yes" if cell.meets_target else "**MISS**"
+
+
+def cells_table(cells: Sequence[StressCell], descriptions: dict[str, str]) -> str:
+    """Per case, a Markdown table of its cells (collisions, goal, time to goal, target)."""
+    out = []
+    for case in dict.fromkeys(c.case for c in cells):
+        out.append(f"### {case}: {descriptions.get(case, '')}\n")
+        out.append("| planner | setting | episodes | collisions [95 % CI] | goal rate | "
+                   "time to goal (s) | target |")
+        out.append("|---|---|---|---|---|---|---|")
+        for c in (c for c in cells if c.case == case):
+            failed = f" ({c.failed} failed)" if c.failed else ""
+            out.append(f"| {c.planner} | {c.label} | {c.episodes}{failed} | "
+                       f"{c.collision_rate:.1%} [{c.collision_low:.1%}, {c.collision_high:.1%}] "
+                       f"| {c.goal_rate:.1%} | {_ttg(c)} | {_mark(c)} |")
+        out.append("")
+    return "\n".join(out)
+
+
+def overview_table(cells: Sequence[StressCell]) -> str:
+    """Classes as rows, (planner, setting) as columns: ``collisions / goal``, MISS marked."""
+    columns = list(dict.fromkeys((c.planner, c.label) for c in cells))
+    by_key = {(c.case, c.planner, c.label): c for c in cells}
+    out = ["| class | " + " | ".join(f"{p}: {label}" for p, label in columns) + " |",
+           "|---|" + "---|" * len(columns)]
+    for case in dict.fromkeys(c.case for c in cells):
+        row = []
+        for planner, label in columns:
+            c = by_key.get((case, planner, label))
+            if c is None:
+                row.append("")
+            else:
+                miss = "" if c.meets_target else " ✗"
+                row.append(f"{c.collision_rate:.1%} / {c.goal_rate:.0%}{miss}")
+        out.append(f"| {case} | " + " | ".join(row) + " |")
+    return "\n".join(out) + "\n"
+
+
+def explain_collisions(
+    records: Sequence[EpisodeRecord],
+    cells: Sequence[StressCell],
+    method_of: Callable[[EpisodeRecord], tuple[str, str]],
+) -> str:
+    """Per case, the cells with collisions and why they happened (Markdown).
+
+    For each such cell: collisions by cause (``fallback``: a non-optimal filter status
+    within two steps before the collision; ``inter_sample``; ``noise``), how many had an
+    infeasible hard problem at or before the collision and the median lead in steps
+    from the first infeasible step to the collision, and the status transitions
+    ``before -> at`` the collision with their counts.
+    """
+    collided: dict[tuple[str, str, str], list[EpisodeRecord]] = {}
+    for r in records:
+        if r.collision and not r.error:
+            collided.setdefault((r.case, r.planner, method_of(r)[0]), []).append(r)
+    out = []
+    for case in dict.fromkeys(c.case for c in cells):
+        lines = []
+        for c in (c for c in cells if c.case == case and c.collisions):
+            group = collided.get((c.case, c.planner, c.method), [])
+            leads = [r.first_collision_step - r.first_infeasible_step for r in group
+                     if _infeasible_before(r)]
+            lead = f"{float(np.median(leads)):.0f}" if leads else "-"
+            transitions = Counter(f"{r.status_before_collision or '(start)'} → "
+                                  f"{r.status_at_collision}" for r in group)
+            text = ", ".join(f"{t}: {n}" for t, n in transitions.most_common())
+            lines.append(f"| {c.planner} | {c.label} | {c.collisions} | "
+                         f"{c.fallback_collisions} / {c.inter_sample_collisions} / "
+                         f"{c.noise_collisions} | {c.infeasible_before} | {lead} | {text} |")
+        if lines:
+            out.append(f"### {case}\n")
+            out.append("| planner | setting | collisions | fallback / inter-sample / noise | "
+                       "infeasible before | median lead (steps) | status before → at |")
+            out.append("|---|---|---|---|---|---|---|")
+            out.extend(lines)
+            out.append("")
+    return "\n".join(out) if out else "No collisions.\n"
+
+
+CELL_FIELDS = tuple(f.name for f in fields(StressCell))
+"""Columns of ``stress_table.csv``, in order."""
+
+
+def write_cells(cells: Sequence[StressCell], path: str | Path) -> Path:
+    """Write the cells as CSV (one row per cell, :data:`CELL_FIELDS`); return the path."""
+    path = Path(path)
+    with path.open("w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=CELL_FIELDS)
+        writer.writeheader()
+        for cell in cells:
+            writer.writerow(asdict(cell))
+    return path

@@ -1,0 +1,138 @@
+"""Policy timings: SB3's ``predict`` against :class:`agents.NumpyPolicy`, alone and in the
+roll-out reference (``safe-nav bench`` and ``safe-nav bench --scaling``)."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class PolicyTiming:
+    """Per-call wall times (µs, medians) of one deterministic action, SB3 vs numpy."""
+
+    calls: int
+    sb3_us: float
+    numpy_us: float
+    ratio: float  # sb3 / numpy
+    batch: int
+    sb3_batch_us: float  # one batched call of `batch` observations
+    numpy_batch_us: float
+    max_difference: float  # max |a_numpy - a_sb3| over the timed observations, m/s^2
+
+    def format(self) -> str:
+        return "\n".join([
+            f"policy forward, one observation, {self.calls} calls, medians: SB3 predict "
+            f"{self.sb3_us:.1f} us, NumpyPolicy {self.numpy_us:.1f} us "
+            f"({self.ratio:.1f}x faster)",
+            f"    batch of {self.batch}: SB3 {self.sb3_batch_us:.1f} us, NumpyPolicy "
+            f"{self.numpy_batch_us:.1f} us; max |a_numpy - a_sb3| = {self.max_difference:.2e}",
+        ])
+
+
+def benchmark_numpy_policy(
+    path: str | Path | None = None, *, calls: int = 2000, batch: int = 64, seed: int = 0
+) -> PolicyTiming:
+    """Time ``model.predict(obs, deterministic=True)`` against :class:`NumpyPolicy`.
+
+    The observations are standard-normal draws from ``numpy.random.default_rng(seed)``
+    (the network does not care where they come from); one torch thread, as in the
+    evaluation workers.
+    """
+    from agents.policies.loading import load_ppo, set_torch_threads
+    from agents.policies.numpy_policy import NumpyPolicy
+
+    set_torch_threads(1)
+    model = load_ppo(path)
+    policy = NumpyPolicy.from_sb3(model)
+    rng = np.random.default_rng(seed)
+    observations = rng.standard_normal((calls, *policy._obs_shape)).astype(np.float32)
+    sb3_times, numpy_times, difference = [], [], 0.0
+    for obs in observations:
+        begin = time.perf_counter()
+        torch_action, _ = model.predict(obs, deterministic=True)
+        middle = time.perf_counter()
+        numpy_action, _ = policy.predict(obs, deterministic=True)
+        sb3_times.append(middle - begin)
+        numpy_times.append(time.perf_counter() - middle)
+        difference = max(difference, float(np.max(np.abs(numpy_action - torch_action))))
+    sb3_batch, numpy_batch = [], []
+    for start in range(0, calls - batch + 1, batch):
+        rows = observations[start : start + batch]
+        begin = time.perf_counter()
+        model.predict(rows, deterministic=True)
+        middle = time.perf_counter()
+        policy.predict_batch(rows)
+        sb3_batch.append(middle - begin)
+        numpy_batch.append(time.perf_counter() - middle)
+    sb3_us, numpy_us = 1e6 * float(np.median(sb3_times)), 1e6 * float(np.median(numpy_times))
+    return PolicyTiming(
+        calls=calls, sb3_us=sb3_us, numpy_us=numpy_us, ratio=sb3_us / numpy_us, batch=batch,
+        sb3_batch_us=1e6 * float(np.median(sb3_batch)),
+        numpy_batch_us=1e6 * float(np.median(numpy_batch)), max_difference=difference,
+    )
+
+
+def benchmark_rollout_reference(
+    horizon: int = 10, steps: int = 200, seed: int = 0, path: str | None = None
+) -> dict[str, float]:
+    """Median wall time (ms) of one roll-out reference (``T - 1`` policy calls) per step.
+
+    On the states of unfiltered MultiObstacle episodes of the shipped PPO policy (recorded
+    first, then replayed to each maker in a loop of its own: the same states for all),
+    :class:`filters.references.PolicyRolloutReference` with: ``"sb3"`` the SB3
+    model's ``predict`` at each look-ahead step; ``"numpy"`` the :class:`agents.NumpyPolicy`
+    export called the same way (what ``safe-nav evaluate`` runs); ``"hold"`` the
+    held-action reference, for scale.
+    """
+    import gymnasium as gym
+
+    import safe_nav_env  # noqa: F401
+    from agents.policies.numpy_policy import NumpyPolicy
+    from agents.training.ppo import load_ppo, set_torch_threads
+    from filters.references import PolicyRolloutReference, hold_action_reference
+
+    set_torch_threads(1)
+    model = load_ppo(path)
+    makers = {"sb3": PolicyRolloutReference(model),
+              "numpy": PolicyRolloutReference(NumpyPolicy.from_sb3(model)),
+              "hold": hold_action_reference}
+    env = gym.make("SafeNav/MultiObstacle-v0", horizon=horizon)
+    base = env.unwrapped
+    fields = ("ego_state", "predictions", "obstacle_positions", "obstacle_velocities")
+    situations = []  # what a reference maker reads, recorded along the episodes
+    episode, done = 0, True
+    for _ in range(steps):
+        if done:
+            obs, _ = env.reset(seed=seed + episode)
+            episode += 1
+        action, _ = model.predict(obs, deterministic=True)
+        situations.append(({name: getattr(base, name) for name in fields}, action))
+        obs, _, terminated, truncated, _ = env.step(action)
+        done = terminated or truncated
+    times: dict[str, list[float]] = {}
+    for name, maker in makers.items():  # each in a loop of its own, as a control loop runs
+        maker(base, situations[0][1], horizon)  # first call: torch's kernels
+        times[name] = []
+        for state, action in situations:
+            for field, value in state.items():
+                setattr(base, field, value)
+            begin = time.perf_counter()
+            maker(base, action, horizon)
+            times[name].append(1e3 * (time.perf_counter() - begin))
+    env.close()
+    return {name: float(np.median(values)) for name, values in times.items()}
+
+
+def format_rollout_reference(rollout: dict[str, float], horizon: int = 10) -> str:
+    """The roll-out timings of :func:`benchmark_rollout_reference` as one paragraph."""
+    numpy_ms = rollout["numpy"]
+    return (
+        f"roll-out reference, T = {horizon} ({horizon - 1} policy calls), MultiObstacle, "
+        f"medians: SB3 predict {rollout['sb3']:.3f} ms, NumpyPolicy.predict "
+        f"{numpy_ms:.3f} ms ({rollout['sb3'] / numpy_ms:.1f}x faster); the held action "
+        f"{rollout['hold']:.4f} ms"
+    )
