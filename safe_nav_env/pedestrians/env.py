@@ -140,8 +140,9 @@ class PedestrianEnv(SafeNavEnv):
         comparing two recordings episode for episode needs the same ``arena``.
     **options
         The other :class:`~safe_nav_env.env.SafeNavEnv` options (``render_mode``,
-        ``episode_length``, ``max_acceleration``, ``max_speed`` (default :data:`MAX_SPEED`,
-        2 m/s), reward weights, ``goal_tolerance``, ``terminate_on_collision``); ``scenario``, ``noise``, ``predictor`` names of the
+        ``episode_length``, ``max_acceleration``, ``max_speed`` (default
+        :data:`MAX_SPEED`, 2 m/s), reward weights, ``goal_tolerance``,
+        ``terminate_on_collision``); ``scenario``, ``noise``, ``predictor`` names of the
         base class, ``pad_info`` and ``random_start`` do not apply.
 
     Raises
