@@ -37,15 +37,22 @@ EXECUTORS = ("process", "ray")
 """Executor kinds of :func:`make_executor` (``"process"`` with one worker runs serially)."""
 
 
-def worker_init() -> None:
+def worker_init(policies: dict[tuple[str, str], Any] | None = None) -> None:
     """Set up a worker process: one thread per library, Ctrl-C left to the parent.
 
     The parent handles Ctrl-C (it saves what has finished and stops the workers), so
     workers ignore SIGINT instead of dying mid-episode with a traceback each. torch
     is not imported here (seconds per worker, and the MPC planner needs none):
-    :func:`agents.evaluation.runner.load_policy` sets its threads when it loads a policy.
+    ``policies`` are the parent's numpy exports
+    (:func:`agents.evaluation.runner.exported_policies`), so a worker loads no PPO file
+    it was given; another one :func:`agents.evaluation.runner.load_policy` loads (and
+    sets torch's threads).
     """
     os.environ.setdefault("OMP_NUM_THREADS", "1")
+    if policies:
+        from agents.evaluation.runner import preload_policies
+
+        preload_policies(policies)
     try:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
     except ValueError:  # pragma: no cover - not the main thread (e.g. some Ray workers)
@@ -124,9 +131,14 @@ class ProcessExecutor(Executor):
             import multiprocessing
             from concurrent.futures import ProcessPoolExecutor
 
+            from agents.evaluation.runner import exported_policies
+
             context = multiprocessing.get_context("spawn")
+            # The policies the parent checked (evaluate's check_specs loads them) go to
+            # the workers as numpy arrays: they skip torch, SB3 and the file's load.
             self._pool = ProcessPoolExecutor(self.workers, mp_context=context,
-                                             initializer=worker_init)
+                                             initializer=worker_init,
+                                             initargs=(exported_policies(),))
             self.starts += 1
         return self._pool
 

@@ -36,8 +36,8 @@ from filters.wrapper import FALLBACK_STATUSES, NOMINAL_STATUSES
 from safe_nav_env.constants import DT
 
 __all__ = ["EpisodeStats", "Trajectory", "TrajectoryRecorder", "check_policy",
-           "clear_env_cache", "collision_cause", "load_policy", "make_env", "policy_file",
-           "run_episode", "run_spec"]
+           "clear_env_cache", "collision_cause", "exported_policies", "load_policy", "make_env",
+           "policy_file", "preload_policies", "run_episode", "run_spec"]
 
 FALLBACK_WINDOW = 2
 """A collision is blamed on a fallback if one ran this many steps before it, or at it."""
@@ -154,6 +154,26 @@ def load_policy(policy_path: str | Path = "", *, sha256: str = "") -> tuple[Any,
         except UnsupportedPolicyError:
             _POLICY_CACHE[key] = model
     return _POLICY_CACHE[key], sha
+
+
+def exported_policies() -> dict[tuple[str, str], Any]:
+    """The policies loaded in this process that another process can take as they are.
+
+    Those exported to numpy (:class:`agents.policies.numpy_policy.NumpyPolicy`: a few
+    arrays, no torch), keyed by (resolved file, SHA-256 of its content) as
+    :func:`load_policy` keys them. A local worker started with them
+    (:func:`preload_policies`) never imports torch or Stable-Baselines3.
+    """
+    from agents.policies.numpy_policy import NumpyPolicy
+
+    return {key: policy for key, policy in _POLICY_CACHE.items()
+            if isinstance(policy, NumpyPolicy)}
+
+
+def preload_policies(policies: dict[tuple[str, str], Any]) -> None:
+    """Put policies of :func:`exported_policies` (another process's) into this process's
+    cache; :func:`load_policy` still checks the file's SHA-256 against the key."""
+    _POLICY_CACHE.update(policies)
 
 
 def _load_planner(spec: EpisodeSpec, env: Any) -> tuple[Any, str]:
