@@ -145,14 +145,19 @@ def load_policy(policy_path: str | Path = "", *, sha256: str = "") -> tuple[Any,
 
         set_torch_threads(1)
         path = policy_file(policy_path)
-        try:
-            try:  # SB3's deterministic actions to float32 rounding, without its overhead
-                _POLICY_CACHE[key] = NumpyPolicy.from_sb3(_inference_policy(path))
+        try:  # SB3's deterministic actions to float32 rounding, without its overhead
+            _POLICY_CACHE[key] = NumpyPolicy.from_sb3(_inference_policy(path))
+        except Exception:  # noqa: BLE001 - anything unusual: SB3's whole loader decides
+            try:
+                model = load_ppo(path)
+            except Exception as exc:  # noqa: BLE001 - SB3/torch/zip raise many kinds
+                raise PolicyFileError(
+                    f"cannot load the PPO policy {path} ({type(exc).__name__}: "
+                    f"{exc})".replace("\n", " ")) from exc
+            try:
+                _POLICY_CACHE[key] = NumpyPolicy.from_sb3(model)
             except UnsupportedPolicyError:
-                _POLICY_CACHE[key] = load_ppo(path)
-        except Exception as exc:  # noqa: BLE001 - SB3/torch/zip raise many kinds
-            raise PolicyFileError(f"cannot load the PPO policy {path} "
-                                  f"({type(exc).__name__}: {exc})".replace("\n", " ")) from exc
+                _POLICY_CACHE[key] = model
     return _POLICY_CACHE[key], sha
 
 
@@ -167,13 +172,15 @@ class _NoOptimizer:
 def _inference_policy(path: Path) -> Any:
     """The SB3 policy of a PPO ``.zip``, to act with: what ``PPO.load`` builds, without
     the algorithm and its optimizer (SB3's own reader, the saved policy class and
-    settings, the saved weights loaded strictly)."""
+    settings, the saved weights loaded strictly). Files of old SB3 versions may raise:
+    :func:`load_policy` then loads with ``PPO.load``."""
     from stable_baselines3.common.save_util import load_from_zip_file
 
     data, params, _ = load_from_zip_file(path, device="cpu")
     if data is None or "policy" not in params or "policy_class" not in data:
         raise PolicyFileError(f"{path} holds no SB3 policy (no data or weights)")
     kwargs = {**(data.get("policy_kwargs") or {}), "optimizer_class": _NoOptimizer}
+    kwargs.pop("device", None)  # as PPO.load does
     policy = data["policy_class"](data["observation_space"], data["action_space"],
                                   lambda _: 0.0, use_sde=data.get("use_sde", False), **kwargs)
     policy.load_state_dict(params["policy"])
