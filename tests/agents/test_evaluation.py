@@ -391,3 +391,15 @@ def test_pool_workers_take_the_parents_policy_and_import_no_torch():
         assert not any(executor._pool.submit(_imported_torch).result() for _ in range(4))
     assert not any(r.error for r in pooled)
     assert [replace(r, **strip) for r in pooled] == [replace(r, **strip) for r in serial]
+
+
+def test_a_started_pool_has_its_workers_before_the_first_run():
+    from agents.evaluation.executors import ProcessExecutor
+
+    specs = episode_specs(["HeadOn"], ["none"], 2, **MPC)
+    with ProcessExecutor(2) as executor:
+        executor.start()
+        executor.start()  # idempotent
+        assert len(executor.worker_pids()) == 2 and executor.starts == 1
+        records = list(executor.run(specs))
+        assert executor.starts == 1 and len(records) == 2
