@@ -45,7 +45,7 @@ def worker_init() -> None:
     is not imported here (seconds per worker, and the MPC planner needs none): local
     workers get the parent's numpy export of each policy with their episodes
     (:func:`run_specs_chunk`); a policy they load themselves
-    (:func:`agents.evaluation.runner.load_policy`) sets torch's threads.
+    (:func:`agents.evaluation.policy_files.load_policy`) sets torch's threads.
     """
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     try:
@@ -163,7 +163,7 @@ class ProcessExecutor(Executor):
         size = max(1, min(CHUNK_EPISODES, len(pending) // (8 * self.workers)))
         # The policies the parent loaded (evaluate's check_specs does) travel with every
         # chunk as numpy arrays (tens of kB): workers skip torch, SB3 and the file's load.
-        from agents.evaluation.runner import exported_policies
+        from agents.evaluation.policy_files import exported_policies
 
         policies = exported_policies()
         in_flight: dict[Any, list[EpisodeSpec]] = {}
@@ -228,10 +228,10 @@ def run_specs_chunk(specs: Sequence[EpisodeSpec],
     """The records of ``specs``, in order (one task of a local worker).
 
     ``policies``: the parent's loaded policies
-    (:func:`agents.evaluation.runner.exported_policies`), used instead of loading the files.
+    (:func:`agents.evaluation.policy_files.exported_policies`), used instead of loading the files.
     """
     if policies:
-        from agents.evaluation.runner import preload_policies
+        from agents.evaluation.policy_files import preload_policies
 
         preload_policies(policies)
     return [run_spec(spec) for spec in specs]

@@ -13,21 +13,19 @@ import functools
 import math
 import time
 import traceback
-import zipfile
 from collections import Counter, OrderedDict
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from agents.errors import PolicyFileError
 from agents.evaluation.audit import encode_losses
+from agents.evaluation.policy_files import check_policy, load_policy, policy_file
 from agents.evaluation.records import (
     FILTER_STATUSES,
     EpisodeRecord,
     EpisodeSpec,
-    file_sha256,
     package_version,
 )
 from agents.evaluation.trajectory import Trajectory, TrajectoryRecorder
@@ -36,8 +34,8 @@ from filters.wrapper import FALLBACK_STATUSES, NOMINAL_STATUSES
 from safe_nav_env.constants import DT
 
 __all__ = ["EpisodeStats", "Trajectory", "TrajectoryRecorder", "check_policy",
-           "clear_env_cache", "collision_cause", "exported_policies", "load_policy", "make_env",
-           "policy_file", "preload_policies", "run_episode", "run_spec"]
+           "clear_env_cache", "collision_cause", "load_policy", "make_env", "policy_file",
+           "run_episode", "run_spec"]
 
 FALLBACK_WINDOW = 2
 """A collision is blamed on a fallback if one ran this many steps before it, or at it."""
@@ -72,140 +70,6 @@ def collision_cause(collisions: Sequence[bool], sampled_collisions: Sequence[boo
     if not sampled_collisions[first]:
         return "inter_sample"
     return "noise"
-
-
-# ---------------------------------------------------------------------------- policies
-def policy_file(policy_path: str | Path = "") -> Path:
-    """The PPO policy file of ``policy_path`` (the shipped one if empty)."""
-    if not policy_path:
-        return _pretrained_policy_path()
-    return Path(policy_path)
-
-
-@functools.cache
-def _pretrained_policy_path() -> Path:
-    from agents.training.ppo import pretrained_policy_path
-
-    return pretrained_policy_path()  # importlib.resources: about 1 ms a call, 4 per episode
-
-
-_SHA_CACHE: dict[tuple[str, int, int], str] = {}
-
-
-def check_policy(policy_path: str | Path = "") -> str:
-    """Check that a PPO policy file exists and is a zip; return the SHA-256 of its content.
-
-    Raises
-    ------
-    PolicyFileError
-        If the file is missing, is a folder, or is not a zip archive (a
-        Stable-Baselines3 policy is one).
-    """
-    path = policy_file(policy_path)
-    if not path.exists():
-        raise PolicyFileError(f"no PPO policy file at {path}")
-    if not path.is_file():
-        raise PolicyFileError(f"the PPO policy {path} is not a file")
-    stat = path.stat()
-    cache_key = (str(path.resolve()), stat.st_mtime_ns, stat.st_size)
-    if cache_key not in _SHA_CACHE:
-        if not zipfile.is_zipfile(path):
-            raise PolicyFileError(f"the PPO policy {path} is not a Stable-Baselines3 .zip file "
-                                  "(corrupt or of another kind)")
-        _SHA_CACHE[cache_key] = file_sha256(path)
-    return _SHA_CACHE[cache_key]
-
-
-_POLICY_CACHE: dict[tuple[str, str], Any] = {}
-
-
-def load_policy(policy_path: str | Path = "", *, sha256: str = "") -> tuple[Any, str]:
-    """Load a PPO policy (cached per process); return it and the SHA-256 of its file.
-
-    Parameters
-    ----------
-    policy_path
-        The policy's ``.zip``; empty for the one shipped with the package.
-    sha256
-        If given, the file's content must have this hash (it may not change during a run).
-
-    Raises
-    ------
-    PolicyFileError
-        If the file is missing or corrupt, does not load, or has another hash.
-    """
-    sha = check_policy(policy_path)
-    if sha256 and sha != sha256:
-        raise PolicyFileError(f"the PPO policy {policy_file(policy_path)} changed during the "
-                              f"run (SHA-256 {sha[:12]}..., expected {sha256[:12]}...)")
-    key = (str(policy_file(policy_path).resolve()), sha)
-    if key not in _POLICY_CACHE:
-        from agents.policies.numpy_policy import NumpyPolicy, UnsupportedPolicyError
-        from agents.training.ppo import load_ppo, set_torch_threads
-
-        set_torch_threads(1)
-        path = policy_file(policy_path)
-        try:  # SB3's deterministic actions to float32 rounding, without its overhead
-            _POLICY_CACHE[key] = NumpyPolicy.from_sb3(_inference_policy(path))
-        except Exception:  # noqa: BLE001 - anything unusual: SB3's whole loader decides
-            try:
-                model = load_ppo(path)
-            except Exception as exc:  # noqa: BLE001 - SB3/torch/zip raise many kinds
-                raise PolicyFileError(
-                    f"cannot load the PPO policy {path} ({type(exc).__name__}: "
-                    f"{exc})".replace("\n", " ")) from exc
-            try:
-                _POLICY_CACHE[key] = NumpyPolicy.from_sb3(model)
-            except UnsupportedPolicyError:
-                _POLICY_CACHE[key] = model
-    return _POLICY_CACHE[key], sha
-
-
-class _NoOptimizer:
-    """Stands in for the optimizer of a policy that only acts (SB3 builds one with every
-    policy; torch's optimizers import ``torch._dynamo``, about a second)."""
-
-    def __init__(self, params: Any, **kwargs: Any) -> None:
-        pass
-
-
-def _inference_policy(path: Path) -> Any:
-    """The SB3 policy of a PPO ``.zip``, to act with: what ``PPO.load`` builds, without
-    the algorithm and its optimizer (SB3's own reader, the saved policy class and
-    settings, the saved weights loaded strictly). Files of old SB3 versions may raise:
-    :func:`load_policy` then loads with ``PPO.load``."""
-    from stable_baselines3.common.save_util import load_from_zip_file
-
-    data, params, _ = load_from_zip_file(path, device="cpu")
-    if data is None or "policy" not in params or "policy_class" not in data:
-        raise PolicyFileError(f"{path} holds no SB3 policy (no data or weights)")
-    kwargs = {**(data.get("policy_kwargs") or {}), "optimizer_class": _NoOptimizer}
-    kwargs.pop("device", None)  # as PPO.load does
-    policy = data["policy_class"](data["observation_space"], data["action_space"],
-                                  lambda _: 0.0, use_sde=data.get("use_sde", False), **kwargs)
-    policy.load_state_dict(params["policy"])
-    policy.set_training_mode(False)
-    return policy
-
-
-def exported_policies() -> dict[tuple[str, str], Any]:
-    """The policies loaded in this process that another process can take as they are.
-
-    Those exported to numpy (:class:`agents.policies.numpy_policy.NumpyPolicy`: a few
-    arrays, no torch), keyed by (resolved file, SHA-256 of its content) as
-    :func:`load_policy` keys them. A local worker started with them
-    (:func:`preload_policies`) never imports torch or Stable-Baselines3.
-    """
-    from agents.policies.numpy_policy import NumpyPolicy
-
-    return {key: policy for key, policy in _POLICY_CACHE.items()
-            if isinstance(policy, NumpyPolicy)}
-
-
-def preload_policies(policies: dict[tuple[str, str], Any]) -> None:
-    """Put policies of :func:`exported_policies` (another process's) into this process's
-    cache; :func:`load_policy` still checks the file's SHA-256 against the key."""
-    _POLICY_CACHE.update(policies)
 
 
 def _load_planner(spec: EpisodeSpec, env: Any) -> tuple[Any, str]:
