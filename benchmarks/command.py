@@ -15,7 +15,9 @@ def run(args: argparse.Namespace) -> int:
 
     ``--scaling``: :func:`benchmarks.suite.run_scaling` on the full or ``--quick`` grid
     (``--obstacles/--horizons/--samples/--steps`` override its axes); ``--training``:
-    :func:`benchmarks.training.benchmark_training`; otherwise
+    :func:`benchmarks.training.benchmark_training`; ``--evaluation [N]``:
+    :func:`benchmarks.evaluation.benchmark_evaluation` (N episodes per scenario and risk,
+    default 300, 3 runs on each worker count); otherwise
     :func:`benchmarks.suite.run_benchmarks`.
     """
     if args.scaling:
@@ -31,6 +33,11 @@ def run(args: argparse.Namespace) -> int:
         grid = replace(grid, **overrides)
         print(run_scaling(grid, seed=args.seed, output=args.output, plot=not args.no_plot,
                           policy=not args.no_policy, family=args.family))
+        return 0
+    if args.evaluation:
+        from benchmarks.evaluation import benchmark_evaluation
+
+        print(benchmark_evaluation(args.evaluation, 3, progress=True).format())
         return 0
     if args.training:
         from benchmarks.training import benchmark_training

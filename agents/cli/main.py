@@ -320,6 +320,8 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--training", action="store_true",
                        help="PPO training steps per second with the DR-CVaR filter in the "
                        "loop against without it (interleaved runs, same process)")
+    bench.add_argument("--evaluation", type=_positive_int, nargs="?", const=300, metavar="N",
+                       help="safe-nav evaluate (N per scenario, risk) on 1 vs 2 workers, 3 runs")
     bench.add_argument("--timesteps", type=_positive_int, default=20_480,
                        help="--training: timed steps of each kind (default 20480)")
     bench.add_argument("--chunk", type=_positive_int, default=2048,

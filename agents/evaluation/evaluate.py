@@ -317,6 +317,8 @@ def evaluate(
         specs = episode_specs(scenarios, risks, episodes, seed, **spec_kwargs)
     elif spec_kwargs:
         raise InvalidParameterError(f"pass either specs or settings, got both ({spec_kwargs})")
+    if isinstance(executor, Executor):
+        executor.start()  # its workers get ready while the policy loads here
     specs = check_specs(specs)
     done: list[EpisodeRecord] = []
     writer = None

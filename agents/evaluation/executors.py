@@ -42,8 +42,10 @@ def worker_init() -> None:
 
     The parent handles Ctrl-C (it saves what has finished and stops the workers), so
     workers ignore SIGINT instead of dying mid-episode with a traceback each. torch
-    is not imported here (seconds per worker, and the MPC planner needs none):
-    :func:`agents.evaluation.runner.load_policy` sets its threads when it loads a policy.
+    is not imported here (seconds per worker, and the MPC planner needs none): local
+    workers get the parent's numpy export of each policy with their episodes
+    (:func:`run_specs_chunk`); a policy they load themselves
+    (:func:`agents.evaluation.policy_files.load_policy`) sets torch's threads.
     """
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     try:
@@ -61,6 +63,11 @@ class Executor:
     def run(self, specs: Sequence[EpisodeSpec]) -> Iterator[EpisodeRecord]:
         """Yield the record of every spec as it finishes."""
         raise NotImplementedError
+
+    def start(self) -> None:
+        """Start the workers now, so that they get ready while the caller does other work
+        (:func:`agents.evaluation.evaluate.evaluate` checks the settings and loads the
+        policies meanwhile); :meth:`run` starts them otherwise."""
 
     def close(self) -> None:
         """Release the workers (waiting for none: nothing is running between calls)."""
@@ -130,6 +137,13 @@ class ProcessExecutor(Executor):
             self.starts += 1
         return self._pool
 
+    def start(self) -> None:
+        """Start every worker process now (a spawned worker imports the project, about a
+        second, while the parent goes on)."""
+        pool = self._ensure_pool()
+        for _ in range(self.workers - len(pool._processes or {})):
+            pool.submit(_ready)  # the pool spawns a process per task while none is idle
+
     def worker_pids(self) -> list[int]:
         """Process ids of the pool's live workers (none before the first run)."""
         if self._pool is None:
@@ -147,6 +161,11 @@ class ProcessExecutor(Executor):
         # pool loses at most those chunks: their episodes run again, none is yielded twice
         # (a chunk's records are yielded together when it returns).
         size = max(1, min(CHUNK_EPISODES, len(pending) // (8 * self.workers)))
+        # The policies the parent loaded (evaluate's check_specs does) travel with every
+        # chunk as numpy arrays (tens of kB): workers skip torch, SB3 and the file's load.
+        from agents.evaluation.policy_files import exported_policies
+
+        policies = exported_policies()
         in_flight: dict[Any, list[EpisodeSpec]] = {}
         lost_in_a_row = 0
         try:
@@ -154,7 +173,7 @@ class ProcessExecutor(Executor):
                 pool = self._ensure_pool()
                 while pending and len(in_flight) < 2 * self.workers:
                     chunk = [pending.pop() for _ in range(min(size, len(pending)))]
-                    in_flight[pool.submit(run_specs_chunk, chunk)] = chunk
+                    in_flight[pool.submit(run_specs_chunk, chunk, policies)] = chunk
                 done, _ = wait(in_flight, return_when=FIRST_COMPLETED)
                 if any(isinstance(f.exception(), BrokenProcessPool) for f in done):
                     done, _ = wait(in_flight)  # a broken pool fails all its futures
@@ -204,9 +223,22 @@ CHUNK_EPISODES = 16
 """Most episodes a local worker runs per task (:class:`ProcessExecutor`)."""
 
 
-def run_specs_chunk(specs: Sequence[EpisodeSpec]) -> list[EpisodeRecord]:
-    """The records of ``specs``, in order (one task of a local worker)."""
+def run_specs_chunk(specs: Sequence[EpisodeSpec],
+                    policies: dict[tuple[str, str], Any] | None = None) -> list[EpisodeRecord]:
+    """The records of ``specs``, in order (one task of a local worker).
+
+    ``policies``: the parent's loaded policies
+    (:func:`agents.evaluation.policy_files.exported_policies`), used instead of loading the files.
+    """
+    if policies:
+        from agents.evaluation.policy_files import preload_policies
+
+        preload_policies(policies)
     return [run_spec(spec) for spec in specs]
+
+
+def _ready() -> None:
+    """A task that does nothing: its worker has started and imported this module."""
 
 
 def _ray_task(spec: EpisodeSpec) -> EpisodeRecord:

@@ -12,7 +12,6 @@ import csv
 import math
 import os
 from collections.abc import Iterable
-from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -86,6 +85,13 @@ def read_records(path: str | Path) -> list[EpisodeRecord]:
     return records
 
 
+def _row(record: EpisodeRecord) -> list[Any]:
+    """The record's CSV row, :data:`RECORD_FIELDS` in order (the fields are flat, so this
+    is ``dataclasses.asdict``'s row without its deep copy: the parent writes one per
+    episode while the workers run)."""
+    return [getattr(record, name) for name in RECORD_FIELDS]
+
+
 class RecordWriter:
     """Appends records to a CSV as they finish, so an interrupted run can resume.
 
@@ -106,14 +112,14 @@ class RecordWriter:
                 raise RecordsFileError(
                     f"{self.path} has other columns than this version of safe-nav writes")
         self._handle = open(self.path, "a", newline="")
-        self._writer = csv.DictWriter(self._handle, fieldnames=RECORD_FIELDS)
+        self._writer = csv.writer(self._handle)
         self.written = 0
         if new:
-            self._writer.writeheader()
+            self._writer.writerow(RECORD_FIELDS)
             self._handle.flush()
 
     def __call__(self, record: EpisodeRecord) -> None:
-        self._writer.writerow(asdict(record))
+        self._writer.writerow(_row(record))
         self._handle.flush()
         self.written += 1
 
@@ -133,8 +139,8 @@ def write_records(path: str | Path, records: Iterable[EpisodeRecord]) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     temporary = path.with_name(path.name + ".tmp")
     with open(temporary, "w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=RECORD_FIELDS)
-        writer.writeheader()
+        writer = csv.writer(handle)
+        writer.writerow(RECORD_FIELDS)
         for record in records:
-            writer.writerow(asdict(record))
+            writer.writerow(_row(record))
     os.replace(temporary, path)

@@ -13,21 +13,19 @@ import functools
 import math
 import time
 import traceback
-import zipfile
 from collections import Counter, OrderedDict
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from agents.errors import PolicyFileError
 from agents.evaluation.audit import encode_losses
+from agents.evaluation.policy_files import check_policy, load_policy, policy_file
 from agents.evaluation.records import (
     FILTER_STATUSES,
     EpisodeRecord,
     EpisodeSpec,
-    file_sha256,
     package_version,
 )
 from agents.evaluation.trajectory import Trajectory, TrajectoryRecorder
@@ -76,88 +74,6 @@ def collision_cause(collisions: Sequence[bool], sampled_collisions: Sequence[boo
     if not sampled_collisions[first]:
         return "inter_sample"
     return "noise"
-
-
-# ---------------------------------------------------------------------------- policies
-def policy_file(policy_path: str | Path = "") -> Path:
-    """The PPO policy file of ``policy_path`` (the shipped one if empty)."""
-    if not policy_path:
-        return _pretrained_policy_path()
-    return Path(policy_path)
-
-
-@functools.cache
-def _pretrained_policy_path() -> Path:
-    from agents.training.ppo import pretrained_policy_path
-
-    return pretrained_policy_path()  # importlib.resources: about 1 ms a call, 4 per episode
-
-
-_SHA_CACHE: dict[tuple[str, int, int], str] = {}
-
-
-def check_policy(policy_path: str | Path = "") -> str:
-    """Check that a PPO policy file exists and is a zip; return the SHA-256 of its content.
-
-    Raises
-    ------
-    PolicyFileError
-        If the file is missing, is a folder, or is not a zip archive (a
-        Stable-Baselines3 policy is one).
-    """
-    path = policy_file(policy_path)
-    if not path.exists():
-        raise PolicyFileError(f"no PPO policy file at {path}")
-    if not path.is_file():
-        raise PolicyFileError(f"the PPO policy {path} is not a file")
-    stat = path.stat()
-    cache_key = (str(path.resolve()), stat.st_mtime_ns, stat.st_size)
-    if cache_key not in _SHA_CACHE:
-        if not zipfile.is_zipfile(path):
-            raise PolicyFileError(f"the PPO policy {path} is not a Stable-Baselines3 .zip file "
-                                  "(corrupt or of another kind)")
-        _SHA_CACHE[cache_key] = file_sha256(path)
-    return _SHA_CACHE[cache_key]
-
-
-_POLICY_CACHE: dict[tuple[str, str], Any] = {}
-
-
-def load_policy(policy_path: str | Path = "", *, sha256: str = "") -> tuple[Any, str]:
-    """Load a PPO policy (cached per process); return it and the SHA-256 of its file.
-
-    Parameters
-    ----------
-    policy_path
-        The policy's ``.zip``; empty for the one shipped with the package.
-    sha256
-        If given, the file's content must have this hash (it may not change during a run).
-
-    Raises
-    ------
-    PolicyFileError
-        If the file is missing or corrupt, does not load, or has another hash.
-    """
-    sha = check_policy(policy_path)
-    if sha256 and sha != sha256:
-        raise PolicyFileError(f"the PPO policy {policy_file(policy_path)} changed during the "
-                              f"run (SHA-256 {sha[:12]}..., expected {sha256[:12]}...)")
-    key = (str(policy_file(policy_path).resolve()), sha)
-    if key not in _POLICY_CACHE:
-        from agents.policies.numpy_policy import NumpyPolicy, UnsupportedPolicyError
-        from agents.training.ppo import load_ppo, set_torch_threads
-
-        set_torch_threads(1)
-        try:
-            model = load_ppo(policy_file(policy_path))
-        except Exception as exc:  # noqa: BLE001 - SB3/torch/zip raise many kinds
-            raise PolicyFileError(f"cannot load the PPO policy {policy_file(policy_path)} "
-                                  f"({type(exc).__name__}: {exc})".replace("\n", " ")) from exc
-        try:  # SB3's deterministic actions to float32 rounding, without its per-call overhead
-            _POLICY_CACHE[key] = NumpyPolicy.from_sb3(model)
-        except UnsupportedPolicyError:
-            _POLICY_CACHE[key] = model
-    return _POLICY_CACHE[key], sha
 
 
 def _load_planner(spec: EpisodeSpec, env: Any) -> tuple[Any, str]:

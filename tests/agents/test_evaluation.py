@@ -335,3 +335,71 @@ def test_collision_columns_match_the_environment_step_by_step():
             assert record.collision_cause == ("noise" if sampled[first] else "inter_sample")
         else:
             assert record.collision_cause == ""
+
+
+def test_the_evaluation_loads_the_policy_that_sb3_loads():
+    """load_policy builds the actor without PPO's optimizer; its actions are SB3's (by
+    tolerance, the numpy policy's own rule)."""
+    import sys
+
+    from agents.evaluation.runner import load_policy
+    from agents.training.ppo import load_ppo
+
+    policy, _ = load_policy("")
+    assert type(policy).__name__ == "NumpyPolicy"
+    model = load_ppo()
+    rng = np.random.default_rng(4)
+    low, high = model.observation_space.low, model.observation_space.high
+    observations = rng.uniform(np.maximum(low, -5.0), np.minimum(high, 5.0),
+                               (64, *low.shape)).astype(np.float32)
+    for obs in observations:
+        expected, _ = model.predict(obs, deterministic=True)
+        action, _ = policy.predict(obs, deterministic=True)
+        np.testing.assert_allclose(action, expected, rtol=0,
+                                   atol=1e-6 * max(1.0, float(np.max(np.abs(expected)))))
+    assert "stable_baselines3" in sys.modules  # (this test loaded the model itself)
+
+
+def test_a_zip_that_holds_no_policy_is_a_policy_file_error(tmp_path):
+    import zipfile
+
+    from agents.errors import PolicyFileError
+    from agents.evaluation.runner import load_policy
+
+    path = tmp_path / "empty.zip"
+    with zipfile.ZipFile(path, "w") as archive:
+        archive.writestr("readme.txt", "no policy here")
+    with pytest.raises(PolicyFileError, match="cannot load the PPO policy"):
+        load_policy(str(path))
+
+
+def _imported_torch(_: object = None) -> bool:
+    import sys
+
+    return "torch" in sys.modules
+
+
+@pytest.mark.slow
+def test_pool_workers_take_the_parents_policy_and_import_no_torch():
+    from agents.evaluation.executors import ProcessExecutor
+
+    specs = episode_specs(["HeadOn"], ["dr_cvar"], 2, seed=1)
+    serial = sorted((run_episode(spec)[0] for spec in specs), key=lambda r: r.key())
+    strip = dict(wall_time=0.0, filter_time_median=0.0, filter_time_max=0.0)
+    with ProcessExecutor(2) as executor:
+        pooled = sorted(executor.run(specs), key=lambda r: r.key())
+        assert not any(executor._pool.submit(_imported_torch).result() for _ in range(4))
+    assert not any(r.error for r in pooled)
+    assert [replace(r, **strip) for r in pooled] == [replace(r, **strip) for r in serial]
+
+
+def test_a_started_pool_has_its_workers_before_the_first_run():
+    from agents.evaluation.executors import ProcessExecutor
+
+    specs = episode_specs(["HeadOn"], ["none"], 2, **MPC)
+    with ProcessExecutor(2) as executor:
+        executor.start()
+        executor.start()  # idempotent
+        assert len(executor.worker_pids()) == 2 and executor.starts == 1
+        records = list(executor.run(specs))
+        assert executor.starts == 1 and len(records) == 2

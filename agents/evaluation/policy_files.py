@@ -1,0 +1,154 @@
+"""The PPO policies an evaluation runs: where the file is, its check, and one load per process.
+
+:func:`check_policy` and :func:`load_policy` are the checks an evaluation makes *before*
+anything runs; :func:`load_policy` keeps each policy (its numpy export,
+:class:`agents.policies.numpy_policy.NumpyPolicy`, where possible) for the process, and
+local workers take the parent's exports (:func:`exported_policies`,
+:func:`preload_policies`) instead of loading the file again.
+"""
+
+from __future__ import annotations
+
+import functools
+import zipfile
+from pathlib import Path
+from typing import Any
+
+from agents.errors import PolicyFileError
+from agents.evaluation.records import file_sha256
+
+__all__ = ["check_policy", "exported_policies", "load_policy", "policy_file",
+           "preload_policies"]
+
+
+def policy_file(policy_path: str | Path = "") -> Path:
+    """The PPO policy file of ``policy_path`` (the shipped one if empty)."""
+    if not policy_path:
+        return _pretrained_policy_path()
+    return Path(policy_path)
+
+
+@functools.cache
+def _pretrained_policy_path() -> Path:
+    from agents.training.ppo import pretrained_policy_path
+
+    return pretrained_policy_path()  # importlib.resources: about 1 ms a call, 4 per episode
+
+
+_SHA_CACHE: dict[tuple[str, int, int], str] = {}
+
+
+def check_policy(policy_path: str | Path = "") -> str:
+    """Check that a PPO policy file exists and is a zip; return the SHA-256 of its content.
+
+    Raises
+    ------
+    PolicyFileError
+        If the file is missing, is a folder, or is not a zip archive (a
+        Stable-Baselines3 policy is one).
+    """
+    path = policy_file(policy_path)
+    if not path.exists():
+        raise PolicyFileError(f"no PPO policy file at {path}")
+    if not path.is_file():
+        raise PolicyFileError(f"the PPO policy {path} is not a file")
+    stat = path.stat()
+    cache_key = (str(path.resolve()), stat.st_mtime_ns, stat.st_size)
+    if cache_key not in _SHA_CACHE:
+        if not zipfile.is_zipfile(path):
+            raise PolicyFileError(f"the PPO policy {path} is not a Stable-Baselines3 .zip file "
+                                  "(corrupt or of another kind)")
+        _SHA_CACHE[cache_key] = file_sha256(path)
+    return _SHA_CACHE[cache_key]
+
+
+_POLICY_CACHE: dict[tuple[str, str], Any] = {}
+
+
+def load_policy(policy_path: str | Path = "", *, sha256: str = "") -> tuple[Any, str]:
+    """Load a PPO policy (cached per process); return it and the SHA-256 of its file.
+
+    Parameters
+    ----------
+    policy_path
+        The policy's ``.zip``; empty for the one shipped with the package.
+    sha256
+        If given, the file's content must have this hash (it may not change during a run).
+
+    Raises
+    ------
+    PolicyFileError
+        If the file is missing or corrupt, does not load, or has another hash.
+    """
+    sha = check_policy(policy_path)
+    if sha256 and sha != sha256:
+        raise PolicyFileError(f"the PPO policy {policy_file(policy_path)} changed during the "
+                              f"run (SHA-256 {sha[:12]}..., expected {sha256[:12]}...)")
+    key = (str(policy_file(policy_path).resolve()), sha)
+    if key not in _POLICY_CACHE:
+        from agents.policies.numpy_policy import NumpyPolicy, UnsupportedPolicyError
+        from agents.training.ppo import load_ppo, set_torch_threads
+
+        set_torch_threads(1)
+        path = policy_file(policy_path)
+        try:  # SB3's deterministic actions to float32 rounding, without its overhead
+            _POLICY_CACHE[key] = NumpyPolicy.from_sb3(_inference_policy(path))
+        except Exception:  # noqa: BLE001 - anything unusual: SB3's whole loader decides
+            try:
+                model = load_ppo(path)
+            except Exception as exc:  # noqa: BLE001 - SB3/torch/zip raise many kinds
+                raise PolicyFileError(
+                    f"cannot load the PPO policy {path} ({type(exc).__name__}: "
+                    f"{exc})".replace("\n", " ")) from exc
+            try:
+                _POLICY_CACHE[key] = NumpyPolicy.from_sb3(model)
+            except UnsupportedPolicyError:
+                _POLICY_CACHE[key] = model
+    return _POLICY_CACHE[key], sha
+
+
+class _NoOptimizer:
+    """Stands in for the optimizer of a policy that only acts (SB3 builds one with every
+    policy; torch's optimizers import ``torch._dynamo``, about a second)."""
+
+    def __init__(self, params: Any, **kwargs: Any) -> None:
+        pass
+
+
+def _inference_policy(path: Path) -> Any:
+    """The SB3 policy of a PPO ``.zip``, to act with: what ``PPO.load`` builds, without
+    the algorithm and its optimizer (SB3's own reader, the saved policy class and
+    settings, the saved weights loaded strictly). Files of old SB3 versions may raise:
+    :func:`load_policy` then loads with ``PPO.load``."""
+    from stable_baselines3.common.save_util import load_from_zip_file
+
+    data, params, _ = load_from_zip_file(path, device="cpu")
+    if data is None or "policy" not in params or "policy_class" not in data:
+        raise PolicyFileError(f"{path} holds no SB3 policy (no data or weights)")
+    kwargs = {**(data.get("policy_kwargs") or {}), "optimizer_class": _NoOptimizer}
+    kwargs.pop("device", None)  # as PPO.load does
+    policy = data["policy_class"](data["observation_space"], data["action_space"],
+                                  lambda _: 0.0, use_sde=data.get("use_sde", False), **kwargs)
+    policy.load_state_dict(params["policy"])
+    policy.set_training_mode(False)
+    return policy
+
+
+def exported_policies() -> dict[tuple[str, str], Any]:
+    """The policies loaded in this process that another process can take as they are.
+
+    Those exported to numpy (:class:`agents.policies.numpy_policy.NumpyPolicy`: a few
+    arrays, no torch), keyed by (resolved file, SHA-256 of its content) as
+    :func:`load_policy` keys them. A local worker started with them
+    (:func:`preload_policies`) never imports torch or Stable-Baselines3.
+    """
+    from agents.policies.numpy_policy import NumpyPolicy
+
+    return {key: policy for key, policy in _POLICY_CACHE.items()
+            if isinstance(policy, NumpyPolicy)}
+
+
+def preload_policies(policies: dict[tuple[str, str], Any]) -> None:
+    """Put policies of :func:`exported_policies` (another process's) into this process's
+    cache; :func:`load_policy` still checks the file's SHA-256 against the key."""
+    _POLICY_CACHE.update(policies)
