@@ -295,41 +295,9 @@ def build_parser() -> argparse.ArgumentParser:
     reproduce.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     bench = sub.add_parser("bench", help="speed benchmarks (ratios in one run)", **_FORMAT)
-    bench.add_argument("--steps", type=_positive_int, default=None,
-                       help="filter steps timed (default 500; --scaling: per grid point, 100)")
-    bench.add_argument("--repeats", type=_positive_int, default=100,
-                       help="repeats of each halfspace timing (>= 1)")
-    bench.add_argument("--scaling", action="store_true",
-                       help="scaling grid: obstacles x horizon x samples, ours vs CVXPY")
-    bench.add_argument("--quick", action="store_true", help="--scaling on a small subset")
-    bench.add_argument("--obstacles", type=_positive_int, nargs="+", default=None,
-                       help="--scaling: obstacle counts (default 1 3 10 20)")
-    bench.add_argument("--horizons", type=_positive_int, nargs="+", default=None,
-                       help="--scaling: horizons T in steps (default 10 20 40 80)")
-    bench.add_argument("--samples", type=_positive_int, nargs="+", default=None,
-                       help="--scaling: prediction samples N_s (default 100 1000)")
-    bench.add_argument("--seed", type=_seed, default=0, help="seed of the instances")
-    bench.add_argument("--output", type=Path, default=None,
-                       help="--scaling: folder for scaling.csv, scaling.md, scaling.png")
-    bench.add_argument("--no-plot", action="store_true", help="--scaling: no figure")
-    bench.add_argument("--family", choices=("straight", "goal"), default="straight",
-                       help="--scaling: instances whose reference runs straight on (the "
-                            "issue's grid) or stops at a goal inside the arena")
-    bench.add_argument("--no-policy", action="store_true",
-                       help="--scaling: skip the policy (SB3 vs numpy) timings")
-    bench.add_argument("--training", action="store_true",
-                       help="PPO training steps per second with the DR-CVaR filter in the "
-                       "loop against without it (interleaved runs, same process)")
-    bench.add_argument("--evaluation", type=_positive_int, nargs="?", const=300, metavar="N",
-                       help="safe-nav evaluate (N per scenario, risk) on 1 vs 2 workers, 3 runs")
-    bench.add_argument("--timesteps", type=_positive_int, default=20_480,
-                       help="--training: timed steps of each kind (default 20480)")
-    bench.add_argument("--chunk", type=_positive_int, default=2048,
-                       help="--training: steps per alternating chunk (default 2048: one "
-                       "rollout and its update)")
-    bench.add_argument("--envs", type=_positive_int, default=8,
-                       help="--training: in-process vector environments of each model "
-                       "(default 8, train's default)")
+    from benchmarks.command import add_arguments
+
+    add_arguments(bench, positive_int=_positive_int, seed=_seed)
     return parser
 
 
