@@ -1,7 +1,8 @@
 """Episode-level equivalence: the evaluation pipeline (the numpy actor, DAQP) and a
-reference pipeline (SB3's own ``predict`` for the planner and its roll-out, the QP in
-Clarabel) give collision and goal rates that agree within their Wilson 95 % intervals on
-200 episodes each (the equivalence rule of the docs' design page)."""
+reference pipeline (SB3's own ``predict`` for the planner, the QP in Clarabel) give
+collision and goal rates that agree within their Wilson 95 % intervals on 200 episodes
+each (the equivalence rule of the docs' design page). The cell is the mean filter with
+the held action on Intersection, which lets collisions through (a rate to compare)."""
 
 from __future__ import annotations
 
@@ -27,7 +28,7 @@ def _rates(records):
 
 @pytest.mark.slow
 def test_fast_and_reference_pipelines_agree_within_their_intervals(monkeypatch):
-    specs = [EpisodeSpec("Intersection", "mean", seed) for seed in range(EPISODES)]
+    specs = [EpisodeSpec("Intersection", "mean", seed, reference="hold") for seed in range(EPISODES)]
     fast = [run_episode(spec)[0] for spec in specs]
     model = load_ppo()  # the shipped policy, answered by SB3 itself
     monkeypatch.setattr(filters.wrapper, "MPCSafetyFilter",
