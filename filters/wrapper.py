@@ -153,9 +153,10 @@ class SafetyFilterWrapper(CalibrationMixin, HalfspaceRowsMixin, RenderHookMixin,
         :func:`filters.normals.clearest_normals`).
     fallback
         ``"soft"`` (default): when the hard QP is infeasible, the exact-penalty recovery
-        QP with the halfspace rows softened: the least violation, then the lowest speed
-        (it brakes; arena rows softened too only if they cannot hold, which brings the
-        ego back into the arena; :mod:`filters.mpc.recovery`);
+        QP with the halfspace rows softened: the least violation, then the plan closest
+        to the reference (arena rows softened too only if they cannot hold, which brings
+        the ego back into the arena; :mod:`filters.mpc.recovery`); ``"brake"``: the
+        same, but the least violation, then the lowest speed;
         ``"paper"``: the paper's Remark, the last optimal plan shifted, then braking.
     terminal
         Add the terminal condition that the plan ends able to stop inside the arena

@@ -26,7 +26,7 @@ OBJECTIVES = ("first_input", "trajectory")
 NORMAL_SOURCES = ("paper", "ego", "nearside", "previous_plan", "clearest")
 """Where the halfspace normals start (they end at the obstacles' sample means)."""
 
-FALLBACKS = ("soft", "paper")
+FALLBACKS = ("soft", "brake", "paper")
 """What the filter does when the hard QP is infeasible (see
 :class:`filters.wrapper.SafetyFilterWrapper`)."""
 

@@ -85,7 +85,7 @@ __all__ = [
 ]
 
 #: What to do when the hard QP fails.
-FALLBACKS = ("soft", "paper")
+FALLBACKS = ("soft", "brake", "paper")
 
 _NO_QP = "unconstrained optimum feasible (no QP needed)"
 _vecdot = getattr(np, "vecdot", None) or (lambda a, b: np.einsum("...d,...d->...", a, b))
@@ -148,8 +148,9 @@ class MPCSafetyFilter:
         ``(G, g)``: the plan ends in :math:`G x_T \le g` (e.g.
         :func:`filters.mpc.stopping_terminal_set`); ``None`` (default): none.
     fallback
-        ``"soft"`` (default: the recovery QPs, which brake, then braking) or ``"paper"``
-        (shift the last plan, then brake).
+        ``"soft"`` (default: the recovery QPs tracking the reference, then braking),
+        ``"brake"`` (recovery QPs that minimise the speed instead) or ``"paper"`` (shift
+        the last plan, then brake); see :mod:`filters.mpc.recovery`.
     max_speed
         :math:`v_\max` in m/s: every QP keeps the planned velocities :math:`v_1..v_T`
         in the ``speed_sides``-gon inscribed in the disc :math:`\|v\| \le v_\max` (hard
@@ -239,7 +240,7 @@ class MPCSafetyFilter:
         self._soft = bool(soft)
         self._skip = bool(skip_feasible_reference)
         self._fallback = fallback
-        recovery_problem, rescue_problem = recovery_problems(problem)
+        recovery_problem, rescue_problem = recovery_problems(problem, fallback == "brake")
         recovery_backend = backend
         if backend == "auto":
             if solver_settings is not None:
@@ -255,11 +256,10 @@ class MPCSafetyFilter:
             self._brake_gain = finite_array("brake_gain", brake_gain, shape=(m, n))
         self._primary = make_backend(backend, problem, solver_settings)
         self._recovery = self._rescue = None  # the recovery QPs: arena hard, then soft
-        if fallback == "soft":
+        if fallback != "paper":
             self._recovery = make_backend(recovery_backend, recovery_problem, solver_settings)
             self._rescue = make_backend(recovery_backend, rescue_problem, solver_settings)
-        # Precomputed for the per-step checks (a few NumPy calls per step).
-        phi, gamma = problem.rollout
+        phi, gamma = problem.rollout  # precomputed for the per-step checks
         self._phi, self._gamma = matvec_operator(phi), matvec_operator(gamma)
         self._gain = matvec_operator(problem.gain)
         # One product M @ [x0; u] - r: the roll-out, the positions, every bound row's excess.
@@ -528,7 +528,8 @@ class MPCSafetyFilter:
         or the paper's fallback."""
         prefix = None if self._recovery is not None else shifted_plan(self._plan, self._failures)
         status_text = f"hard QP: {status_text}"
-        braking = StepData(x0, *self._recovery_zeros, step.normals, step.offsets)
+        braking = step if self._fallback == "soft" else StepData(
+            x0, *self._recovery_zeros, step.normals, step.offsets)
         for name, backend in (("recovery QP", self._recovery), ("arena-soft QP", self._rescue)):
             if backend is None:  # fallback="paper": the last plan, shifted
                 break

@@ -28,7 +28,8 @@ def _rates(records):
 
 @pytest.mark.slow
 def test_fast_and_reference_pipelines_agree_within_their_intervals(monkeypatch):
-    specs = [EpisodeSpec("Intersection", "mean", seed, reference="hold") for seed in range(EPISODES)]
+    specs = [EpisodeSpec("Intersection", "mean", seed, reference="hold")
+             for seed in range(EPISODES)]
     fast = [run_episode(spec)[0] for spec in specs]
     model = load_ppo()  # the shipped policy, answered by SB3 itself
     monkeypatch.setattr(filters.wrapper, "MPCSafetyFilter",

@@ -154,7 +154,7 @@ def _recorded_infeasible_steps(count: int) -> tuple[SafetyFilterWrapper, list]:
     up to ``count`` recorded steps where the hard QP was infeasible and the first recovery
     QP answered: ``(step data, result)``; every realised speed is under the limit."""
     env = SafetyFilterWrapper(gym.make("SafeNav/Custom-v0", scenario=_dense_crossing(),
-                                       max_obstacles=8))
+                                       max_obstacles=8), fallback="brake")
     recorded = []
     for seed in range(3):
         env.reset(seed=seed)
