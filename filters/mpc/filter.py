@@ -528,12 +528,12 @@ class MPCSafetyFilter:
         or the paper's fallback."""
         prefix = None if self._recovery is not None else shifted_plan(self._plan, self._failures)
         status_text = f"hard QP: {status_text}"
-        braking = step if self._fallback == "soft" else StepData(
+        data = step if self._fallback == "soft" else StepData(  # "brake": no reference
             x0, *self._recovery_zeros, step.normals, step.offsets)
         for name, backend in (("recovery QP", self._recovery), ("arena-soft QP", self._rescue)):
             if backend is None:  # fallback="paper": the last plan, shifted
                 break
-            recovery = self._call(backend, braking)
+            recovery = self._call(backend, data)
             answer = self._accept(recovery, backend.problem.soft_rows, x0, normals, offsets)
             iterations += recovery.iterations
             solve_time += recovery.solve_time
