@@ -86,17 +86,30 @@ def hold_action_reference(
     u = np.clip(u, low, high)
     inputs = np.empty((int(horizon), m))
     inputs[:] = u
-    apply = getattr(env, "applied_input", None)  # the speed limit, if the env has one
-    if apply is not None and np.isfinite(u).all():
-        states = np.empty((int(horizon) + 1, n))
-        states[0] = x0
-        for k in range(int(horizon)):
-            inputs[k] = apply(states[k], u)
-            states[k + 1] = A @ states[k] + B @ inputs[k]
-        return states, inputs
     powers, sums = _held_maps(A, B, int(horizon))
     states = (powers @ x0 + sums @ u).reshape(int(horizon) + 1, n)
+    apply = getattr(env, "applied_input", None)  # the speed limit, if the env has one
+    if apply is None or not np.isfinite(u).all() or _within_speed_limit(env, states):
+        return states, inputs  # the env applies u at every step: the held roll-out is it
+    for k in range(int(horizon)):
+        inputs[k] = apply(states[k], u)
+        states[k + 1] = A @ states[k] + B @ inputs[k]
     return states, inputs
+
+
+def _within_speed_limit(env: FilterableEnv, states: np.ndarray) -> bool:
+    """Whether every planned velocity (the states' second half, rows ``1..T``) keeps
+    ``env.max_speed`` (``inf``: no limit): then ``applied_input`` returns the clipped
+    action at every step (the protocol's definition) and the loop is not needed. Without
+    a ``max_speed`` to check against, ``False`` (the loop asks ``applied_input``)."""
+    limit = getattr(env, "max_speed", None)
+    if limit is None:
+        return False
+    max_speed = float(limit)
+    if np.isinf(max_speed):
+        return True
+    velocities = states[1:, states.shape[1] // 2:]
+    return bool(np.all(np.einsum("ij,ij->i", velocities, velocities) <= max_speed * max_speed))
 
 
 _HELD_MAPS: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
