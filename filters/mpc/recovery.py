@@ -20,8 +20,8 @@ With :math:`\rho` above the multipliers the violation is the least possible; amo
 plans that reach it, the slowest is chosen, so the recovery brakes rather than
 accelerating to the input bound unless that lowers the violation. Braking is not the
 default: in dense crossing streams (the stress class ``dense8``) a braking ego stays in
-the lane of the next crossers, and the roll-out reference collided in 11 % (PPO) and
-34 % (go-to-goal) of 300 episodes against 1.3 % and 7.7 % when tracking.
+the lane of the next crossers (the measurements are in the filter guide, "Recovery and
+statuses").
 
 **The paper's Remark after Problem 2: shift the last plan, then brake.**
 
