@@ -425,6 +425,19 @@ def _evaluate(args: argparse.Namespace) -> int:
         return _evaluate_on(args, executor)
 
 
+def _evaluation_config(args: argparse.Namespace, executor: Any):
+    """The command's :class:`~agents.evaluation.config.EvaluationConfig` (a suite's output
+    folder is ``results/<suite>`` unless ``--output`` is given)."""
+    from agents.evaluation.config import EvaluationConfig
+
+    output = args.output
+    if args.suite != "scenarios" and output == Path("results/evaluate"):
+        output = Path(f"results/{args.suite}")
+    return EvaluationConfig(output=output, workers=args.workers, executor=executor,
+                            overwrite=args.overwrite, plots=not args.no_plots,
+                            progress=not args.no_progress)
+
+
 def _evaluate_on(args: argparse.Namespace, executor: Any) -> int:
     from agents.evaluation.campaign import run_evaluation, run_sweep
     from safe_nav_env.scenarios import CUSTOM
@@ -436,56 +449,47 @@ def _evaluate_on(args: argparse.Namespace, executor: Any) -> int:
               "safe_nav_env.Scenario as JSON) or --env-option scenario=HeadOn (a scenario "
               "name)", file=sys.stderr)
         return EXIT_BAD_INPUT
+    if args.suite != "scenarios":
+        clash = [flag for flag, given in (
+            ("--sweep", args.sweep), ("--noise", args.noise),
+            ("--scenarios", args.scenarios != list(PAPER_SCENARIOS)),
+            ("--risks", args.suite == "stress" and args.risks != ["none", *PAPER_RISKS]))
+            if given]
+        if clash:
+            sets, use = (("the cases, methods and noise", "--cases/--methods")
+                         if args.suite == "stress" else
+                         ("the scene", "--crowd-settings" if args.suite == "crowd"
+                          else "--scenes"))
+            print(f"safe-nav evaluate: error: --suite {args.suite} sets {sets} itself; drop "
+                  f"{', '.join(clash)} (use {use})", file=sys.stderr)
+            return EXIT_BAD_INPUT
 
-    common = dict(episodes=args.episodes, workers=args.workers, seed=args.seed,
-                  planner=args.planner, reference=args.reference, policy_path=args.policy,
-                  alpha=args.alpha, noise=args.noise, executor=executor,
-                  filter_options=dict(args.filter_options), env_options=dict(args.env_options),
-                  progress=not args.no_progress, overwrite=args.overwrite)
+    common = dict(config=_evaluation_config(args, executor), episodes=args.episodes,
+                  seed=args.seed, reference=args.reference, policy_path=args.policy,
+                  alpha=args.alpha, filter_options=dict(args.filter_options),
+                  env_options=dict(args.env_options))
     if args.suite == "stress":
         from agents.experiments.stress import run_stress
 
-        clash = [flag for flag, given in (("--sweep", args.sweep), ("--noise", args.noise),
-                                          ("--scenarios", args.scenarios != list(PAPER_SCENARIOS)),
-                                          ("--risks", args.risks != ["none", *PAPER_RISKS]))
-                 if given]
-        if clash:
-            print(f"safe-nav evaluate: error: --suite stress sets the cases, methods and noise "
-                  f"itself; drop {', '.join(clash)} (use --cases/--methods)", file=sys.stderr)
-            return EXIT_BAD_INPUT
-        output = args.output if args.output != Path("results/evaluate") else Path(
-            "results/stress")
-        common.pop("noise")
-        planner = common.pop("planner")  # one --planner other than ppo replaces --planners
-        planners = args.planners if planner == "ppo" else [planner]
-        outputs = run_stress(output, args.cases, args.methods, planners=planners,
-                             delta=args.delta, epsilon=args.epsilon, plots=not args.no_plots,
-                             **common)
+        # One --planner other than ppo replaces --planners.
+        planners = args.planners if args.planner == "ppo" else [args.planner]
+        outputs = run_stress(None, args.cases, args.methods, planners=planners,
+                             delta=args.delta, epsilon=args.epsilon, **common)
     elif args.suite in ("crowd", "pedestrians"):
         from agents.experiments.crowd import run_crowd
         from agents.experiments.pedestrians import run_pedestrians
 
-        option = "--crowd-settings" if args.suite == "crowd" else "--scenes"
-        clash = [flag for flag, given in (("--sweep", args.sweep), ("--noise", args.noise),
-                                          ("--scenarios", args.scenarios != list(PAPER_SCENARIOS)))
-                 if given]
-        if clash:
-            print(f"safe-nav evaluate: error: --suite {args.suite} sets the scene itself; drop "
-                  f"{', '.join(clash)} (use {option})", file=sys.stderr)
-            return EXIT_BAD_INPUT
-        output = args.output if args.output != Path("results/evaluate") else Path(
-            f"results/{args.suite}")
-        common.pop("noise")
         run, settings = ((run_crowd, args.crowd_settings) if args.suite == "crowd"
                          else (run_pedestrians, args.scenes))
-        outputs = run(output, settings, args.risks, delta=args.delta, epsilon=args.epsilon,
-                      **common)
+        outputs = run(None, settings, args.risks, planner=args.planner, delta=args.delta,
+                      epsilon=args.epsilon, **common)
     elif args.sweep:
-        outputs = run_sweep(args.output, args.scenarios, epsilons=args.epsilons,
-                            deltas=args.deltas, **common)
+        outputs = run_sweep(None, args.scenarios, epsilons=args.epsilons, deltas=args.deltas,
+                            planner=args.planner, noise=args.noise, **common)
     else:
-        outputs = run_evaluation(args.output, args.scenarios, args.risks, delta=args.delta,
-                                 epsilon=args.epsilon, plots=not args.no_plots, **common)
+        outputs = run_evaluation(None, args.scenarios, args.risks, planner=args.planner,
+                                 delta=args.delta, epsilon=args.epsilon, noise=args.noise,
+                                 **common)
     print(outputs)
     failed = outputs.failed
     if failed:

@@ -1,7 +1,11 @@
-"""Evaluation runs with their outputs: CSV, Markdown summary, figures.
+"""Campaigns: a list of episodes run under an :class:`EvaluationConfig`, with their outputs.
 
-:func:`run_evaluation` is what ``safe-nav evaluate`` runs; :func:`run_sweep` is
-``safe-nav evaluate --sweep``. Both are plain functions the tests call too.
+:func:`run_campaign` is the one pipeline of every evaluation command: it runs a
+campaign's :class:`~agents.evaluation.records.EpisodeSpec` through
+:func:`agents.evaluation.evaluate.evaluate` (resume, run key, fault tolerance) on the
+config's executor, then writes the campaign's summary page and figures.
+:func:`run_evaluation` (``safe-nav evaluate``) and :func:`run_sweep` (``--sweep``) are
+campaigns, like the stress, crowd and pedestrian suites of :mod:`agents.experiments`.
 
 Output folder layout::
 
@@ -18,16 +22,16 @@ Output folder layout::
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from agents.errors import OutputPathError
-from agents.evaluation.evaluate import episode_specs, evaluate
-from agents.evaluation.executors import Executor
+from agents.evaluation.config import EvaluationConfig, split_options
+from agents.evaluation.evaluate import EvaluationRecords, episode_specs, evaluate
 from agents.evaluation.records import (
     PAPER_SCENARIOS,
+    PLANNERS,
     EpisodeRecord,
     EpisodeSpec,
     package_version,
@@ -43,9 +47,11 @@ from agents.evaluation.summary import (
     status_table,
     summarise,
 )
-from filters.constants import ALPHA, DELTA, EPSILON
 from filters.wrapper import RISKS
 from safe_nav_env.scenarios import scenario_name
+
+__all__ = ["EvaluationConfig", "EvaluationOutputs", "Report", "run_campaign", "run_evaluation",
+           "run_sweep"]
 
 
 @dataclass
@@ -53,7 +59,7 @@ class EvaluationOutputs:
     """What an evaluation produced."""
 
     records: list[EpisodeRecord]
-    rows: list[SummaryRow]
+    rows: Sequence[Any]
     markdown: str
     wall_time: float
     files: dict[str, Path] = field(default_factory=dict)
@@ -75,43 +81,61 @@ class EvaluationOutputs:
         return [r for r in self.records if r.error]
 
 
-def output_folder(output: str | Path) -> Path:
-    """Check that ``output`` can be an output folder; return it as a path.
+@dataclass(frozen=True)
+class Report:
+    """What a campaign makes of its records (:func:`run_campaign` writes it).
 
-    The folder (and its parents) is not made here but by the first file written into
-    it (the run key, once every setting is checked), so that a run failing before it
-    has anything to write leaves no empty folder behind.
-
-    Raises
-    ------
-    OutputPathError
-        If ``output`` or one of its parents is a file.
+    Attributes
+    ----------
+    title
+        The summary page's title.
+    body
+        Markdown after the run's description (:func:`describe_run`).
+    rows, markdown
+        The campaign's table, as values and as Markdown (:class:`EvaluationOutputs`).
+    files
+        Further files the report wrote, by name.
+    figures
+        ``folder -> {name: path}``: draws the figures into ``folder`` (called unless the
+        config says ``plots=False``).
     """
-    output = Path(output)
-    for folder in (output, *output.parents):
-        if folder.exists():
-            if not folder.is_dir():
-                raise OutputPathError(f"output folder {output} cannot be made: {folder} is a "
-                                      "file; choose another --output")
-            break
-    return output
+
+    title: str
+    body: str
+    rows: Sequence[Any] = ()
+    markdown: str = ""
+    files: Mapping[str, Path] = field(default_factory=dict)
+    figures: Callable[[Path], Mapping[str, Path]] | None = None
 
 
-def describe_run(records: Sequence[EpisodeRecord], *, planner: str, reference: str,
-                 settings: str) -> str:
-    """The Markdown lines that name the policy (path and hash), the settings and the code."""
-    policies = sorted({(r.policy, r.policy_sha256) for r in records if r.planner == "ppo"})
+def _values(records: Sequence[EpisodeRecord], name: str) -> str:
+    values = dict.fromkeys(getattr(r, name) for r in records)
+    return ", ".join(f"{v:g}" if isinstance(v, float) else str(v or "scenario")
+                     for v in values)
+
+
+def describe_run(records: Sequence[EpisodeRecord]) -> str:
+    """The Markdown lines that name the policies (path and hash), the settings shared by the
+    records (each value they take) and the code."""
+    planners = [p for p in PLANNERS if any(r.planner == p for r in records)]
     lines = []
-    if planner == "ppo":
-        for path, sha in policies or [("", "")]:
-            lines.append(f"- policy: `{policy_file(path)}` (SHA-256 `{sha or 'unknown'}`)")
-    else:
-        blind = "obstacle-blind go-to-goal controller" if planner == "goal" else (
-            "obstacle-agnostic MPC")
-        lines.append(f"- planner: the {blind} (no policy file)")
-    lines.append(f"- planner `{planner}`, reference `{reference}`, {settings}")
-    options = sorted({(r.filter_options, r.env_options) for r in records})
-    for filter_options, env_options in options:
+    for planner in planners:
+        if planner == "ppo":
+            for path, sha in sorted({(r.policy, r.policy_sha256) for r in records
+                                     if r.planner == "ppo"}):
+                lines.append(f"- policy: `{policy_file(path)}` (SHA-256 `{sha or 'unknown'}`)")
+        else:
+            blind = ("obstacle-blind go-to-goal controller" if planner == "goal"
+                     else "obstacle-agnostic MPC")
+            lines.append(f"- planner `{planner}`: the {blind} (no policy file)")
+    seeds = sorted({r.seed for r in records}) or [0]
+    lines.append(f"- planner {', '.join(planners)}, reference {_values(records, 'reference')}, "
+                 f"alpha {_values(records, 'alpha')}, delta {_values(records, 'delta')} m, "
+                 f"epsilon {_values(records, 'epsilon')} m, noise "
+                 f"`{_values(records, 'noise')}`, {len(seeds)} episodes per cell, seeds "
+                 f"{seeds[0]}..{seeds[-1]} in every cell")
+    for filter_options, env_options in sorted({(r.filter_options, r.env_options)
+                                               for r in records}):
         if filter_options or env_options:
             lines.append(f"- filter options `{filter_options or '{}'}`, environment options "
                          f"`{env_options or '{}'}`")
@@ -122,67 +146,89 @@ def describe_run(records: Sequence[EpisodeRecord], *, planner: str, reference: s
     return "\n".join(lines) + "\n"
 
 
+def run_campaign(
+    specs: Sequence[EpisodeSpec],
+    config: EvaluationConfig,
+    report: Callable[[EvaluationRecords], Report],
+    *,
+    vary: Sequence[str] = (),
+    name: str = "episodes",
+    summary: str = "summary.md",
+) -> EvaluationOutputs:
+    """Run ``specs`` under ``config``; write ``<name>.csv``, its run key, ``summary`` and the
+    figures of ``report(records)`` into ``config.output``.
+
+    Episodes already in the CSV from the same run (its run key ``<name>.run.json`` must
+    match) are not run again, so an interrupted run resumes; failed rows are run again.
+    ``vary`` names the key fields besides scenario, risk and seed that differ between
+    the specs (:func:`agents.evaluation.records.run_key`).
+
+    Raises
+    ------
+    InvalidParameterError, PolicyFileError, RunMismatchError, ...
+        As :func:`agents.evaluation.evaluate.evaluate`, before any episode runs.
+    """
+    if config.output is None:
+        raise ValueError("run_campaign needs config.output (EvaluationConfig.of sets it)")
+    output = config.output
+    start = time.perf_counter()
+    with config.executor_context() as executor:
+        records = evaluate(specs=specs, vary=vary, workers=config.workers, executor=executor,
+                           csv_path=output / f"{name}.csv", progress=config.progress,
+                           overwrite=config.overwrite)
+    wall = time.perf_counter() - start
+    result = report(records)
+    (output / summary).write_text(
+        f"# {result.title}\n\n" + describe_run(records)
+        + f"- this call: {wall:.1f} s wall time on {config.workers} worker(s) for the "
+        f"{len(records)} episodes it returned ({records.reused} read back from the CSV)\n"
+        + result.body)
+    files = {"episodes": output / f"{name}.csv", "run_key": output / f"{name}.run.json",
+             "summary": output / summary, **result.files}
+    if config.plots and result.figures is not None:
+        files.update(result.figures(output / "figures"))
+    return EvaluationOutputs(records, result.rows, result.markdown,
+                             time.perf_counter() - start, files, reused=records.reused)
+
+
 def run_evaluation(
-    output: str | Path = "results/evaluate",
+    output: str | Path | None = None,
     scenarios: Sequence[str] = PAPER_SCENARIOS,
     risks: Sequence[str] = RISKS,
     *,
+    config: EvaluationConfig | None = None,
     episodes: int = 300,
-    workers: int = 2,
     seed: int = 0,
-    planner: str = "ppo",
-    reference: str = "rollout",
-    policy_path: str = "",
-    alpha: float = ALPHA,
-    delta: float = DELTA,
-    epsilon: float = EPSILON,
-    noise: str = "",
-    filter_options: dict[str, Any] | str | None = None,
-    env_options: dict[str, Any] | str | None = None,
-    executor: str | Executor = "process",
-    plots: bool = True,
-    progress: bool = True,
-    overwrite: bool = False,
+    **options: Any,
 ) -> EvaluationOutputs:
-    """Evaluate, then write the summary and the figures into ``output``.
+    """Evaluate every (scenario, risk) on ``episodes`` seeds; write the CSV, the summary and
+    the figures into ``output`` (default ``results/evaluate``).
 
-    Episodes already in ``output/episodes.csv`` from the same run (its run key
-    ``episodes.run.json`` must match) are not run again, so an interrupted run
-    resumes; failed rows are run again. See :func:`agents.evaluation.evaluate.evaluate` for
-    the errors raised before anything runs.
+    ``options`` are how to run (fields of :class:`EvaluationConfig`: ``workers``,
+    ``executor``, ``address``, ``overwrite``, ``plots``, ``progress``; they override
+    ``config``) and the episodes' settings (fields of :class:`EpisodeSpec`: ``planner``,
+    ``reference``, ``policy_path``, ``alpha``, ``delta``, ``epsilon``, ``noise``,
+    ``filter_options``, ``env_options``). Raises what :func:`run_campaign` raises.
     """
-    output = output_folder(output)
+    config, settings = split_options(config, output, options, default="results/evaluate")
     scenarios = [scenario_name(s) for s in scenarios]
-    spec_kwargs: dict[str, Any] = dict(planner=planner, reference=reference,
-                                       policy_path=policy_path, alpha=alpha, delta=delta,
-                                       epsilon=epsilon, noise=noise,
-                                       filter_options=filter_options or "",
-                                       env_options=env_options or "")
-    start = time.perf_counter()
-    records = evaluate(scenarios, risks, episodes=episodes, seed=seed, workers=workers,
-                       executor=executor, csv_path=output / "episodes.csv", progress=progress,
-                       overwrite=overwrite, **spec_kwargs)
-    rows = summarise(records)
-    markdown = markdown_table(rows)
-    files = {"episodes": output / "episodes.csv", "run_key": output / "episodes.run.json",
-             "summary": output / "summary.md"}
-    settings = (f"alpha {alpha}, delta {delta} m, epsilon {epsilon} m, noise "
-                f"`{noise or 'scenario'}`, {episodes} episodes per row, seeds "
-                f"{seed}..{seed + episodes - 1}")
-    (output / "summary.md").write_text(
-        "# Evaluation summary\n\n"
-        + describe_run(records, planner=planner, reference=reference, settings=settings)
-        + f"\n{markdown}\n## Filter statuses (share of steps) and collision causes\n\n"
-        + status_table(rows)
-        + "\n## Guarantee audit (realised loss at the step-1 halfspaces)\n\n"
-        + audit_table(audit_rows(records)) + "\n" + AUDIT_NOTE
-    )
-    if plots:
+    specs = episode_specs(scenarios, risks, episodes, seed, **settings)
+
+    def report(records: EvaluationRecords) -> Report:
+        rows = summarise(records)
+        markdown = markdown_table(rows)
         sha = next((r.policy_sha256 for r in records if r.policy_sha256), "")
-        files.update(make_figures(output / "figures", records, rows, scenarios, risks,
-                                  seed=seed, spec_kwargs=dict(spec_kwargs, policy_sha256=sha)))
-    return EvaluationOutputs(records, rows, markdown, time.perf_counter() - start, files,
-                             reused=records.reused)
+        return Report(
+            "Evaluation summary",
+            f"\n{markdown}\n## Filter statuses (share of steps) and collision causes\n\n"
+            + status_table(rows)
+            + "\n## Guarantee audit (realised loss at the step-1 halfspaces)\n\n"
+            + audit_table(audit_rows(records)) + "\n" + AUDIT_NOTE, rows, markdown,
+            figures=lambda folder: make_figures(folder, records, rows, scenarios, risks,
+                                                template=replace(specs[0], seed=seed,
+                                                                 policy_sha256=sha)))
+
+    return run_campaign(specs, config, report)
 
 
 def make_figures(
@@ -192,13 +238,14 @@ def make_figures(
     scenarios: Sequence[str],
     risks: Sequence[str],
     *,
-    seed: int,
-    spec_kwargs: dict[str, Any],
+    template: EpisodeSpec,
 ) -> dict[str, Path]:
-    """Figures of an evaluation (re-running the first seed of each scenario with trajectories)."""
+    """Figures of an evaluation, re-running ``template``'s seed of each scenario and risk
+    (its other settings too) with trajectories."""
     from agents.evaluation import plots
 
     files: dict[str, Path] = {}
+    seed = template.seed
     scenarios = [scenario_name(s) for s in scenarios]
     # One rendered run (MultiObstacle if evaluated, DR-CVaR if evaluated) also gives the
     # safe-polytope figure and the animation; every other run only its trajectory.
@@ -208,7 +255,7 @@ def make_figures(
         trajectories = {}
         for risk in risks:
             render = (scenario, risk) == featured
-            _, traj = run_episode(EpisodeSpec(scenario, risk, seed, **spec_kwargs),
+            _, traj = run_episode(replace(template, scenario=scenario, risk=risk),
                                   record_trajectory=True, render=render)
             if traj is not None:
                 trajectories[risk] = traj
@@ -229,74 +276,55 @@ def make_figures(
 
 
 def run_sweep(
-    output: str | Path = "results/sweep",
+    output: str | Path | None = None,
     scenarios: Sequence[str] = PAPER_SCENARIOS,
     *,
     epsilons: Sequence[float] = (0.0, 0.05, 0.1, 0.2),
     deltas: Sequence[float] = (0.0, 0.1, 0.2),
+    config: EvaluationConfig | None = None,
     episodes: int = 50,
-    workers: int = 2,
     seed: int = 0,
-    planner: str = "ppo",
-    reference: str = "rollout",
-    policy_path: str = "",
-    alpha: float = ALPHA,
-    noise: str = "",
-    filter_options: dict[str, Any] | str | None = None,
-    env_options: dict[str, Any] | str | None = None,
-    executor: str | Executor = "process",
-    progress: bool = True,
-    overwrite: bool = False,
+    **options: Any,
 ) -> EvaluationOutputs:
     """DR-CVaR over a grid of (epsilon, delta): collision rate against mean intervention.
 
-    The whole grid is one batch of episodes on one executor (one worker pool, started
-    once). Writes ``sweep.csv`` (all episodes, with its run key ``sweep.run.json``),
-    ``sweep.md`` and ``figures/sweep.png``.
+    The whole grid is one campaign (one worker pool, started once). Writes, into
+    ``output`` (default ``results/sweep``), ``sweep.csv`` (all episodes, with its run key
+    ``sweep.run.json``), ``sweep.md`` and ``figures/sweep.png``. ``options`` as for
+    :func:`run_evaluation`, except ``delta`` and ``epsilon``, which the grid sets.
     """
     from agents.evaluation import plots
 
-    output = output_folder(output)
+    config, settings = split_options(config, output, options, default="results/sweep",
+                                     fixed=("delta", "epsilon"))
     scenarios = [scenario_name(s) for s in scenarios]
-    start = time.perf_counter()
-    common = dict(planner=planner, reference=reference, policy_path=policy_path, alpha=alpha,
-                  noise=noise, filter_options=filter_options or "",
-                  env_options=env_options or "")
     specs = [spec for delta in deltas for epsilon in epsilons
              for spec in episode_specs(scenarios, ["dr_cvar"], episodes, seed, delta=delta,
-                                       epsilon=epsilon, **common)]
-    all_records = evaluate(specs=specs, vary=("epsilon", "delta"), workers=workers,
-                           executor=executor, csv_path=output / "sweep.csv",
-                           progress=progress, overwrite=overwrite)
-    points = []
-    for delta in deltas:
-        for epsilon in epsilons:
-            ok = [r for r in all_records if not r.error and r.delta == float(delta)
-                  and r.epsilon == float(epsilon)]
-            n = max(1, len(ok))
-            points.append(dict(
-                epsilon=epsilon, delta=delta, episodes=len(ok),
-                collision_rate=sum(r.collision for r in ok) / n,
-                sampled_collision_rate=sum(r.sampled_collision for r in ok) / n,
-                goal_rate=sum(r.goal_reached for r in ok) / n,
-                mean_intervention=sum(r.mean_intervention for r in ok) / n,
-            ))
-    lines = ["| delta (m) | epsilon (m) | episodes | collision rate | sampled collision rate | "
-             "goal rate | mean intervention (m/s²) |",
-             "|---|---|---|---|---|---|---|"]
-    lines += [f"| {p['delta']:g} | {p['epsilon']:g} | {p['episodes']} | "
-              f"{p['collision_rate']:.1%} | {p['sampled_collision_rate']:.1%} | "
-              f"{p['goal_rate']:.1%} | {p['mean_intervention']:.3f} |" for p in points]
-    markdown = "\n".join(lines) + "\n"
-    settings = (f"alpha {alpha}, noise `{noise or 'scenario'}`, {episodes} episodes per point "
-                f"and scenario, seeds {seed}..{seed + episodes - 1}")
-    (output / "sweep.md").write_text(
-        "# DR-CVaR epsilon/delta sweep\n\n"
-        + describe_run(all_records, planner=planner, reference=reference, settings=settings)
-        + f"\n{markdown}")
-    files = {"episodes": output / "sweep.csv", "run_key": output / "sweep.run.json",
-             "summary": output / "sweep.md",
-             "sweep": plots.plot_sweep(points, output / "figures" / "sweep.png")}
-    return EvaluationOutputs(all_records, summarise(all_records), markdown,
-                             time.perf_counter() - start, files,
-                             reused=all_records.reused)
+                                       epsilon=epsilon, **settings)]
+
+    def report(records: EvaluationRecords) -> Report:
+        points = []
+        for delta in deltas:
+            for epsilon in epsilons:
+                ok = [r for r in records if not r.error and r.delta == float(delta)
+                      and r.epsilon == float(epsilon)]
+                n = max(1, len(ok))
+                points.append(dict(
+                    epsilon=epsilon, delta=delta, episodes=len(ok),
+                    collision_rate=sum(r.collision for r in ok) / n,
+                    sampled_collision_rate=sum(r.sampled_collision for r in ok) / n,
+                    goal_rate=sum(r.goal_reached for r in ok) / n,
+                    mean_intervention=sum(r.mean_intervention for r in ok) / n,
+                ))
+        lines = ["| delta (m) | epsilon (m) | episodes | collision rate | sampled collision "
+                 "rate | goal rate | mean intervention (m/s²) |", "|---|---|---|---|---|---|---|"]
+        lines += [f"| {p['delta']:g} | {p['epsilon']:g} | {p['episodes']} | "
+                  f"{p['collision_rate']:.1%} | {p['sampled_collision_rate']:.1%} | "
+                  f"{p['goal_rate']:.1%} | {p['mean_intervention']:.3f} |" for p in points]
+        markdown = "\n".join(lines) + "\n"
+        return Report("DR-CVaR epsilon/delta sweep", f"\n{markdown}", summarise(records),
+                      markdown, figures=lambda folder: {
+                          "sweep": plots.plot_sweep(points, folder / "sweep.png")})
+
+    return run_campaign(specs, config, report, vary=("epsilon", "delta"), name="sweep",
+                        summary="sweep.md")

@@ -28,11 +28,10 @@ from pathlib import Path
 from typing import Any
 
 from agents.evaluation.campaign import EvaluationOutputs
-from agents.evaluation.executors import Executor
+from agents.evaluation.config import EvaluationConfig
 from agents.evaluation.records import EpisodeRecord, EpisodeSpec
 from agents.evaluation.summary import wilson_interval
 from agents.experiments.scenes import run_scene_suite, scene_setting, scene_specs
-from filters.constants import ALPHA, DELTA, EPSILON
 
 __all__ = ["CROWD_SETTINGS", "CrowdRow", "crowd_rows", "crowd_specs", "crowd_table",
            "run_crowd"]
@@ -140,53 +139,40 @@ def crowd_table(rows: Sequence[CrowdRow]) -> str:
 
 
 def run_crowd(
-    output: str | Path = "results/crowd",
+    output: str | Path | None = None,
     settings: Sequence[str] = ("orca_invisible",),
     risks: Sequence[str] = CROWD_RISKS,
     *,
+    config: EvaluationConfig | None = None,
     episodes: int = 500,
-    workers: int = 2,
     seed: int = 0,
-    planner: str = "ppo",
-    reference: str = "rollout",
-    policy_path: str = "",
-    alpha: float = ALPHA,
-    delta: float = DELTA,
-    epsilon: float = EPSILON,
-    filter_options: dict[str, Any] | str | None = None,
-    env_options: dict[str, Any] | str | None = None,
-    executor: str | Executor = "process",
-    progress: bool = True,
-    overwrite: bool = False,
+    **options: Any,
 ) -> EvaluationOutputs:
     """Run the crowd benchmark; write its CSV and summary to ``output``.
 
     Parameters
     ----------
     output
-        Output folder (see the module docstring); an interrupted run resumes from it.
+        Output folder (see the module docstring; default ``results/crowd``); an
+        interrupted run resumes from it.
     settings
         Names in :data:`CROWD_SETTINGS`.
     risks
         Filter risks (``"none"``: the planner alone).
-    episodes
-        Test cases per (setting, risk): seeds ``seed .. seed + episodes - 1``.
-    workers, seed, planner, reference, policy_path, alpha, delta, epsilon, filter_options,
-    env_options, executor, progress, overwrite
+    config, options
         As for :func:`agents.evaluation.campaign.run_evaluation`. The PPO planner needs a
         policy trained on ``SafeNav/Crowd-v0`` (its observation has five human slots):
-        ``policy_path`` empty means the shipped crowd policy.
+        no ``policy_path`` means the shipped crowd policy.
+    episodes
+        Test cases per (setting, risk): seeds ``seed .. seed + episodes - 1``.
 
     Raises
     ------
     InvalidParameterError, PolicyFileError, RunMismatchError, ...
-        As :func:`agents.evaluation.evaluate.evaluate`, before any episode runs.
+        As :func:`agents.evaluation.campaign.run_campaign`, before any episode runs.
     """
     return run_scene_suite(
         output, "Crowd", CROWD_SETTINGS, settings, risks,
         table=lambda records: crowd_table(crowd_rows(records)),
         title="Interactive crowds (CrowdNav's circle crossing)", shipped_policy=CROWD_POLICY,
-        episodes=episodes, seed=seed, workers=workers, planner=planner, reference=reference,
-        policy_path=policy_path, alpha=alpha, delta=delta, epsilon=epsilon,
-        filter_options=filter_options, env_options=env_options, executor=executor,
-        progress=progress, overwrite=overwrite)
+        config=config, episodes=episodes, seed=seed, **options)

@@ -36,11 +36,10 @@ import numpy as np
 
 from agents.evaluation.audit import decode_losses
 from agents.evaluation.campaign import EvaluationOutputs
-from agents.evaluation.executors import Executor
+from agents.evaluation.config import EvaluationConfig
 from agents.evaluation.records import EpisodeRecord
 from agents.evaluation.summary import wilson_interval
 from agents.experiments.scenes import run_scene_suite, scene_setting
-from filters.constants import ALPHA, DELTA, EPSILON
 from safe_nav_env.pedestrians.recording import SCENES
 
 __all__ = ["PEDESTRIAN_SETTINGS", "PedestrianRow", "pedestrian_rows", "pedestrian_table",
@@ -138,54 +137,44 @@ def pedestrian_table(rows: Sequence[PedestrianRow]) -> str:
 
 
 def run_pedestrians(
-    output: str | Path = "results/pedestrians",
+    output: str | Path | None = None,
     scenes: Sequence[str] = tuple(PEDESTRIAN_SETTINGS),
     risks: Sequence[str] = PEDESTRIAN_RISKS,
     *,
+    config: EvaluationConfig | None = None,
     episodes: int = 100,
-    workers: int = 2,
     seed: int = 0,
     planner: str = "mpc",
-    reference: str = "rollout",
-    policy_path: str = "",
-    alpha: float = ALPHA,
-    delta: float = DELTA,
-    epsilon: float = EPSILON,
-    filter_options: dict[str, Any] | str | None = None,
-    env_options: dict[str, Any] | str | None = None,
-    executor: str | Executor = "process",
-    progress: bool = True,
-    overwrite: bool = False,
+    **options: Any,
 ) -> EvaluationOutputs:
     """Run the pedestrian benchmark; write its CSV and summary to ``output``.
 
     Parameters
     ----------
     output
-        Output folder (see the module docstring); an interrupted run resumes from it.
+        Output folder (see the module docstring; default ``results/pedestrians``); an
+        interrupted run resumes from it.
     scenes
         Packaged scene names (:data:`PEDESTRIAN_SETTINGS`).
     risks
         Filter risks (``"none"``: the planner alone).
+    config, planner, options
+        As for :func:`agents.evaluation.campaign.run_evaluation` (the planner is the MPC
+        by default). The PPO planner needs a policy whose observation has the
+        environment's slots (8 by default): no ``policy_path`` means the shipped one
+        (:data:`PEDESTRIAN_POLICY`).
     episodes
         Episodes per (scene, risk).
-    workers, seed, planner, reference, policy_path, alpha, delta, epsilon, filter_options,
-    env_options, executor, progress, overwrite
-        As for :func:`agents.evaluation.campaign.run_evaluation`. The PPO planner needs a
-        policy whose observation has the environment's slots (8 by default): empty
-        ``policy_path`` means the shipped one (:data:`PEDESTRIAN_POLICY`).
 
     Raises
     ------
     InvalidParameterError, PolicyFileError, RunMismatchError, ...
-        As :func:`agents.evaluation.evaluate.evaluate`, before any episode runs.
+        As :func:`agents.evaluation.campaign.run_campaign`, before any episode runs.
     """
     return run_scene_suite(
         output, "Pedestrians", PEDESTRIAN_SETTINGS, scenes, risks,
         table=lambda records: pedestrian_table(pedestrian_rows(records)),
         title="Recorded pedestrians (ETH: Pellegrini et al., ICCV 2009; UCY: Lerner, "
               "Chrysanthou & Lischinski, Eurographics 2007)",
-        shipped_policy=PEDESTRIAN_POLICY, episodes=episodes, seed=seed, workers=workers,
-        planner=planner, reference=reference, policy_path=policy_path, alpha=alpha,
-        delta=delta, epsilon=epsilon, filter_options=filter_options,
-        env_options=env_options, executor=executor, progress=progress, overwrite=overwrite)
+        shipped_policy=PEDESTRIAN_POLICY, config=config, episodes=episodes, seed=seed,
+        planner=planner, **options)

@@ -9,13 +9,12 @@ risks, on the same seeds in every cell (common random numbers: test case ``i`` i
 from __future__ import annotations
 
 import json
-import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from agents.evaluation.campaign import EvaluationOutputs, describe_run, output_folder
-from agents.evaluation.evaluate import evaluate
+from agents.evaluation.campaign import EvaluationOutputs, Report, run_campaign
+from agents.evaluation.config import EvaluationConfig, split_options
 from agents.evaluation.records import EpisodeRecord, EpisodeSpec
 from agents.evaluation.summary import summarise
 from agents.policies.loading import pretrained_policy_path
@@ -75,7 +74,7 @@ def scene_setting(record: EpisodeRecord, catalogue: Mapping[str, Mapping[str, An
 
 
 def run_scene_suite(
-    output: str | Path,
+    output: str | Path | None,
     scenario: str,
     catalogue: Mapping[str, Mapping[str, Any]],
     settings: Sequence[str],
@@ -84,46 +83,29 @@ def run_scene_suite(
     table: Callable[[Sequence[EpisodeRecord]], str],
     title: str,
     shipped_policy: str,
+    config: EvaluationConfig | None,
     episodes: int,
     seed: int,
-    workers: int,
-    planner: str,
-    reference: str,
-    policy_path: str,
-    alpha: float,
-    delta: float,
-    epsilon: float,
     **options: Any,
 ) -> EvaluationOutputs:
-    """Run a scene suite through the evaluation pipeline; write ``episodes.csv`` and
-    ``summary.md`` (``title``, the run's description and ``table(records)``) to ``output``.
+    """Run a scene suite as a campaign; write ``episodes.csv`` and ``summary.md`` (``title``,
+    the run's description and ``table(records)``) to ``output`` (default
+    ``results/<scenario in lower case>``).
 
     ``shipped_policy`` is the PPO file in ``agents/pretrained/`` used when the planner is
-    PPO and ``policy_path`` is empty; ``options`` are ``filter_options``, ``env_options``,
-    ``executor``, ``progress`` and ``overwrite`` as for
-    :func:`agents.evaluation.evaluate.evaluate`. Raises what :func:`scene_specs` and
-    :func:`~agents.evaluation.evaluate.evaluate` raise, before any episode runs.
+    PPO and ``policy_path`` is empty; ``config`` and ``options`` as for
+    :func:`agents.evaluation.campaign.run_evaluation`. Raises what :func:`scene_specs` and
+    :func:`~agents.evaluation.campaign.run_campaign` raise, before any episode runs.
     """
-    output = output_folder(output)
-    if planner == "ppo" and not policy_path:
-        policy_path = str(pretrained_policy_path(shipped_policy))
+    config, common = split_options(config, output, options,
+                                   default=f"results/{scenario.lower()}")
+    if common.get("planner", "ppo") == "ppo" and not common.get("policy_path"):
+        common["policy_path"] = str(pretrained_policy_path(shipped_policy))
     specs = scene_specs(scenario, catalogue, settings, risks, episodes=episodes, seed=seed,
-                        planner=planner, reference=reference, policy_path=policy_path,
-                        alpha=alpha, delta=delta, epsilon=epsilon,
-                        filter_options=options.pop("filter_options", None) or "",
-                        env_options=options.pop("env_options", None) or "")
-    start = time.perf_counter()
-    records = evaluate(specs=specs, vary=("env_options",), workers=workers,
-                       csv_path=output / "episodes.csv", **options)
-    wall = time.perf_counter() - start
-    markdown = table(records)
-    run_settings = (f"alpha {alpha}, delta {delta} m, epsilon {epsilon} m, {episodes} "
-                    f"episodes per cell (seeds {seed}..{seed + episodes - 1})")
-    (output / "summary.md").write_text(
-        f"# {title}\n\n"
-        + describe_run(records, planner=planner, reference=reference, settings=run_settings)
-        + f"- this call: {wall:.1f} s wall time on {workers} worker(s)\n\n" + markdown)
-    files = {"episodes": output / "episodes.csv", "run_key": output / "episodes.run.json",
-             "summary": output / "summary.md"}
-    return EvaluationOutputs(records, summarise(records), markdown,
-                             time.perf_counter() - start, files, reused=records.reused)
+                        **common)
+
+    def report(records: Sequence[EpisodeRecord]) -> Report:
+        markdown = table(records)
+        return Report(title, f"\n{markdown}", summarise(records), markdown)
+
+    return run_campaign(specs, config, report, vary=("env_options",))

@@ -28,16 +28,14 @@ Output folder::
 
 from __future__ import annotations
 
-import time
 from collections import defaultdict
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from agents.evaluation.campaign import EvaluationOutputs, describe_run, output_folder
-from agents.evaluation.evaluate import evaluate
-from agents.evaluation.executors import Executor
+from agents.evaluation.campaign import EvaluationOutputs, Report, run_campaign
+from agents.evaluation.config import EvaluationConfig, split_options
 from agents.evaluation.records import AUTO, PLANNERS, REFERENCES, EpisodeRecord, EpisodeSpec
 from agents.evaluation.summary import AUDIT_NOTE, audit_rows, audit_table
 from agents.experiments.stress_table import (
@@ -50,7 +48,7 @@ from agents.experiments.stress_table import (
     stress_cells,
     write_cells,
 )
-from filters.constants import ALPHA, DELTA, EPSILON
+from filters.constants import EPSILON
 from filters.errors import InvalidParameterError
 from safe_nav_env.scenarios import CUSTOM
 from safe_nav_env.stress import STRESS_SUITE
@@ -215,51 +213,45 @@ def _timing_table(cells: Sequence[StressCell], records: Sequence[EpisodeRecord],
 
 
 def run_stress(
-    output: str | Path = "results/stress",
+    output: str | Path | None = None,
     cases: Sequence[str] = DEFAULT_CASES,
     methods: Sequence[str] = DEFAULT_METHODS,
     *,
     planners: Sequence[str] = DEFAULT_PLANNERS,
+    config: EvaluationConfig | None = None,
     episodes: int = 300,
-    workers: int = 2,
     seed: int = 0,
     reference: str = "rollout",
-    policy_path: str = "",
-    alpha: float = ALPHA,
-    delta: float = DELTA,
     epsilon: float = EPSILON,
-    filter_options: dict[str, Any] | str | None = None,
-    env_options: dict[str, Any] | str | None = None,
-    executor: str | Executor = "process",
-    plots: bool = True,
-    progress: bool = True,
-    overwrite: bool = False,
+    **options: Any,
 ) -> EvaluationOutputs:
     """Run the stress benchmark; write its CSVs, summary and Pareto figure to ``output``.
 
     Parameters
     ----------
     output
-        Output folder (see the module docstring); an interrupted run resumes from it.
+        Output folder (see the module docstring; default ``results/stress``); an
+        interrupted run resumes from it.
     cases
         Names in :data:`~safe_nav_env.stress.STRESS_SUITE`.
     methods
         Names in :data:`STRESS_METHODS`.
     planners
         Reference planners (:data:`~agents.evaluation.records.PLANNERS`).
+    config
+        How to run (:class:`~agents.evaluation.config.EvaluationConfig`); ``plots`` draws
+        ``figures/pareto.png``.
     episodes
-        Episodes per (case, planner, method).
+        Episodes per (case, planner, method), seeds ``seed .. seed + episodes - 1``.
     reference
         The reference of the methods that do not fix their own (all but ``default``).
     epsilon
         The fixed Wasserstein radius of ``dr_cvar`` and ``default``, in m
         (``dr_cvar_auto`` estimates it).
-    workers, seed, policy_path, alpha, delta, filter_options, env_options, executor,
-    progress, overwrite
-        As for :func:`agents.evaluation.campaign.run_evaluation` (no noise preset: each case
-        brings its own noise); ``policy_path`` is the PPO planner's.
-    plots
-        Write ``figures/pareto.png``.
+    options
+        As for :func:`agents.evaluation.campaign.run_evaluation`, without ``noise`` and
+        ``planner`` (each case brings its own noise; ``planners`` above);
+        ``policy_path`` is the PPO planner's.
 
     Returns
     -------
@@ -269,69 +261,56 @@ def run_stress(
     Raises
     ------
     InvalidParameterError, PolicyFileError, RunMismatchError, ...
-        As :func:`agents.evaluation.evaluate.evaluate`, before any episode runs.
+        As :func:`agents.evaluation.campaign.run_campaign`, before any episode runs.
     """
-    output = output_folder(output)
-    common: dict[str, Any] = dict(policy_path=policy_path, alpha=alpha, delta=delta,
-                                  filter_options=filter_options or "",
-                                  env_options=env_options or "")
+    config, settings = split_options(config, output, options, default="results/stress")
     specs = stress_specs(cases, methods, planners, episodes=episodes, seed=seed,
-                         epsilon=epsilon, reference=reference, **common)
-    start = time.perf_counter()
-    records = evaluate(specs=specs, vary=("epsilon", "planner", "reference", "policy_sha256"),
-                       workers=workers, executor=executor, csv_path=output / "episodes.csv",
-                       progress=progress, overwrite=overwrite)
-    wall = time.perf_counter() - start
+                         epsilon=epsilon, reference=reference, **settings)
 
     def method_of(record: EpisodeRecord) -> tuple[str, str]:
         return _method_of(record, reference, epsilon)
 
-    cells = stress_cells(records, method_of, _order)
-    descriptions = {name: case.description for name, case in STRESS_SUITE.items()}
-    markdown = cells_table(cells, descriptions)
-    settings = (f"alpha {alpha}, delta {delta} m, epsilon {epsilon} m (default, dr_cvar; "
-                f"dr_cvar (eps=auto) estimates it online), reference `{reference}` except the "
-                f"default wrapper (`hold`), {episodes} episodes per cell, seeds "
-                f"{seed}..{seed + episodes - 1} in every cell")
-    files = {"episodes": output / "episodes.csv", "run_key": output / "episodes.run.json",
-             "summary": output / "summary.md",
-             "table": write_cells(cells, output / "stress_table.csv")}
-    missed = sum(not c.meets_target for c in cells)
-    (output / "summary.md").write_text(
-        "# Stress benchmark by failure class\n\n"
-        + describe_run(records, planner="ppo" if "ppo" in planners else planners[0],
-                       reference=reference, settings=settings)
-        + f"- planners: {', '.join(planners)} (goal: the obstacle-blind go-to-goal "
-        "controller)\n"
-        + f"- this call: {wall:.1f} s wall time on {workers} worker(s) for the "
-        f"{len(records)} episodes it returned ({len(cells)} cells; episodes resumed from the "
-        "CSV cost nothing)\n"
-        + f"- target: at most {TARGET_COLLISION_RATE:.0%} collisions and at least "
-        f"{TARGET_GOAL_RATE:.0%} goal (point estimates); {missed} of {len(cells)} cells "
-        "miss it (marked ✗ / **MISS**)\n"
-        + "- time to goal: mean over the episodes that reached the goal\n\n"
-        + "## Overview: collisions (continuous time) / goal rate\n\n"
-        + overview_table(cells)
-        + "\n## Per class\n\n" + markdown
-        + "\n## Explained collisions\n\n"
-        "Per cell with collisions: the cause (fallback: a non-optimal filter status at the "
-        "collision or the two steps before; inter-sample: overlap only between samples; "
-        "noise: after nominal steps), how many had an infeasible hard problem "
-        "(`first_infeasible_step`) at or before the collision and the median lead in steps "
-        "from it to the collision, and the filter status at the step before and at the "
-        "collision (`status_before_collision` → `status_at_collision`).\n\n"
-        + explain_collisions(records, cells, method_of)
-        + "\n## Guarantee audit (realised loss at the step-1 halfspaces)\n\n"
-        + audit_table(audit_rows(records)) + "\n" + AUDIT_NOTE
-        + "\n## Wall time per cell (sum of episode wall times, one worker each)\n\n"
-        + _timing_table(cells, records, method_of)
-    )
-    if plots and cells:
-        from agents.experiments.pareto import plot_pareto
+    def report(records: Sequence[EpisodeRecord]) -> Report:
+        cells = stress_cells(records, method_of, _order)
+        descriptions = {name: case.description for name, case in STRESS_SUITE.items()}
+        markdown = cells_table(cells, descriptions)
+        missed = sum(not c.meets_target for c in cells)
+        body = (
+            f"- methods: dr_cvar (eps=auto) estimates epsilon online; every method but the "
+            f"default wrapper (`hold`) tracks the reference `{reference}`\n"
+            + f"- target: at most {TARGET_COLLISION_RATE:.0%} collisions and at least "
+            f"{TARGET_GOAL_RATE:.0%} goal (point estimates); {missed} of {len(cells)} cells "
+            "miss it (marked ✗ / **MISS**)\n"
+            + "- time to goal: mean over the episodes that reached the goal\n\n"
+            + "## Overview: collisions (continuous time) / goal rate\n\n"
+            + overview_table(cells)
+            + "\n## Per class\n\n" + markdown
+            + "\n## Explained collisions\n\n"
+            "Per cell with collisions: the cause (fallback: a non-optimal filter status at "
+            "the collision or the two steps before; inter-sample: overlap only between "
+            "samples; noise: after nominal steps), how many had an infeasible hard problem "
+            "(`first_infeasible_step`) at or before the collision and the median lead in "
+            "steps from it to the collision, and the filter status at the step before and at "
+            "the collision (`status_before_collision` → `status_at_collision`).\n\n"
+            + explain_collisions(records, cells, method_of)
+            + "\n## Guarantee audit (realised loss at the step-1 halfspaces)\n\n"
+            + audit_table(audit_rows(records)) + "\n" + AUDIT_NOTE
+            + "\n## Wall time per cell (sum of episode wall times, one worker each)\n\n"
+            + _timing_table(cells, records, method_of))
+        return Report("Stress benchmark by failure class", body, cells, markdown,
+                      files={"table": write_cells(cells, config.output / "stress_table.csv")},
+                      figures=lambda folder: _pareto_figure(cells, folder))
 
-        files["pareto"] = plot_pareto(
-            _pareto_panels(cells), output / "figures" / "pareto.png",
-            title="Stress suite: collision rate (continuous time) against time to goal, per "
-            "planner and filter setting")
-    return EvaluationOutputs(records, cells, markdown, time.perf_counter() - start, files,
-                             reused=records.reused)
+    return run_campaign(specs, config, report,
+                        vary=("epsilon", "planner", "reference", "policy_sha256"))
+
+
+def _pareto_figure(cells: Sequence[StressCell], folder: Path) -> dict[str, Path]:
+    from agents.experiments.pareto import plot_pareto
+
+    if not cells:
+        return {}
+    return {"pareto": plot_pareto(
+        _pareto_panels(cells), folder / "pareto.png",
+        title="Stress suite: collision rate (continuous time) against time to goal, per "
+        "planner and filter setting")}
