@@ -138,14 +138,13 @@ def _policy(text: str) -> str:
 
 
 def _output(text: str) -> Path:
-    path = Path(text)
-    for folder in (path, *path.parents):
-        if folder.exists():
-            if not folder.is_dir():
-                raise argparse.ArgumentTypeError(
-                    f"{text!r} cannot be an output folder: {folder} is a file")
-            break
-    return path
+    from agents.errors import OutputPathError
+    from agents.evaluation.evaluate import output_folder
+
+    try:
+        return output_folder(text)
+    except OutputPathError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def _option(text: str) -> tuple[str, Any]:

@@ -38,10 +38,8 @@ from agents.evaluation.records import (
 )
 from agents.evaluation.runner import policy_file, run_episode
 from agents.evaluation.summary import (
-    AUDIT_NOTE,
     SummaryRow,
-    audit_rows,
-    audit_table,
+    audit_section,
     markdown_table,
     short_name,
     status_table,
@@ -221,9 +219,7 @@ def run_evaluation(
         return Report(
             "Evaluation summary",
             f"\n{markdown}\n## Filter statuses (share of steps) and collision causes\n\n"
-            + status_table(rows)
-            + "\n## Guarantee audit (realised loss at the step-1 halfspaces)\n\n"
-            + audit_table(audit_rows(records)) + "\n" + AUDIT_NOTE, rows, markdown,
+            + status_table(rows) + audit_section(records), rows, markdown,
             figures=lambda folder: make_figures(folder, records, rows, scenarios, risks,
                                                 template=replace(specs[0], seed=seed,
                                                                  policy_sha256=sha)))

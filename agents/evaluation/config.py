@@ -15,8 +15,7 @@ from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
-from agents.errors import OutputPathError
-from agents.evaluation.evaluate import SPEC_OPTIONS
+from agents.evaluation.evaluate import SPEC_OPTIONS, output_folder
 from agents.evaluation.executors import EXECUTORS, Executor, make_executor
 from filters.errors import InvalidParameterError
 
@@ -68,7 +67,7 @@ class EvaluationConfig:
         if self.output is not None:
             if not isinstance(self.output, (str, Path)):
                 raise InvalidParameterError(f"output must be a folder path, got {self.output!r}")
-            object.__setattr__(self, "output", _output_folder(Path(self.output)))
+            object.__setattr__(self, "output", output_folder(self.output))
         if isinstance(self.workers, bool) or not isinstance(self.workers, int) \
                 or self.workers < 1:
             raise InvalidParameterError(f"workers must be an integer >= 1, got "
@@ -148,16 +147,6 @@ def split_options(
     if output is not None:
         config = replace(config, output=output)
     return (config if config.output is not None else replace(config, output=default)), settings
-
-
-def _output_folder(output: Path) -> Path:
-    for folder in (output, *output.parents):
-        if folder.exists():
-            if not folder.is_dir():
-                raise OutputPathError(f"output folder {output} cannot be made: {folder} is a "
-                                      "file; choose another --output")
-            break
-    return output
 
 
 CONFIG_FIELDS = frozenset(f.name for f in fields(EvaluationConfig))

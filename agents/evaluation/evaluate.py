@@ -213,14 +213,26 @@ def run_specs(
         runner.close()
 
 
-def _output_csv(csv_path: str | Path) -> Path:
-    path = Path(csv_path)
-    for folder in (path.parent, *path.parent.parents):
+def output_folder(output: str | Path) -> Path:
+    """``output`` as a path, if it can be an output folder (it is not made here).
+
+    Raises
+    ------
+    OutputPathError
+        If ``output`` or one of its parents is a file.
+    """
+    output = Path(output)
+    for folder in (output, *output.parents):
         if folder.exists():
             if not folder.is_dir():
-                raise OutputPathError(f"output folder {folder} is a file, not a folder; "
-                                      "choose another --output")
+                raise OutputPathError(f"output folder {output} cannot be made: {folder} is a "
+                                      "file; choose another --output")
             break
+    return output
+
+
+def _output_csv(csv_path: str | Path) -> Path:
+    path = output_folder(Path(csv_path).parent) / Path(csv_path).name
     if path.exists() and not path.is_file():
         raise OutputPathError(f"results file {path} is a folder")
     return path

@@ -305,3 +305,9 @@ AUDIT_NOTE = (
     "held if the point estimate meets the bound, violated if the whole interval lies "
     "beyond it, else within noise.\n")
 """Explanation printed under the audit table."""
+
+
+def audit_section(records: Iterable[EpisodeRecord]) -> str:
+    """The summary pages' guarantee-audit section: its heading, table and note."""
+    return ("\n## Guarantee audit (realised loss at the step-1 halfspaces)\n\n"
+            + audit_table(audit_rows(records)) + "\n" + AUDIT_NOTE)

@@ -37,7 +37,7 @@ from typing import Any
 from agents.evaluation.campaign import EvaluationOutputs, Report, run_campaign
 from agents.evaluation.config import EvaluationConfig, split_options
 from agents.evaluation.records import AUTO, PLANNERS, REFERENCES, EpisodeRecord, EpisodeSpec
-from agents.evaluation.summary import AUDIT_NOTE, audit_rows, audit_table
+from agents.evaluation.summary import audit_section
 from agents.experiments.stress_table import (
     TARGET_COLLISION_RATE,
     TARGET_GOAL_RATE,
@@ -292,9 +292,7 @@ def run_stress(
             "(`first_infeasible_step`) at or before the collision and the median lead in "
             "steps from it to the collision, and the filter status at the step before and at "
             "the collision (`status_before_collision` → `status_at_collision`).\n\n"
-            + explain_collisions(records, cells, method_of)
-            + "\n## Guarantee audit (realised loss at the step-1 halfspaces)\n\n"
-            + audit_table(audit_rows(records)) + "\n" + AUDIT_NOTE
+            + explain_collisions(records, cells, method_of) + audit_section(records)
             + "\n## Wall time per cell (sum of episode wall times, one worker each)\n\n"
             + _timing_table(cells, records, method_of))
         return Report("Stress benchmark by failure class", body, cells, markdown,
