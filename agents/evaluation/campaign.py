@@ -170,10 +170,10 @@ def run_campaign(
         raise ValueError("run_campaign needs config.output (EvaluationConfig.of sets it)")
     output = config.output
     start = time.perf_counter()
-    with config.executor_context() as executor:
-        records = evaluate(specs=specs, vary=vary, workers=config.workers, executor=executor,
-                           csv_path=output / f"{name}.csv", progress=config.progress,
-                           overwrite=config.overwrite)
+    records = evaluate(specs=specs, vary=vary, workers=config.workers,
+                       executor=config.executor, address=config.address,
+                       csv_path=output / f"{name}.csv", progress=config.progress,
+                       overwrite=config.overwrite)
     wall = time.perf_counter() - start
     result = report(records)
     (output / summary).write_text(

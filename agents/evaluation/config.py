@@ -10,13 +10,12 @@ rows (timing columns aside). What runs is the campaign's list of
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
 from agents.evaluation.evaluate import SPEC_OPTIONS, output_folder
-from agents.evaluation.executors import EXECUTORS, Executor, make_executor
+from agents.evaluation.executors import EXECUTORS, Executor
 from filters.errors import InvalidParameterError
 
 __all__ = ["EvaluationConfig", "split_options"]
@@ -86,14 +85,6 @@ class EvaluationConfig:
             if not isinstance(getattr(self, name), bool):
                 raise InvalidParameterError(f"{name} must be True or False, got "
                                             f"{getattr(self, name)!r}")
-
-    def executor_context(self) -> AbstractContextManager[Executor]:
-        """The executor to run on, as a context manager: a given
-        :class:`~agents.evaluation.executors.Executor` as is (its owner closes it), else a
-        new one, closed on exit and stopped at once on an error or Ctrl-C."""
-        if isinstance(self.executor, Executor):
-            return nullcontext(self.executor)
-        return make_executor(self.executor, self.workers, address=self.address)
 
 
 def split_options(

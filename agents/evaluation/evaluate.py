@@ -21,6 +21,7 @@ their public names are re-exported here.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from contextlib import nullcontext
 from dataclasses import fields, replace
 from pathlib import Path
 from typing import Any
@@ -189,28 +190,24 @@ def run_specs(
     *,
     workers: int = 1,
     executor: str | Executor = "process",
+    address: str | None = None,
     on_record: Any = None,
 ):
     """Run episodes, yielding records as they finish (order of completion).
 
     ``executor="process"`` spreads them over ``workers`` local processes
     (``workers=1`` runs in this process); ``executor="ray"`` submits them as Ray
-    tasks; an :class:`~agents.evaluation.executors.Executor` instance is used as is (and left
-    open, so its workers serve the next call too).
+    tasks (on the cluster at ``address``); an
+    :class:`~agents.evaluation.executors.Executor` instance is used as is (and left
+    open, so its workers serve the next call too). An executor made here is closed at
+    the end and stopped at once on an error or Ctrl-C.
     """
-    own = not isinstance(executor, Executor)
-    runner = make_executor(executor, workers) if own else executor
-    try:
+    with (nullcontext(executor) if isinstance(executor, Executor)
+          else make_executor(executor, workers, address=address)) as runner:
         for record in runner.run(specs):
             if on_record is not None:
                 on_record(record)
             yield record
-    except BaseException:
-        if own:
-            runner.terminate()
-        raise
-    if own:
-        runner.close()
 
 
 def output_folder(output: str | Path) -> Path:
@@ -270,6 +267,7 @@ def evaluate(
     seed: int = 0,
     workers: int = 1,
     executor: str | Executor = "process",
+    address: str | None = None,
     csv_path: str | Path | None = None,
     progress: bool = True,
     overwrite: bool = False,
@@ -346,7 +344,8 @@ def evaluate(
     records = list(done)
     bar = None
     try:
-        iterator = run_specs(todo, workers=workers, executor=executor, on_record=writer)
+        iterator = run_specs(todo, workers=workers, executor=executor, address=address,
+                             on_record=writer)
         if progress and todo:
             from tqdm.auto import tqdm
 

@@ -24,6 +24,7 @@ from agents.evaluation.audit import encode_losses
 from agents.evaluation.policy_files import check_policy, load_policy, policy_file
 from agents.evaluation.records import (
     FILTER_STATUSES,
+    KEY_FIELDS,
     EpisodeRecord,
     EpisodeSpec,
     package_version,
@@ -298,12 +299,10 @@ def run_episode(
     if recorder is not None:  # also after a failure: the partial data are kept
         trajectory = recorder.trajectory()
     record = EpisodeRecord(
-        scenario=spec.scenario, risk=spec.risk, seed=spec.seed, planner=spec.planner,
-        reference=spec.reference, alpha=spec.alpha, delta=spec.delta, epsilon=spec.epsilon,
-        noise=spec.noise, case=spec.case, filter_options=spec.filter_options,
-        env_options=spec.env_options, policy=_policy_name(spec, policy),
-        policy_sha256=spec.policy_sha256 or sha, version=_package_version(),
-        **stats.summary(), wall_time=time.perf_counter() - start, error=error)
+        **{**{name: getattr(spec, name) for name in KEY_FIELDS},
+           "policy_sha256": spec.policy_sha256 or sha},
+        policy=_policy_name(spec, policy), version=_package_version(), **stats.summary(),
+        wall_time=time.perf_counter() - start, error=error)
     return record, trajectory
 
 
