@@ -14,8 +14,7 @@ Every episode returns an :class:`~agents.evaluation.records.EpisodeRecord`; a fa
 
 The parts live in :mod:`agents.evaluation.records` (specs, records, CSV, run keys),
 :mod:`agents.evaluation.runner` (one episode) and
-:mod:`agents.evaluation.executors` (process pool, Ray);
-their public names are re-exported here.
+:mod:`agents.evaluation.executors` (process pool, Ray); import their names from there.
 """
 
 from __future__ import annotations
@@ -29,12 +28,7 @@ from typing import Any
 from agents.errors import OutputPathError, RecordsFileError
 from agents.evaluation.executors import Executor, make_executor
 from agents.evaluation.records import (
-    FILTER_STATUSES,
-    KEY_FIELDS,
     PAPER_SCENARIOS,
-    PLANNERS,
-    RECORD_FIELDS,
-    REFERENCES,
     RISKS,
     EpisodeRecord,
     EpisodeSpec,
@@ -46,41 +40,11 @@ from agents.evaluation.records import (
     sort_records,
     write_records,
 )
-from agents.evaluation.runner import (
-    Trajectory,
-    check_policy,
-    load_policy,
-    make_env,
-    run_episode,
-    run_spec,
-)
+from agents.evaluation.runner import load_policy, make_env
 from filters.errors import InvalidParameterError
 
-__all__ = [
-    "FILTER_STATUSES",
-    "KEY_FIELDS",
-    "PAPER_SCENARIOS",
-    "PLANNERS",
-    "RECORD_FIELDS",
-    "REFERENCES",
-    "RISKS",
-    "EpisodeRecord",
-    "EpisodeSpec",
-    "EvaluationInterrupted",
-    "EvaluationRecords",
-    "RecordWriter",
-    "Trajectory",
-    "check_policy",
-    "check_specs",
-    "episode_specs",
-    "evaluate",
-    "make_env",
-    "read_records",
-    "run_episode",
-    "run_spec",
-    "run_specs",
-    "sort_records",
-]
+__all__ = ["SPEC_OPTIONS", "EvaluationInterrupted", "EvaluationRecords", "check_specs",
+           "episode_specs", "evaluate", "output_folder", "run_specs"]
 
 SPEC_OPTIONS = tuple(f.name for f in fields(EpisodeSpec)
                      if f.name not in ("scenario", "risk", "seed", "policy_sha256"))

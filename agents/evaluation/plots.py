@@ -6,7 +6,7 @@ inside the functions only, never when :mod:`agents.evaluation.plots` is imported
 
 Trajectories are read duck-typed: ``ego`` (steps+1, 2), ``obstacles``
 (steps+1, n, 2), ``obstacle_radii`` (n,), ``ego_radius`` and ``goal``
-(:class:`agents.evaluation.evaluate.Trajectory` has them). A trajectory that also carries
+(:class:`agents.evaluation.trajectory.Trajectory` has them). A trajectory that also carries
 ``ego_velocities`` (steps+1, 2), ``inputs`` (steps, 2) and ``dt`` (as
 :class:`agents.experiments.encounters.EncounterRecord` does) gets its collisions located
 in continuous time exactly (:func:`agents.evaluation.contacts.step_clearance`); without
@@ -23,8 +23,9 @@ from typing import Any
 import numpy as np
 
 from agents.evaluation.contacts import find_collisions
-from agents.evaluation.evaluate import EpisodeRecord, Trajectory
+from agents.evaluation.records import EpisodeRecord
 from agents.evaluation.summary import RISK_ORDER, SummaryRow, short_name
+from agents.evaluation.trajectory import Trajectory
 from filters.errors import InvalidArrayError, InvalidParameterError
 from filters.wrapper import FALLBACK_STATUSES
 from safe_nav_env.constants import DT

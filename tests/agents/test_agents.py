@@ -8,7 +8,8 @@ import pytest
 
 import safe_nav_env  # noqa: F401
 from agents import MPCReferencePlanner, load_ppo, train_ppo
-from agents.evaluation.evaluate import EpisodeSpec, run_episode
+from agents.evaluation.records import EpisodeSpec
+from agents.evaluation.runner import run_episode
 from agents.training.ppo import pretrained_policy_path
 from filters import InvalidParameterError
 

@@ -10,7 +10,7 @@ import pytest
 
 import agents.evaluation.executors
 from agents.cli.main import main, scenario_id
-from agents.evaluation.evaluate import RECORD_FIELDS
+from agents.evaluation.records import RECORD_FIELDS
 from agents.training.ppo import pretrained_policy_path
 
 TINY = ["--scenarios", "HeadOn", "--risks", "dr_cvar", "--episodes", "2", "--workers", "1",

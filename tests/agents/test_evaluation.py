@@ -9,14 +9,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from agents.evaluation.evaluate import (
-    RECORD_FIELDS,
-    EpisodeSpec,
-    episode_specs,
-    evaluate,
-    read_records,
-    run_episode,
-)
+from agents.evaluation.evaluate import episode_specs, evaluate
+from agents.evaluation.records import RECORD_FIELDS, EpisodeSpec, read_records
+from agents.evaluation.runner import run_episode
 from agents.evaluation.summary import lower_tail_mean, markdown_table, summarise, wilson_interval
 from filters import InvalidParameterError
 
@@ -129,7 +124,7 @@ def test_noise_preset_reaches_the_environment_and_the_record(tmp_path):
     assert record.noise == "authors_code" and record.error == ""
     paper, _ = run_episode(replace(spec, noise=""))
     assert record.min_distance != paper.min_distance
-    from agents.evaluation.evaluate import make_env
+    from agents.evaluation.runner import make_env
 
     env, _ = make_env(spec)
     env.reset(seed=0)
@@ -179,7 +174,7 @@ def test_lower_tail_mean_is_the_mean_of_the_worst_share():
 
 def test_summary_counts_collisions_and_failures():
     base = EpisodeSpec("HeadOn", "mean", 0)
-    from agents.evaluation.evaluate import EpisodeRecord
+    from agents.evaluation.records import EpisodeRecord
 
     records = [
         EpisodeRecord(base.scenario, "mean", s, "mpc", "rollout", 0.2, 0.1, 0.05, steps=10,
@@ -197,7 +192,7 @@ def test_summary_counts_collisions_and_failures():
 
 
 def test_the_summary_prints_a_dash_when_no_episode_arrived():
-    from agents.evaluation.evaluate import EpisodeRecord
+    from agents.evaluation.records import EpisodeRecord
 
     records = [EpisodeRecord("HeadOn", "mean", s, "mpc", "rollout", 0.2, 0.1, 0.05, steps=10,
                              min_distance=0.5, min_swept_distance=0.5, goal_reached=False)
@@ -307,7 +302,7 @@ def test_a_process_pool_starts_once_for_several_runs():
 
 @pytest.mark.slow
 def test_collision_columns_match_the_environment_step_by_step():
-    from agents.evaluation.evaluate import make_env
+    from agents.evaluation.runner import make_env
 
     # The unfiltered PPO on HeadOn crosses the obstacle between samples in most seeds.
     for seed in range(3):

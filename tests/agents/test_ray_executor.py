@@ -15,9 +15,9 @@ from pathlib import Path
 import pytest
 
 from agents.cli import main
-from agents.evaluation.evaluate import evaluate, read_records
+from agents.evaluation.evaluate import evaluate
 from agents.evaluation.executors import RayExecutor
-from agents.evaluation.records import TIMING_FIELDS
+from agents.evaluation.records import TIMING_FIELDS, read_records
 
 pytestmark = pytest.mark.ray
 

@@ -214,7 +214,8 @@ def test_normalised_view_silences_sb3_check_env():
 
 def test_physical_and_normalised_policies_both_act_in_m_per_s2(tmp_path):
     from agents import load_ppo
-    from agents.evaluation.evaluate import EpisodeSpec, make_env, run_episode
+    from agents.evaluation.records import EpisodeSpec
+    from agents.evaluation.runner import make_env, run_episode
 
     space = gym.make("SafeNav/HeadOn-v0").action_space
     shipped = load_ppo()  # trained on the ±10 box

@@ -10,9 +10,9 @@ import pytest
 
 import agents.evaluation.executors
 from agents.errors import WorkersLostError
-from agents.evaluation.evaluate import episode_specs, evaluate, read_records
+from agents.evaluation.evaluate import episode_specs, evaluate
 from agents.evaluation.executors import ProcessExecutor
-from agents.evaluation.records import TIMING_FIELDS
+from agents.evaluation.records import TIMING_FIELDS, read_records
 
 TIMING = dict.fromkeys(TIMING_FIELDS, 0.0)
 """The columns that measure time (they differ between any two runs); the rest must match."""
