@@ -45,6 +45,7 @@ from agents.evaluation.summary import (
     status_table,
     summarise,
 )
+from filters.errors import InvalidParameterError
 from filters.wrapper import RISKS
 from safe_nav_env.scenarios import scenario_name
 
@@ -167,7 +168,8 @@ def run_campaign(
         As :func:`agents.evaluation.evaluate.evaluate`, before any episode runs.
     """
     if config.output is None:
-        raise ValueError("run_campaign needs config.output (EvaluationConfig.of sets it)")
+        raise InvalidParameterError("run_campaign needs an output folder: config.output is None "
+                                    "(split_options sets the campaign's default)")
     output = config.output
     start = time.perf_counter()
     records = evaluate(specs=specs, vary=vary, workers=config.workers,

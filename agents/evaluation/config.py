@@ -79,8 +79,9 @@ class EvaluationConfig:
                 raise InvalidParameterError(f"address must be HOST:PORT or 'auto', got "
                                             f"{self.address!r}")
             if self.executor != "ray":
-                raise InvalidParameterError(f"a Ray address ({self.address!r}) needs the ray "
-                                            "executor (--executor ray)")
+                raise InvalidParameterError(f"a Ray address ({self.address!r}) needs "
+                                            "executor='ray' (--executor ray); an Executor "
+                                            "instance carries its own")
         for name in ("overwrite", "plots", "progress"):
             if not isinstance(getattr(self, name), bool):
                 raise InvalidParameterError(f"{name} must be True or False, got "

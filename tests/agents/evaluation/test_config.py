@@ -17,7 +17,7 @@ from filters.errors import InvalidParameterError
     (dict(workers=1.5), "workers must be an integer >= 1, got 1.5"),
     (dict(executor="threads"), "executor must be one of ('process', 'ray') or an Executor, "
                                "got 'threads'"),
-    (dict(address="head:6379"), "a Ray address ('head:6379') needs the ray executor"),
+    (dict(address="head:6379"), "a Ray address ('head:6379') needs executor='ray'"),
     (dict(executor="ray", address=" "), "address must be HOST:PORT or 'auto', got ' '"),
     (dict(plots="no"), "plots must be True or False, got 'no'"),
     (dict(overwrite=1), "overwrite must be True or False, got 1"),
