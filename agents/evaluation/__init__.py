@@ -12,5 +12,9 @@
 * :mod:`agents.evaluation.statistics` — the Wilson interval;
 * :mod:`agents.evaluation.summary` — tables with Wilson intervals;
 * :mod:`agents.evaluation.plots` — figures;
-* :mod:`agents.evaluation.campaign` — ``safe-nav evaluate``: CSV, summary and figures in one folder.
+* :mod:`agents.evaluation.config` — :class:`~agents.evaluation.config.EvaluationConfig`, how a
+  campaign runs (executor, workers, output folder, resume, figures, progress);
+* :mod:`agents.evaluation.campaign` — :func:`~agents.evaluation.campaign.run_campaign`, the one
+  pipeline of every evaluation command (CSV, summary and figures in one folder), and
+  ``safe-nav evaluate`` (:func:`~agents.evaluation.campaign.run_evaluation`, ``--sweep``).
 """
