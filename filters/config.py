@@ -12,7 +12,7 @@ from __future__ import annotations
 import dataclasses
 import json
 from collections.abc import Mapping
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 import numpy as np
@@ -96,7 +96,7 @@ class FilterConfig:
         Filter horizon T in steps, >= 1 and at most the environment's prediction horizon
         (checked by the wrapper); ``None``: the prediction horizon.
     objective
-        ``"first_input"``: the predictive safety filter of Wabersich & Zeilinger,
+        What the filter's QP minimises. ``"first_input"``: the predictive safety filter of Wabersich & Zeilinger,
         :math:`\\min \\|u_0 - a\\|^2_R + \\eta \\sum_{t \\ge 1} \\|u_t - u^r_t\\|^2_R`
         with no state tracking: the proposed action ``a`` changes as little as possible,
         the rest of the plan only has to exist. ``"trajectory"``: the paper's Problem 2,
@@ -123,12 +123,12 @@ class FilterConfig:
         ``"paper"`` with a ``policy`` or ``reference``, ``"clearest"`` with the held action
         (whose reference runs straight through obstacles).
     fallback
-        When the hard QP is infeasible: ``"soft"`` (default), the exact-penalty recovery
-        QP with the halfspace rows softened (the least violation, then the plan closest to
-        the reference; the arena rows softened too only if they cannot hold:
-        :mod:`filters.mpc.recovery`); ``"brake"``, the same but the least violation, then
-        the lowest speed; ``"paper"``, the paper's Remark: the last optimal plan shifted,
-        then braking.
+        What the filter does when the hard QP is infeasible. ``"soft"`` (default): the
+        exact-penalty recovery QP with the halfspace rows softened (the least violation,
+        then the plan closest to the reference; the arena rows softened too only if they
+        cannot hold: :mod:`filters.mpc.recovery`); ``"brake"``: the same, but the least
+        violation, then the lowest speed; ``"paper"``: the paper's Remark, the last
+        optimal plan shifted, then braking.
     terminal
         Require that the plan ends able to stop inside the arena within ``stop_time``
         (:func:`filters.mpc.terminal.stopping_terminal_set`), so that plans stay
@@ -144,9 +144,9 @@ class FilterConfig:
         Always solve with slack variables (exact L1 penalty) on the halfspace rows; the
         slack is reported (default ``False``).
     intervention_penalty
-        :math:`\\kappa \\ge 0`: the reward is reduced by
-        :math:`\\kappa \\|u_{safe} - u_{ref}\\|^2` (u in m/s²), for training with the
-        filter in the loop; 0 (default) leaves it untouched.
+        Reward penalty per (m/s²)² of intervention, >= 0: the reward is reduced by
+        :math:`\\kappa \\|u_{safe} - u_{ref}\\|^2` (u in m/s²), :math:`\\kappa` this
+        penalty, for training with the filter in the loop; 0 (default) leaves it untouched.
     support
         Optional polytope ``(V, v)``, ``V p <= v`` (p in m), bounding the obstacle
         positions (Proposition 1).
@@ -192,16 +192,16 @@ class FilterConfig:
         On weights or a support that are not finite arrays of the right dimensions.
     """
 
-    risk: str = "dr_cvar"
+    risk: str = field(default="dr_cvar", metadata={"choices": RISKS})
     alpha: float = ALPHA
     delta: float = DELTA
     epsilon: float | str = EPSILON
     horizon: int | None = None
-    objective: str | None = None
+    objective: str | None = field(default=None, metadata={"choices": OBJECTIVES})
     later_input_weight: float = 1e-2
     intersample: bool = True
-    normals: str | None = None
-    fallback: str = "soft"
+    normals: str | None = field(default=None, metadata={"choices": NORMAL_SOURCES})
+    fallback: str = field(default="soft", metadata={"choices": FALLBACKS})
     terminal: bool = True
     stop_time: float = 0.5
     Q: np.ndarray | None = None
@@ -213,12 +213,16 @@ class FilterConfig:
     draw_halfspaces: bool = True
     calibration_episodes: int | None = None
     calibration_seed: int = CALIBRATION_SEED
-    calibration_memory: str = "episode"
+    calibration_memory: str = field(default="episode", metadata={"choices": CALIBRATION_MEMORIES})
     adaptive_epsilon: bool = False
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
-        risk = _choice("risk", self.risk, RISKS)
+        for f in fields(self):  # the settings with a set of choices (None: the wrapper's)
+            value = getattr(self, f.name)
+            if "choices" in f.metadata and (value is not None or f.default is not None):
+                _choice(f.name, value, f.metadata["choices"])
+        risk = self.risk
         alpha = check_alpha(self.alpha)
         if risk in (*CHANCE_RISKS, "conformal") and alpha >= 1.0:
             raise InvalidParameterError(
@@ -234,11 +238,6 @@ class FilterConfig:
                 raise InvalidParameterError(
                     f"horizon must be None or an integer >= 1 (steps), got {self.horizon!r}")
             set_(self, "horizon", int(self.horizon))
-        for name, choices in (("objective", OBJECTIVES), ("normals", NORMAL_SOURCES)):
-            if getattr(self, name) is not None:
-                _choice(name, getattr(self, name), choices)
-        _choice("fallback", self.fallback, FALLBACKS)
-        _choice("calibration_memory", self.calibration_memory, CALIBRATION_MEMORIES)
         for name in ("later_input_weight", "stop_time"):
             set_(self, name, scalar_in_range(name, getattr(self, name), low=0.0, high=np.inf,
                                              low_inclusive=False, high_inclusive=False))

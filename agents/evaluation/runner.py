@@ -148,10 +148,7 @@ def make_env(spec: EpisodeSpec, *, render_mode: str | None = None, policy: Any =
         elif spec.reference == "rollout":
             filter_kwargs["policy"] = (PhysicalUnitsPolicy(planner, env.action_space)
                                        if normalised else planner)
-        try:
-            wrapped = SafetyFilterWrapper(env, **filter_kwargs)
-        except TypeError as exc:
-            raise (_unknown_keyword(exc, "filter_options") or exc) from exc
+        wrapped = SafetyFilterWrapper(env, **filter_kwargs)  # unknown settings: InvalidTypeError
         if normalised:
             wrapped = NormalisedActions(wrapped)
     except BaseException:
