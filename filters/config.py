@@ -17,12 +17,11 @@ from typing import Any
 
 import numpy as np
 
-from filters._validation import finite_array, scalar_in_range
+from filters._validation import finite_array, integer_at_least, scalar_in_range
 from filters.constants import ALPHA, DELTA, EPSILON
 from filters.errors import InvalidParameterError, InvalidTypeError
 from filters.risk import CHANCE_RISKS, check_alpha, check_epsilon
 from filters.risk import RISKS as _METRICS
-from filters.wrapper_calibration import CALIBRATION_MEMORIES, CALIBRATION_SEED
 
 RISKS: tuple[str, ...] = ("none", *_METRICS)
 """Risk settings accepted by :class:`FilterConfig` (``"none"``: pass-through)."""
@@ -36,27 +35,32 @@ NORMAL_SOURCES = ("paper", "ego", "nearside", "previous_plan", "clearest")
 FALLBACKS = ("soft", "brake", "paper")
 """What the filter does when the hard QP is infeasible (see :attr:`FilterConfig.fallback`)."""
 
+CALIBRATION_EPISODES = 5
+"""Held-out episodes run at construction for ``risk="conformal"`` / ``epsilon="auto"``.
+
+A braking episode of the 8 s (40-step) scenarios gives ``41 - k`` realised positions
+per obstacle at look-ahead ``k``; five give 155-200 per look-ahead for one obstacle, so
+the 200-score windows of the calibration (:class:`filters.calibration.OnlineCalibration`)
+are full, or nearly, from step 0 (more episodes mostly push older scores out of the
+windows, at ~0.1 s each here)."""
+
+CALIBRATION_SEED = 1_000_000_000
+"""First seed of the held-out calibration episodes (episode ``i`` uses it ``+ i``).
+
+Far above the evaluation seeds (``--seed`` + episode index), so that the data the
+filter is calibrated on is never the data it is evaluated on."""
+
+CALIBRATION_MEMORIES = ("episode", "persistent")
+"""``"episode"``: every ``reset`` restores the calibrated state; ``"persistent"``: it
+carries over from episode to episode (the order of the episodes then matters)."""
+
 _FLAGS = ("intersample", "terminal", "soft", "draw_halfspaces", "adaptive_epsilon")
 _WEIGHTS = ("Q", "Q_terminal", "R")
 
 
-def _choice(name: str, value: object, choices: tuple[str, ...]) -> str:
-    """``value`` if it is one of ``choices``, else a clear error naming both."""
-    if not isinstance(value, str):
-        raise InvalidTypeError(f"{name} must be a string, one of {choices}, got {value!r}")
-    if value not in choices:
-        raise InvalidParameterError(f"{name} must be one of {choices}, got {value!r}")
-    return value
-
-
-def _count(name: str, value: object) -> int:
-    """``value`` as an int if it is an integer ``>= 0`` (not a bool), else a clear error."""
-    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 0:
-        raise InvalidParameterError(f"{name} must be an integer >= 0, got {value!r}")
-    return int(value)
-
-
-def _frozen(array: np.ndarray) -> np.ndarray:
+def _frozen(name: str, value: object, ndim: int) -> np.ndarray:
+    """A read-only copy of ``value`` as a finite float array of ``ndim`` dimensions."""
+    array = finite_array(name, value, ndim=ndim).copy()
     array.setflags(write=False)
     return array
 
@@ -96,7 +100,8 @@ class FilterConfig:
         Filter horizon T in steps, >= 1 and at most the environment's prediction horizon
         (checked by the wrapper); ``None``: the prediction horizon.
     objective
-        What the filter's QP minimises. ``"first_input"``: the predictive safety filter of Wabersich & Zeilinger,
+        What the filter's QP minimises. ``"first_input"``: the predictive safety filter
+        of Wabersich & Zeilinger,
         :math:`\\min \\|u_0 - a\\|^2_R + \\eta \\sum_{t \\ge 1} \\|u_t - u^r_t\\|^2_R`
         with no state tracking: the proposed action ``a`` changes as little as possible,
         the rest of the plan only has to exist. ``"trajectory"``: the paper's Problem 2,
@@ -160,12 +165,11 @@ class FilterConfig:
         ``calibration_seed + i`` and the ego brakes (the obstacles' motion and the
         predictions do not depend on it); every step's predictions and realised positions
         feed the calibration. The environment's seed state is restored afterwards.
-        ``None`` (default): :data:`filters.wrapper_calibration.CALIBRATION_EPISODES` when
+        ``None`` (default): :data:`CALIBRATION_EPISODES` when
         the wrapper calibrates, else 0.
     calibration_seed
-        First held-out seed, an integer >= 0 (default
-        :data:`filters.wrapper_calibration.CALIBRATION_SEED`; keep it away from the seeds
-        you evaluate on).
+        First held-out seed, an integer >= 0 (default :data:`CALIBRATION_SEED`; keep it
+        away from the seeds you evaluate on).
     calibration_memory
         ``"episode"`` (default): each ``reset`` restores the state calibrated at
         construction, so an episode depends on its seed alone; ``"persistent"``: the
@@ -219,9 +223,14 @@ class FilterConfig:
     def __post_init__(self) -> None:
         set_ = object.__setattr__
         for f in fields(self):  # the settings with a set of choices (None: the wrapper's)
-            value = getattr(self, f.name)
-            if "choices" in f.metadata and (value is not None or f.default is not None):
-                _choice(f.name, value, f.metadata["choices"])
+            value, choices = getattr(self, f.name), f.metadata.get("choices")
+            if choices is None or (value is None and f.default is None):
+                continue
+            if not isinstance(value, str):
+                raise InvalidTypeError(f"{f.name} must be a string, one of {choices}, got "
+                                       f"{value!r}")
+            if value not in choices:
+                raise InvalidParameterError(f"{f.name} must be one of {choices}, got {value!r}")
         risk = self.risk
         alpha = check_alpha(self.alpha)
         if risk in (*CHANCE_RISKS, "conformal") and alpha >= 1.0:
@@ -231,44 +240,55 @@ class FilterConfig:
         set_(self, "alpha", alpha)
         set_(self, "delta", scalar_in_range("delta", self.delta, low=0.0, high=np.inf,
                                             high_inclusive=False))
+        if isinstance(self.epsilon, str) and self.epsilon != "auto":
+            raise InvalidParameterError(
+                f'epsilon must be a number or "auto" (in m, >= 0), got {self.epsilon!r}')
         set_(self, "epsilon", "auto" if self.epsilon == "auto" else check_epsilon(self.epsilon))
         if self.horizon is not None:
-            if (isinstance(self.horizon, bool) or not isinstance(self.horizon, int | np.integer)
-                    or self.horizon < 1):
-                raise InvalidParameterError(
-                    f"horizon must be None or an integer >= 1 (steps), got {self.horizon!r}")
-            set_(self, "horizon", int(self.horizon))
-        for name in ("later_input_weight", "stop_time"):
+            set_(self, "horizon", integer_at_least("horizon", self.horizon, low=1))
+        for name, zero in (("later_input_weight", False), ("stop_time", False),
+                           ("intervention_penalty", True)):
             set_(self, name, scalar_in_range(name, getattr(self, name), low=0.0, high=np.inf,
-                                             low_inclusive=False, high_inclusive=False))
-        set_(self, "intervention_penalty", scalar_in_range(
-            "intervention_penalty", self.intervention_penalty, low=0.0, high=np.inf,
-            high_inclusive=False))
+                                             low_inclusive=zero, high_inclusive=False))
         for name in _FLAGS:
             if not isinstance(getattr(self, name), bool | np.bool_):
                 raise InvalidTypeError(f"{name} must be a bool, got {getattr(self, name)!r}")
             set_(self, name, bool(getattr(self, name)))
         for name in _WEIGHTS:
             if getattr(self, name) is not None:
-                set_(self, name, _frozen(finite_array(name, getattr(self, name), ndim=2)))
+                set_(self, name, _frozen(name, getattr(self, name), 2))
         if self.support is not None:
             if not isinstance(self.support, tuple | list) or len(self.support) != 2:
                 raise InvalidTypeError(f"support must be a pair (V, v), got {self.support!r}")
-            set_(self, "support", (_frozen(finite_array("support V", self.support[0], ndim=2)),
-                                   _frozen(finite_array("support v", self.support[1], ndim=1))))
-        if self.calibration_episodes is not None:
-            set_(self, "calibration_episodes",
-                 _count("calibration_episodes", self.calibration_episodes))
-        set_(self, "calibration_seed", _count("calibration_seed", self.calibration_seed))
+            set_(self, "support", (_frozen("support V", self.support[0], 2),
+                                   _frozen("support v", self.support[1], 1)))
+        for name in ("calibration_episodes", "calibration_seed"):
+            if getattr(self, name) is not None:
+                set_(self, name, integer_at_least(name, getattr(self, name), low=0))
+
+    def calibration(self) -> dict[str, Any] | None:
+        """The held-out calibration a wrapper with this config runs at construction.
+
+        ``None`` if it runs none (no conformal margin, no ``epsilon="auto"``, no
+        ``adaptive_epsilon`` with ``risk="dr_cvar"``, or ``risk="none"``); else the resolved
+        ``calibration_episodes``, ``calibration_seed`` and ``calibration_memory`` (defaults
+        filled in), for run keys and records.
+        """
+        adaptive = self.adaptive_epsilon and self.risk == "dr_cvar" and self.epsilon != "auto"
+        if self.risk == "none" or not (self.risk == "conformal" or self.epsilon == "auto"
+                                       or adaptive):
+            return None
+        return {"calibration_episodes": CALIBRATION_EPISODES if self.calibration_episodes is None
+                else self.calibration_episodes, "calibration_seed": self.calibration_seed,
+                "calibration_memory": self.calibration_memory}
 
     def to_dict(self) -> dict[str, Any]:
         """The settings as plain JSON values (arrays as nested lists), by field name."""
-        data = {f.name: getattr(self, f.name) for f in fields(self)}
-        for name in _WEIGHTS:
-            data[name] = None if data[name] is None else data[name].tolist()
-        if self.support is not None:
-            data["support"] = [part.tolist() for part in self.support]
-        return data
+        def plain(value: Any) -> Any:
+            return [plain(v) for v in value] if isinstance(value, tuple) else (
+                value.tolist() if isinstance(value, np.ndarray) else value)
+
+        return {f.name: plain(getattr(self, f.name)) for f in fields(self)}
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any], base: FilterConfig | None = None) -> FilterConfig:
@@ -298,4 +318,5 @@ class FilterConfig:
 FIELDS: dict[str, dataclasses.Field] = {f.name: f for f in fields(FilterConfig)}
 """The fields of :class:`FilterConfig`, by name (the wrapper's settings)."""
 
-__all__ = ["FALLBACKS", "FIELDS", "NORMAL_SOURCES", "OBJECTIVES", "RISKS", "FilterConfig"]
+__all__ = ["CALIBRATION_EPISODES", "CALIBRATION_MEMORIES", "CALIBRATION_SEED", "FALLBACKS",
+           "FIELDS", "NORMAL_SOURCES", "OBJECTIVES", "RISKS", "FilterConfig"]

@@ -33,10 +33,9 @@ import numpy as np
 
 from filters._validation import scalar_in_range
 from filters.calibration import OnlineCalibration
-from filters.config import FALLBACKS as FALLBACKS  # re-exported
+from filters.config import CALIBRATION_EPISODES as CALIBRATION_EPISODES  # re-exported
+from filters.config import CALIBRATION_SEED as CALIBRATION_SEED  # re-exported
 from filters.config import FIELDS, FilterConfig
-from filters.config import NORMAL_SOURCES as NORMAL_SOURCES  # re-exported
-from filters.config import OBJECTIVES as OBJECTIVES  # re-exported
 from filters.config import RISKS as RISKS  # re-exported
 from filters.errors import InvalidParameterError, InvalidTypeError
 from filters.geometry import Disc
@@ -57,20 +56,12 @@ from filters.report import FALLBACK_STATUSES as FALLBACK_STATUSES  # re-exported
 from filters.report import NOMINAL_STATUSES as NOMINAL_STATUSES  # re-exported
 from filters.report import PASSTHROUGH, FilterReport, _distance, _owned, _report
 from filters.wrapper_calibration import _SNAPSHOTS as _SNAPSHOTS  # re-exported
-from filters.wrapper_calibration import (
-    CALIBRATION_EPISODES,
-    CalibrationMixin,
-)
-from filters.wrapper_calibration import CALIBRATION_SEED as CALIBRATION_SEED  # re-exported
+from filters.wrapper_calibration import CalibrationMixin
 from filters.wrapper_calibration import _plain_settings as _plain_settings  # re-exported
 from filters.wrapper_calibration import (  # re-exported
     calibration_settings as calibration_settings,
 )
-from filters.wrapper_settings import (
-    _PROTOCOL_ATTRIBUTES,
-    _action_array,
-    _check_no_action_wrapper,
-)
+from filters.wrapper_settings import _PROTOCOL_ATTRIBUTES, _action_array, _check_no_action_wrapper
 
 
 class SafetyFilterWrapper(CalibrationMixin, HalfspaceRowsMixin, RenderHookMixin,
@@ -209,7 +200,8 @@ class SafetyFilterWrapper(CalibrationMixin, HalfspaceRowsMixin, RenderHookMixin,
         )
         self._calibration: OnlineCalibration | None = None
         self._calibrated: OnlineCalibration | None = None  # the state each episode starts from
-        self.calibration_episodes = 0
+        held_out = config.calibration()  # None: no held-out episodes
+        self.calibration_episodes = 0 if held_out is None else held_out["calibration_episodes"]
         self.calibration_time = 0.0
         self.adaptive_epsilon = (config.adaptive_epsilon and self.risk == "dr_cvar"
                                  and self.epsilon != "auto")
@@ -220,9 +212,6 @@ class SafetyFilterWrapper(CalibrationMixin, HalfspaceRowsMixin, RenderHookMixin,
                 **({"adaptive_alpha": self.alpha, "radius_fallback": self.epsilon,
                     "adaptive": {"floor": self.epsilon}} if self.adaptive_epsilon else {}),
             )
-            if self.risk != "none":
-                self.calibration_episodes = (CALIBRATION_EPISODES if config.calibration_episodes
-                                             is None else config.calibration_episodes)
         self._mpc: MPCSafetyFilter | None = None
         self._previous_normals: np.ndarray | None = None
         self._halfspaces_made: Halfspaces | None = None  # the last step's halfspaces

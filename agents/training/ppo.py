@@ -426,8 +426,6 @@ def train_ppo(
     eval_freq = _check_int("eval_freq", eval_freq, 0)
     eval_episodes = _check_int("eval_episodes", eval_episodes, 1)
     torch_threads = _check_int("torch_threads", torch_threads, 1)
-    intervention_penalty = scalar_in_range("intervention_penalty", intervention_penalty, low=0.0,
-                                           high_inclusive=False)
     cost_limit = scalar_in_range("cost_limit", cost_limit, low=0.0, high_inclusive=False)
     lambda_lr = scalar_in_range("lambda_lr", lambda_lr, low=0.0, low_inclusive=False,
                                 high_inclusive=False)
