@@ -231,11 +231,10 @@ class FilterConfig:
                                        f"{value!r}")
             if value not in choices:
                 raise InvalidParameterError(f"{f.name} must be one of {choices}, got {value!r}")
-        risk = self.risk
         alpha = check_alpha(self.alpha)
-        if risk in (*CHANCE_RISKS, "conformal") and alpha >= 1.0:
+        if self.risk in (*CHANCE_RISKS, "conformal") and alpha >= 1.0:
             raise InvalidParameterError(
-                f"alpha must lie in (0, 1) for risk={risk!r} (a violation probability), "
+                f"alpha must lie in (0, 1) for risk={self.risk!r} (a violation probability), "
                 f"got {self.alpha!r}")
         set_(self, "alpha", alpha)
         set_(self, "delta", scalar_in_range("delta", self.delta, low=0.0, high=np.inf,
