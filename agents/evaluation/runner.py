@@ -29,7 +29,7 @@ from agents.evaluation.records import (
     package_version,
 )
 from agents.evaluation.trajectory import Trajectory, TrajectoryRecorder
-from filters.errors import InvalidParameterError
+from filters.errors import InvalidParameterError, InvalidTypeError
 from filters.wrapper import FALLBACK_STATUSES, NOMINAL_STATUSES
 from safe_nav_env.constants import DT
 
@@ -148,7 +148,10 @@ def make_env(spec: EpisodeSpec, *, render_mode: str | None = None, policy: Any =
         elif spec.reference == "rollout":
             filter_kwargs["policy"] = (PhysicalUnitsPolicy(planner, env.action_space)
                                        if normalised else planner)
-        wrapped = SafetyFilterWrapper(env, **filter_kwargs)  # unknown settings: InvalidTypeError
+        try:
+            wrapped = SafetyFilterWrapper(env, **filter_kwargs)
+        except InvalidTypeError as exc:  # e.g. an unknown key: a bad value of filter_options
+            raise InvalidParameterError(f"filter_options: {exc}") from exc
         if normalised:
             wrapped = NormalisedActions(wrapped)
     except BaseException:
