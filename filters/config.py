@@ -124,9 +124,12 @@ class FilterConfig:
         ``"previous_plan"`` (the last filtered plan shifted by one step; the reference
         until there is one) or ``"clearest"`` (the first step from the ego's position,
         each later one from whichever of the reference and the last optimal plan is
-        farther from the obstacle: :func:`filters.normals.clearest_normals`). ``None``:
-        ``"paper"`` with a ``policy`` or ``reference``, ``"clearest"`` with the held action
-        (whose reference runs straight through obstacles).
+        farther from the obstacle, so that the normals follow the plan where the reference
+        runs through an obstacle and do not flip; ``"nearside"`` while there is no optimal
+        plan: :func:`filters.normals.clearest_normals`). ``None``: ``"paper"`` with a
+        ``policy`` or ``reference``, ``"clearest"`` with the held action (whose reference
+        runs straight through obstacles, so that the paper's normals flip inside the
+        horizon and the filter brakes in front of a head-on obstacle).
     fallback
         What the filter does when the hard QP is infeasible. ``"soft"`` (default): the
         exact-penalty recovery QP with the halfspace rows softened (the least violation,
@@ -163,16 +166,21 @@ class FilterConfig:
         held-out data, then run), so that margins and radii come from data from step 0
         instead of their fallbacks (1 m, 0.05 m). The environment is reset with the seeds
         ``calibration_seed + i`` and the ego brakes (the obstacles' motion and the
-        predictions do not depend on it); every step's predictions and realised positions
-        feed the calibration. The environment's seed state is restored afterwards.
-        ``None`` (default): :data:`CALIBRATION_EPISODES` when
-        the wrapper calibrates, else 0.
+        predictions do not depend on it; an episode that ends early is followed by the
+        next seed); every step's predictions and realised positions feed the calibration,
+        as in the loop. The environment's seed state is restored afterwards (an unseeded
+        ``reset`` stays unseeded); with ``options={"scenario": ...}`` at a later reset,
+        the calibration still describes the constructor's scenario. The wrapper's
+        ``calibration_time`` is the wall time spent, in s. ``None`` (default):
+        :data:`CALIBRATION_EPISODES` when the wrapper calibrates, else 0.
     calibration_seed
         First held-out seed, an integer >= 0 (default :data:`CALIBRATION_SEED`; keep it
         away from the seeds you evaluate on).
     calibration_memory
-        ``"episode"`` (default): each ``reset`` restores the state calibrated at
-        construction, so an episode depends on its seed alone; ``"persistent"``: the
+        ``"episode"`` (default): each ``reset`` restores (a copy of) the state calibrated
+        at construction; the online updates (adaptive conformal levels, windows, radii)
+        then continue within the episode only, so an episode depends on its seed alone,
+        not on which episodes ran before it in this wrapper. ``"persistent"``: the
         calibration carries over between episodes.
     adaptive_epsilon
         With ``risk="dr_cvar"`` and a numeric ``epsilon``: the radius per look-ahead step
@@ -180,8 +188,10 @@ class FilterConfig:
         quantile, moved by adaptive conformal inference, of the radius each observed
         obstacle position needed to lie within the DR-CVaR bound of its prediction, at
         miscoverage ``alpha``; ``epsilon`` is then the smallest radius and the radius
-        before any data. Ignored for other risks and with ``epsilon="auto"``. Default
-        ``False``.
+        before any data (``epsilon=0``: the radius follows the data both ways). It widens
+        when the predictions understate the noise and comes back down when they do not
+        (its guarantee: the filter guide). Ignored for other risks and with
+        ``epsilon="auto"``. Default ``False``.
 
     Raises
     ------
