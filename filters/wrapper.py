@@ -33,8 +33,6 @@ import numpy as np
 
 from filters._validation import scalar_in_range
 from filters.calibration import OnlineCalibration
-from filters.config import CALIBRATION_EPISODES as CALIBRATION_EPISODES  # re-exported
-from filters.config import CALIBRATION_SEED as CALIBRATION_SEED  # re-exported
 from filters.config import FIELDS, FilterConfig
 from filters.config import RISKS as RISKS  # re-exported
 from filters.errors import InvalidParameterError, InvalidTypeError
