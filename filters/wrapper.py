@@ -141,6 +141,10 @@ class SafetyFilterWrapper(CalibrationMixin, HalfspaceRowsMixin, RenderHookMixin,
         fast_path: bool | None = None,
         **settings: Any,
     ) -> None:
+        if isinstance(config, str):  # the 0.x signature SafetyFilterWrapper(env, "dr_cvar")
+            warnings.warn("SafetyFilterWrapper(env, risk) is deprecated: pass risk=... or a "
+                          "FilterConfig", DeprecationWarning, stacklevel=2)
+            config, settings = None, {"risk": config, **settings}
         if config is not None and not isinstance(config, FilterConfig):
             raise InvalidTypeError(
                 f"config must be a FilterConfig or None, got {config!r}: pass the settings as "

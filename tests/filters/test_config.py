@@ -71,7 +71,9 @@ def test_the_wrapper_refuses_the_same_bad_settings_as_keywords():
     with pytest.raises(InvalidTypeError, match=r"unknown filter setting\(s\) \['bogus'\]"):
         SafetyFilterWrapper(env, bogus=1)
     with pytest.raises(InvalidTypeError, match="config must be a FilterConfig"):
-        SafetyFilterWrapper(env, "dr_cvar")  # the old positional risk
+        SafetyFilterWrapper(env, 0.2)
+    with pytest.warns(DeprecationWarning, match="risk"):  # the old positional risk still works
+        assert SafetyFilterWrapper(env, "cvar").risk == "cvar"
 
 
 def test_the_checks_that_need_the_environment_stay_in_the_wrapper():
