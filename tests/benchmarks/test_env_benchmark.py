@@ -17,5 +17,5 @@ def test_benchmark_reports_a_rate_per_scenario():
         "SafeNav/Crowd-v0",
     }
     assert all(rate > 0 for rate in rates.values())
-    assert steps_per_second("SafeNav/HeadOn-v0", n_steps=20, repeats=1, raw=True) > 0
+    assert steps_per_second("SafeNav/HeadOn-v0", n_steps=20, repeats=1) > 0
     assert normal_draws_per_second(size=100, repeats=1) > 0
