@@ -49,10 +49,6 @@ from filters.mpc import FilterResult, FilterStatus, MPCSafetyFilter
 from safe_nav_env.constants import ARENA_HALF_WIDTH, DT, EGO_RADIUS, EGO_START_SPEED
 from safe_nav_env.dynamics import double_integrator
 
-__all__ = ["FAMILIES", "FilterQPBenchmark", "Instance", "benchmark_filter_qp",
-           "double_integrator", "filter_kwargs", "format_filter_qp", "make_instances",
-           "max_input_gap", "timed_solves"]
-
 TS = DT  # s, sampling time of the paper
 SPEED = EGO_START_SPEED  # m/s, ego reference speed
 RADIUS = EGO_RADIUS  # m, ego and obstacle disc radii
@@ -226,80 +222,87 @@ def max_input_gap(first: Sequence[FilterResult], second: Sequence[FilterResult])
     return max(gaps, default=float("nan"))
 
 
-@dataclass(frozen=True)
-class FilterQPBenchmark:
-    """Our filter's and CVXPY's passes over the same synthetic instances."""
+def solver_passes(A: np.ndarray, B: np.ndarray, C: np.ndarray, kwargs: dict,
+                  instances: Sequence[Instance], *, zero_inputs: bool = False
+                  ) -> tuple[dict[str, Solves], MPCSafetyFilter]:
+    """Each filter's timed pass over ``instances``, and our filter (``backend="auto"``).
 
-    n_obstacles: int
-    horizon: int
-    backend: str  # what backend="auto" picked
-    ours: Solves
-    cvxpy: Solves
-    zero_inputs: Solves  # ours again, with reference_inputs = 0
+    Passes: ``"ours"`` (``backend="auto"``), ``"cvxpy"`` (:class:`filters.CVXPYSafetyFilter`:
+    it never skips the QP), ``"daqp"`` and ``"clarabel"`` (explicit back ends) and, with
+    ``zero_inputs``, ``"zero_inputs"``: ours again with ``reference_inputs = 0``.
+    """
+    from filters import CVXPYSafetyFilter  # imports cvxpy: only when benchmarking
 
-    @property
-    def n_steps(self) -> int:
-        return len(self.ours.ms)
+    ours = MPCSafetyFilter(A, B, C, **kwargs)
+    passes = {"ours": timed_solves(ours, instances),
+              "cvxpy": timed_solves(CVXPYSafetyFilter(A, B, C, **kwargs), instances)}
+    for name in ("daqp", "clarabel"):
+        passes[name] = timed_solves(MPCSafetyFilter(A, B, C, backend=name, **kwargs), instances)
+    if zero_inputs:
+        passes["zero_inputs"] = timed_solves(MPCSafetyFilter(A, B, C, **kwargs), instances,
+                                             zero_inputs=True)
+    return passes, ours
 
-    @property
-    def ratio(self) -> float:
-        """CVXPY over ours, medians over the steps where ours solved a QP."""
-        qp = self.ours.qp_solves > 0
-        return median(self.cvxpy.ms, qp) / median(self.ours.ms, qp)
 
-    @property
-    def agreement(self) -> float:
-        """Share of the steps where both gave the same status."""
-        return float(np.mean([a.status == b.status for a, b in
-                              zip(self.ours.results, self.cvxpy.results, strict=True)]))
+def agreement(first: Solves, second: Solves) -> float:
+    """Share of the steps where both passes gave the same status."""
+    return float(np.mean([a.status == b.status
+                          for a, b in zip(first.results, second.results, strict=True)]))
 
-    @property
-    def max_input_difference(self) -> float:
-        """:func:`max_input_gap` of ours and CVXPY, m/s²."""
-        return max_input_gap(self.ours.results, self.cvxpy.results)
+
+def format_passes(title: str, passes: dict[str, Solves], backend: str,
+                  halfspace_ms: np.ndarray | None = None) -> str:
+    """The report of :func:`solver_passes` (medians in ms); ``halfspace_ms`` per step, if
+    the halfspaces were timed (our *step* is then halfspaces + QP)."""
+    ours, cvxpy = passes["ours"], passes["cvxpy"]
+    halfspaces = np.zeros(len(ours.ms)) if halfspace_ms is None else np.asarray(halfspace_ms)
+    step = halfspaces + ours.ms
+    qp = ours.qp_solves > 0
+    constrained = qp & (np.array([r.iterations for r in ours.results]) > 0)
+    step_qp, cvxpy_qp = median(step, qp), median(cvxpy.ms, qp)
+    ours_c, cvxpy_c = median(step, constrained), median(cvxpy.ms, constrained)
+    lines = [
+        f"{title}, {len(step)} steps, medians:",
+        "    ours: " + (f"halfspaces {median(halfspaces):.3f} ms + " if halfspace_ms is not None
+                         else "") + f"QP {median(ours.ms):.3f} ms (solver calls "
+        f"{median([1e3 * r.solve_time for r in ours.results], qp):.3f} ms where used) = step "
+        f"{median(step):.3f} ms (p90 {p90(step):.3f} ms)",
+        f"    CVXPY QP built once with Parameters (Clarabel): {median(cvxpy.ms):.3f} ms (p90 "
+        f"{p90(cvxpy.ms):.3f} ms; first compile {cvxpy.first_ms:.0f} ms)",
+        f"    ratio CVXPY QP / our whole step: {median(cvxpy.ms) / median(step):.1f}x   "
+        "(target >= 10x, step < 1 ms)",
+        f"    steps that needed a QP ({int(qp.sum())}; the others were answered by the "
+        f"feasible-reference shortcut): ours {step_qp:.3f} ms, CVXPY {cvxpy_qp:.3f} ms, ratio "
+        f"{cvxpy_qp / step_qp:.1f}x",
+        f"    recovery QP solved on {int((ours.qp_solves > 1).sum())} steps; over the "
+        f"{int(constrained.sum())} steps whose QP had active rows (>= 1 iteration): ours "
+        f"{ours_c:.3f} ms, CVXPY {cvxpy_c:.3f} ms ({cvxpy_c / ours_c:.1f}x)",
+        f"    statuses: {counts(r.status.value for r in ours.results)}; the same as CVXPY's "
+        f"on {100 * agreement(ours, cvxpy):.1f}% of steps; max |u_ours - u_cvxpy| = "
+        f"{max_input_gap(ours.results, cvxpy.results):.2e} m/s^2 where both optimal",
+    ]
+    if "zero_inputs" in passes:
+        zero = passes["zero_inputs"]
+        lines.append(f"    same QPs with reference_inputs = 0: {int((zero.qp_solves == 0).sum())}"
+                     " steps skipped the QP (unconstrained optimum feasible); median over all "
+                     f"steps {median(zero.ms):.3f} ms")
+    lines.append(f"    backend=\"auto\" picked {backend!r}; each back end on the same steps "
+                 "(QP = the solve call; step = halfspaces + QP):")
+    for name in ("daqp", "clarabel"):
+        step_ms = median(halfspaces + passes[name].ms)
+        gap = max_input_gap(passes[name].results, passes["clarabel"].results)
+        lines.append(f"      {name:<9} QP {median(passes[name].ms):.3f} ms, step {step_ms:.3f} "
+                     f"ms, CVXPY QP / step {median(cvxpy.ms) / step_ms:.1f}x, max |u - "
+                     f"u_clarabel| {gap:.1e} m/s^2")
+    return "\n".join(lines)
 
 
 def benchmark_filter_qp(n_steps: int = 500, n_obstacles: int = 3, horizon: int = 10,
-                        seed: int = 0) -> FilterQPBenchmark:
-    """Time :class:`MPCSafetyFilter` against :class:`filters.CVXPYSafetyFilter` on the same
-    synthetic QPs (module docstring); ``seed`` seeds the episodes' generator."""
-    from filters import CVXPYSafetyFilter  # imports cvxpy: only when benchmarking
-
+                        seed: int = 0) -> str:
+    """The report of :func:`solver_passes` on synthetic instances (module docstring), with
+    the ``reference_inputs = 0`` pass; ``seed`` seeds the episodes' generator."""
     instances = make_instances(n_steps, n_obstacles, horizon, np.random.default_rng(seed))
-    A, B, C = double_integrator(TS)
-    kwargs = filter_kwargs(horizon, n_obstacles)
-    ours = MPCSafetyFilter(A, B, C, **kwargs)
-    return FilterQPBenchmark(
-        n_obstacles, horizon, ours.backend, timed_solves(ours, instances),
-        timed_solves(CVXPYSafetyFilter(A, B, C, **kwargs), instances),
-        timed_solves(MPCSafetyFilter(A, B, C, **kwargs), instances, zero_inputs=True))
-
-
-def format_filter_qp(result: FilterQPBenchmark) -> str:
-    """A short table of a :func:`benchmark_filter_qp` result."""
-    ours, cvxpy = result.ours, result.cvxpy
-    qp = ours.qp_solves > 0
-    constrained = qp & (np.array([r.iterations for r in ours.results]) > 0)
-    ours_c, cvxpy_c = median(ours.ms, constrained), median(cvxpy.ms, constrained)
-    solver_ms = median(1e3 * r.solve_time for r in ours.results)
-    statuses = counts(r.status.value for r in ours.results)
-    return "\n".join([
-        f"Filter QP, T = {result.horizon}, {result.n_obstacles} obstacles, "
-        f"{result.n_steps} steps ({statuses})",
-        f"{'':28}{'median ms':>10}{'p90 ms':>10}",
-        f"{f'MPCSafetyFilter ({result.backend})':28}{median(ours.ms, qp):>10.3f}"
-        f"{p90(ours.ms):>10.3f}",
-        f"{'  of which solver call':28}{solver_ms:>10.3f}",
-        f"{'CVXPYSafetyFilter':28}{median(cvxpy.ms, qp):>10.3f}{p90(cvxpy.ms):>10.3f}",
-        f"speed-up (median ratio): {result.ratio:.1f}x over the {int(qp.sum())} steps where "
-        f"ours solved a QP ({int((~qp).sum())} answered without one); CVXPY first compile "
-        f"{cvxpy.first_ms:.0f} ms",
-        f"recovery QP solved on {int((ours.qp_solves > 1).sum())} steps; over the "
-        f"{int(constrained.sum())} steps whose QP had active rows (>= 1 iteration): ours "
-        f"{ours_c:.3f} ms, CVXPY {cvxpy_c:.3f} ms ({cvxpy_c / ours_c:.1f}x)",
-        f"same QPs with reference_inputs = 0: {int((result.zero_inputs.qp_solves == 0).sum())}"
-        f" steps skipped the QP (unconstrained optimum feasible); median over all steps "
-        f"{median(result.zero_inputs.ms):.3f} ms",
-        f"same status on {100 * result.agreement:.1f}% of steps; max |u_ours - u_cvxpy| = "
-        f"{result.max_input_difference:.2e} m/s^2 where both optimal",
-    ])
+    passes, ours = solver_passes(*double_integrator(TS), filter_kwargs(horizon, n_obstacles),
+                                 instances, zero_inputs=True)
+    return format_passes(f"QP alone on synthetic instances, T = {horizon}, {n_obstacles} "
+                         "obstacles", passes, ours.backend)

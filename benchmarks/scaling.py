@@ -36,11 +36,12 @@ import numpy as np
 from benchmarks.filter_qp import (
     RADIUS,
     TS,
+    agreement,
     double_integrator,
     filter_kwargs,
     make_instances,
     max_input_gap,
-    timed_solves,
+    solver_passes,
 )
 from benchmarks.timing import clock, counts, machine, median, p90
 from filters import Disc, MPCSafetyFilter, safe_halfspaces
@@ -96,21 +97,15 @@ def benchmark_point(n_obstacles: int, horizon: int, n_samples: int, *, steps: in
     halfspace_ms = np.array([clock(safe_halfspaces, i.reference_states[1:, :2], i.samples,
                                    risk="dr_cvar", ego_velocity=i.x0[2:], **shapes)[1]
                              for i in instances])
-    from filters import CVXPYSafetyFilter  # imports cvxpy: only when benchmarking
-
-    ours = MPCSafetyFilter(A, B, C, **kwargs)
-    solves = {"ours": timed_solves(ours, instances),
-              "cvxpy": timed_solves(CVXPYSafetyFilter(A, B, C, **kwargs), instances)}
-    for name in ("daqp", "clarabel"):
-        explicit = MPCSafetyFilter(A, B, C, backend=name, **kwargs)
-        solves[name] = timed_solves(explicit, instances)
+    solves, ours = solver_passes(A, B, C, kwargs, instances)
+    clarabel = MPCSafetyFilter(A, B, C, backend="clarabel", **kwargs)._primary
     per_qp = []  # Clarabel's hard QP alone, the same QP at every step
     zero_inputs = np.zeros((horizon, B.shape[1]))
     for step in instances:
         data = StepData(step.x0, step.reference_states[1:], zero_inputs,
                         np.asarray(step.halfspaces.normals), np.asarray(step.halfspaces.offsets))
         begin, begin_cpu = time.perf_counter(), time.thread_time()
-        solution = explicit._primary.solve(data)
+        solution = clarabel.solve(data)
         cpu = 1e3 * (time.thread_time() - begin_cpu)
         per_qp.append((1e3 * (time.perf_counter() - begin), cpu, solution.iterations,
                        solution.found))
@@ -124,8 +119,7 @@ def benchmark_point(n_obstacles: int, horizon: int, n_samples: int, *, steps: in
         "step_ms": step, "step_p90_ms": p90(step_ms), "cvxpy_ms": cvxpy,
         "cvxpy_compile_ms": solves["cvxpy"].first_ms, "ratio": cvxpy / step,
         "qp_ratio": cvxpy / qp,
-        "agreement": float(np.mean([a.status == b.status for a, b in zip(
-            solves["ours"].results, solves["cvxpy"].results, strict=True)])),
+        "agreement": agreement(solves["ours"], solves["cvxpy"]),
         "max_input_difference": max_input_gap(solves["ours"].results, solves["cvxpy"].results),
         "statuses": counts((r.status.value for r in solves["ours"].results), "{}:{}", " "),
         "backend": ours.backend if recovery in (None, ours.backend)
@@ -162,52 +156,45 @@ def format_scaling_table(points: Sequence[dict]) -> str:
 def plot_scaling(points: Sequence[dict], path: str | Path) -> Path:
     """Log-log plot of time against problem size, saved to ``path`` (PNG/SVG/PDF).
 
-    Left: our QP, our whole step and CVXPY's QP against the horizon ``T``, one colour
-    per obstacle count (at the smallest ``N_s``). Right: the halfspaces against the
-    number of samples processed, ``n_obstacles * T * N_s``, with a slope-1 guide
-    (linear work) through the larger half of the points.
+    Left: CVXPY's QP (dashed), our whole step (solid) and our QP (dotted) against the
+    horizon ``T``, one colour per obstacle count (at the smallest ``N_s``). Right: the
+    halfspaces against the number of samples processed, ``n_obstacles * T * N_s``, with
+    a slope-1 guide (linear work) through the larger half of the points.
     """
     from agents.evaluation.plots import pyplot, save_figure
 
     plt = pyplot()
     fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2))
     n_samples = min(p["n_samples"] for p in points)
-    counts_ = sorted({p["n_obstacles"] for p in points})
     cycle = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    colour = {n: cycle[i % len(cycle)] for i, n in enumerate(counts_)}
-    styles = (("cvxpy_ms", "--", "s", "CVXPY QP, compiled once"),
-              ("step_ms", "-", "o", "our whole step (halfspaces + QP)"),
-              ("qp_ms", ":", ".", "our QP alone"))
-    for n in counts_:
+    colour = {n: cycle[i % len(cycle)]
+              for i, n in enumerate(sorted({p["n_obstacles"] for p in points}))}
+    for n in colour:
         row = sorted((p for p in points if p["n_obstacles"] == n and p["n_samples"] == n_samples),
                      key=lambda p: p["horizon"])
-        for key, line, marker, _ in styles:
-            left.plot([p["horizon"] for p in row], [p[key] for p in row], line,
-                      color=colour[n], marker=marker)
+        for key, line, marker in (("cvxpy_ms", "--", "s"), ("step_ms", "-", "o"),
+                                  ("qp_ms", ":", ".")):
+            left.plot([p["horizon"] for p in row], [p[key] for p in row], line, color=colour[n],
+                      marker=marker, label=f"{n} obstacle{'s' if n != 1 else ''}"
+                      if key == "step_ms" else None)
     horizons = sorted({p["horizon"] for p in points})
     left.set(xscale="log", yscale="log", xlabel="horizon T (steps)",
-             ylabel="median time per filter step (ms)",
-             title=f"Filter step against the same QP in CVXPY (N_s = {n_samples} samples)")
+             ylabel="median time per filter step (ms)", title=f"CVXPY QP compiled once (--), "
+             f"our step (—), our QP (··); N_s = {n_samples}")
     left.set_xticks(horizons, [str(h) for h in horizons])
     left.minorticks_off()
-    colour_key = [plt.Line2D([], [], color=colour[n], lw=6) for n in counts_]
-    labels = [f"{n} obstacle{'s' if n != 1 else ''}" for n in counts_]
-    left.add_artist(left.legend([plt.Line2D([], [], color="0.3", ls=line, marker=marker)
-                                 for _, line, marker, _ in styles],
-                                [label for *_, label in styles], fontsize=7, loc="upper left"))
-    left.legend(colour_key, labels, fontsize=7, loc="lower right")
     work = np.array([p["n_obstacles"] * p["horizon"] * p["n_samples"] for p in points], float)
     times = np.array([p["halfspaces_ms"] for p in points])
     right.scatter(work, times, c=[colour[p["n_obstacles"]] for p in points], s=18)
     large = work >= np.median(work)  # fixed costs dominate the small sizes
     guide = np.array([work.min(), work.max()])
-    right.plot(guide, float(np.median(times[large] / work[large])) * guide, "k--", lw=1)
+    right.plot(guide, float(np.median(times[large] / work[large])) * guide, "k--", lw=1,
+               label="slope 1 (linear work)")
     right.set(xscale="log", yscale="log", xlabel="samples processed, n_obstacles × T × N_s",
               ylabel="median time of all halfspaces of a step (ms)",
               title="DR-CVaR halfspaces: time against work")
-    right.legend([*colour_key, right.lines[-1]], [*labels, "slope 1 (linear work)"],
-                 fontsize=7, loc="upper left")
-    for axes in (left, right):
+    for axes, corner in ((left, "lower right"), (right, "upper left")):
+        axes.legend(fontsize=7, loc=corner)
         axes.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
     return save_figure(fig, path)

@@ -18,10 +18,15 @@ and ``--scaling`` (:mod:`benchmarks.scaling`) are run on their own.
 
 from __future__ import annotations
 
+import gymnasium as gym
 import numpy as np
 
-from benchmarks.filter_qp import Instance, max_input_gap, timed_solves
-from benchmarks.timing import clock, counts, machine, median, p90
+import safe_nav_env  # noqa: F401  (registers the ids)
+from benchmarks.filter_qp import Instance, filter_kwargs, format_passes, solver_passes
+from benchmarks.timing import clock, machine, median, p90
+from filters import Disc, MPCSafetyFilter, SafetyFilterWrapper, safe_halfspaces
+from filters.intersample import intersample_rows
+from filters.mpc import stopping_terminal_set
 
 
 def filter_step(n_steps: int = 500, seed: int = 0, *, continuous: bool = False
@@ -35,26 +40,14 @@ def filter_step(n_steps: int = 500, seed: int = 0, *, continuous: bool = False
     drives the episode, as in a control loop. The halfspaces are timed as the steps are
     recorded; then each filter solves the recorded steps in a pass of its own.
     """
-    import gymnasium as gym
-
-    import safe_nav_env  # noqa: F401
     from agents.planners import MPCReferencePlanner
-    from filters import (
-        CVXPYSafetyFilter,
-        Disc,
-        MPCSafetyFilter,
-        intersample_rows,
-        safe_halfspaces,
-        stopping_terminal_set,
-    )
 
     env = gym.make("SafeNav/MultiObstacle-v0", n_samples=100, horizon=10)
     base = env.unwrapped
     A, B, C = base.dynamics
     planner = MPCReferencePlanner.from_env(env)
-    kwargs = dict(horizon=10, Q=4.0 * np.eye(4), Q_terminal=25.0 * np.eye(4), R=np.eye(2),
-                  input_bounds=base.input_bounds, position_bounds=base.position_bounds,
-                  n_obstacles=6 if continuous else 3)
+    kwargs = {**filter_kwargs(10, 6 if continuous else 3), "input_bounds": base.input_bounds,
+              "position_bounds": base.position_bounds}
     if continuous:
         kwargs.update(fallback="soft", terminal_set=stopping_terminal_set(
             base.dt, base.input_bounds, base.position_bounds))
@@ -70,55 +63,27 @@ def filter_step(n_steps: int = 500, seed: int = 0, *, continuous: bool = False
         return rows.normals, rows.offsets
 
     live = MPCSafetyFilter(A, B, C, **kwargs)
-    instances, halfspace_ms, episode = [], [], 0
+    instances, halfspace_ms, episode, done = [], [], 0, True
     while len(instances) < n_steps:
-        env.reset(seed=seed + episode)
-        live.reset()
-        episode, done, new_episode = episode + 1, False, True
-        while not done and len(instances) < n_steps:
-            x0 = np.asarray(base.ego_state, dtype=float)
-            states, inputs = planner.plan(x0, base.goal)
-            rows, ms = clock(halfspaces, x0, states[1:] @ C.T, base.predictions[:, :, :10])
-            instances.append(Instance(x0, states, rows, new_episode, reference_inputs=inputs))
-            halfspace_ms.append(ms)
-            new_episode = False
-            result = live.solve(x0, states, rows, reference_inputs=inputs)
-            _, _, terminated, truncated, _ = env.step(result.inputs[0].astype(np.float32))
-            done = terminated or truncated
+        if done:
+            env.reset(seed=seed + episode)
+            live.reset()
+            episode += 1
+        x0 = np.asarray(base.ego_state, dtype=float)
+        states, inputs = planner.plan(x0, base.goal)
+        rows, ms = clock(halfspaces, x0, states[1:] @ C.T, base.predictions[:, :, :10])
+        instances.append(Instance(x0, states, rows, done, reference_inputs=inputs))
+        halfspace_ms.append(ms)
+        result = live.solve(x0, states, rows, reference_inputs=inputs)
+        _, _, terminated, truncated, _ = env.step(result.inputs[0].astype(np.float32))
+        done = terminated or truncated
     env.close()
-    ours = MPCSafetyFilter(A, B, C, **kwargs)  # backend="auto"
-    solves = {"auto": timed_solves(ours, instances),
-              "cvxpy": timed_solves(CVXPYSafetyFilter(A, B, C, **kwargs), instances)}
-    for name in ("daqp", "clarabel"):
-        solves[name] = timed_solves(MPCSafetyFilter(A, B, C, backend=name, **kwargs), instances)
-    halfspace_ms = np.array(halfspace_ms)
-    step_ms = halfspace_ms + solves["auto"].ms
-    cvxpy, qp = median(solves["cvxpy"].ms), solves["auto"].qp_solves > 0
-    step_qp, cvxpy_qp = median(step_ms, qp), median(solves["cvxpy"].ms, qp)
+    passes, ours = solver_passes(A, B, C, kwargs, instances)
     variant = ("the continuous-time filter (inter-sample rows, terminal set, recovery)"
                if continuous else "the paper's filter")
-    lines = [
-        f"(b) one filter step, {variant}, MultiObstacle (3 obstacles, T = 10, N_s = 100), "
-        f"{len(instances)} steps, medians:",
-        f"    ours: halfspaces {median(halfspace_ms):.3f} ms + QP {median(solves['auto'].ms):.3f}"
-        f" ms = step {median(step_ms):.3f} ms (p90 {p90(step_ms):.3f} ms)",
-        f"    CVXPY QP built once with Parameters (Clarabel): {cvxpy:.3f} ms",
-        f"    ratio CVXPY QP / our whole step: {cvxpy / median(step_ms):.1f}x   (target >= "
-        "10x, step < 1 ms)",
-        f"    steps that needed a QP ({int(qp.sum())}; the others were answered by the "
-        f"feasible-reference shortcut): ours {step_qp:.3f} ms, CVXPY {cvxpy_qp:.3f} ms, "
-        f"ratio {cvxpy_qp / step_qp:.1f}x",
-        f"    statuses: {counts(r.status.value for r in solves['auto'].results)}",
-        f"    backend=\"auto\" picked {ours.backend!r}; each back end on the same steps (QP = "
-        "the solve call; step = halfspaces + QP):",
-    ]
-    for name in ("daqp", "clarabel"):
-        step = median(halfspace_ms + solves[name].ms)
-        gap = max_input_gap(solves[name].results, solves["clarabel"].results)
-        lines.append(f"      {name:<9} QP {median(solves[name].ms):.3f} ms, step {step:.3f} ms, "
-                     f"CVXPY QP / step {cvxpy / step:.1f}x, max |u - u_clarabel| {gap:.1e} "
-                     "m/s^2")
-    return "\n".join(lines), median(solves["auto"].ms)
+    return format_passes(f"(b) one filter step, {variant}, MultiObstacle (3 obstacles, T = 10, "
+                         "N_s = 100)", passes, ours.backend, halfspace_ms), median(
+        passes["ours"].ms)
 
 
 def control_loop(steps: int = 500, seed: int = 0) -> str:
@@ -128,12 +93,8 @@ def control_loop(steps: int = 500, seed: int = 0) -> str:
     driven by the same actor; the times are the filter reports' (reference, halfspaces,
     QP = ``filter_time - halfspace_time``), so all are measured on the same steps.
     """
-    import gymnasium as gym
-
-    import safe_nav_env  # noqa: F401
     from agents.policies.numpy_policy import NumpyPolicy
     from agents.training.ppo import load_ppo, set_torch_threads
-    from filters import SafetyFilterWrapper
 
     set_torch_threads(1)
     actor = NumpyPolicy.from_sb3(load_ppo())
@@ -163,7 +124,7 @@ def run_benchmarks(filter_steps: int = 500, table_repeats: int = 100, seed: int 
     """Run (a), (b) and (c) and return the printed report."""
     from agents.experiments.table_one import format_table_one, halfspace_timing_table
     from benchmarks.env import benchmark, normal_draws_per_second, render_frames
-    from benchmarks.filter_qp import benchmark_filter_qp, format_filter_qp
+    from benchmarks.filter_qp import benchmark_filter_qp
     from benchmarks.policy import benchmark_rollout_reference, format_rollout_reference
 
     table = halfspace_timing_table((50, 500, 1500), table_repeats, seed)
@@ -179,8 +140,7 @@ def run_benchmarks(filter_steps: int = 500, table_repeats: int = 100, seed: int 
         f"    {format_rollout_reference(rollout)}\n    NumpyPolicy roll-out / the "
         f"continuous-time filter's QP above: {rollout['numpy']:.3f} / {qp_ms:.3f} ms = "
         f"{rollout['numpy'] / qp_ms:.2f}\n" + control_loop(filter_steps, seed),
-        "    QP alone on synthetic instances:\n" + format_filter_qp(
-            benchmark_filter_qp(n_steps=filter_steps, seed=seed)),
+        benchmark_filter_qp(n_steps=filter_steps, seed=seed),
         "(c) unfiltered environment, gym.make, N_s = 100, T = 10:\n" + "\n".join(
             f"    {env_id:<28} {rate:8.0f} steps/s {1e6 / rate:8.1f} µs/step"
             for env_id, rate in rates.items())
