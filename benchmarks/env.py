@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import statistics
 import time
-from collections.abc import Iterable
 
 import gymnasium as gym
 import numpy as np
 
+from benchmarks.timing import median
 from safe_nav_env.registration import ENV_IDS, SCENE_IDS
 
 RENDERED = ("SafeNav/HeadOn-v0", "SafeNav/MultiObstacle-v0", "SafeNav/RandomCrossing-v0")
@@ -39,7 +38,7 @@ def steps_per_second(env_id: str, *, n_steps: int = 5000, repeats: int = 5, seed
                 env.reset()
         rates.append(n_steps / (time.perf_counter() - start))
     env.close()
-    return statistics.median(rates)
+    return median(rates)
 
 
 def normal_draws_per_second(*, size: int = 6000, repeats: int = 5, seed: int = 0) -> float:
@@ -55,16 +54,15 @@ def normal_draws_per_second(*, size: int = 6000, repeats: int = 5, seed: int = 0
         for _ in range(200):
             rng.standard_normal(size)
         rates.append(200 * size / (time.perf_counter() - start))
-    return statistics.median(rates)
+    return median(rates)
 
 
-def benchmark(env_ids: Iterable[str] | None = None, *, n_steps: int = 5000, repeats: int = 5,
-              seed: int = 0, **make_kwargs: object) -> dict[str, float]:
-    """Steps per second (median of ``repeats``) for each id; default: every registered id
-    except ``SafeNav/Custom-v0``, the scene environments (recorded pedestrians, the crowd)
-    with their default options included. See :func:`steps_per_second`."""
-    ids = ([i for i in ENV_IDS if i != "SafeNav/Custom-v0"] + list(SCENE_IDS)
-           if env_ids is None else list(env_ids))
+def benchmark(*, n_steps: int = 5000, repeats: int = 5, seed: int = 0,
+              **make_kwargs: object) -> dict[str, float]:
+    """Steps per second (median of ``repeats``) of every registered id except
+    ``SafeNav/Custom-v0``, the scene environments (recorded pedestrians, the crowd) with
+    their default options included. See :func:`steps_per_second`."""
+    ids = [i for i in ENV_IDS if i != "SafeNav/Custom-v0"] + list(SCENE_IDS)
     return {env_id: steps_per_second(env_id, n_steps=n_steps, repeats=repeats, seed=seed,
                                      **make_kwargs) for env_id in ids}
 

@@ -115,16 +115,18 @@ def _filter_clock() -> Any:
             self.reports = self.not_optimal = 0
 
         def _on_step(self) -> bool:
-            for report in (info.get("filter") for info in self.locals["infos"]):
-                if report is not None:
-                    qp = report.filter_time - report.halfspace_time
-                    optimal = report.status == "optimal"
-                    for part, value in zip(PARTS, (report.reference_time,
-                                                   report.halfspace_time, qp, 0 if optimal
-                                                   else qp), strict=True):
-                        self.times[part] += value
-                    self.reports += 1
-                    self.not_optimal += not optimal
+            for info in self.locals["infos"]:
+                report = info.get("filter")
+                if report is None:
+                    continue
+                qp = report.filter_time - report.halfspace_time
+                optimal = report.status == "optimal"
+                self.times["reference"] += report.reference_time
+                self.times["halfspaces"] += report.halfspace_time
+                self.times["qp"] += qp
+                self.times["qp_not_optimal"] += 0.0 if optimal else qp
+                self.reports += 1
+                self.not_optimal += not optimal
             return True
 
     return FilterClock()
