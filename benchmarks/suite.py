@@ -131,24 +131,24 @@ def run_benchmarks(filter_steps: int = 500, table_repeats: int = 100, seed: int 
     paper, _ = filter_step(filter_steps, seed)
     continuous, qp_ms = filter_step(filter_steps, seed, continuous=True)
     rollout = benchmark_rollout_reference(steps=filter_steps, seed=seed)
-    rates = benchmark(n_steps=env_steps, repeats=3, seed=seed)
+    policy = (f"    {format_rollout_reference(rollout)}\n    NumpyPolicy roll-out / the "
+              f"continuous-time filter's QP above: {rollout['numpy']:.3f} / {qp_ms:.3f} ms = "
+              f"{rollout['numpy'] / qp_ms:.2f}\n" + control_loop(filter_steps, seed))
+    environment = ["(c) unfiltered environment, gym.make, N_s = 100, T = 10:"]
+    for env_id, rate in benchmark(n_steps=env_steps, repeats=3, seed=seed).items():
+        environment.append(f"    {env_id:<28} {rate:8.0f} steps/s {1e6 / rate:8.1f} µs/step")
     normals = normal_draws_per_second(seed=seed)
     frames = min(100, filter_steps)
-    return "\n\n".join([
-        f"{machine()}; medians; ratios measured in this run",
-        "(a) " + format_table_one(table["result"]), paper, continuous,
-        f"    {format_rollout_reference(rollout)}\n    NumpyPolicy roll-out / the "
-        f"continuous-time filter's QP above: {rollout['numpy']:.3f} / {qp_ms:.3f} ms = "
-        f"{rollout['numpy'] / qp_ms:.2f}\n" + control_loop(filter_steps, seed),
-        benchmark_filter_qp(n_steps=filter_steps, seed=seed),
-        "(c) unfiltered environment, gym.make, N_s = 100, T = 10:\n" + "\n".join(
-            f"    {env_id:<28} {rate:8.0f} steps/s {1e6 / rate:8.1f} µs/step"
-            for env_id, rate in rates.items())
-        + f"\n    machine reference: numpy draws {normals / 1e6:.0f} M normals/s, so the 6000 "
-        f"prediction normals of a MultiObstacle step take {6000 / normals * 1e6:.1f} µs\n"
-        f"    rgb_array frames with the DR-CVaR wrapper's halfspaces, {frames} frames, "
-        "render() alone:\n" + "\n".join(
-            f"    {env_id:<28} median {median(wall):5.2f} ms (CPU {median(cpu):5.2f} ms)  p90 "
-            f"{p90(wall):5.2f} ms  max {max(wall):6.2f} ms"
-            for env_id, (wall, cpu) in render_frames(frames, seed=seed).items()),
-    ])
+    environment += [f"    machine reference: numpy draws {normals / 1e6:.0f} M normals/s, so "
+                    f"the 6000 prediction normals of a MultiObstacle step take "
+                    f"{6000 / normals * 1e6:.1f} µs",
+                    f"    rgb_array frames with the DR-CVaR wrapper's halfspaces, {frames} "
+                    "frames, render() alone:"]
+    for env_id, (wall, cpu) in render_frames(frames, seed=seed).items():
+        environment.append(f"    {env_id:<28} median {median(wall):5.2f} ms (CPU "
+                           f"{median(cpu):5.2f} ms)  p90 {p90(wall):5.2f} ms  max "
+                           f"{max(wall):6.2f} ms")
+    return "\n\n".join([f"{machine()}; medians; ratios measured in this run",
+                         "(a) " + format_table_one(table["result"]), paper, continuous, policy,
+                         benchmark_filter_qp(n_steps=filter_steps, seed=seed),
+                         "\n".join(environment)])
