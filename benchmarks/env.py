@@ -1,63 +1,44 @@
-"""Steps per second of the unfiltered environment, per scenario."""
+"""The environment's speed: steps per second of each scenario, and time per rendered frame."""
 
 from __future__ import annotations
 
-import statistics
 import time
-from collections.abc import Iterable
 
 import gymnasium as gym
 import numpy as np
 
+from benchmarks.timing import median
 from safe_nav_env.registration import ENV_IDS, SCENE_IDS
 
+RENDERED = ("SafeNav/HeadOn-v0", "SafeNav/MultiObstacle-v0", "SafeNav/RandomCrossing-v0")
+"""Scenarios :func:`render_frames` times."""
 
-def steps_per_second(
-    env_id: str,
-    *,
-    n_steps: int = 5000,
-    repeats: int = 5,
-    seed: int = 0,
-    raw: bool = False,
-    **make_kwargs: object,
-) -> float:
-    """Median over ``repeats`` runs of the environment steps per second.
+
+def steps_per_second(env_id: str, *, n_steps: int = 5000, repeats: int = 5, seed: int = 0,
+                     **make_kwargs: object) -> float:
+    """Median over ``repeats`` runs of the ``gym.make(env_id, **make_kwargs)`` steps per second.
 
     Each run resets with ``seed`` and steps ``n_steps`` times with pre-drawn uniform
-    random accelerations, resetting when an episode ends (resets are counted in
-    the time). Rendering is off.
-
-    Parameters
-    ----------
-    env_id
-        A registered id, e.g. ``"SafeNav/MultiObstacle-v0"``.
-    n_steps, repeats
-        Steps per timed run and number of runs.
-    seed
-        Seed of the environment and of the actions.
-    raw
-        Time ``env.unwrapped`` instead of the ``gym.make`` wrapper stack.
-    make_kwargs
-        Passed to :func:`gymnasium.make` (e.g. ``n_samples``, ``horizon``).
+    random accelerations, resetting when an episode ends (resets are counted in the
+    time). Rendering is off.
     """
     env = gym.make(env_id, **make_kwargs)
-    target = env.unwrapped if raw else env
-    rng = np.random.default_rng(seed)
     high = env.action_space.high
-    actions = rng.uniform(-high, high, size=(n_steps, *env.action_space.shape)).astype(np.float32)
+    actions = np.random.default_rng(seed).uniform(
+        -high, high, size=(n_steps, *env.action_space.shape)).astype(np.float32)
+    env.reset(seed=seed)
+    env.step(actions[0])  # the passive checker inspects the first step only
     rates = []
-    target.reset(seed=seed)
-    target.step(actions[0])  # the passive checker inspects the first step only
     for _ in range(repeats):
-        target.reset(seed=seed)
+        env.reset(seed=seed)
         start = time.perf_counter()
         for action in actions:
-            _, _, terminated, truncated, _ = target.step(action)
+            _, _, terminated, truncated, _ = env.step(action)
             if terminated or truncated:
-                target.reset()
+                env.reset()
         rates.append(n_steps / (time.perf_counter() - start))
     env.close()
-    return statistics.median(rates)
+    return median(rates)
 
 
 def normal_draws_per_second(*, size: int = 6000, repeats: int = 5, seed: int = 0) -> float:
@@ -73,25 +54,41 @@ def normal_draws_per_second(*, size: int = 6000, repeats: int = 5, seed: int = 0
         for _ in range(200):
             rng.standard_normal(size)
         rates.append(200 * size / (time.perf_counter() - start))
-    return statistics.median(rates)
+    return median(rates)
 
 
-def benchmark(
-    env_ids: Iterable[str] | None = None,
-    *,
-    n_steps: int = 5000,
-    repeats: int = 5,
-    seed: int = 0,
-    raw: bool = False,
-    **make_kwargs: object,
-) -> dict[str, float]:
-    """Steps per second (median of ``repeats``) for each id; default: every registered id
-    except ``SafeNav/Custom-v0``, the scene environments (recorded pedestrians, the crowd)
-    with their default options included. See :func:`steps_per_second`."""
-    ids = ([i for i in ENV_IDS if i != "SafeNav/Custom-v0"] + list(SCENE_IDS)
-           if env_ids is None else list(env_ids))
-    return {
-        env_id: steps_per_second(env_id, n_steps=n_steps, repeats=repeats, seed=seed, raw=raw,
-                                 **make_kwargs)
-        for env_id in ids
-    }
+def benchmark(*, n_steps: int = 5000, repeats: int = 5, seed: int = 0,
+              **make_kwargs: object) -> dict[str, float]:
+    """Steps per second (median of ``repeats``) of every registered id except
+    ``SafeNav/Custom-v0``, the scene environments (recorded pedestrians, the crowd) with
+    their default options included. See :func:`steps_per_second`."""
+    ids = [i for i in ENV_IDS if i != "SafeNav/Custom-v0"] + list(SCENE_IDS)
+    return {env_id: steps_per_second(env_id, n_steps=n_steps, repeats=repeats, seed=seed,
+                                     **make_kwargs) for env_id in ids}
+
+
+def render_frames(frames: int = 100, *, seed: int = 0) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Wall and CPU (this process) ms of each ``render()`` of :data:`RENDERED`, by id.
+
+    DR-CVaR filtered episodes (the wrapper draws its halfspaces through the render hooks)
+    under zero actions, restarting as needed; the first frame, which draws and caches
+    the static scene, is not timed. On a shared machine the CPU time is the steadier one.
+    """
+    from filters import SafetyFilterWrapper
+
+    times = {}
+    for env_id in RENDERED:
+        env = SafetyFilterWrapper(gym.make(env_id, render_mode="rgb_array"), risk="dr_cvar")
+        env.reset(seed=seed)
+        env.render()
+        rows = []
+        for k in range(frames):
+            _, _, terminated, truncated, _ = env.step(np.zeros(2))
+            if terminated or truncated:
+                env.reset(seed=seed + k + 1)
+            start, start_cpu = time.perf_counter(), time.process_time()
+            env.render()
+            rows.append((time.perf_counter() - start, time.process_time() - start_cpu))
+        env.close()
+        times[env_id] = tuple(1e3 * np.array(rows).T)
+    return times

@@ -28,15 +28,11 @@ import os
 import subprocess
 import sys
 import tempfile
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
-from filters.errors import InvalidParameterError
-
-__all__ = ["EvaluationRun", "EvaluationScaling", "benchmark_evaluation", "same_rows"]
+from benchmarks.timing import clock, median
+from filters._validation import integer_at_least
 
 WORKER_COUNTS = (1, 2)
 """Worker counts compared (``--workers``)."""
@@ -85,16 +81,14 @@ class EvaluationScaling:
     runs: tuple[EvaluationRun, ...]
     same_rows: bool  # 1 and 2 workers wrote the same CSV rows (timing columns aside)
 
-    def _of(self, workers: int) -> list[EvaluationRun]:
-        return [run for run in self.runs if run.workers == workers]
-
     def wall(self, workers: int) -> float:
         """Median wall time in s on ``workers`` workers."""
-        return float(np.median([run.wall for run in self._of(workers)]))
+        return median(run.wall for run in self.runs if run.workers == workers)
 
     def cpu(self, workers: int) -> float:
         """Median CPU seconds (parent + workers) on ``workers`` workers."""
-        return float(np.median([run.parent_cpu + run.workers_cpu for run in self._of(workers)]))
+        return median(run.parent_cpu + run.workers_cpu for run in self.runs
+                      if run.workers == workers)
 
     @property
     def speedup(self) -> float:
@@ -107,27 +101,24 @@ class EvaluationScaling:
         return 2.0 * self.wall(2) - self.wall(1)
 
     def format(self) -> str:
-        lines = [f"evaluation scaling: safe-nav evaluate, defaults, {self.episodes} episodes, "
-                 "--no-plots, end to end; runs alternate 1 and 2 workers"]
-        lines.append("  run  workers  wall (s)  episodes/s  CPU parent (s)  CPU workers (s)  "
-                     "load before")
-        for index, run in enumerate(self.runs):
-            lines.append(f"  {index:>3}  {run.workers:>7}  {run.wall:>8.1f}  "
-                         f"{self.episodes / run.wall:>10.1f}  {run.parent_cpu:>14.1f}  "
-                         f"{run.workers_cpu:>15.1f}  {run.load:>11.2f}")
-        for workers in WORKER_COUNTS:
-            lines.append(f"  {workers} worker{'s' if workers > 1 else ' '}: median "
-                         f"{self.wall(workers):.1f} s ({self.episodes / self.wall(workers):.1f}"
-                         f" episodes/s), CPU {self.cpu(workers):.1f} s "
-                         f"({1e3 * self.cpu(workers) / self.episodes:.2f} ms per episode)")
-        lines.append(f"  speed-up 2 workers / 1: {self.speedup:.2f}x (target >= 1.8x); "
-                     f"serial part (Amdahl, 2 t2 - t1) {self.serial:.1f} s")
-        lines.append(f"  same rows on 1 and 2 workers (timing columns aside): "
-                     f"{'yes' if self.same_rows else 'NO'}")
         loads = [run.load for run in self.runs]
-        lines.append(f"  load average before the runs: median {np.median(loads):.2f}, "
-                     f"max {max(loads):.2f} (2 cores; above ~0.5 other work shares them)")
-        return "\n".join(lines)
+        return "\n".join([
+            f"evaluation scaling: safe-nav evaluate, defaults, {self.episodes} episodes, "
+            "--no-plots, end to end; runs alternate 1 and 2 workers",
+            "  run  workers  wall (s)  episodes/s  CPU parent (s)  CPU workers (s)  load before",
+            *(f"  {i:>3}  {run.workers:>7}  {run.wall:>8.1f}  {self.episodes / run.wall:>10.1f}"
+              f"  {run.parent_cpu:>14.1f}  {run.workers_cpu:>15.1f}  {run.load:>11.2f}"
+              for i, run in enumerate(self.runs)),
+            *(f"  {n} worker{'s' if n > 1 else ' '}: median {self.wall(n):.1f} s "
+              f"({self.episodes / self.wall(n):.1f} episodes/s), CPU {self.cpu(n):.1f} s "
+              f"({1e3 * self.cpu(n) / self.episodes:.2f} ms per episode)" for n in WORKER_COUNTS),
+            f"  speed-up 2 workers / 1: {self.speedup:.2f}x (target >= 1.8x); serial part "
+            f"(Amdahl, 2 t2 - t1) {self.serial:.1f} s",
+            f"  same rows on 1 and 2 workers (timing columns aside): "
+            f"{'yes' if self.same_rows else 'NO'}",
+            f"  load average before the runs: median {median(loads):.2f}, max {max(loads):.2f}"
+            " (2 cores; above ~0.5 other work shares them)",
+        ])
 
 
 def _evaluate_once(workers: int, episodes: int, output: Path) -> EvaluationRun:
@@ -135,18 +126,14 @@ def _evaluate_once(workers: int, episodes: int, output: Path) -> EvaluationRun:
     argv = ["evaluate", "--episodes", str(episodes), "--workers", str(workers), "--no-plots",
             "--no-progress", "--overwrite", "--output", str(output)]
     load = os.getloadavg()[0]
-    begin = time.perf_counter()
-    done = subprocess.run([sys.executable, "-c", _RUNNER, json.dumps(argv)],
+    done, wall_ms = clock(subprocess.run, [sys.executable, "-c", _RUNNER, json.dumps(argv)],
                           capture_output=True, text=True, check=False)
-    wall = time.perf_counter() - begin
     lines = [line for line in done.stdout.splitlines() if line.startswith("BENCH-EVALUATION ")]
-    if not lines:
-        raise RuntimeError(f"safe-nav evaluate failed (exit code {done.returncode}): "
-                           f"{done.stderr.strip()[-500:]}")
-    code, parent_cpu, workers_cpu = json.loads(lines[-1].split(" ", 1)[1])
+    code, parent_cpu, workers_cpu = (json.loads(lines[-1].split(" ", 1)[1]) if lines
+                                     else (done.returncode or 1, 0, 0))
     if code != 0:
         raise RuntimeError(f"safe-nav evaluate exited with {code}: {done.stderr.strip()[-500:]}")
-    return EvaluationRun(workers, wall, parent_cpu, workers_cpu, load)
+    return EvaluationRun(workers, wall_ms / 1e3, parent_cpu, workers_cpu, load)
 
 
 def same_rows(first: Path, second: Path) -> bool:
@@ -171,9 +158,8 @@ def benchmark_evaluation(episodes: int = 300, runs: int = 3, *,
     InvalidParameterError
         If ``episodes`` or ``runs`` is not an integer >= 1.
     """
-    for name, value in (("episodes", episodes), ("runs", runs)):
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-            raise InvalidParameterError(f"{name} must be an integer >= 1, got {value!r}")
+    integer_at_least("episodes", episodes)
+    integer_at_least("runs", runs)
     from agents.cli.main import build_parser
 
     defaults = build_parser().parse_args(["evaluate"])

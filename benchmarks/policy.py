@@ -3,11 +3,11 @@ roll-out reference (``safe-nav bench`` and ``safe-nav bench --scaling``)."""
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
+
+from benchmarks.timing import clock, median
 
 
 @dataclass(frozen=True)
@@ -17,26 +17,27 @@ class PolicyTiming:
     calls: int
     sb3_us: float
     numpy_us: float
-    ratio: float  # sb3 / numpy
     batch: int
     sb3_batch_us: float  # one batched call of `batch` observations
     numpy_batch_us: float
     max_difference: float  # max |a_numpy - a_sb3| over the timed observations, m/s^2
 
+    @property
+    def ratio(self) -> float:
+        """SB3 over numpy."""
+        return self.sb3_us / self.numpy_us
+
     def format(self) -> str:
-        return "\n".join([
-            f"policy forward, one observation, {self.calls} calls, medians: SB3 predict "
-            f"{self.sb3_us:.1f} us, NumpyPolicy {self.numpy_us:.1f} us "
-            f"({self.ratio:.1f}x faster)",
-            f"    batch of {self.batch}: SB3 {self.sb3_batch_us:.1f} us, NumpyPolicy "
-            f"{self.numpy_batch_us:.1f} us; max |a_numpy - a_sb3| = {self.max_difference:.2e}",
-        ])
+        return (f"policy forward, one observation, {self.calls} calls, medians: SB3 predict "
+                f"{self.sb3_us:.1f} us, NumpyPolicy {self.numpy_us:.1f} us ({self.ratio:.1f}x "
+                f"faster)\n    batch of {self.batch}: SB3 {self.sb3_batch_us:.1f} us, "
+                f"NumpyPolicy {self.numpy_batch_us:.1f} us; max |a_numpy - a_sb3| = "
+                f"{self.max_difference:.2e}")
 
 
-def benchmark_numpy_policy(
-    path: str | Path | None = None, *, calls: int = 2000, batch: int = 64, seed: int = 0
-) -> PolicyTiming:
-    """Time ``model.predict(obs, deterministic=True)`` against :class:`NumpyPolicy`.
+def benchmark_numpy_policy(*, calls: int = 2000, batch: int = 64, seed: int = 0) -> PolicyTiming:
+    """Time the shipped policy's ``model.predict(obs, deterministic=True)`` against
+    :class:`NumpyPolicy`, one observation and batches of ``batch``.
 
     The observations are standard-normal draws from ``numpy.random.default_rng(seed)``
     (the network does not care where they come from); one torch thread, as in the
@@ -46,45 +47,33 @@ def benchmark_numpy_policy(
     from agents.policies.numpy_policy import NumpyPolicy
 
     set_torch_threads(1)
-    model = load_ppo(path)
+    model = load_ppo()
     policy = NumpyPolicy.from_sb3(model)
-    rng = np.random.default_rng(seed)
-    observations = rng.standard_normal((calls, *policy._obs_shape)).astype(np.float32)
-    sb3_times, numpy_times, difference = [], [], 0.0
+    observations = np.random.default_rng(seed).standard_normal(
+        (calls, *policy._obs_shape)).astype(np.float32)
+    single, batched, difference = [], [], 0.0
     for obs in observations:
-        begin = time.perf_counter()
-        torch_action, _ = model.predict(obs, deterministic=True)
-        middle = time.perf_counter()
-        numpy_action, _ = policy.predict(obs, deterministic=True)
-        sb3_times.append(middle - begin)
-        numpy_times.append(time.perf_counter() - middle)
+        (torch_action, _), sb3_ms = clock(model.predict, obs, deterministic=True)
+        (numpy_action, _), numpy_ms = clock(policy.predict, obs, deterministic=True)
+        single.append((sb3_ms, numpy_ms))
         difference = max(difference, float(np.max(np.abs(numpy_action - torch_action))))
-    sb3_batch, numpy_batch = [], []
     for start in range(0, calls - batch + 1, batch):
-        rows = observations[start : start + batch]
-        begin = time.perf_counter()
-        model.predict(rows, deterministic=True)
-        middle = time.perf_counter()
-        policy.predict_batch(rows)
-        sb3_batch.append(middle - begin)
-        numpy_batch.append(time.perf_counter() - middle)
-    sb3_us, numpy_us = 1e6 * float(np.median(sb3_times)), 1e6 * float(np.median(numpy_times))
-    return PolicyTiming(
-        calls=calls, sb3_us=sb3_us, numpy_us=numpy_us, ratio=sb3_us / numpy_us, batch=batch,
-        sb3_batch_us=1e6 * float(np.median(sb3_batch)),
-        numpy_batch_us=1e6 * float(np.median(numpy_batch)), max_difference=difference,
-    )
+        rows = observations[start:start + batch]
+        batched.append((clock(model.predict, rows, deterministic=True)[1],
+                        clock(policy.predict_batch, rows)[1]))
+    (sb3, numpy), (sb3_batch, numpy_batch) = np.array(single).T, np.array(batched).T
+    return PolicyTiming(calls, 1e3 * median(sb3), 1e3 * median(numpy), batch,
+                        1e3 * median(sb3_batch), 1e3 * median(numpy_batch), difference)
 
 
-def benchmark_rollout_reference(
-    horizon: int = 10, steps: int = 200, seed: int = 0, path: str | None = None
-) -> dict[str, float]:
+def benchmark_rollout_reference(horizon: int = 10, steps: int = 200, seed: int = 0
+                                ) -> dict[str, float]:
     """Median wall time (ms) of one roll-out reference (``T - 1`` policy calls) per step.
 
     On the states of unfiltered MultiObstacle episodes of the shipped PPO policy (recorded
     first, then replayed to each maker in a loop of its own: the same states for all),
-    :class:`filters.references.PolicyRolloutReference` with: ``"sb3"`` the SB3
-    model's ``predict`` at each look-ahead step; ``"numpy"`` the :class:`agents.NumpyPolicy`
+    :class:`filters.references.PolicyRolloutReference` with: ``"sb3"`` the SB3 model's
+    ``predict`` at each look-ahead step; ``"numpy"`` the :class:`agents.NumpyPolicy`
     export called the same way (what ``safe-nav evaluate`` runs); ``"hold"`` the
     held-action reference, for scale.
     """
@@ -96,7 +85,7 @@ def benchmark_rollout_reference(
     from filters.references import PolicyRolloutReference, hold_action_reference
 
     set_torch_threads(1)
-    model = load_ppo(path)
+    model = load_ppo()
     makers = {"sb3": PolicyRolloutReference(model),
               "numpy": PolicyRolloutReference(NumpyPolicy.from_sb3(model)),
               "hold": hold_action_reference}
@@ -113,26 +102,22 @@ def benchmark_rollout_reference(
         situations.append(({name: getattr(base, name) for name in fields}, action))
         obs, _, terminated, truncated, _ = env.step(action)
         done = terminated or truncated
-    times: dict[str, list[float]] = {}
+    medians = {}
     for name, maker in makers.items():  # each in a loop of its own, as a control loop runs
         maker(base, situations[0][1], horizon)  # first call: torch's kernels
-        times[name] = []
+        times = []
         for state, action in situations:
             for field, value in state.items():
                 setattr(base, field, value)
-            begin = time.perf_counter()
-            maker(base, action, horizon)
-            times[name].append(1e3 * (time.perf_counter() - begin))
+            times.append(clock(maker, base, action, horizon)[1])
+        medians[name] = median(times)
     env.close()
-    return {name: float(np.median(values)) for name, values in times.items()}
+    return medians
 
 
 def format_rollout_reference(rollout: dict[str, float], horizon: int = 10) -> str:
     """The roll-out timings of :func:`benchmark_rollout_reference` as one paragraph."""
-    numpy_ms = rollout["numpy"]
-    return (
-        f"roll-out reference, T = {horizon} ({horizon - 1} policy calls), MultiObstacle, "
-        f"medians: SB3 predict {rollout['sb3']:.3f} ms, NumpyPolicy.predict "
-        f"{numpy_ms:.3f} ms ({rollout['sb3'] / numpy_ms:.1f}x faster); the held action "
-        f"{rollout['hold']:.4f} ms"
-    )
+    return (f"roll-out reference, T = {horizon} ({horizon - 1} policy calls), MultiObstacle, "
+            f"medians: SB3 predict {rollout['sb3']:.3f} ms, NumpyPolicy.predict "
+            f"{rollout['numpy']:.3f} ms ({rollout['sb3'] / rollout['numpy']:.1f}x faster); "
+            f"the held action {rollout['hold']:.4f} ms")

@@ -1,8 +1,8 @@
 """``safe-nav bench --training``: PPO training steps per second with and without the filter.
 
-Item (d) of :mod:`benchmarks.suite`: :func:`benchmark_training` trains a plain and a
-DR-CVaR-filtered PPO model side by side in alternating chunks, so both see the same load
-on a shared machine, and returns a :class:`TrainingThroughput` (rates and their ratio).
+:func:`benchmark_training` trains a plain and a DR-CVaR-filtered PPO model side by side
+in alternating chunks, so both see the same load on a shared machine, and returns a
+:class:`TrainingThroughput` (rates and their ratio).
 """
 
 from __future__ import annotations
@@ -13,6 +13,11 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+
+from benchmarks.timing import median
+
+PARTS = ("reference", "halfspaces", "qp", "qp_not_optimal")
+"""Parts of a filtered step timed from the filter reports (:class:`TrainingThroughput`)."""
 
 
 @dataclass(frozen=True)
@@ -61,30 +66,29 @@ class TrainingThroughput:
     @property
     def ratio(self) -> float:
         """Median filtered over median plain steps per wall second."""
-        return float(np.median(self.filtered_wall) / np.median(self.plain_wall))
+        return median(self.filtered_wall) / median(self.plain_wall)
 
     @property
     def cpu_ratio(self) -> float:
         """Median filtered over median plain steps per CPU second."""
-        return float(np.median(self.filtered_cpu) / np.median(self.plain_cpu))
+        return median(self.filtered_cpu) / median(self.plain_cpu)
 
     @property
     def pair_ratio(self) -> float:
         """Median over the back-to-back pairs of filtered over plain wall rate."""
-        return float(np.median(np.asarray(self.filtered_wall) / np.asarray(self.plain_wall)))
+        return median(np.asarray(self.filtered_wall) / np.asarray(self.plain_wall))
 
     def format(self) -> str:
         us = self.filter_us
-        plain_us = 1e6 / float(np.median(self.plain_wall))
+        plain_us = 1e6 / median(self.plain_wall)
         rest = us["step"] - plain_us - us["reference"] - us["halfspaces"] - us["qp"]
         lines = [
-            f"(d) PPO training, RandomCrossing, {self.n_envs} "
-            f"environment{'s' if self.n_envs != 1 else ''}, {self.timesteps} steps of "
-            f"each kind in {len(self.plain_wall)} alternating chunks of {self.chunk}, medians:",
-            f"    plain    {np.median(self.plain_wall):6.0f} steps/s, "
-            f"{np.median(self.plain_cpu):6.0f} per CPU s",
-            f"    dr_cvar  {np.median(self.filtered_wall):6.0f} steps/s, "
-            f"{np.median(self.filtered_cpu):6.0f} per CPU s",
+            f"(d) PPO training, RandomCrossing, {self.n_envs} environment"
+            f"{'s' if self.n_envs != 1 else ''}, {self.timesteps} steps of each kind in "
+            f"{len(self.plain_wall)} alternating chunks of {self.chunk}, medians:",
+            *(f"    {name:<8} {median(wall):6.0f} steps/s, {median(cpu):6.0f} per CPU s"
+              for name, wall, cpu in (("plain", self.plain_wall, self.plain_cpu),
+                                      ("dr_cvar", self.filtered_wall, self.filtered_cpu))),
             f"    ratio filtered / plain: {self.ratio:.2f} (wall), {self.cpu_ratio:.2f} (CPU), "
             f"{self.pair_ratio:.2f} (median of the pairs)   (target >= 0.75)",
             f"    per step: plain {plain_us:.0f} us; filtered {us['step']:.0f} us = plain + "
@@ -100,68 +104,56 @@ class TrainingThroughput:
 
 
 def _filter_clock() -> Any:
-    """An SB3 callback summing the filter reports' reference, halfspace and QP times (and
-    the QP time and count of the steps whose status is not ``"optimal"``)."""
+    """An SB3 callback summing the filter reports' times (s) of :data:`PARTS`, and counting
+    the reports and those whose status is not ``"optimal"``."""
     from stable_baselines3.common.callbacks import BaseCallback
 
     class FilterClock(BaseCallback):
         def __init__(self) -> None:
             super().__init__()
-            self.times = {"reference": 0.0, "halfspaces": 0.0, "qp": 0.0,
-                          "qp_not_optimal": 0.0}
-            self.reports = 0
-            self.not_optimal = 0
+            self.times = dict.fromkeys(PARTS, 0.0)
+            self.reports = self.not_optimal = 0
 
         def _on_step(self) -> bool:
-            times = self.times
             for info in self.locals["infos"]:
                 report = info.get("filter")
-                if report is not None:
-                    qp = report.filter_time - report.halfspace_time
-                    times["reference"] += report.reference_time
-                    times["halfspaces"] += report.halfspace_time
-                    times["qp"] += qp
-                    self.reports += 1
-                    if report.status != "optimal":
-                        times["qp_not_optimal"] += qp
-                        self.not_optimal += 1
+                if report is None:
+                    continue
+                qp = report.filter_time - report.halfspace_time
+                optimal = report.status == "optimal"
+                self.times["reference"] += report.reference_time
+                self.times["halfspaces"] += report.halfspace_time
+                self.times["qp"] += qp
+                self.times["qp_not_optimal"] += 0.0 if optimal else qp
+                self.reports += 1
+                self.not_optimal += not optimal
             return True
 
     return FilterClock()
 
 
 def benchmark_training(timesteps: int = 20_480, chunk: int = 2048, seed: int = 0, *,
-                       filter_kwargs: dict | None = None,
                        warmup_steps: int = 2048, n_envs: int = 8) -> TrainingThroughput:
     """Training steps per second with and without the filter, in alternating chunks.
 
     What ``safe-nav train`` runs without and with ``--filter dr_cvar``
-    (:func:`agents.train_ppo` defaults: RandomCrossing, ``n_envs`` in-process environments,
-    8 by default, the held-action reference): both models are made (and warmed up: imports, first
-    allocations) by ``train_ppo(total_timesteps=warmup_steps)``, then
+    (:func:`agents.train_ppo` defaults: RandomCrossing, ``n_envs`` in-process
+    environments, the held-action reference): both models are made (and warmed up:
+    imports, first allocations) by ``train_ppo(total_timesteps=warmup_steps)``, then
     trained on ``chunk`` steps at a time, plain and filtered in turn, until each has
     ``timesteps`` timed steps. A chunk of 2048 steps is one rollout and its PPO update.
-
-    Parameters
-    ----------
-    filter_kwargs
-        The filter's keywords (default ``{"risk": "dr_cvar"}``: the wrapper's defaults).
-    n_envs
-        In-process vector environments of each model (``train_ppo(n_envs=...)``).
     """
     from agents.training.ppo import train_ppo
 
-    filter_kwargs = {"risk": "dr_cvar"} if filter_kwargs is None else dict(filter_kwargs)
-    models = {kind: train_ppo(total_timesteps=max(1, warmup_steps), seed=seed, n_envs=n_envs,
-                              filter_kwargs=filter_kwargs if kind else None,
-                              progress_bar=False)[0] for kind in (False, True)}
+    models = {filtered: train_ppo(total_timesteps=max(1, warmup_steps), seed=seed,
+                                  n_envs=n_envs, progress_bar=False,
+                                  filter_kwargs={"risk": "dr_cvar"} if filtered else None)[0]
+              for filtered in (False, True)}
     rates: dict[bool, list[tuple[float, float]]] = {False: [], True: []}
-    parts: list[dict[str, float]] = []
-    shares: list[float] = []
+    parts, shares = [], []
     for _ in range(max(1, timesteps // chunk)):
         for filtered, model in models.items():
-            clock = _filter_clock()
-            before = model.num_timesteps
+            clock, before = _filter_clock(), model.num_timesteps
             wall, cpu = time.perf_counter(), time.process_time()
             model.learn(chunk, reset_num_timesteps=False, callback=clock)
             wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
@@ -172,12 +164,9 @@ def benchmark_training(timesteps: int = 20_480, chunk: int = 2048, seed: int = 0
                 shares.append(clock.not_optimal / max(1, clock.reports))
     for model in models.values():
         model.get_env().close()
-    filtered_wall = tuple(r[0] for r in rates[True])
-    filter_us = {key: float(np.median([p[key] for p in parts]))
-                 for key in ("reference", "halfspaces", "qp", "qp_not_optimal")}
-    filter_us["step"] = 1e6 / float(np.median(filtered_wall))
-    return TrainingThroughput(
-        chunk=chunk, plain_wall=tuple(r[0] for r in rates[False]), filtered_wall=filtered_wall,
-        plain_cpu=tuple(r[1] for r in rates[False]), filtered_cpu=tuple(r[1] for r in rates[True]),
-        filter_us=filter_us, not_optimal_share=float(np.median(shares)), n_envs=n_envs,
-    )
+    (plain_wall, plain_cpu), (filtered_wall, filtered_cpu) = (
+        tuple(map(tuple, zip(*rates[kind], strict=True))) for kind in (False, True))
+    filter_us = {key: median(p[key] for p in parts) for key in PARTS}
+    filter_us["step"] = 1e6 / median(filtered_wall)
+    return TrainingThroughput(chunk, plain_wall, filtered_wall, plain_cpu, filtered_cpu,
+                              filter_us, median(shares), n_envs)

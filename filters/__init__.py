@@ -5,7 +5,8 @@
 * :class:`MPCSafetyFilter` — Problem 2 of the paper (or the predictive safety filter),
   built once, solved with Clarabel, with a recovery that never raises.
 * :func:`intersample_rows` — the rows that keep a plan safe between the samples too.
-* :class:`SafetyFilterWrapper` — a Gymnasium wrapper that filters any policy's actions;
+* :class:`SafetyFilterWrapper` — a Gymnasium wrapper that filters any policy's actions,
+  with its settings in one :class:`FilterConfig`;
   :class:`FilterReport` is its ``info["filter"]``, :class:`FilterableEnv` the protocol it
   needs of ``env.unwrapped``, :func:`hold_action_reference` and
   :class:`PolicyRolloutReference` its reference makers.
@@ -21,6 +22,7 @@ of :mod:`filters.halfspace_cvxpy` by tolerance.
 
 from typing import Any
 
+from filters.config import FilterConfig
 from filters.errors import (
     InvalidArrayError,
     InvalidParameterError,
@@ -47,6 +49,7 @@ __all__ = [
     "CVXPYSafetyFilter",
     "ConvexPolygon",
     "Disc",
+    "FilterConfig",
     "FilterReport",
     "FilterResult",
     "FilterStatus",

@@ -16,26 +16,8 @@ from typing import Any
 import numpy as np
 
 from filters.calibration import OnlineCalibration
+from filters.config import FIELDS, FilterConfig
 from filters.constants import EPSILON
-
-CALIBRATION_EPISODES = 5
-"""Held-out episodes run at construction for ``risk="conformal"`` / ``epsilon="auto"``.
-
-A braking episode of the 8 s (40-step) scenarios gives ``41 - k`` realised positions
-per obstacle at look-ahead ``k``; five give 155-200 per look-ahead for one obstacle, so
-the 200-score windows of the calibration (:class:`filters.calibration.OnlineCalibration`)
-are full, or nearly, from step 0 (more episodes mostly push older scores out of the
-windows, at ~0.1 s each here)."""
-
-CALIBRATION_SEED = 1_000_000_000
-"""First seed of the held-out calibration episodes (episode ``i`` uses it ``+ i``).
-
-Far above the evaluation seeds (``--seed`` + episode index), so that the data the
-filter is calibrated on is never the data it is evaluated on."""
-
-CALIBRATION_MEMORIES = ("episode", "persistent")
-"""``"episode"``: every ``reset`` restores the calibrated state; ``"persistent"``: it
-carries over from episode to episode (the order of the episodes then matters)."""
 
 _MAX_CALIBRATION_STEPS = 10_000
 """Safety cap on the steps of one held-out episode (the environment truncates earlier)."""
@@ -46,32 +28,17 @@ _SNAPSHOTS: dict[tuple, OnlineCalibration] = {}
 _MAX_SNAPSHOTS = 32
 
 
-def calibration_settings(
-    risk: str,
-    epsilon: float | str = EPSILON,
-    *,
-    calibration_episodes: int | None = None,
-    calibration_seed: int = CALIBRATION_SEED,
-    calibration_memory: str = "episode",
-    adaptive_epsilon: bool = False,
-    **_other: Any,
-) -> dict[str, Any] | None:
+def calibration_settings(risk: str, epsilon: float | str = EPSILON,
+                         **settings: Any) -> dict[str, Any] | None:
     """The held-out calibration a :class:`filters.wrapper.SafetyFilterWrapper` with these
-    keywords runs.
+    keywords runs: :meth:`filters.config.FilterConfig.calibration` of their config.
 
-    ``None`` if it runs none (no conformal margin, no ``epsilon="auto"``, no
-    ``adaptive_epsilon`` with ``risk="dr_cvar"``, or ``risk="none"``); else the resolved
-    ``calibration_episodes``, ``calibration_seed`` and ``calibration_memory`` (defaults
-    filled in), for run keys and records. Other wrapper keywords are accepted and
+    Keywords that are not settings (``policy``, ``reference``, the deprecated ones) are
     ignored, so ``calibration_settings(**kwargs)`` works on a wrapper's keyword dict.
-    Values are not validated here (the wrapper does).
     """
-    adaptive = bool(adaptive_epsilon) and risk == "dr_cvar" and epsilon != "auto"
-    if risk == "none" or not (risk == "conformal" or epsilon == "auto" or adaptive):
-        return None
-    episodes = CALIBRATION_EPISODES if calibration_episodes is None else calibration_episodes
-    return {"calibration_episodes": episodes, "calibration_seed": calibration_seed,
-            "calibration_memory": calibration_memory}
+    return FilterConfig.from_dict({name: value for name, value in settings.items()
+                                   if name in FIELDS}, FilterConfig(risk, epsilon=epsilon)
+                                  ).calibration()
 
 
 def _plain_settings(value: object) -> tuple | None:

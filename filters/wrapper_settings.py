@@ -1,7 +1,7 @@
-"""The settings of :class:`filters.wrapper.SafetyFilterWrapper` and their checks.
+"""The checks of :class:`filters.wrapper.SafetyFilterWrapper` that need the environment.
 
-The choices each option accepts (:data:`RISKS`, :data:`OBJECTIVES`, ...) and the checks
-that turn a bad option, a bad action or a bad wrapper stack into a clear error.
+They turn a bad action or a bad wrapper stack into a clear error. The settings and their
+checks are :class:`filters.config.FilterConfig`.
 """
 
 from __future__ import annotations
@@ -12,42 +12,11 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from filters.errors import InvalidArrayError, InvalidParameterError, InvalidTypeError
+from filters.errors import InvalidArrayError, InvalidTypeError
 from filters.protocol import FilterableEnv
-from filters.risk import RISKS as _METRICS
-
-RISKS: tuple[str, ...] = ("none", *_METRICS)
-"""Risk settings accepted by :class:`filters.wrapper.SafetyFilterWrapper` (``"none"``:
-pass-through)."""
-
-OBJECTIVES = ("first_input", "trajectory")
-"""Filter objectives: the predictive safety filter's, or the paper's Problem 2."""
-
-NORMAL_SOURCES = ("paper", "ego", "nearside", "previous_plan", "clearest")
-"""Where the halfspace normals start (they end at the obstacles' sample means)."""
-
-FALLBACKS = ("soft", "brake", "paper")
-"""What the filter does when the hard QP is infeasible (see
-:class:`filters.wrapper.SafetyFilterWrapper`)."""
 
 _PROTOCOL_ATTRIBUTES = (*FilterableEnv.__annotations__, "observe")
 """Everything :class:`filters.protocol.FilterableEnv` asks of ``env.unwrapped``."""
-
-
-def _choice(name: str, value: object, choices: tuple[str, ...]) -> str:
-    """``value`` if it is one of ``choices``, else a clear error naming both."""
-    if not isinstance(value, str):
-        raise InvalidTypeError(f"{name} must be a string, one of {choices}, got {value!r}")
-    if value not in choices:
-        raise InvalidParameterError(f"{name} must be one of {choices}, got {value!r}")
-    return value
-
-
-def _count(name: str, value: object) -> int:
-    """``value`` as an int if it is an integer ``>= 0`` (not a bool), else a clear error."""
-    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 0:
-        raise InvalidParameterError(f"{name} must be an integer >= 0, got {value!r}")
-    return int(value)
 
 
 def _action_array(action: Any, shape: tuple[int, ...]) -> np.ndarray:

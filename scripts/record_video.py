@@ -112,6 +112,7 @@ def record_episode(
     """
     import gymnasium as gym
 
+    from agents.evaluation.plots import RISK_LABELS, save_gif
     from agents.evaluation.records import EpisodeSpec
     from agents.evaluation.runner import make_env
     from filters._validation import integer_at_least
@@ -120,8 +121,7 @@ def record_episode(
         integer_at_least("max_steps", max_steps)
     spec = EpisodeSpec(scenario=scenario, risk=risk, seed=seed, planner="ppo",
                        reference="rollout", policy_path=str(policy_path))
-    stem = name or f"{spec.scenario}_{spec.risk}_seed{spec.seed}"
-    folder = Path(output)
+    stem, folder = name or f"{spec.scenario}_{spec.risk}_seed{spec.seed}", Path(output)
     env, planner = make_env(spec, render_mode="rgb_array")
     try:
         with warnings.catch_warnings():  # the folder may hold other files (docs/figures)
@@ -132,35 +132,23 @@ def record_episode(
     except BaseException:
         env.close()
         raise
-    try:
+    with video:  # RecordVideo writes the clip on close()
         obs, info = video.reset(seed=int(spec.seed))
-        steps, collided, interventions = 0, False, []
-        done = False
+        steps, collided, interventions, done = 0, False, [], False
         while not done:
-            action, _ = planner.predict(obs, deterministic=True)
-            obs, _, terminated, truncated, info = video.step(action)
+            obs, _, terminated, truncated, info = video.step(
+                planner.predict(obs, deterministic=True)[0])
             steps += 1
             collided = collided or bool(info["collision"])
             interventions.append(float(info["filter"].intervention))
-            done = terminated or truncated or (max_steps is not None and steps >= max_steps)
-        frames = list(video.recorded_frames)  # RecordVideo writes them on close()
-        reached_goal = bool(info["is_success"])
-    finally:
-        video.close()
-    recorded = folder / f"{stem}-episode-0.mp4"
-    path = folder / f"{stem}.mp4"
-    recorded.replace(path)
-    gif_path = None
-    if gif:
-        from agents.evaluation.plots import RISK_LABELS, save_gif
-
-        label = (f"{spec.scenario}, seed {spec.seed}, PPO + "
-                 f"{RISK_LABELS.get(spec.risk, spec.risk)} filter")
-        gif_path = save_gif(frames, folder / f"{stem}.gif", fps=int(video.frames_per_sec),
-                            label=label)
-    return Recording(video=path, gif=gif_path, frames=len(frames), steps=steps,
-                     fps=int(video.frames_per_sec), reached_goal=reached_goal,
-                     collided=collided, mean_intervention=float(np.mean(interventions)))
+            done = terminated or truncated or steps == max_steps
+        frames, fps = list(video.recorded_frames), int(video.frames_per_sec)
+    path = (folder / f"{stem}-episode-0.mp4").replace(folder / f"{stem}.mp4")
+    label = (f"{spec.scenario}, seed {spec.seed}, PPO + "
+             f"{RISK_LABELS.get(spec.risk, spec.risk)} filter")
+    return Recording(path, save_gif(frames, folder / f"{stem}.gif", fps=fps, label=label)
+                     if gif else None, len(frames), steps, fps, bool(info["is_success"]),
+                     collided, float(np.mean(interventions)))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -170,15 +158,15 @@ def main(argv: list[str] | None = None) -> int:
     from filters.errors import InvalidParameterError
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scenario", default=DEFAULT_SCENARIO)
-    parser.add_argument("--risk", default=DEFAULT_RISK,
-                        help="filter risk metric ('none': the unfiltered policy)")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--policy", default="", help="PPO .zip (default: the shipped policy)")
-    parser.add_argument("--output", default="videos", help="folder for the clip")
-    parser.add_argument("--name", default=None, help="file stem (default: scenario_risk_seedN)")
-    parser.add_argument("--gif", action="store_true", help="also write the frames as a GIF")
-    parser.add_argument("--max-steps", type=int, default=None)
+    add = parser.add_argument
+    add("--scenario", default=DEFAULT_SCENARIO)
+    add("--risk", default=DEFAULT_RISK, help="filter risk metric ('none': the unfiltered policy)")
+    add("--seed", type=int, default=0)
+    add("--policy", default="", help="PPO .zip (default: the shipped policy)")
+    add("--output", default="videos", help="folder for the clip")
+    add("--name", default=None, help="file stem (default: scenario_risk_seedN)")
+    add("--gif", action="store_true", help="also write the frames as a GIF")
+    add("--max-steps", type=int, default=None)
     args = parser.parse_args(argv)
     try:
         rec = record_episode(args.output, scenario=args.scenario, risk=args.risk,

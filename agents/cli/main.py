@@ -19,17 +19,19 @@ Exit codes (one line on stderr, no traceback):
 from __future__ import annotations
 
 import argparse
+import inspect
+import itertools
 import json
 import math
+import re
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from agents.evaluation.records import PAPER_SCENARIOS, PLANNERS, REFERENCES, package_version
-from filters.constants import ALPHA, DELTA, EPSILON
+from filters.config import FIELDS, RISKS, FilterConfig
 from filters.risk import PAPER_RISKS
-from filters.wrapper import FALLBACKS, OBJECTIVES, RISKS
 
 _CUSTOM_EXAMPLE = ('{"name": "mine", "ego_start": [-4, 0], "goal": [4, 0], "obstacles": '
                    '[{"start": [2, 0], "velocity": [-1, 0]}]}')
@@ -100,13 +102,6 @@ def _number(text: str) -> float:
     return value
 
 
-def _tail_mass(text: str) -> float:
-    value = _number(text)
-    if not 0.0 < value <= 1.0:
-        raise argparse.ArgumentTypeError(f"expected a tail mass in (0, 1], got {text!r}")
-    return value
-
-
 def _metres(text: str) -> float:
     value = _number(text)
     if value < 0.0:
@@ -147,15 +142,63 @@ def _output(text: str) -> Path:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
+def _json(text: str) -> Any:
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError:
+        return text
+
+
+def _filter_setting(name: str) -> Any:
+    """An argparse type: the value of :class:`filters.FilterConfig`'s ``name``, checked there."""
+    from filters.errors import SafeNavError
+
+    def parse(text: str) -> Any:
+        try:
+            return getattr(FilterConfig(**{name: _json(text)}), name)
+        except SafeNavError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+
+    return parse
+
+
+def _setting_help(name: str) -> str:
+    """The first clause of ``name``'s entry in FilterConfig's docstring, its one description."""
+    lines = inspect.getdoc(FilterConfig).split(f"\n{name}\n", 1)[1].splitlines()
+    text = " ".join(line.strip() for line in itertools.takewhile(
+        lambda line: line.startswith("    "), lines))
+    return re.split(r"[.;:](?:\s|$)", text)[0].replace("``", "").replace("%", "%%")
+
+
+def add_filter_flags(parser: argparse.ArgumentParser, names: Sequence[str], *,
+                     defaults: bool) -> None:
+    """``--name`` for the given fields of :class:`filters.FilterConfig`: its help, choices
+    and checks; the config's defaults (``defaults``) or ``None`` ("not given")."""
+    for name in names:
+        field = FIELDS[name]
+        parser.add_argument(
+            f"--{name.replace('_', '-')}", type=_filter_setting(name),
+            choices=field.metadata.get("choices"), default=field.default if defaults else None,
+            help=_setting_help(name) + ("" if defaults else " (default: the wrapper's)"))
+
+
+def filter_config(args: argparse.Namespace, risk: str, names: Sequence[str]) -> FilterConfig:
+    """The one :class:`filters.FilterConfig` of a command line: ``risk``, the
+    ``--filter-option`` settings, then the filter flags ``names`` that were given."""
+    given = {name: getattr(args, name) for name in names if getattr(args, name) is not None}
+    return FilterConfig.from_dict({**dict(args.filter_options), **given, "risk": risk})
+
+
+_TRAIN_FILTER_FLAGS = ("alpha", "delta", "epsilon", "objective", "fallback",
+                       "intervention_penalty")
+_EVALUATE_FILTER_FLAGS = ("alpha", "delta", "epsilon")
+
+
 def _option(text: str) -> tuple[str, Any]:
     key, sep, raw = text.partition("=")
     if not sep or not key:
         raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
-    try:
-        value = json.loads(raw)
-    except json.JSONDecodeError:
-        value = raw
-    return key, value
+    return key, _json(raw)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -191,24 +234,14 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--output", type=Path, default=Path("runs/ppo_random_crossing.zip"))
     train.add_argument("--filter", choices=[r for r in RISKS if r != "none"], default=None,
                        help="train with the safety filter in the loop (safe exploration)")
-    train.add_argument("--alpha", type=float, default=None,
-                       help="filter: CVaR tail mass in (0, 1] (default: the wrapper's)")
-    train.add_argument("--delta", type=float, default=None,
-                       help="filter: risk bound on the intrusion depth, m (default: the wrapper's)")
-    train.add_argument("--epsilon", type=float, default=None,
-                       help="filter: Wasserstein radius, m (default: the wrapper's)")
-    train.add_argument("--objective", choices=OBJECTIVES, default=None,
-                       help="filter objective (default: the wrapper's choice for the planner)")
-    train.add_argument("--fallback", choices=FALLBACKS, default=None,
-                       help="filter fallback on an infeasible QP (default: the wrapper's)")
+    add_filter_flags(train, _TRAIN_FILTER_FLAGS, defaults=False)
     train.add_argument("--reference", choices=("default", "rollout"), default="default",
                        help="filter reference: the wrapper's, or the policy being trained "
                        "rolled out over the horizon")
-    train.add_argument("--filter-option", action="append", default=[], metavar="KEY=VALUE",
-                       help="any other keyword of SafetyFilterWrapper; VALUE is read as JSON "
+    train.add_argument("--filter-option", type=_option, action="append", default=[],
+                       metavar="KEY=VALUE", dest="filter_options",
+                       help="any other field of filters.FilterConfig; VALUE is read as JSON "
                        "(numbers, true/false, lists), else as a string; repeatable")
-    train.add_argument("--intervention-penalty", type=float, default=0.0,
-                       help="filter: reward penalty per (m/s^2)^2 of ||u_safe - u_ref||^2")
     train.add_argument("--lagrangian", action="store_true",
                        help="train PPO-Lagrangian (cost: the continuous-time collision indicator)")
     train.add_argument("--cost-limit", type=float, default=0.0,
@@ -331,12 +364,7 @@ def _add_evaluation_arguments(parser: argparse.ArgumentParser, *, episodes: int)
                         "machine); default: RAY_ADDRESS if set, else a local Ray")
     parser.add_argument("--seed", type=_seed, default=0,
                         help="seed of the first episode (episode i uses seed + i)")
-    parser.add_argument("--alpha", type=_tail_mass, default=ALPHA,
-                        help="CVaR tail mass, in (0, 1]")
-    parser.add_argument("--delta", type=_metres, default=DELTA,
-                        help="risk bound on the intrusion depth, in m (>= 0)")
-    parser.add_argument("--epsilon", type=_metres, default=EPSILON,
-                        help="Wasserstein radius of DR-CVaR, in m (>= 0)")
+    add_filter_flags(parser, _EVALUATE_FILTER_FLAGS, defaults=True)
     parser.add_argument("--noise", type=_noise, default="",
                         help="noise preset of the environment, e.g. authors_code (default: the "
                         "scenario's own, as in the paper's text)%(default).0s")
@@ -502,39 +530,15 @@ def _evaluate_on(args: argparse.Namespace, executor: Any) -> int:
     return 0
 
 
-def _filter_options(args: argparse.Namespace) -> dict:
-    """The SafetyFilterWrapper keywords given on the command line."""
-    import json
-
-    options: dict = {}
-    for text in args.filter_option:
-        key, sep, raw = text.partition("=")
-        if not sep or not key.isidentifier():
-            raise ValueError(f"--filter-option expects KEY=VALUE, got {text!r}")
-        try:
-            options[key] = json.loads(raw)
-        except json.JSONDecodeError:
-            options[key] = raw
-    for name in ("alpha", "delta", "epsilon", "objective", "fallback"):
-        value = getattr(args, name)
-        if value is not None:
-            options[name] = value
-    return options
-
-
 def _train(args: argparse.Namespace) -> int:
     from agents.training.ppo import train_ppo
 
-    try:
-        options = _filter_options(args)
-    except ValueError as exc:
-        print(f"safe-nav train: error: {exc}", file=sys.stderr)
-        return 2
-    if args.filter is None and (options or args.reference != "default"
-                                or args.intervention_penalty):
-        print("safe-nav train: error: --alpha/--delta/--epsilon/--objective/--fallback/"
-              "--reference/--filter-option/--intervention-penalty need --filter",
-              file=sys.stderr)
+    given = [f"--{name.replace('_', '-')}" for name in _TRAIN_FILTER_FLAGS
+             if getattr(args, name) is not None]
+    given += ["--filter-option"] * bool(args.filter_options) + ["--reference"] * (
+        args.reference != "default")
+    if args.filter is None and given:
+        print(f"safe-nav train: error: {', '.join(given)} need --filter", file=sys.stderr)
         return 2
     if not args.lagrangian and (args.cost_limit != 0.0 or args.lambda_lr != 0.05):
         print("safe-nav train: error: --cost-limit/--lambda-lr need --lagrangian",
@@ -542,12 +546,12 @@ def _train(args: argparse.Namespace) -> int:
         return 2
     from filters.errors import SafeNavError
 
-    filter_kwargs = {"risk": args.filter, **options} if args.filter else None
     try:
+        config = filter_config(args, args.filter, _TRAIN_FILTER_FLAGS) if args.filter else None
         _, report = train_ppo(
             args.env_id, args.timesteps, args.seed, n_envs=args.n_envs,
-            env_kwargs=dict(args.env_options), filter_kwargs=filter_kwargs,
-            intervention_penalty=args.intervention_penalty, filter_reference=args.reference,
+            env_kwargs=dict(args.env_options), filter_kwargs=config,
+            filter_reference=args.reference,
             lagrangian=args.lagrangian,
             cost_limit=args.cost_limit, lambda_lr=args.lambda_lr, eval_freq=args.eval_freq,
             eval_episodes=args.eval_episodes, vec_env=args.vec_env,

@@ -21,10 +21,10 @@ from typing import Any
 
 import numpy as np
 
+from filters.config import FilterConfig
 from filters.constants import ALPHA, DELTA, EPSILON
 from filters.errors import InvalidParameterError
 from filters.mpc import FilterStatus
-from filters.wrapper import RISKS
 from safe_nav_env.scenarios import CUSTOM, scenario_name
 
 __all__ = [
@@ -175,8 +175,8 @@ class EpisodeSpec:
     def __post_init__(self) -> None:
         set_ = object.__setattr__
         set_(self, "scenario", scenario_name(self.scenario))
-        if self.risk not in RISKS:
-            raise InvalidParameterError(f"risk must be one of {RISKS}, got {self.risk!r}")
+        config = FilterConfig(risk=self.risk, alpha=self.alpha, delta=self.delta,
+                              epsilon=self.epsilon)  # the filter's own checks
         if self.planner not in PLANNERS:
             raise InvalidParameterError(f"planner must be one of {PLANNERS}, got {self.planner!r}")
         if self.reference not in REFERENCES:
@@ -186,13 +186,7 @@ class EpisodeSpec:
             raise InvalidParameterError(f"seed must be an integer, got {self.seed!r}")
         set_(self, "seed", int(self.seed))
         for name in ("alpha", "delta", "epsilon"):
-            value = getattr(self, name)
-            if name == "epsilon" and value == AUTO:
-                continue
-            if isinstance(value, bool) or not isinstance(value, int | float | np.number):
-                extra = ' or "auto"' if name == "epsilon" else ""
-                raise InvalidParameterError(f"{name} must be a number{extra}, got {value!r}")
-            set_(self, name, float(value))
+            set_(self, name, getattr(config, name))
         if self.case:
             from safe_nav_env.stress import STRESS_SUITE
 

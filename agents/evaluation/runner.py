@@ -30,7 +30,7 @@ from agents.evaluation.records import (
     package_version,
 )
 from agents.evaluation.trajectory import Trajectory, TrajectoryRecorder
-from filters.errors import InvalidParameterError
+from filters.errors import InvalidParameterError, InvalidTypeError
 from filters.wrapper import FALLBACK_STATUSES, NOMINAL_STATUSES
 from safe_nav_env.constants import DT
 
@@ -151,8 +151,8 @@ def make_env(spec: EpisodeSpec, *, render_mode: str | None = None, policy: Any =
                                        if normalised else planner)
         try:
             wrapped = SafetyFilterWrapper(env, **filter_kwargs)
-        except TypeError as exc:
-            raise (_unknown_keyword(exc, "filter_options") or exc) from exc
+        except InvalidTypeError as exc:  # e.g. an unknown key: a bad value of filter_options
+            raise InvalidParameterError(f"filter_options: {exc}") from exc
         if normalised:
             wrapped = NormalisedActions(wrapped)
     except BaseException:

@@ -5,10 +5,9 @@ collision penalty is small by default. That is the point of the project: the
 learned planner proposes, the safety filter disposes. Three ways to train:
 
 * plain PPO (the shipped policy);
-* PPO with the safety filter in the loop: ``filter_kwargs=dict(risk="dr_cvar",
-  alpha=0.2, delta=0.1, epsilon=0.05)`` wraps every training environment in
-  :class:`filters.SafetyFilterWrapper` (any of its keywords pass through, e.g. the
-  ``objective``, ``fallback``, ``intervention_penalty``). The agent then learns
+* PPO with the safety filter in the loop: ``filter_kwargs=FilterConfig(risk="dr_cvar",
+  alpha=0.2, delta=0.1, epsilon=0.05)`` (or the same as a dict of the wrapper's keywords)
+  wraps every training environment in :class:`filters.SafetyFilterWrapper`. The agent then learns
   on the filtered system; ``intervention_penalty`` :math:`\\kappa` subtracts
   :math:`\\kappa \\|u_{safe} - u_{ref}\\|^2` (m/s² squared) from each reward, so the
   agent pays for the corrections and learns to propose safe actions itself;
@@ -36,6 +35,7 @@ from agents.policies.loading import (  # noqa: F401  (re-exported)
     set_torch_threads,
 )
 from filters._validation import scalar_in_range
+from filters.config import FilterConfig
 from filters.errors import InvalidParameterError, InvalidTypeError
 
 DEFAULT_ENV_ID = "SafeNav/RandomCrossing-v0"
@@ -228,10 +228,10 @@ def check_filter_kwargs(env_id: str, env_kwargs: dict[str, Any] | None,
                         filter_kwargs: dict[str, Any]) -> None:
     """Validate the filter options once, before any training.
 
-    Checks the risk parameters' ranges (``alpha`` in (0, 1], ``delta >= 0`` in m,
-    ``epsilon >= 0`` in m) and then builds :class:`filters.SafetyFilterWrapper` once
-    on ``gym.make(env_id, **env_kwargs)``, so that every other keyword is checked by
-    the wrapper itself.
+    Builds :class:`filters.SafetyFilterWrapper` once on ``gym.make(env_id, **env_kwargs)``
+    with ``filter_kwargs`` (its keywords: ``config``, the fields of
+    :class:`filters.FilterConfig`, ``policy``, ``reference``), so that every setting is
+    checked by :class:`filters.FilterConfig` and the wrapper themselves.
 
     Raises
     ------
@@ -245,18 +245,9 @@ def check_filter_kwargs(env_id: str, env_kwargs: dict[str, Any] | None,
 
     if not isinstance(filter_kwargs, dict):
         raise InvalidTypeError(f"filter_kwargs must be a dict, got {filter_kwargs!r}")
-    if "alpha" in filter_kwargs:
-        scalar_in_range("alpha", filter_kwargs["alpha"], low=0.0, high=1.0, low_inclusive=False)
-    for name in ("delta", "epsilon"):
-        if name in filter_kwargs:
-            scalar_in_range(name, filter_kwargs[name], low=0.0, high_inclusive=False)
     env = gym.make(env_id, **(env_kwargs or {}))
     try:
         SafetyFilterWrapper(env, **filter_kwargs)
-    except TypeError as exc:
-        if isinstance(exc, InvalidTypeError):
-            raise
-        raise InvalidTypeError(f"filter_kwargs {sorted(filter_kwargs)}: {exc}") from exc
     finally:
         env.close()
 
@@ -324,7 +315,7 @@ def train_ppo(
     *,
     n_envs: int = 8,
     env_kwargs: dict[str, Any] | None = None,
-    filter_kwargs: dict[str, Any] | None = None,
+    filter_kwargs: FilterConfig | dict[str, Any] | None = None,
     intervention_penalty: float = 0.0,
     filter_reference: str = "default",
     lagrangian: bool = False,
@@ -362,9 +353,9 @@ def train_ppo(
         ``random_start`` to start a share of the training episodes at random ego states:
         :class:`safe_nav_env.starts.RandomStart`).
     filter_kwargs
-        If given, train with :class:`filters.SafetyFilterWrapper` in the loop, e.g.
-        ``{"risk": "dr_cvar", "alpha": 0.2, "delta": 0.1, "epsilon": 0.05}``; every
-        keyword of the wrapper passes through (``objective``, ``fallback``, ...).
+        If given, train with :class:`filters.SafetyFilterWrapper` in the loop: its
+        :class:`filters.FilterConfig`, e.g. ``FilterConfig(risk="dr_cvar", alpha=0.2)``,
+        or its keywords, e.g. ``{"risk": "dr_cvar", "alpha": 0.2, "delta": 0.1}``.
     intervention_penalty
         :math:`\\kappa \\ge 0`, in reward per (m/s²)², with the filter in the loop
         only: the learner is rewarded :math:`r_t - \\kappa \\|u^{safe}_t - a_t\\|^2`,
@@ -435,8 +426,6 @@ def train_ppo(
     eval_freq = _check_int("eval_freq", eval_freq, 0)
     eval_episodes = _check_int("eval_episodes", eval_episodes, 1)
     torch_threads = _check_int("torch_threads", torch_threads, 1)
-    intervention_penalty = scalar_in_range("intervention_penalty", intervention_penalty, low=0.0,
-                                           high_inclusive=False)
     cost_limit = scalar_in_range("cost_limit", cost_limit, low=0.0, high_inclusive=False)
     lambda_lr = scalar_in_range("lambda_lr", lambda_lr, low=0.0, low_inclusive=False,
                                 high_inclusive=False)
@@ -455,8 +444,11 @@ def train_ppo(
         if filter_reference != "default":
             raise InvalidParameterError("filter_reference needs the filter: pass filter_kwargs")
     else:
+        filter_kwargs = ({"config": filter_kwargs} if isinstance(filter_kwargs, FilterConfig)
+                         else filter_kwargs)
         if not isinstance(filter_kwargs, dict):
-            raise InvalidTypeError(f"filter_kwargs must be a dict, got {filter_kwargs!r}")
+            raise InvalidTypeError(f"filter_kwargs must be a FilterConfig or a dict, got "
+                                   f"{filter_kwargs!r}")
         filter_kwargs = dict(filter_kwargs)
         if intervention_penalty:
             filter_kwargs["intervention_penalty"] = intervention_penalty

@@ -315,3 +315,25 @@ def test_ray_without_its_extra_is_one_line_naming_the_extra(tmp_path, monkeypatc
     err = capsys.readouterr().err
     assert "'ray' extra" in err and "pip install -e '.[ray]'" in err
     assert "Traceback" not in err
+
+
+def test_the_filter_flags_build_the_same_config_as_the_python_call():
+    from agents.cli.main import _TRAIN_FILTER_FLAGS, build_parser, filter_config
+    from filters import FilterConfig
+
+    args = build_parser().parse_args([
+        "train", "--filter", "cvar", "--alpha", "0.3", "--epsilon", "auto", "--fallback",
+        "brake", "--intervention-penalty", "0.01", "--filter-option", "soft=true",
+        "--filter-option", "Q=[[2,0,0,0],[0,2,0,0],[0,0,1,0],[0,0,0,1]]"])
+    assert filter_config(args, args.filter, _TRAIN_FILTER_FLAGS) == FilterConfig(
+        risk="cvar", alpha=0.3, epsilon="auto", fallback="brake", intervention_penalty=0.01,
+        soft=True, Q=[[2, 0, 0, 0], [0, 2, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
+    evaluate = build_parser().parse_args(["evaluate"])
+    defaults = FilterConfig()
+    assert (evaluate.alpha, evaluate.delta, evaluate.epsilon) == (
+        defaults.alpha, defaults.delta, defaults.epsilon)
+
+
+def test_train_filter_flags_need_the_filter(capsys):
+    assert main(["train", "--timesteps", "1", "--delta", "0.2", "--fallback", "brake"]) == 2
+    assert "--delta, --fallback need --filter" in _one_line(capsys)

@@ -8,12 +8,8 @@ import numpy as np
 import pytest
 
 from agents.cli.main import main
-from benchmarks.scaling import (
-    FULL_GRID,
-    QUICK_GRID,
-    ScalingGrid,
-    make_scaling_instances,
-)
+from benchmarks.filter_qp import make_instances
+from benchmarks.scaling import FULL_GRID, QUICK_GRID, ScalingGrid
 from filters import InvalidParameterError
 
 
@@ -52,7 +48,7 @@ def test_bench_scaling_quick_runs_and_writes_table_csv_and_plot(tmp_path, capsys
 
 def test_instances_cross_the_obstacles_so_that_rows_are_active():
     rng = np.random.default_rng(0)
-    instances = make_scaling_instances(40, 3, 10, 50, rng)
+    instances = make_instances(40, 3, 10, rng, n_samples=50)
     assert len(instances) == 40 and instances[0].new_episode
     assert instances[0].samples.shape == (3, 50, 10, 2)
     assert instances[0].reference_states.shape == (11, 4)
@@ -61,7 +57,7 @@ def test_instances_cross_the_obstacles_so_that_rows_are_active():
         np.min(np.linalg.norm(i.samples.mean(axis=1) - i.reference_states[None, 1:, :2], axis=-1))
         for i in instances)
     assert closest < 1.0
-    again = make_scaling_instances(40, 3, 10, 50, np.random.default_rng(0))
+    again = make_instances(40, 3, 10, np.random.default_rng(0), n_samples=50)
     assert all(np.array_equal(a.samples, b.samples) and np.array_equal(a.x0, b.x0)
                for a, b in zip(instances, again, strict=True))
 
@@ -76,12 +72,12 @@ def test_grids_are_checked():
 
 
 def test_the_goal_family_keeps_the_reference_inside_the_arena():
-    straight = make_scaling_instances(30, 3, 80, 20, np.random.default_rng(4))
-    goal = make_scaling_instances(30, 3, 80, 20, np.random.default_rng(4), family="goal")
+    straight = make_instances(30, 3, 80, np.random.default_rng(4), n_samples=20)
+    goal = make_instances(30, 3, 80, np.random.default_rng(4), n_samples=20, family="goal")
     assert max(i.reference_states[:, 0].max() for i in straight) > 20.0  # runs far out
     assert max(i.reference_states[1:, 0].max() for i in goal) <= 4.5 + 1e-12
     # the same draws: the first step of each family starts from the same state
     assert np.array_equal(straight[0].x0, goal[0].x0)
     assert np.array_equal(straight[0].samples, goal[0].samples)
     with pytest.raises(InvalidParameterError, match="family"):
-        make_scaling_instances(2, 1, 10, 5, np.random.default_rng(0), family="curvy")
+        make_instances(2, 1, 10, np.random.default_rng(0), n_samples=5, family="curvy")

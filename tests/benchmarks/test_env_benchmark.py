@@ -2,7 +2,13 @@
 
 from __future__ import annotations
 
-from benchmarks.env import benchmark, normal_draws_per_second, steps_per_second
+from benchmarks.env import (
+    RENDERED,
+    benchmark,
+    normal_draws_per_second,
+    render_frames,
+    steps_per_second,
+)
 
 
 def test_benchmark_reports_a_rate_per_scenario():
@@ -17,5 +23,11 @@ def test_benchmark_reports_a_rate_per_scenario():
         "SafeNav/Crowd-v0",
     }
     assert all(rate > 0 for rate in rates.values())
-    assert steps_per_second("SafeNav/HeadOn-v0", n_steps=20, repeats=1, raw=True) > 0
+    assert steps_per_second("SafeNav/HeadOn-v0", n_steps=20, repeats=1) > 0
     assert normal_draws_per_second(size=100, repeats=1) > 0
+
+
+def test_render_frames_times_each_rendered_scenario():
+    times = render_frames(2)
+    assert set(times) == set(RENDERED)
+    assert all(len(wall) == len(cpu) == 2 and (wall > 0).all() for wall, cpu in times.values())

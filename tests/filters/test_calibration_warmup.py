@@ -11,8 +11,9 @@ import pytest
 import safe_nav_env  # noqa: F401  (registers the ids)
 from filters import SafetyFilterWrapper
 from filters.calibration import OnlineCalibration
+from filters.config import CALIBRATION_EPISODES, CALIBRATION_SEED
 from filters.errors import InvalidParameterError, InvalidTypeError
-from filters.wrapper import CALIBRATION_EPISODES, CALIBRATION_SEED, calibration_settings
+from filters.wrapper import calibration_settings
 from tests.filters.test_calibration import clopper_pearson
 
 

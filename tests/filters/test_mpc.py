@@ -16,7 +16,6 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from benchmarks.filter_qp import benchmark_filter_qp, format_filter_qp
 from filters.errors import InvalidArrayError, InvalidParameterError, InvalidTypeError, SafeNavError
 from filters.mpc import FilterResult, FilterStatus, MPCProblem, MPCSafetyFilter
 from filters.mpc.result import QPSolution
@@ -694,15 +693,6 @@ def test_importing_the_filter_does_not_import_cvxpy():
     code = ("import sys, filters, filters.mpc; assert 'cvxpy' not in sys.modules; "
             "filters.CVXPYSafetyFilter; sys.exit(int('cvxpy' in sys.modules))")
     assert subprocess.run([sys.executable, "-c", code], check=False).returncode == 0
-
-
-@pytest.mark.slow
-def test_benchmark_runs_and_formats():
-    result = benchmark_filter_qp(n_steps=15, seed=1)
-    assert result.n_steps == 15 and result.ratio > 0.0
-    assert result.agreement == 1.0 and result.max_input_difference < 1e-4
-    text = format_filter_qp(result)
-    assert "MPCSafetyFilter" in text and "speed-up" in text
 
 
 @pytest.mark.parametrize("soft", [False, True])

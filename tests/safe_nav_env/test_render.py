@@ -160,7 +160,7 @@ def test_filter_halfspaces_are_drawn_through_the_hook():
 
 
 def test_blitted_frames_are_much_cheaper_than_a_full_redraw():
-    """A ratio in one run (the machine is shared); scripts/benchmark_render.py gives ms."""
+    """A ratio in one run (the machine is shared); ``safe-nav bench`` (c) gives ms."""
     import time
 
     env = gym.make("SafeNav/MultiObstacle-v0", render_mode="rgb_array")

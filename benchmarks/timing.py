@@ -1,0 +1,45 @@
+"""What every benchmark needs: a wall clock in ms, medians, counts and the machine line.
+
+The machines are shared and noisy, so the benchmarks report medians, and ratios of
+numbers measured in the same run.
+"""
+
+from __future__ import annotations
+
+import platform
+import time
+from collections import Counter
+from collections.abc import Callable, Iterable
+from typing import Any
+
+import numpy as np
+
+
+def clock(function: Callable[..., Any], *args: Any, **kwargs: Any) -> tuple[Any, float]:
+    """Call ``function(*args, **kwargs)``; return its result and its wall time in ms."""
+    begin = time.perf_counter()
+    result = function(*args, **kwargs)
+    return result, 1e3 * (time.perf_counter() - begin)
+
+
+def median(values: Iterable[float], where: Iterable[bool] | None = None) -> float:
+    """Median of ``values`` (of those where ``where`` is true); NaN when there are none."""
+    values = np.asarray(list(values), dtype=float)
+    if where is not None:
+        values = values[np.asarray(list(where), dtype=bool)]
+    return float(np.median(values)) if values.size else float("nan")
+
+
+def p90(values: Iterable[float]) -> float:
+    """90th percentile of ``values``."""
+    return float(np.percentile(np.asarray(list(values), dtype=float), 90))
+
+
+def counts(items: Iterable[object], pair: str = "{} {}", sep: str = ", ") -> str:
+    """How often each item occurs, sorted: ``"optimal 471, soft 29"`` by default."""
+    return sep.join(pair.format(k, v) for k, v in sorted(Counter(items).items()))
+
+
+def machine() -> str:
+    """``"python 3.11.7, numpy 2.4.6, x86_64"``: the first line of a report."""
+    return f"python {platform.python_version()}, numpy {np.__version__}, {platform.machine()}"
