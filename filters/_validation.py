@@ -83,6 +83,14 @@ def scalar_in_range(
     return number
 
 
+def lookahead_index(lookahead: object, horizon: int) -> int:
+    """The 0-based index of look-ahead ``k`` in ``1..horizon``, or ``InvalidParameterError``."""
+    k = integer_at_least("lookahead", lookahead)
+    if k > horizon:
+        raise InvalidParameterError(f"lookahead must be in 1..{horizon}, got {k}")
+    return k - 1
+
+
 def integer_at_least(name: str, value: object, *, low: int = 1) -> int:
     """Return ``value`` as an int ``>= low``, or raise ``InvalidParameterError``."""
     if type(value) is int and value >= low:  # the common case, checked every step
