@@ -51,7 +51,7 @@ from filters.mpc.problem import MPCProblem
 __all__ = ["CondensedQP", "StepRows"]
 
 #: dot products over the last axis, broadcast (np.vecdot on NumPy >= 2).
-_vecdot = getattr(np, "vecdot", None) or (lambda a, b: np.einsum("...d,...d->...", a, b))
+vecdot = getattr(np, "vecdot", None) or (lambda a, b: np.einsum("...d,...d->...", a, b))
 
 
 @dataclass
@@ -149,7 +149,7 @@ class CondensedQP:
         y_low, y_high = p.position_bounds
         input_axes = np.flatnonzero(np.isfinite(u_low) | np.isfinite(u_high))
         arena_axes = np.flatnonzero(np.isfinite(y_low) | np.isfinite(y_high))
-        G, g = p.terminal_set if p.terminal_set is not None else (np.zeros((0, n)), np.zeros(0))
+        G, g = p.terminal_rows
         S, s = p.speed_rows
         speed_map = np.einsum("jn,tnk->tjk", S, gamma.reshape(T, n, nu)).reshape(-1, nu)
         input_index = (np.arange(T)[:, None] * m + input_axes[None]).reshape(-1)
@@ -196,7 +196,7 @@ class CondensedQP:
         upper = self.fixed_upper - shift[:n_fixed]
         lower = self.fixed_lower - shift[:n_fixed]
         normals_t = normals.transpose(1, 0, 2)  # (T, K, d)
-        hs_upper = offsets.T - _vecdot(normals_t, positions0[:, None, :])
+        hs_upper = offsets.T - vecdot(normals_t, positions0[:, None, :])
         return StepRows(f, upper, lower, normals_t, hs_upper, positions0)
 
     def halfspace_rows(self, rows: StepRows, steps: np.ndarray, obstacles: np.ndarray,
@@ -206,18 +206,6 @@ class CondensedQP:
         W = self.position_maps[steps]  # (r, d, nu)
         return np.matmul(a[:, None, :], W, out=None if out is None else out[:, None, :])[:, 0]
 
-    def values(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(u, fixed, positions)`` at ``z``: the inputs ``(T m,)``, the left-hand sides of
-        the fixed rows before the :math:`x_0` shift ``(n_fixed,)``, and :math:`C \\Gamma_t u`
-        ``(T, d)``; one matrix-vector product."""
-        values = self._E @ z
-        nu, T, d = self.nu, self.T, self.d
-        u = values[:nu]
-        positions = values[nu : nu + T * d].reshape(T, d)
-        fixed = np.concatenate((u[self._input_index], positions[:, self.arena_axes].reshape(-1),
-                                values[nu + T * d :]))
-        return u, fixed, positions
-
     def excess(self, z: np.ndarray, rows: StepRows) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Excess ``lhs - rhs`` (<= 0: the row holds) of every row at ``z``.
 
@@ -225,9 +213,13 @@ class CondensedQP:
         row's excess is the larger of its two sides'), ``halfspace`` ``(T, K)``, and the
         fixed rows' values (for :meth:`bound_slack`).
         """
-        _, values, positions = self.values(z)
+        # One product: the inputs, C Gamma_t u, then the terminal and speed rows' values.
+        product, nu, T, d = self._E @ z, self.nu, self.T, self.d
+        positions = product[nu : nu + T * d].reshape(T, d)
+        values = np.concatenate((product[:nu][self._input_index],
+                                 positions[:, self.arena_axes].reshape(-1), product[nu + T * d :]))
         fixed = np.maximum(values - rows.upper, rows.lower - values)
-        halfspace = _vecdot(rows.normals, positions[:, None, :]) - rows.hs_upper
+        halfspace = vecdot(rows.normals, positions[:, None, :]) - rows.hs_upper
         return fixed, halfspace, values
 
     def bound_slack(self, values: np.ndarray, rows: StepRows) -> np.ndarray:
