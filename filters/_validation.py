@@ -83,6 +83,14 @@ def scalar_in_range(
     return number
 
 
+def finite_scalar(name: str, value: object, *, low: float = -math.inf,
+                  strict: bool = False) -> float:
+    """``value`` as a finite float ``>= low`` (``> low`` if ``strict``), or
+    ``InvalidParameterError``."""
+    return scalar_in_range(name, value, low=low, low_inclusive=not strict, high=math.inf,
+                           high_inclusive=False)
+
+
 def lookahead_index(lookahead: object, horizon: int) -> int:
     """The 0-based index of look-ahead ``k`` in ``1..horizon``, or ``InvalidParameterError``."""
     k = integer_at_least("lookahead", lookahead)

@@ -18,7 +18,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from filters._validation import finite_array, integer_at_least, lookahead_index, scalar_in_range
+from filters._validation import (
+    finite_array,
+    finite_scalar,
+    integer_at_least,
+    lookahead_index,
+    scalar_in_range,
+)
 from filters.errors import InvalidArrayError
 from filters.risk import check_alpha, cvar_last_axis
 from filters.wasserstein import grid_directions
@@ -313,9 +319,8 @@ class AdaptiveRadius:
                  window: int = 200, gamma: float = 0.005, fallback: float = 0.05,
                  floor: float = 0.0, n_directions: int = 64) -> None:
         self.alpha = check_alpha(alpha)
-        self.fallback, self.floor = (scalar_in_range(name, value, low=0.0, high=math.inf,
-                                                     high_inclusive=False)
-                                     for name, value in (("fallback", fallback), ("floor", floor)))
+        self.fallback = finite_scalar("fallback", fallback, low=0.0)
+        self.floor = finite_scalar("floor", floor, low=0.0)
         self.n_directions = integer_at_least("n_directions", n_directions, low=3)
         level = _open_unit("miscoverage (alpha unless given)",
                            self.alpha if miscoverage is None else miscoverage)

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from filters._validation import finite_array, scalar_in_range
+from filters._validation import finite_array, finite_scalar
 from filters.errors import InvalidArrayError, InvalidParameterError, InvalidTypeError
 from filters.geometry import ConvexPolygon, Disc, Shape
 from filters.risk import check_alpha, check_epsilon_array, check_margins, check_risk
@@ -84,7 +84,7 @@ def warn_deprecated_backend(backend: object, caller: str) -> None:
 def _check_delta(delta: object) -> float:
     if type(delta) is float and -math.inf < delta < math.inf:
         return delta
-    return scalar_in_range("delta (metres)", delta, high=math.inf, high_inclusive=False)
+    return finite_scalar("delta (metres)", delta)
 
 
 def _check_positions(reference: object, samples: object) -> tuple[np.ndarray, np.ndarray]:

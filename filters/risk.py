@@ -41,7 +41,7 @@ import math
 import numpy as np
 from scipy.special import ndtri
 
-from filters._validation import finite_array, scalar_in_range
+from filters._validation import finite_array, finite_scalar, scalar_in_range
 from filters.constants import ALPHA, EPSILON
 from filters.errors import InvalidArrayError, InvalidParameterError, InvalidTypeError
 
@@ -174,8 +174,7 @@ def check_epsilon(epsilon: object) -> float:
     """Return ``epsilon`` as a finite float ``>= 0``, or raise ``InvalidParameterError``."""
     if type(epsilon) is float and 0.0 <= epsilon < math.inf:
         return epsilon
-    return scalar_in_range("epsilon (metres)", epsilon, low=0.0, high=math.inf,
-                           high_inclusive=False)
+    return finite_scalar("epsilon (metres)", epsilon, low=0.0)
 
 
 def tail_count(alpha: float, n: int) -> float:

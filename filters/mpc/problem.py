@@ -48,7 +48,7 @@ from functools import cached_property
 import numpy as np
 import scipy.linalg
 
-from filters._validation import finite_array, scalar_in_range
+from filters._validation import finite_array, finite_scalar, scalar_in_range
 from filters.constants import SPEED_SIDES
 from filters.errors import InvalidArrayError, InvalidParameterError, InvalidTypeError
 from filters.mpc.checks import box, integer, weight
@@ -59,11 +59,6 @@ __all__ = ["OBJECTIVES", "SOFT_ROWS", "MPCProblem", "speed_polygon"]
 OBJECTIVES = ("trajectory", "first_input")
 #: Row groups that can be softened: ``"halfspaces"``, and ``"bounds"`` (arena + terminal).
 SOFT_ROWS = frozenset({"halfspaces", "bounds"})
-
-
-def _positive(name: str, value: object) -> float:
-    return scalar_in_range(name, value, low=0.0, low_inclusive=False, high=np.inf,
-                           high_inclusive=False)
 
 
 def speed_polygon(max_speed: float, sides: int, dim: int) -> tuple[np.ndarray, np.ndarray]:
@@ -204,11 +199,13 @@ class MPCProblem:
             ("Q", weight("Q", self.Q, n, definite=False) if trajectory else None),
             ("Q_terminal", weight("Q_terminal", self.Q_terminal, n, definite=False)
              if trajectory else None),
-            ("later_input_weight", _positive("later_input_weight", self.later_input_weight)),
+            ("later_input_weight", finite_scalar("later_input_weight", self.later_input_weight,
+                                                 low=0.0, strict=True)),
             ("input_bounds", box("input_bounds", self.input_bounds, m)),
             ("position_bounds", box("position_bounds", self.position_bounds, d)),
             ("soft_rows", frozenset(self.soft_rows)),
-            ("slack_penalty", _positive("slack_penalty", self.slack_penalty)),
+            ("slack_penalty", finite_scalar("slack_penalty", self.slack_penalty, low=0.0,
+                                            strict=True)),
             ("max_speed", scalar_in_range("max_speed", self.max_speed, low=0.0,
                                           low_inclusive=False, high=np.inf)),
             ("speed_sides", integer("speed_sides", self.speed_sides, low=3)),
