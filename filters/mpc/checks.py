@@ -35,19 +35,16 @@ def weight(name: str, value: object, size: int, *, definite: bool) -> np.ndarray
     if not np.allclose(matrix, matrix.T, rtol=0.0, atol=1e-10 * scale):
         raise InvalidParameterError(
             f"{name} must be symmetric, got max |{name} - {name}.T| = "
-            f"{np.max(np.abs(matrix - matrix.T)):.3g}; pass ({name} + {name}.T) / 2"
-        )
+            f"{np.max(np.abs(matrix - matrix.T)):.3g}; pass ({name} + {name}.T) / 2")
     matrix = 0.5 * (matrix + matrix.T)
     smallest = float(np.linalg.eigvalsh(matrix)[0]) if size else 0.0
     if definite and smallest <= 1e-12 * scale:
         raise InvalidParameterError(
             f"{name} must be positive definite (it keeps the QP strictly convex and "
-            f"the filtered input unique), got smallest eigenvalue {smallest:.3g}"
-        )
+            f"the filtered input unique), got smallest eigenvalue {smallest:.3g}")
     if not definite and smallest < -1e-10 * scale:
         raise InvalidParameterError(
-            f"{name} must be positive semidefinite, got smallest eigenvalue {smallest:.3g}"
-        )
+            f"{name} must be positive semidefinite, got smallest eigenvalue {smallest:.3g}")
     return matrix
 
 
@@ -60,26 +57,20 @@ def box(name: str, value: object, size: int) -> tuple[np.ndarray, np.ndarray]:
     sides = []
     for side, raw in zip(("low", "high"), value, strict=True):
         try:
-            array = np.asarray(raw, dtype=np.float64)
-            array = np.array(np.broadcast_to(array, (size,)))
+            sides.append(np.array(np.broadcast_to(np.asarray(raw, dtype=np.float64), (size,))))
         except (TypeError, ValueError) as exc:
-            raise InvalidArrayError(
-                f"{name} {side} must be a number or an array of shape ({size},), got {raw!r}"
-            ) from exc
-        if np.any(np.isnan(array)):
-            raise InvalidArrayError(f"{name} {side} must not contain NaN, got {array}")
-        sides.append(array)
+            raise InvalidArrayError(f"{name} {side} must be a number or an array of shape "
+                                    f"({size},), got {raw!r}") from exc
+        if np.isnan(sides[-1]).any():
+            raise InvalidArrayError(f"{name} {side} must not contain NaN, got {sides[-1]}")
     low, high = sides
     if np.any(low == np.inf) or np.any(high == -np.inf):
         raise InvalidParameterError(
-            f"{name} must have low < +inf and high > -inf, got low={low}, high={high}"
-        )
+            f"{name} must have low < +inf and high > -inf, got low={low}, high={high}")
     if np.any(low > high):
         index = int(np.argmax(low > high))
-        raise InvalidParameterError(
-            f"{name} lower bound exceeds upper bound at index {index}: "
-            f"{low[index]} > {high[index]}"
-        )
+        raise InvalidParameterError(f"{name} lower bound exceeds upper bound at index {index}: "
+                                    f"{low[index]} > {high[index]}")
     return low, high
 
 
@@ -88,9 +79,8 @@ def all_finite(array: np.ndarray) -> bool:
     return math.isfinite(np.add.reduce(array, axis=None)) or bool(np.isfinite(array).all())
 
 
-def parse_halfspaces(
-    halfspaces: object, horizon: int, dim: int, n_obstacles: int
-) -> tuple[np.ndarray, np.ndarray]:
+def parse_halfspaces(halfspaces: object, horizon: int, dim: int, n_obstacles: int
+                     ) -> tuple[np.ndarray, np.ndarray]:
     """Validate halfspaces given as an object, a pair, or ``None``.
 
     Parameters
@@ -115,22 +105,18 @@ def parse_halfspaces(
     """
     if halfspaces is None:
         return np.zeros((0, horizon, dim)), np.zeros((0, horizon))
-    if type(halfspaces) is tuple and len(halfspaces) == 2:  # no .normals: the pair
-        raw_normals, raw_offsets = halfspaces
-    elif hasattr(halfspaces, "normals") and hasattr(halfspaces, "offsets"):
+    if hasattr(halfspaces, "normals") and hasattr(halfspaces, "offsets"):
         raw_normals, raw_offsets = halfspaces.normals, halfspaces.offsets
     elif isinstance(halfspaces, (tuple, list)) and len(halfspaces) == 2:
         raw_normals, raw_offsets = halfspaces
     else:
         raise InvalidTypeError(
             "halfspaces must be None, a pair (normals, offsets) or an object with "
-            f".normals and .offsets, got {type(halfspaces).__name__}"
-        )
+            f".normals and .offsets, got {type(halfspaces).__name__}")
     normals = finite_array("halfspaces.normals", raw_normals, (None, horizon, dim))
     offsets = finite_array("halfspaces.offsets", raw_offsets, (normals.shape[0], horizon))
     if normals.shape[0] > n_obstacles:
         raise InvalidArrayError(
             f"halfspaces has {normals.shape[0]} obstacle rows but the filter was built "
-            f"for n_obstacles={n_obstacles}; build it with a larger n_obstacles"
-        )
+            f"for n_obstacles={n_obstacles}; build it with a larger n_obstacles")
     return normals, offsets

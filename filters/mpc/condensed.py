@@ -123,15 +123,13 @@ class CondensedQP:
         T, n, m, d, K = p.horizon, p.n, p.m, p.d, p.n_obstacles
         nu = T * m
         phi, gamma = p.rollout
-        R_bar = scipy.linalg.block_diag(*p.input_weights)
-        Q_bar = scipy.linalg.block_diag(*p.state_weights)
-        hessian = 2.0 * (R_bar + gamma.T @ Q_bar @ gamma)
-        hessian = 0.5 * (hessian + hessian.T)
+        R_bar, Q_bar, half_hessian = p.condensed_weights
+        hessian = 2.0 * half_hessian
         reverse = np.arange(nu)[::-1]
         lower = np.linalg.cholesky(hessian[np.ix_(reverse, reverse)])
         upper = np.ascontiguousarray(lower[np.ix_(reverse, reverse)])  # H = U U'
-        u_of_z = scipy.linalg.solve_triangular(upper, np.eye(nu), lower=False).T
-        u_of_z = np.tril(u_of_z)  # exact zeros above the diagonal
+        # exact zeros above the diagonal
+        u_of_z = np.tril(scipy.linalg.solve_triangular(upper, np.eye(nu), lower=False).T)
         self.hessian = hessian
         self.z_of_u = np.ascontiguousarray(upper.T)
         self.u_of_z = np.ascontiguousarray(u_of_z)
@@ -142,8 +140,7 @@ class CondensedQP:
 
         C_phi = np.einsum("dn,tnk->tdk", p.C, phi.reshape(T, n, n))  # (T, d, n)
         C_gamma = np.einsum("dn,tnk->tdk", p.C, gamma.reshape(T, n, nu))  # (T, d, nu)
-        W = np.ascontiguousarray(C_gamma @ u_of_z)  # (T, d, nu)
-        self.position_maps = W
+        self.position_maps = W = np.ascontiguousarray(C_gamma @ u_of_z)  # (T, d, nu)
 
         u_low, u_high = p.input_bounds
         y_low, y_high = p.position_bounds
@@ -189,15 +186,12 @@ class CondensedQP:
                   normals: np.ndarray, offsets: np.ndarray) -> StepRows:
         """The step's linear cost and bounds; ``normals`` ``(K, T, d)``, ``offsets`` ``(K, T)``."""
         v = np.concatenate((x0, ref_states.reshape(-1), ref_inputs.reshape(-1)), out=self._v)
-        f = self._F @ v
-        shift = self._S @ x0
-        n_fixed = self.n_fixed
+        shift, n_fixed = self._S @ x0, self.n_fixed
         positions0 = shift[n_fixed:].reshape(self.T, self.d)
-        upper = self.fixed_upper - shift[:n_fixed]
-        lower = self.fixed_lower - shift[:n_fixed]
         normals_t = normals.transpose(1, 0, 2)  # (T, K, d)
-        hs_upper = offsets.T - vecdot(normals_t, positions0[:, None, :])
-        return StepRows(f, upper, lower, normals_t, hs_upper, positions0)
+        return StepRows(self._F @ v, self.fixed_upper - shift[:n_fixed],
+                        self.fixed_lower - shift[:n_fixed], normals_t,
+                        offsets.T - vecdot(normals_t, positions0[:, None, :]), positions0)
 
     def halfspace_rows(self, rows: StepRows, steps: np.ndarray, obstacles: np.ndarray,
                        out: np.ndarray | None = None) -> np.ndarray:

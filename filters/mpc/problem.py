@@ -321,13 +321,22 @@ class MPCProblem:
 
         For ``"first_input"`` :math:`\bar Q = 0`, so :math:`K = 0` and :math:`u^\circ = u^r`.
         """
-        T, n, m = self.horizon, self.n, self.m
         if not self.has_state_cost:
-            return np.zeros((T * m, T * n))
-        _, gamma = self.rollout
-        q_block = scipy.linalg.block_diag(*self.state_weights)
-        hessian = scipy.linalg.block_diag(*self.input_weights) + gamma.T @ q_block @ gamma
+            return np.zeros((self.horizon * self.m, self.horizon * self.n))
+        _, q_block, hessian = self.condensed_weights
+        gamma = self.rollout[1]
         return scipy.linalg.solve(hessian, gamma.T @ q_block, assume_a="pos")
+
+    @cached_property
+    def condensed_weights(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        r"""``(R_bar, Q_bar, H)``: the block-diagonal :math:`\bar R` ``(T m, T m)`` and
+        :math:`\bar Q` ``(T n, T n)``, and :math:`H = \bar R + \Gamma^\top \bar Q \Gamma`
+        (symmetrised), the cost's Hessian in the inputs up to the factor 2."""
+        gamma = self.rollout[1]
+        R_bar = scipy.linalg.block_diag(*self.input_weights)
+        Q_bar = scipy.linalg.block_diag(*self.state_weights)
+        hessian = R_bar + gamma.T @ Q_bar @ gamma
+        return R_bar, Q_bar, 0.5 * (hessian + hessian.T)
 
     @cached_property
     def check_map(self) -> tuple[np.ndarray, np.ndarray]:
