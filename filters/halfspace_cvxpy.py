@@ -57,14 +57,8 @@ from filters.constants import ALPHA, DELTA, EPSILON
 from filters.errors import InvalidArrayError, InvalidParameterError
 from filters.risk import PAPER_RISKS, check_alpha, check_epsilon, check_risk
 
-__all__ = [
-    "FORMULATIONS",
-    "TIGHT_CLARABEL",
-    "CvxpyHalfspace",
-    "build_halfspace_problem",
-    "cvxpy_halfspace",
-    "time_cvxpy_halfspace",
-]
+__all__ = ["FORMULATIONS", "TIGHT_CLARABEL", "CvxpyHalfspace", "build_halfspace_problem",
+           "cvxpy_halfspace", "time_cvxpy_halfspace"]
 
 #: Names of the two CVXPY formulations of Proposition 1.
 FORMULATIONS: tuple[str, ...] = ("vectorized", "paper")

@@ -45,16 +45,8 @@ from filters._validation import finite_array, finite_scalar, scalar_in_range
 from filters.constants import ALPHA, EPSILON
 from filters.errors import InvalidArrayError, InvalidParameterError, InvalidTypeError
 
-__all__ = [
-    "CHANCE_RISKS",
-    "PAPER_RISKS",
-    "RISKS",
-    "cantelli_factor",
-    "check_risk",
-    "empirical_cvar",
-    "gaussian_factor",
-    "risk_value",
-]
+__all__ = ["CHANCE_RISKS", "PAPER_RISKS", "RISKS", "cantelli_factor", "check_risk",
+           "empirical_cvar", "gaussian_factor", "risk_value"]
 
 #: The paper's metrics (Definition 2); the CVXPY reference of
 #: :mod:`filters.halfspace_cvxpy` formulates these.
@@ -105,8 +97,7 @@ def check_alpha(alpha: object, risk: str | None = None) -> float:
     if value == 1.0 and risk in CHANCE_RISKS:
         raise InvalidParameterError(
             f"alpha must lie in (0, 1) for risk={risk!r} (it is the allowed violation "
-            f"probability of a chance constraint; 1 constrains nothing), got {alpha!r}"
-        )
+            f"probability of a chance constraint; 1 constrains nothing), got {alpha!r}")
     return value
 
 
@@ -161,8 +152,7 @@ def check_margins(margins: object, shape: tuple[int, ...]) -> np.ndarray:
     if margins is None:
         raise InvalidParameterError(
             "risk='conformal' needs conformal_margins: one margin q_k >= 0 (m) per "
-            "look-ahead step, e.g. filters.calibration.ConformalMargin(...).margins()"
-        )
+            "look-ahead step, e.g. filters.calibration.ConformalMargin(...).margins()")
     array = finite_array("conformal_margins", margins)
     if array.ndim > len(shape) or array.shape != shape[len(shape) - array.ndim :]:
         raise InvalidArrayError(f"conformal_margins must be a scalar or have shape {shape[1:]} "
@@ -322,15 +312,11 @@ def risk_value(
     risk = check_risk(risk)
     alpha = check_alpha(alpha, risk)
     x = _samples_last("losses", losses, axis)
-    out_shape = x.shape[:-1]
-    if np.ndim(epsilon) == 0 and not isinstance(epsilon, np.ndarray):
-        epsilon = check_epsilon(epsilon)
-    else:
-        epsilon = _broadcastable("epsilon", epsilon, out_shape)
-    if risk == "conformal":
-        if margin is None:
-            check_margins(None, (1, 1))  # raises, naming what is needed
-        margin = _broadcastable("margin", margin, out_shape)
+    epsilon = check_epsilon(epsilon) if np.ndim(epsilon) == 0 and not isinstance(
+        epsilon, np.ndarray) else _broadcastable("epsilon", epsilon, x.shape[:-1])
+    if risk == "conformal":  # (check_margins raises for a missing margin, naming it)
+        margin = check_margins(None, (1, 1)) if margin is None else _broadcastable(
+            "margin", margin, x.shape[:-1])
     return risk_of_samples(x, risk, alpha, epsilon, margin=margin)
 
 
