@@ -192,12 +192,10 @@ def filter_result(
         if array is not None:
             array.setflags(write=False)
     result = object.__new__(FilterResult)
-    result.__dict__.update({
-        "status": status, "inputs": inputs, "states": states, "solve_time": solve_time,
-        "total_time": total_time, "slack": slack, "solver_status": solver_status,
-        "iterations": iterations, "objective": objective, "consecutive_failures": failures,
-        "bound_slack": bound_slack,
-    })
+    result.__dict__.update(
+        status=status, inputs=inputs, states=states, solve_time=solve_time, total_time=total_time,
+        slack=slack, solver_status=solver_status, iterations=iterations, objective=objective,
+        consecutive_failures=failures, bound_slack=bound_slack)
     return result
 
 
