@@ -50,21 +50,13 @@ def finite_array(
         raise InvalidArrayError(f"{name} must have shape {expected}, got {array.shape}")
     if not math.isfinite(np.add.reduce(array, axis=None)) and not np.isfinite(array).all():
         bad = np.argwhere(~np.isfinite(array))[0]
-        raise InvalidArrayError(
-            f"{name} must be finite, got {array[tuple(bad)]} at index {tuple(int(i) for i in bad)}"
-        )
+        raise InvalidArrayError(f"{name} must be finite, got {array[tuple(bad)]} at index "
+                                f"{tuple(int(i) for i in bad)}")
     return array
 
 
-def scalar_in_range(
-    name: str,
-    value: object,
-    *,
-    low: float = -np.inf,
-    high: float = np.inf,
-    low_inclusive: bool = True,
-    high_inclusive: bool = True,
-) -> float:
+def scalar_in_range(name: str, value: object, *, low: float = -np.inf, high: float = np.inf,
+                    low_inclusive: bool = True, high_inclusive: bool = True) -> float:
     """Return ``value`` as a float inside the given interval, or raise ``InvalidParameterError``."""
     try:
         number = float(value)  # type: ignore[arg-type]
@@ -72,14 +64,10 @@ def scalar_in_range(
         raise InvalidParameterError(f"{name} must be a real number, got {value!r}") from exc
     above = number >= low if low_inclusive else number > low
     below = number <= high if high_inclusive else number < high
-    if not (np.isfinite(number) or (np.isinf(high) and number == high and high_inclusive)):
-        above = False
-    if not (above and below):
-        left = "[" if low_inclusive else "("
-        right = "]" if high_inclusive else ")"
-        raise InvalidParameterError(
-            f"{name} must lie in {left}{low}, {high}{right}, got {value!r}"
-        )
+    # an infinite number passes only as an inclusive infinite upper bound
+    if not (above and below and (math.isfinite(number) or (number == high and high_inclusive))):
+        raise InvalidParameterError(f"{name} must lie in {'[' if low_inclusive else '('}{low}, "
+                                    f"{high}{']' if high_inclusive else ')'}, got {value!r}")
     return number
 
 
