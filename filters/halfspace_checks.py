@@ -26,6 +26,7 @@ __all__ = ["DEGENERATE_DISTANCE", "warn_deprecated_backend"]
 #: normal ``h`` is undefined and a fallback direction is used.
 DEGENERATE_DISTANCE = 1e-9
 
+
 @dataclass(frozen=True, eq=False)
 class _Inputs:
     """The checked inputs of :func:`safe_halfspaces` (see its parameters)."""
@@ -67,7 +68,6 @@ def _checked_inputs(reference_positions: object, samples: object, ego_shape: Sha
         finite_array("normals", normals, (n_obstacles, horizon, dim)))
     return _Inputs(risk, alpha, delta, y_ref, points, epsilon, margins, shapes, polytope,
                    previous, velocity, given)
-
 
 
 def warn_deprecated_backend(backend: object, caller: str) -> None:

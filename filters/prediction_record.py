@@ -107,8 +107,9 @@ class PredictionRecord:
         self.keep_samples = keep_samples if keep_samples is None else integer_at_least(
             "keep_samples", keep_samples)
         self.memory = integer_at_least("memory", memory)
-        self._pending: deque[tuple[int, np.ndarray, np.ndarray | None]] = deque(maxlen=horizon)
-        self._scores: list[deque[np.ndarray]] = [deque(maxlen=memory) for _ in range(horizon)]
+        T = self.horizon
+        self._pending: deque[tuple[int, np.ndarray, np.ndarray | None]] = deque(maxlen=T)
+        self._scores: list[deque[np.ndarray]] = [deque(maxlen=self.memory) for _ in range(T)]
         self.step = 0
 
     def reset(self) -> None:

@@ -126,6 +126,7 @@ _REPORT_KEYS: tuple[str, ...] = tuple(f.name for f in fields(FilterReport))
 """The field names of :class:`FilterReport`, computed once (``keys`` runs every step)."""
 _COMPARED_KEYS = tuple(key for key in _REPORT_KEYS if key not in _TIMING_FIELDS)
 
+
 def _report(status: str, proposed: np.ndarray, applied: np.ndarray, intervention: float,
             solve_time: float = 0.0, halfspace_time: float = 0.0, filter_time: float = 0.0,
             reference_time: float = 0.0, slack: np.ndarray | None = None,

@@ -99,7 +99,6 @@ def _plain_settings(value: object) -> tuple | None:
     return None if any(item is None for _, item in items) else (tag, items)
 
 
-
 class CalibrationMixin:
     """The wrapper's calibration methods (mixed into
     :class:`filters.wrapper.SafetyFilterWrapper`, whose attributes they use)."""
