@@ -36,7 +36,6 @@ from filters.conformal import AdaptiveRadius, ConformalMargin, conformal_rank, d
 from filters.errors import InvalidParameterError
 from filters.prediction_record import PredictionRecord, Realisation
 from filters.wasserstein import WassersteinRadius, sliced_wasserstein_max
-from filters.wasserstein import _grid_slack as _grid_slack  # noqa: F401 - used by the tests
 
 __all__ = ["AdaptiveRadius", "ConformalMargin", "OnlineCalibration", "PredictionRecord",
            "Realisation", "WassersteinRadius", "conformal_rank", "dr_cvar_scores",

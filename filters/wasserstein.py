@@ -51,11 +51,6 @@ def grid_directions(
     return np.stack([np.cos(angles), np.sin(angles)], axis=-1), 2.0 * math.sin(span / (4 * count))
 
 
-def _grid_slack(dim: int, count: int) -> float:
-    """The slack of :func:`grid_directions` on the half circle."""
-    return grid_directions(dim, count, "WassersteinRadius")[1]
-
-
 def sliced_wasserstein_max(a: object, b: object, directions: object) -> np.ndarray:
     """1-D Wasserstein-1 distances of the projections of two point clouds, one per direction.
 
