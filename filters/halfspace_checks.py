@@ -20,7 +20,7 @@ from filters.geometry import ConvexPolygon, Disc, Shape
 from filters.risk import check_alpha, check_epsilon_array, check_margins, check_risk
 from filters.support import check_support
 
-__all__ = ["DEGENERATE_DISTANCE", "warn_deprecated_backend"]
+__all__ = ["DEGENERATE_DISTANCE"]
 
 #: Below this distance (metres) between the sample mean and the ego reference the
 #: normal ``h`` is undefined and a fallback direction is used.

@@ -15,8 +15,7 @@ import numpy as np
 
 from filters.constants import DISABLED_OFFSET
 
-__all__ = ["FilterResult", "FilterStatus", "QPSolution", "StepData", "filter_result",
-           "padded_step", "recovery_status"]
+__all__ = ["FilterResult", "FilterStatus", "QPSolution", "StepData"]
 
 
 class FilterStatus(str, Enum):
