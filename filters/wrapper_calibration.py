@@ -69,8 +69,8 @@ def calibration_settings(
     adaptive = bool(adaptive_epsilon) and risk == "dr_cvar" and epsilon != "auto"
     if risk == "none" or not (risk == "conformal" or epsilon == "auto" or adaptive):
         return None
-    return {"calibration_episodes": CALIBRATION_EPISODES if calibration_episodes is None
-            else calibration_episodes, "calibration_seed": calibration_seed,
+    episodes = CALIBRATION_EPISODES if calibration_episodes is None else calibration_episodes
+    return {"calibration_episodes": episodes, "calibration_seed": calibration_seed,
             "calibration_memory": calibration_memory}
 
 
