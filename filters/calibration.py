@@ -36,19 +36,10 @@ from filters.conformal import AdaptiveRadius, ConformalMargin, conformal_rank, d
 from filters.errors import InvalidParameterError
 from filters.prediction_record import PredictionRecord, Realisation
 from filters.wasserstein import WassersteinRadius, sliced_wasserstein_max
-from filters.wasserstein import _grid_slack as _grid_slack  # noqa: F401 - used by the tests
 
-__all__ = [
-    "AdaptiveRadius",
-    "ConformalMargin",
-    "OnlineCalibration",
-    "PredictionRecord",
-    "Realisation",
-    "WassersteinRadius",
-    "conformal_rank",
-    "dr_cvar_scores",
-    "sliced_wasserstein_max",
-]
+__all__ = ["AdaptiveRadius", "ConformalMargin", "OnlineCalibration", "PredictionRecord",
+           "Realisation", "WassersteinRadius", "conformal_rank", "dr_cvar_scores",
+           "sliced_wasserstein_max"]
 
 
 class OnlineCalibration:
@@ -91,19 +82,10 @@ class OnlineCalibration:
         Extra keyword arguments of :class:`AdaptiveRadius` (e.g. ``{"gamma": 0.01}``).
     """
 
-    def __init__(
-        self,
-        horizon: int,
-        alpha: float,
-        *,
-        margin_fallback: float | str = 1.0,
-        radius_fallback: float = 0.05,
-        keep_samples: int = 20,
-        conformal: dict | None = None,
-        wasserstein: dict | None = None,
-        adaptive_alpha: float | None = None,
-        adaptive: dict | None = None,
-    ) -> None:
+    def __init__(self, horizon: int, alpha: float, *, margin_fallback: float | str = 1.0,
+                 radius_fallback: float = 0.05, keep_samples: int = 20,
+                 conformal: dict | None = None, wasserstein: dict | None = None,
+                 adaptive_alpha: float | None = None, adaptive: dict | None = None) -> None:
         self.keep_samples = keep_samples
         self.adaptive = None if adaptive_alpha is None else AdaptiveRadius(
             adaptive_alpha, horizon=horizon, fallback=radius_fallback, **(adaptive or {}))
@@ -126,20 +108,14 @@ class OnlineCalibration:
         the bootstrap generator's state is copied, so updating one copy never changes
         the other.
         """
-        shared: dict[int, object] = {}
-        for _, samples in self.record._pending:
-            shared[id(samples)] = samples
-        for buffers in (self.record._scores, self.wasserstein._errors,
-                        self.wasserstein._predicted):
-            for buffer in buffers:
-                for array in buffer:
-                    shared[id(array)] = array
-        return copy.deepcopy(self, shared)
+        shared = [pending[1] for pending in self.record._pending]
+        shared += [array for buffers in (self.record._scores, self.wasserstein._errors,
+                                         self.wasserstein._predicted)
+                   for buffer in buffers for array in buffer]
+        return copy.deepcopy(self, {id(array): array for array in shared})
 
-    def update(
-        self, samples: object, realised_positions: object, present: object | None = None,
-        ids: object | None = None,
-    ) -> tuple[Realisation, ...]:
+    def update(self, samples: object, realised_positions: object, present: object | None = None,
+               ids: object | None = None) -> tuple[Realisation, ...]:
         """Record this step (see :meth:`PredictionRecord.update`) and update both estimators.
 
         ``present`` is an optional boolean mask ``(n_rows,)`` selecting the real
@@ -155,14 +131,13 @@ class OnlineCalibration:
             ids = None if ids is None else np.asarray(ids)[mask]
         realised = self.record.update(samples, realised_positions, ids)
         self.conformal.update(realised)
-        if self.adaptive is None:
-            self.wasserstein.update(realised)
-            return realised
-        self.adaptive.update(realised)
-        keep = self.keep_samples  # the Wasserstein radius sees what it saw without adaptive
-        self.wasserstein.update([
-            dataclasses.replace(r, predicted_errors=r.predicted_errors[:, :keep])
-            for r in realised])
+        kept = realised
+        if self.adaptive is not None:  # the Wasserstein radius sees what it saw without it
+            self.adaptive.update(realised)
+            keep = self.keep_samples
+            kept = [dataclasses.replace(r, predicted_errors=r.predicted_errors[:, :keep])
+                    for r in realised]
+        self.wasserstein.update(kept)
         return realised
 
     def margins(self) -> np.ndarray:

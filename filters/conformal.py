@@ -18,21 +18,22 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from filters._validation import finite_array, integer_at_least, scalar_in_range
-from filters.errors import InvalidArrayError, InvalidParameterError
+from filters._validation import (
+    finite_array,
+    finite_scalar,
+    integer_at_least,
+    lookahead_index,
+    scalar_in_range,
+)
+from filters.errors import InvalidArrayError
 from filters.risk import check_alpha, cvar_last_axis
+from filters.wasserstein import grid_directions
 
 if TYPE_CHECKING:
     from filters.prediction_record import Realisation
 
 __all__ = ["AdaptiveRadius", "ConformalMargin", "conformal_rank", "dr_cvar_scores"]
 
-
-def _fallback(value: object) -> float | str:
-    if value == "max":
-        return "max"
-    number = scalar_in_range("fallback", value, low=0.0)
-    return number
 
 def conformal_rank(n: int, alpha: float) -> int:
     """:math:`\\lceil (n+1)(1-\\alpha) \\rceil`, the split-conformal rank among ``n`` scores.
@@ -105,33 +106,24 @@ class ConformalMargin:
         For a parameter outside its domain.
     """
 
-    def __init__(
-        self,
-        alpha: float,
-        *,
-        horizon: int,
-        window: int = 200,
-        gamma: float = 0.005,
-        fallback: float | str = math.inf,
-    ) -> None:
-        self.alpha = scalar_in_range(
-            "alpha", alpha, low=0.0, high=1.0, low_inclusive=False, high_inclusive=False
-        )
-        self.horizon = integer_at_least("horizon", horizon)
+    def __init__(self, alpha: float, *, horizon: int, window: int = 200, gamma: float = 0.005,
+                 fallback: float | str = math.inf) -> None:
+        self.alpha = _open_unit("alpha", alpha)
+        self.horizon = T = integer_at_least("horizon", horizon)
         self.window = integer_at_least("window", window)
         self.gamma = scalar_in_range("gamma", gamma, low=0.0)
-        self.fallback = _fallback(fallback)
-        self.levels = np.full(self.horizon, self.alpha)
-        self._windows: list[deque[float]] = [deque(maxlen=self.window) for _ in range(self.horizon)]
+        self.fallback = "max" if fallback == "max" else scalar_in_range("fallback", fallback,
+                                                                        low=0.0)
+        self.levels = np.full(T, self.alpha)
+        self._windows: list[deque[float]] = [deque(maxlen=self.window) for _ in range(T)]
         # The same scores kept sorted (bisect), so a margin is one lookup, not a partition.
-        self._sorted: list[list[float]] = [[] for _ in range(self.horizon)]
-        self._max_seen = np.full(self.horizon, -math.inf)
-        self.n_scored = np.zeros(self.horizon, dtype=np.int64)
-        self.n_exceeded = np.zeros(self.horizon, dtype=np.int64)
+        self._sorted: list[list[float]] = [[] for _ in range(T)]
+        self._max_seen = np.full(T, -math.inf)
+        self.n_scored, self.n_exceeded = np.zeros(T, dtype=np.int64), np.zeros(T, dtype=np.int64)
 
     def margin(self, lookahead: int) -> float:
         """Current margin :math:`q_k` in m for look-ahead ``k`` in ``1..T`` (see the class)."""
-        k = self._index(lookahead)
+        k = lookahead_index(lookahead, self.horizon)
         ordered = self._sorted[k]
         rank = conformal_rank(len(ordered), float(self.levels[k]))
         if rank <= 0:
@@ -154,14 +146,13 @@ class ConformalMargin:
         InvalidArrayError
             If ``scores`` is not a finite 1-D array of values ``>= 0``.
         """
-        k = self._index(lookahead)
+        k = lookahead_index(lookahead, self.horizon)
         values = finite_array("scores", scores).reshape(-1)
         if np.any(values < 0.0):
             raise InvalidArrayError(f"scores must be >= 0 (norms, m), got {values.tolist()}")
         if values.size == 0:
             return 0.0
-        q = self.margin(k + 1)
-        exceeded = int(np.count_nonzero(values > q))
+        exceeded = int(np.count_nonzero(values > self.margin(k + 1)))
         err = exceeded / values.size
         level = self.levels[k] + self.gamma * (self.alpha - err)
         self.levels[k] = min(max(level, -self.gamma), 1.0 + self.gamma)
@@ -187,17 +178,10 @@ class ConformalMargin:
         with np.errstate(invalid="ignore", divide="ignore"):
             return 1.0 - self.n_exceeded / self.n_scored
 
-    def _index(self, lookahead: int) -> int:
-        k = integer_at_least("lookahead", lookahead)
-        if k > self.horizon:
-            raise InvalidParameterError(f"lookahead must be in 1..{self.horizon}, got {k}")
-        return k - 1
 
-
-def _circle(count: int) -> np.ndarray:
-    """``count`` unit directions evenly spaced on the full circle, shape ``(count, 2)``."""
-    angles = 2.0 * np.pi * np.arange(count) / count
-    return np.stack([np.cos(angles), np.sin(angles)], axis=-1)
+def _open_unit(name: str, value: object) -> float:
+    return scalar_in_range(name, value, low=0.0, high=1.0, low_inclusive=False,
+                           high_inclusive=False)
 
 
 def dr_cvar_scores(
@@ -263,13 +247,8 @@ def dr_cvar_scores(
         raise InvalidArrayError(
             f"predicted_errors must have shape ({n_obs}, N_s >= 1, {dim}) to match errors "
             f"{e.shape}, got {xi.shape}")
-    if dim == 1:
-        directions, slack = np.array([[1.0], [-1.0]]), 0.0
-    elif dim == 2:
-        count = integer_at_least("n_directions", n_directions, low=3)
-        directions, slack = _circle(count), 2.0 * math.sin(math.pi / (2.0 * count))
-    else:
-        raise InvalidArrayError(f"dr_cvar_scores supports d = 1 or 2 positions, got d = {dim}")
+    count = integer_at_least("n_directions", n_directions, low=3)
+    directions, slack = grid_directions(dim, count, "dr_cvar_scores", full=True)
     projected = directions @ xi.transpose(0, 2, 1)  # (n_obs, M, N_s)
     gap = e @ directions.T - cvar_last_axis(projected, alpha, overwrite=True)  # (n_obs, M)
     worst = gap.max(axis=1)
@@ -336,29 +315,15 @@ class AdaptiveRadius:
         For a parameter outside its domain.
     """
 
-    def __init__(
-        self,
-        alpha: float,
-        *,
-        horizon: int,
-        miscoverage: float | None = None,
-        window: int = 200,
-        gamma: float = 0.005,
-        fallback: float = 0.05,
-        floor: float = 0.0,
-        n_directions: int = 64,
-    ) -> None:
+    def __init__(self, alpha: float, *, horizon: int, miscoverage: float | None = None,
+                 window: int = 200, gamma: float = 0.005, fallback: float = 0.05,
+                 floor: float = 0.0, n_directions: int = 64) -> None:
         self.alpha = check_alpha(alpha)
-        self.fallback = scalar_in_range("fallback", fallback, low=0.0, high=math.inf,
-                                        high_inclusive=False)
-        self.floor = scalar_in_range("floor", floor, low=0.0, high=math.inf,
-                                     high_inclusive=False)
+        self.fallback = finite_scalar("fallback", fallback, low=0.0)
+        self.floor = finite_scalar("floor", floor, low=0.0)
         self.n_directions = integer_at_least("n_directions", n_directions, low=3)
-        level = self.alpha if miscoverage is None else miscoverage
-        if isinstance(level, bool) or not isinstance(level, int | float) or not 0 < level < 1:
-            raise InvalidParameterError(
-                f"miscoverage must lie in (0, 1), got {level!r} (with alpha = 1, pass it "
-                "explicitly)")
+        level = _open_unit("miscoverage (alpha unless given)",
+                           self.alpha if miscoverage is None else miscoverage)
         self.scores = ConformalMargin(level, horizon=horizon, window=window, gamma=gamma,
                                       fallback="max")
 
@@ -376,15 +341,12 @@ class AdaptiveRadius:
         kept = [r for r in realisations if r.lookahead <= self.horizon]
         if not kept:
             return
-        shapes = {(r.errors.shape, r.predicted_errors.shape) for r in kept}
-        if len(shapes) == 1:
-            scores = dr_cvar_scores(
-                np.concatenate([r.errors for r in kept]),
-                np.concatenate([r.predicted_errors for r in kept]), self.alpha,
-                n_directions=self.n_directions).reshape(len(kept), -1)
-        else:
-            scores = [dr_cvar_scores(r.errors, r.predicted_errors, self.alpha,
-                                     n_directions=self.n_directions) for r in kept]
+        groups = [kept] if len({(r.errors.shape, r.predicted_errors.shape) for r in kept}) == 1 \
+            else [[r] for r in kept]
+        scores = [row for group in groups for row in dr_cvar_scores(
+            np.concatenate([r.errors for r in group]),
+            np.concatenate([r.predicted_errors for r in group]), self.alpha,
+            n_directions=self.n_directions).reshape(len(group), -1)]
         for r, values in zip(kept, scores, strict=True):
             self.scores.update_scores(r.lookahead, values)
 

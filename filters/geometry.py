@@ -20,6 +20,7 @@ point at the origin), lengths in metres.
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -36,12 +37,9 @@ _COLLINEAR_RTOL = 1e-9
 def _directions(value: object, dim: int | None) -> np.ndarray:
     """Return ``value`` as a finite array of directions whose last axis has length ``dim``."""
     array = finite_array("directions", value)
-    if array.ndim == 0:
-        raise InvalidArrayError(f"directions must have shape (..., d), got a scalar {value!r}")
-    if dim is not None and array.shape[-1] != dim:
-        raise InvalidArrayError(
-            f"directions must have shape (..., {dim}) for this shape, got {array.shape}"
-        )
+    if array.ndim == 0 or (dim is not None and array.shape[-1] != dim):
+        raise InvalidArrayError(f"directions must have shape (..., {dim or 'd'}) for this "
+                                f"shape, got {array.shape} ({value!r})")
     return array
 
 
@@ -74,16 +72,12 @@ class Disc:
     radius: float
 
     def __post_init__(self) -> None:
-        if isinstance(self.radius, bool) or not isinstance(
-            self.radius, (int, float, np.integer, np.floating)
-        ):
+        if isinstance(self.radius, bool) or not isinstance(self.radius, numbers.Real):
             raise InvalidTypeError(f"Disc radius must be a real number, got {self.radius!r}")
-        radius = float(self.radius)
-        if not math.isfinite(radius) or radius < 0.0:
+        if not 0.0 <= float(self.radius) < math.inf:
             raise InvalidShapeError(
-                f"Disc radius must be finite and >= 0 (metres), got {self.radius!r}"
-            )
-        object.__setattr__(self, "radius", radius)
+                f"Disc radius must be finite and >= 0 (metres), got {self.radius!r}")
+        object.__setattr__(self, "radius", float(self.radius))
 
     def support(self, directions: object) -> np.ndarray:
         """Support function :math:`S(z) = r \\lVert z \\rVert_2`, vectorised.
@@ -103,8 +97,7 @@ class Disc:
         InvalidArrayError
             If ``directions`` is a scalar or holds NaN/inf.
         """
-        array = _directions(directions, None)
-        return self.radius * np.linalg.norm(array, axis=-1)
+        return self.radius * np.linalg.norm(_directions(directions, None), axis=-1)
 
     def reflected(self) -> Disc:
         """Return :math:`-\\mathcal{B}_r`, which is the disc itself."""
@@ -142,11 +135,7 @@ class ConvexPolygon:
     _array: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        array = finite_array("vertices", self.vertices)
-        if array.ndim != 2 or array.shape[1] != 2:
-            raise InvalidArrayError(
-                f"ConvexPolygon vertices must have shape (n, 2), got {array.shape}"
-            )
+        array = finite_array("ConvexPolygon vertices", self.vertices, (None, 2))
         _check_convex(array)
         if _signed_area(array) < 0.0:
             array = array[::-1].copy()
@@ -164,14 +153,9 @@ class ConvexPolygon:
             If ``width`` or ``height`` is not a finite positive number.
         """
         for name, value in (("width", width), ("height", height)):
-            if not (
-                isinstance(value, (int, float, np.integer, np.floating))
-                and value > 0
-                and math.isfinite(value)
-            ):
+            if not (isinstance(value, numbers.Real) and 0 < value < math.inf):
                 raise InvalidShapeError(
-                    f"ConvexPolygon.box {name} must be finite and > 0 (metres), got {value!r}"
-                )
+                    f"ConvexPolygon.box {name} must be finite and > 0 (metres), got {value!r}")
         w, h = float(width) / 2.0, float(height) / 2.0
         return cls(((-w, -h), (w, -h), (w, h), (-w, h)))
 
@@ -198,8 +182,7 @@ class ConvexPolygon:
         InvalidArrayError
             If ``directions`` does not end in an axis of length 2 or holds NaN/inf.
         """
-        array = _directions(directions, 2)
-        return np.max(array @ self._array.T, axis=-1)
+        return np.max(_directions(directions, 2) @ self._array.T, axis=-1)
 
     def reflected(self) -> ConvexPolygon:
         """Return the point reflection :math:`-\\mathcal{P} = \\{-x : x \\in \\mathcal{P}\\}`."""
@@ -242,8 +225,7 @@ def collision_margin(ego_shape: Shape, obstacle_shape: Shape, directions: object
     for name, shape in (("ego_shape", ego_shape), ("obstacle_shape", obstacle_shape)):
         if not isinstance(shape, (Disc, ConvexPolygon)):
             raise InvalidTypeError(
-                f"{name} must be a Disc or ConvexPolygon, got {type(shape).__name__}"
-            )
+                f"{name} must be a Disc or ConvexPolygon, got {type(shape).__name__}")
     return obstacle_shape.support(directions) + ego_shape.reflected().support(directions)
 
 
@@ -258,8 +240,7 @@ def _check_convex(vertices: np.ndarray) -> None:
     n = len(vertices)
     if n < 3:
         raise InvalidShapeError(
-            f"ConvexPolygon needs at least 3 vertices, got {n}: {vertices.tolist()}"
-        )
+            f"ConvexPolygon needs at least 3 vertices, got {n}: {vertices.tolist()}")
     edges = np.roll(vertices, -1, axis=0) - vertices
     lengths = np.linalg.norm(edges, axis=1)
     scale = max(float(np.max(np.abs(vertices))), 1.0)
@@ -271,11 +252,9 @@ def _check_convex(vertices: np.ndarray) -> None:
     if np.any(np.abs(cross) <= _COLLINEAR_RTOL * lengths * np.roll(lengths, -1)):
         raise InvalidShapeError(
             "ConvexPolygon vertices must not have three consecutive collinear points "
-            f"(degenerate polygon), got {vertices.tolist()}"
-        )
+            f"(degenerate polygon), got {vertices.tolist()}")
     turning = float(np.sum(np.arctan2(cross, dot)))
     same_sign = np.all(cross > 0) or np.all(cross < 0)
     if not same_sign or not math.isclose(abs(turning), 2.0 * math.pi, rel_tol=1e-6):
         raise InvalidShapeError(
-            f"ConvexPolygon vertices must form a convex polygon in order, got {vertices.tolist()}"
-        )
+            f"ConvexPolygon vertices must form a convex polygon in order, got {vertices.tolist()}")

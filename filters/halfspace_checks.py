@@ -14,17 +14,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from filters._validation import finite_array
+from filters._validation import finite_array, finite_scalar
 from filters.errors import InvalidArrayError, InvalidParameterError, InvalidTypeError
 from filters.geometry import ConvexPolygon, Disc, Shape
 from filters.risk import check_alpha, check_epsilon_array, check_margins, check_risk
 from filters.support import check_support
 
-__all__ = ["DEGENERATE_DISTANCE", "warn_deprecated_backend"]
+__all__ = ["DEGENERATE_DISTANCE"]
 
 #: Below this distance (metres) between the sample mean and the ego reference the
 #: normal ``h`` is undefined and a fallback direction is used.
 DEGENERATE_DISTANCE = 1e-9
+
 
 @dataclass(frozen=True, eq=False)
 class _Inputs:
@@ -56,19 +57,17 @@ def _checked_inputs(reference_positions: object, samples: object, ego_shape: Sha
     y_ref, points = _check_positions(reference_positions, samples)
     n_obstacles, _, horizon, dim = points.shape
     epsilon = check_epsilon_array(epsilon, horizon)
-    margins = None
-    if risk == "conformal":
-        margins = check_margins(conformal_margins, (n_obstacles, horizon))
+    margins = check_margins(conformal_margins, (n_obstacles, horizon)) if (
+        risk == "conformal") else None
     shapes = _check_shapes(ego_shape, obstacle_shapes, n_obstacles, dim)
     polytope = None if support is None else check_support(support, points)
-    previous = None
-    if previous_normals is not None:
-        previous = _finite("previous_normals", previous_normals, (n_obstacles, horizon, dim))
+    previous = None if previous_normals is None else finite_array(
+        "previous_normals", previous_normals, (n_obstacles, horizon, dim))
     velocity = None if ego_velocity is None else _check_velocity(ego_velocity, horizon, dim)
-    given = None if normals is None else _check_normals(normals, points.shape)
+    given = None if normals is None else _unit_normals(
+        finite_array("normals", normals, (n_obstacles, horizon, dim)))
     return _Inputs(risk, alpha, delta, y_ref, points, epsilon, margins, shapes, polytope,
                    previous, velocity, given)
-
 
 
 def warn_deprecated_backend(backend: object, caller: str) -> None:
@@ -85,41 +84,24 @@ def warn_deprecated_backend(backend: object, caller: str) -> None:
 def _check_delta(delta: object) -> float:
     if type(delta) is float and -math.inf < delta < math.inf:
         return delta
-    try:
-        value = float(delta)  # type: ignore[arg-type]
-    except (TypeError, ValueError) as exc:
-        raise InvalidParameterError(f"delta must be a finite real number, got {delta!r}") from exc
-    if not math.isfinite(value):
-        raise InvalidParameterError(f"delta must be a finite real number (metres), got {delta!r}")
-    return value
+    return finite_scalar("delta (metres)", delta)
 
 
 def _check_positions(reference: object, samples: object) -> tuple[np.ndarray, np.ndarray]:
-    y_ref = np.asarray(reference, dtype=np.float64) if isinstance(reference, np.ndarray) else None
-    if y_ref is None or y_ref.ndim != 2 or not np.isfinite(y_ref).all():
-        y_ref = finite_array("reference_positions", reference, ndim=2)
+    y_ref = finite_array("reference_positions", reference, ndim=2)
     horizon, dim = y_ref.shape
     if horizon == 0 or dim == 0:
         raise InvalidArrayError(
-            f"reference_positions must have shape (T, d) with T, d >= 1, got {y_ref.shape}"
-        )
+            f"reference_positions must have shape (T, d) with T, d >= 1, got {y_ref.shape}")
     try:  # finiteness is checked on the (much smaller) result, see _check_finite_result
         points = np.asarray(samples, dtype=np.float64)
     except (TypeError, ValueError) as exc:
         raise InvalidArrayError(f"samples must be a numeric array, got {samples!r}") from exc
-    if points.ndim != 4:
+    if points.ndim != 4 or points.shape[2:] != (horizon, dim) or points.shape[1] == 0:
         raise InvalidArrayError(
-            "samples must have 4 dimensions (n_obstacles, n_samples, T, d), "
-            f"got shape {points.shape}"
-        )
-    if points.shape[2:] != (horizon, dim):
-        raise InvalidArrayError(
-            "samples must have shape (n_obstacles, n_samples, T, d) = "
+            "samples must have shape (n_obstacles, n_samples >= 1, T, d) = "
             f"(n_obstacles, n_samples, {horizon}, {dim}) to match reference_positions, "
-            f"got {points.shape}"
-        )
-    if points.shape[1] == 0:
-        raise InvalidArrayError(f"samples must hold at least one sample, got shape {points.shape}")
+            f"got {points.shape}")
     return y_ref, points
 
 
@@ -129,61 +111,38 @@ def _check_finite_result(samples: object, normals: np.ndarray, offsets: np.ndarr
     Any NaN/inf sample makes its sample mean, hence its normal or offset, non-finite,
     so checking the ``(n, T)`` result replaces a pass over every sample.
     """
-    if math.isfinite(offsets.sum() + normals.sum()):
-        return
-    if np.isfinite(offsets).all() and np.isfinite(normals).all():
-        return  # finite entries whose sum overflowed
+    if math.isfinite(offsets.sum() + normals.sum()) or (
+            np.isfinite(offsets).all() and np.isfinite(normals).all()):
+        return  # (finite entries whose sum overflowed pass too)
     finite_array("samples", samples)  # names the first non-finite sample
     raise InvalidArrayError(
-        "samples are too large: the safe halfspaces overflowed (positions are in metres)"
-    )
+        "samples are too large: the safe halfspaces overflowed (positions are in metres)")
 
 
 def _check_shapes(
     ego_shape: object, obstacle_shapes: object, n_obstacles: int, dim: int
 ) -> list[Shape]:
-    if (
-        type(ego_shape) is Disc
-        and type(obstacle_shapes) in (list, tuple)
-        and len(obstacle_shapes) == n_obstacles
-        and all(type(shape) is Disc for shape in obstacle_shapes)
-    ):
+    if (type(ego_shape) is Disc and type(obstacle_shapes) in (list, tuple)
+            and len(obstacle_shapes) == n_obstacles
+            and all(type(shape) is Disc for shape in obstacle_shapes)):
         return list(obstacle_shapes)  # the common case, valid in any dimension
     if isinstance(obstacle_shapes, (str, bytes)) or not isinstance(obstacle_shapes, Sequence):
         raise InvalidTypeError(
-            f"obstacle_shapes must be a sequence of shapes, got {type(obstacle_shapes).__name__}"
-        )
+            f"obstacle_shapes must be a sequence of shapes, got {type(obstacle_shapes).__name__}")
     shapes = list(obstacle_shapes)
     if len(shapes) != n_obstacles:
         raise InvalidParameterError(
             f"obstacle_shapes must hold one shape per obstacle ({n_obstacles} from samples), "
-            f"got {len(shapes)}"
-        )
-    named = [("ego_shape", ego_shape)]
-    named += [(f"obstacle_shapes[{i}]", shape) for i, shape in enumerate(shapes)]
-    for name, shape in named:
+            f"got {len(shapes)}")
+    for name, shape in [("ego_shape", ego_shape),
+                        *((f"obstacle_shapes[{i}]", shape) for i, shape in enumerate(shapes))]:
         if not isinstance(shape, (Disc, ConvexPolygon)):
             raise InvalidTypeError(
-                f"{name} must be a Disc or ConvexPolygon, got {type(shape).__name__}"
-            )
+                f"{name} must be a Disc or ConvexPolygon, got {type(shape).__name__}")
         if isinstance(shape, ConvexPolygon) and dim != 2:
             raise InvalidArrayError(
-                f"{name} is a ConvexPolygon, which needs d = 2 positions, got d = {dim}"
-            )
+                f"{name} is a ConvexPolygon, which needs d = 2 positions, got d = {dim}")
     return shapes
-
-
-def _finite(name: str, value: object, shape: tuple[int, ...]) -> np.ndarray:
-    """:func:`filters._validation.finite_array` with a shape, fast for float64 arrays."""
-    if (type(value) is np.ndarray and value.dtype == np.float64 and value.shape == shape
-            and math.isfinite(float(np.add.reduce(value, axis=None)))):
-        return value
-    return finite_array(name, value, shape=shape)
-
-
-def _check_normals(normals: object, shape: tuple[int, ...]) -> np.ndarray:
-    n_obstacles, _, horizon, dim = shape
-    return _unit_normals(_finite("normals", normals, (n_obstacles, horizon, dim)))
 
 
 def _unit_normals(array: np.ndarray) -> np.ndarray:
@@ -191,8 +150,7 @@ def _unit_normals(array: np.ndarray) -> np.ndarray:
     size = np.sqrt(np.add.reduce(array * array, axis=-1))
     if size.size and not (size.min() >= DEGENERATE_DISTANCE  # NaN fails too
                           and math.isfinite(size.max())):
-        if not np.isfinite(size).all():
-            finite_array("normals", array)  # names the first non-finite entry
+        finite_array("normals", array)  # names the first non-finite entry
         raise InvalidArrayError("normals must be non-zero vectors, got a zero normal")
     return array / size[..., None]
 
@@ -200,18 +158,8 @@ def _unit_normals(array: np.ndarray) -> np.ndarray:
 def _check_velocity(ego_velocity: object, horizon: int, dim: int) -> np.ndarray:
     """The ego velocity as given, ``(d,)`` or ``(T, d)``; broadcast only when a fallback
     needs it (this check runs every control step, the fallback rarely)."""
-    if (type(ego_velocity) is np.ndarray and ego_velocity.dtype == np.float64
-            and ego_velocity.shape in ((dim,), (horizon, dim))
-            and math.isfinite(float(np.add.reduce(ego_velocity, axis=None)))):
-        return ego_velocity
-    try:
-        velocity = np.asarray(ego_velocity, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise InvalidArrayError(f"ego_velocity must be numeric, got {ego_velocity!r}") from exc
+    velocity = finite_array("ego_velocity", ego_velocity)
     if velocity.shape not in ((dim,), (horizon, dim)):
         raise InvalidArrayError(
-            f"ego_velocity must have shape ({dim},) or ({horizon}, {dim}), got {velocity.shape}"
-        )
-    if not np.isfinite(velocity).all():
-        finite_array("ego_velocity", velocity)  # names the first non-finite entry
+            f"ego_velocity must have shape ({dim},) or ({horizon}, {dim}), got {velocity.shape}")
     return velocity

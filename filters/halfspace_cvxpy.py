@@ -57,14 +57,8 @@ from filters.constants import ALPHA, DELTA, EPSILON
 from filters.errors import InvalidArrayError, InvalidParameterError
 from filters.risk import PAPER_RISKS, check_alpha, check_epsilon, check_risk
 
-__all__ = [
-    "FORMULATIONS",
-    "TIGHT_CLARABEL",
-    "CvxpyHalfspace",
-    "build_halfspace_problem",
-    "cvxpy_halfspace",
-    "time_cvxpy_halfspace",
-]
+__all__ = ["FORMULATIONS", "TIGHT_CLARABEL", "CvxpyHalfspace", "build_halfspace_problem",
+           "cvxpy_halfspace", "time_cvxpy_halfspace"]
 
 #: Names of the two CVXPY formulations of Proposition 1.
 FORMULATIONS: tuple[str, ...] = ("vectorized", "paper")
@@ -101,32 +95,9 @@ class CvxpyHalfspace:
     call_time: float
 
 
-def _check_inputs(
-    samples: object, h: object, r: object, support: tuple[object, object] | None
-) -> tuple[np.ndarray, np.ndarray, float, tuple[np.ndarray, np.ndarray] | None]:
-    """Validate and convert the inputs of one halfspace problem."""
-    points = finite_array("samples", samples, ndim=2)
-    if points.shape[0] == 0:
-        raise InvalidArrayError("samples must hold at least one sample, got shape (0, d)")
-    normal = finite_array("h", h, shape=(points.shape[1],))
-    margin = float(finite_array("r", r, ndim=0))
-    if support is None:
-        return points, normal, margin, None
-    V = finite_array("support V", support[0], shape=(None, points.shape[1]))
-    v = finite_array("support v", support[1], shape=(V.shape[0],))
-    return points, normal, margin, (V, v)
-
-
 def build_halfspace_problem(
-    samples: object,
-    h: object,
-    r: float,
-    *,
-    risk: str = "dr_cvar",
-    alpha: float = ALPHA,
-    delta: float = DELTA,
-    epsilon: float = EPSILON,
-    support: tuple[object, object] | None = None,
+    samples: object, h: object, r: float, *, risk: str = "dr_cvar", alpha: float = ALPHA,
+    delta: float = DELTA, epsilon: float = EPSILON, support: tuple[object, object] | None = None,
     formulation: str = "vectorized",
 ) -> tuple[cp.Problem, cp.Variable]:
     """Build (but do not solve) the CVXPY problem of Definition 2 for one halfspace.
@@ -168,121 +139,68 @@ def build_halfspace_problem(
     """
     if formulation not in FORMULATIONS:
         raise InvalidParameterError(
-            f"formulation must be one of {FORMULATIONS}, got {formulation!r}"
-        )
+            f"formulation must be one of {FORMULATIONS}, got {formulation!r}")
     risk = check_risk(risk, PAPER_RISKS)  # the CVXPY reference covers the paper's metrics
-    alpha = check_alpha(alpha)
-    epsilon = check_epsilon(epsilon)
+    alpha, epsilon = check_alpha(alpha), check_epsilon(epsilon)
     delta = float(finite_array("delta", delta, ndim=0))
-    points, normal, margin, poly = _check_inputs(samples, h, r, support)
-    n = points.shape[0]
+    points = finite_array("samples", samples, ndim=2)
+    if points.shape[0] == 0:
+        raise InvalidArrayError("samples must hold at least one sample, got shape (0, d)")
+    normal = finite_array("h", h, shape=(points.shape[1],))
+    poly = None
+    if support is not None:
+        V = finite_array("support V", support[0], shape=(None, points.shape[1]))
+        poly = (V, finite_array("support v", support[1], shape=(V.shape[0],)))
     hp = points @ normal  # h . p^i
     g = cp.Variable(name="g")
+    g_tilde = g - float(finite_array("r", r, ndim=0))
+    n, tau = points.shape[0], cp.Variable(name="tau")
     if risk == "mean":
-        loss = -(hp + g - margin)
-        constraints = [cp.sum(loss) / n <= delta]
-    elif risk == "cvar":
-        tau = cp.Variable(name="tau")
-        loss = -(hp + g - margin)
-        constraints = [tau + cp.sum(cp.pos(loss - tau)) / (alpha * n) <= delta]
-    elif formulation == "paper":
-        constraints = _proposition_one_per_sample(
-            points, normal, margin, g, alpha, delta, epsilon, poly
-        )
-    else:
-        constraints = _proposition_one(points, normal, margin, g, alpha, delta, epsilon, poly)
+        return cp.Problem(cp.Minimize(g), [cp.sum(-(hp + g_tilde)) / n <= delta]), g
+    if risk == "cvar":
+        cvar = tau + cp.sum(cp.pos(-(hp + g_tilde) - tau)) / (alpha * n)
+        return cp.Problem(cp.Minimize(g), [cvar <= delta]), g
+    # Proposition 1 (eq. (6)): pieces k = 1 (a_1 = -h/alpha, b_1 = -1/alpha,
+    # c_1 = 1 - 1/alpha) and k = 2 (a_2 = 0, b_2 = 0, c_2 = 1).
+    pieces = [(-normal / alpha, -1.0 / alpha, 1.0 - 1.0 / alpha), (np.zeros_like(normal), 0.0, 1.0)]
+    lam, eta = cp.Variable(name="lambda"), cp.Variable(n, name="eta")
+    constraints = [lam * epsilon + cp.sum(eta) / n <= delta]
+    per_sample = formulation == "paper"
+    for a_k, b_k, c_k in pieces:
+        if per_sample:  # literally, one sample and piece at a time
+            constraints += _per_sample_rows(points, a_k, b_k * g_tilde + c_k * tau, eta, lam, poly)
+            continue
+        lhs = points @ a_k + b_k * g_tilde + c_k * tau
+        if poly is None:
+            constraints += [lhs <= eta, lam >= np.linalg.norm(a_k)]  # ||a_2|| = 0: lam >= 0
+            continue
+        V, v = poly
+        gamma = cp.Variable((n, V.shape[0]), nonneg=True)
+        slack = v[None, :] - points @ V.T  # (N, m): v - V p^i
+        constraints += [lhs + cp.sum(cp.multiply(gamma, slack), axis=1) <= eta,
+                        cp.norm(gamma @ V - a_k[None, :], 2, axis=1) <= lam]
     return cp.Problem(cp.Minimize(g), constraints), g
 
 
-def _proposition_one(
-    points: np.ndarray,
-    normal: np.ndarray,
-    margin: float,
-    g: cp.Variable,
-    alpha: float,
-    delta: float,
-    epsilon: float,
-    poly: tuple[np.ndarray, np.ndarray] | None,
-) -> list[Any]:
-    """Constraints of Proposition 1 (eq. (6)), vectorised over the samples."""
-    n = points.shape[0]
-    g_tilde = g - margin
-    tau = cp.Variable(name="tau")
-    lam = cp.Variable(name="lambda")
-    eta = cp.Variable(n, name="eta")
-    a1 = -normal / alpha
-    b1, c1 = -1.0 / alpha, 1.0 - 1.0 / alpha
-    piece1 = points @ a1 + b1 * g_tilde + c1 * tau  # k = 1
-    piece2 = tau * np.ones(n)  # k = 2: a_2 = 0, b_2 = 0, c_2 = 1
-    constraints = [lam * epsilon + cp.sum(eta) / n <= delta]
-    if poly is None:
-        constraints += [piece1 <= eta, piece2 <= eta, lam >= np.linalg.norm(a1), lam >= 0]
-        return constraints
-    V, v = poly
-    slack = v[None, :] - points @ V.T  # (N, m): v - V p^i
-    gamma1 = cp.Variable((n, V.shape[0]), nonneg=True, name="gamma1")
-    gamma2 = cp.Variable((n, V.shape[0]), nonneg=True, name="gamma2")
-    constraints += [
-        piece1 + cp.sum(cp.multiply(gamma1, slack), axis=1) <= eta,
-        piece2 + cp.sum(cp.multiply(gamma2, slack), axis=1) <= eta,
-        cp.norm(gamma1 @ V - a1[None, :], 2, axis=1) <= lam,
-        cp.norm(gamma2 @ V, 2, axis=1) <= lam,
-    ]
-    return constraints
-
-
-def _proposition_one_per_sample(
-    points: np.ndarray,
-    normal: np.ndarray,
-    margin: float,
-    g: cp.Variable,
-    alpha: float,
-    delta: float,
-    epsilon: float,
-    poly: tuple[np.ndarray, np.ndarray] | None,
-) -> list[Any]:
-    """Constraints of Proposition 1 (eq. (6)) written literally, one sample and piece at a time."""
-    n = points.shape[0]
-    g_tilde = g - margin
-    tau = cp.Variable(name="tau")
-    lam = cp.Variable(name="lambda")
-    eta = cp.Variable(n, name="eta")
-    pieces = [(-normal / alpha, -1.0 / alpha, 1.0 - 1.0 / alpha), (np.zeros_like(normal), 0.0, 1.0)]
-    constraints = [lam * epsilon + cp.sum(eta) / n <= delta]
-    for i in range(n):
-        for a_k, b_k, c_k in pieces:
-            lhs = a_k @ points[i] + b_k * g_tilde + c_k * tau
-            if poly is None:
-                constraints += [lhs <= eta[i], np.linalg.norm(a_k) <= lam]
-                continue
-            V, v = poly
-            gamma = cp.Variable(V.shape[0], nonneg=True)
-            constraints += [
-                lhs + gamma @ (v - V @ points[i]) <= eta[i],
-                cp.norm(V.T @ gamma - a_k, 2) <= lam,
-            ]
-    return constraints
-
-
-def _solve(problem: cp.Problem, solver_options: dict[str, float] | None) -> float:
-    """Solve with Clarabel and return the wall-clock time of the call, in seconds."""
-    start = time.perf_counter()
-    problem.solve(solver=cp.CLARABEL, **(solver_options or {}))
-    return time.perf_counter() - start
+def _per_sample_rows(points: np.ndarray, a_k: np.ndarray, shift: Any, eta: cp.Variable,
+                     lam: cp.Variable, poly: tuple[np.ndarray, np.ndarray] | None) -> list[Any]:
+    """Rows of piece ``k`` of eq. (6) written sample by sample (``shift`` = b_k g~ + c_k tau)."""
+    rows = []
+    for i, point in enumerate(points):
+        if poly is None:
+            rows += [a_k @ point + shift <= eta[i], np.linalg.norm(a_k) <= lam]
+            continue
+        V, v = poly
+        gamma = cp.Variable(V.shape[0], nonneg=True)
+        rows += [a_k @ point + shift + gamma @ (v - V @ point) <= eta[i],
+                 cp.norm(V.T @ gamma - a_k, 2) <= lam]
+    return rows
 
 
 def cvxpy_halfspace(
-    samples: object,
-    h: object,
-    r: float,
-    *,
-    risk: str = "dr_cvar",
-    alpha: float = ALPHA,
-    delta: float = DELTA,
-    epsilon: float = EPSILON,
-    support: tuple[object, object] | None = None,
-    formulation: str = "vectorized",
-    solver_options: dict[str, float] | None = None,
+    samples: object, h: object, r: float, *, risk: str = "dr_cvar", alpha: float = ALPHA,
+    delta: float = DELTA, epsilon: float = EPSILON, support: tuple[object, object] | None = None,
+    formulation: str = "vectorized", solver_options: dict[str, float] | None = None,
 ) -> CvxpyHalfspace:
     """Solve Definition 2 / Proposition 1 for one halfspace with CVXPY and Clarabel.
 
@@ -302,41 +220,22 @@ def cvxpy_halfspace(
     InvalidParameterError, InvalidArrayError
         As :func:`build_halfspace_problem`.
     """
-    problem, g = build_halfspace_problem(
-        samples,
-        h,
-        r,
-        risk=risk,
-        alpha=alpha,
-        delta=delta,
-        epsilon=epsilon,
-        support=support,
-        formulation=formulation,
-    )
-    call_time = _solve(problem, solver_options)
+    problem, g = build_halfspace_problem(samples, h, r, risk=risk, alpha=alpha, delta=delta,
+                                         epsilon=epsilon, support=support, formulation=formulation)
+    start = time.perf_counter()
+    problem.solve(solver=cp.CLARABEL, **(solver_options or {}))
+    call_time = time.perf_counter() - start
     status = str(problem.status)
     value = float(g.value) if status.startswith("optimal") and g.value is not None else np.nan
-    stats = problem.solver_stats
-    return CvxpyHalfspace(
-        g=value,
-        offset=-value,
-        status=status,
-        setup_time=float(problem.compilation_time or 0.0),
-        solve_time=float(stats.solve_time or 0.0),
-        call_time=call_time,
-    )
+    return CvxpyHalfspace(g=value, offset=-value, status=status,
+                          setup_time=float(problem.compilation_time or 0.0),
+                          solve_time=float(problem.solver_stats.solve_time or 0.0),
+                          call_time=call_time)
 
 
 def time_cvxpy_halfspace(
-    samples: object,
-    h: object,
-    r: float,
-    risk: str = "dr_cvar",
-    *,
-    alpha: float = ALPHA,
-    delta: float = DELTA,
-    epsilon: float = EPSILON,
-    support: tuple[object, object] | None = None,
+    samples: object, h: object, r: float, risk: str = "dr_cvar", *, alpha: float = ALPHA,
+    delta: float = DELTA, epsilon: float = EPSILON, support: tuple[object, object] | None = None,
     formulation: str = "vectorized",
 ) -> tuple[float, float, float]:
     """Time one fresh CVXPY halfspace solve, as in the paper's Table I.
@@ -352,15 +251,6 @@ def time_cvxpy_halfspace(
     InvalidParameterError, InvalidArrayError
         As :func:`build_halfspace_problem`.
     """
-    result = cvxpy_halfspace(
-        samples,
-        h,
-        r,
-        risk=risk,
-        alpha=alpha,
-        delta=delta,
-        epsilon=epsilon,
-        support=support,
-        formulation=formulation,
-    )
+    result = cvxpy_halfspace(samples, h, r, risk=risk, alpha=alpha, delta=delta, epsilon=epsilon,
+                             support=support, formulation=formulation)
     return result.setup_time, result.solve_time, result.call_time

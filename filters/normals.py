@@ -38,40 +38,31 @@ def nearside_normals(samples: np.ndarray, reference: np.ndarray, ego: np.ndarray
     numpy.ndarray
         ``(k, T, d)`` unit normals.
     """
-    return _nearside(_means(samples), reference, ego)
-
-
-def _means(samples: np.ndarray) -> np.ndarray:
-    """Sample means :math:`\\bar p_{i,t}`, ``(k, T, d)``, of ``(k, N, T, d)`` samples
-    (:func:`filters.halfspaces._sample_means`: one product)."""
-    return _sample_means(np.asarray(samples, dtype=np.float64))
-
-
-def _norm(vectors: np.ndarray) -> np.ndarray:
-    """Euclidean norms along the last axis, the axis kept."""
-    return np.sqrt(np.add.reduce(vectors * vectors, axis=-1, keepdims=True))
+    means = _sample_means(np.asarray(samples, dtype=np.float64))
+    return _unit(_nearside_directions(means, reference, ego), means, ego)
 
 
 def _nearside_directions(means: np.ndarray, reference: np.ndarray,
                          ego: np.ndarray) -> np.ndarray:
     """Un-normalised near-side directions ``means - origin``, ``(k, T, d)`` (a new array)."""
     to_reference = reference[None] - means
-    to_ego = ego[None, None] - means
-    near = np.add.reduce(to_reference * to_ego, axis=-1) > 0.0
-    origin = np.where(near[..., None], reference[None], ego[None, None])
-    return means - origin
+    near = np.add.reduce(to_reference * (ego[None, None] - means), axis=-1) > 0.0
+    return means - np.where(near[..., None], reference[None], ego[None, None])
 
 
-def _nearside(means: np.ndarray, reference: np.ndarray, ego: np.ndarray) -> np.ndarray:
-    """:func:`nearside_normals` from the sample means ``(k, T, d)``."""
-    diff = _nearside_directions(means, reference, ego)
-    size = _norm(diff)
-    ok = size > 1e-9
-    if ok.all():  # the usual case: the fallback below would not be picked anywhere
+def _unit(diff: np.ndarray, means: np.ndarray, ego: np.ndarray) -> np.ndarray:
+    """``diff`` normalised along the last axis; a direction of length at most 1e-9 (an
+    origin on the mean) falls back to the one from the ego, ``means - ego``, and where the
+    ego is on the mean too, to the first axis."""
+    size = np.sqrt(np.add.reduce(diff * diff, axis=-1, keepdims=True))
+    usable = size > 1e-9
+    if usable.all():  # the usual case
         return diff / size
-    fallback = means - ego[None, None]  # the ego is never at the obstacle's mean
-    return np.where(ok, diff / np.where(ok, size, 1.0),
-                    fallback / np.maximum(_norm(fallback), 1e-12))
+    from_ego = means - ego[None, None]  # (k, T, d)
+    ego_size = np.sqrt(np.add.reduce(from_ego * from_ego, axis=-1, keepdims=True))
+    axis = np.eye(means.shape[-1])[0]
+    fallback = np.where(ego_size > 1e-9, from_ego / np.maximum(ego_size, 1e-12), axis)
+    return np.where(usable, diff / np.maximum(size, 1e-12), fallback)
 
 
 def clearest_normals(samples: np.ndarray, reference: np.ndarray, ego: np.ndarray,
@@ -125,26 +116,13 @@ def clearest_normals(samples: np.ndarray, reference: np.ndarray, ego: np.ndarray
     numpy.ndarray
         ``(k, T, d)`` unit normals.
     """
-    means = _means(samples)
+    means = _sample_means(np.asarray(samples, dtype=np.float64))
     if plan is None:
         diff = _nearside_directions(means, reference, ego)
-    else:
-        to_reference = means - reference[None]
-        to_plan = means - plan[None]
+    else:  # the farther origin (squared distances)
+        to_reference, to_plan = means - reference[None], means - plan[None]
         use_reference = np.add.reduce(to_reference * to_reference, axis=-1) >= np.add.reduce(
-            to_plan * to_plan, axis=-1)  # the farther origin (squared distances)
+            to_plan * to_plan, axis=-1)
         diff = np.where(use_reference[..., None], to_reference, to_plan)
     diff[:, 0] = means[:, 0] - ego  # the first step's normal starts at the ego
-    size = _norm(diff)
-    usable = size > 1e-9
-    if usable.all():  # the usual case
-        return diff / size
-    # an origin on the mean: the direction from the ego, else an axis
-    normals = np.where(usable, diff / np.maximum(size, 1e-12), 0.0)
-    from_ego = means - ego[None, None]  # (k, T, d)
-    ego_size = _norm(from_ego)
-    ego_normals = np.where(ego_size > 1e-9, from_ego / np.maximum(ego_size, 1e-12), 0.0)
-    axis = np.zeros(means.shape[-1])
-    axis[0] = 1.0
-    fallback = np.where(ego_size > 1e-9, ego_normals, axis)
-    return np.where(usable, normals, fallback)
+    return _unit(diff, means, ego)

@@ -33,9 +33,8 @@ def clip_polygon(polygon: np.ndarray, normal: np.ndarray, offset: float) -> np.n
         return polygon
     values = polygon @ normal - offset
     result = []
-    for k in range(len(polygon)):
-        current, following = polygon[k], polygon[(k + 1) % len(polygon)]
-        v_current, v_following = values[k], values[(k + 1) % len(polygon)]
+    for k, (current, v_current) in enumerate(zip(polygon, values, strict=True)):
+        following, v_following = polygon[(k + 1) % len(polygon)], values[(k + 1) % len(polygon)]
         if v_current <= 0:
             result.append(current)
         if (v_current < 0 < v_following) or (v_following < 0 < v_current):
@@ -59,8 +58,7 @@ def safe_polygon(
         ``(low, high)`` corners of the bounding box (the arena), each shape (2,).
     """
     low, high = (np.asarray(b, dtype=float) for b in bounds)
-    polygon = np.array([[low[0], low[1]], [high[0], low[1]], [high[0], high[1]],
-                        [low[0], high[1]]])
+    polygon = np.array([low, [high[0], low[1]], high, [low[0], high[1]]])
     for normal, offset in zip(np.asarray(normals), np.asarray(offsets), strict=True):
         polygon = clip_polygon(polygon, np.asarray(normal, dtype=float), float(offset))
     return polygon
@@ -77,9 +75,8 @@ def halfspace_segments(
     with a zero normal (switched off) are left out.
     """
     normals = np.asarray(normals, dtype=float).reshape(-1, 2)
-    offsets = np.asarray(offsets, dtype=float).reshape(-1)
     norms = np.hypot(normals[:, 0], normals[:, 1])
-    keep = norms > 0
+    offsets, keep = np.asarray(offsets, dtype=float).reshape(-1), norms > 0
     unit = normals[keep] / norms[keep, None]
     foot = unit * (offsets[keep] / norms[keep])[:, None]
     tangent = np.stack([-unit[:, 1], unit[:, 0]], axis=1)

@@ -41,8 +41,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from filters._validation import finite_array, integer_at_least
-from filters.errors import InvalidArrayError, InvalidParameterError
+from filters._validation import finite_array, integer_at_least, lookahead_index
+from filters.errors import InvalidArrayError
 
 __all__ = ["PredictionRecord", "Realisation"]
 
@@ -101,18 +101,15 @@ class PredictionRecord:
     ...     margin.update(realised)
     """
 
-    def __init__(
-        self, horizon: int, *, keep_samples: int | None = None, memory: int = 10_000
-    ) -> None:
+    def __init__(self, horizon: int, *, keep_samples: int | None = None,
+                 memory: int = 10_000) -> None:
         self.horizon = integer_at_least("horizon", horizon)
-        self.keep_samples = (None if keep_samples is None
-                             else integer_at_least("keep_samples", keep_samples))
+        self.keep_samples = keep_samples if keep_samples is None else integer_at_least(
+            "keep_samples", keep_samples)
         self.memory = integer_at_least("memory", memory)
-        self._pending: deque[tuple[int, np.ndarray, np.ndarray | None]] = deque(
-            maxlen=self.horizon)
-        self._scores: list[deque[np.ndarray]] = [
-            deque(maxlen=self.memory) for _ in range(self.horizon)
-        ]
+        T = self.horizon
+        self._pending: deque[tuple[int, np.ndarray, np.ndarray | None]] = deque(maxlen=T)
+        self._scores: list[deque[np.ndarray]] = [deque(maxlen=self.memory) for _ in range(T)]
         self.step = 0
 
     def reset(self) -> None:
@@ -155,13 +152,10 @@ class PredictionRecord:
         n_obs, n_samples, steps, dim = points.shape
         if n_samples == 0 or steps == 0:
             raise InvalidArrayError(
-                f"samples must hold at least one sample and one step, got shape {points.shape}"
-            )
+                f"samples must hold at least one sample and one step, got shape {points.shape}")
         if positions.shape != (n_obs, dim):
-            raise InvalidArrayError(
-                f"realised_positions must have shape ({n_obs}, {dim}) to match samples "
-                f"{points.shape}, got {positions.shape}"
-            )
+            raise InvalidArrayError(f"realised_positions must have shape ({n_obs}, {dim}) to "
+                                    f"match samples {points.shape}, got {positions.shape}")
         identities = None if ids is None else _identities(ids, n_obs)
         if self._pending:
             old = self._pending[-1][1].shape
@@ -169,13 +163,10 @@ class PredictionRecord:
                 raise InvalidArrayError(
                     f"samples have shape {points.shape} but the pending ones {old}: the "
                     "obstacle count or dimension changed; call reset() at an episode boundary "
-                    "(or pass ids)"
-                )
-        if identities is not None:  # keep the occupied rows only
-            occupied = identities >= 0
-            if not occupied.all():
-                points, positions = points[occupied], positions[occupied]
-                identities = identities[occupied]
+                    "(or pass ids)")
+        if identities is not None and not (occupied := identities >= 0).all():
+            points, positions, identities = (points[occupied], positions[occupied],
+                                             identities[occupied])  # the occupied rows only
         realised = []
         for issued, old, old_ids in reversed(self._pending):  # newest first: k = 1, 2, ...
             k = self.step - issued
@@ -197,8 +188,7 @@ class PredictionRecord:
             mean = predicted.mean(axis=1)
             errors = now - mean
             scores = np.sqrt((errors * errors).sum(axis=-1))
-            kept = predicted if self.keep_samples is None else predicted[:, : self.keep_samples]
-            own = kept - mean[:, None, :]
+            own = predicted[:, : self.keep_samples] - mean[:, None, :]  # (None: all)
             scored = (np.arange(old.shape[0]) if old_ids is None else old_ids)[rows]
             for array in (errors, scores, own, scored):
                 array.flags.writeable = False
@@ -212,10 +202,7 @@ class PredictionRecord:
 
     def scores(self, lookahead: int) -> np.ndarray:
         """All kept scores at ``lookahead`` (chronological, pooled over obstacles), m."""
-        k = integer_at_least("lookahead", lookahead)
-        if k > self.horizon:
-            raise InvalidParameterError(f"lookahead must be in 1..{self.horizon}, got {k}")
-        kept = self._scores[k - 1]
+        kept = self._scores[lookahead_index(lookahead, self.horizon)]
         return np.concatenate(list(kept)) if kept else np.zeros(0)
 
 
@@ -224,8 +211,7 @@ def _identities(ids: object, n_obs: int) -> np.ndarray:
     array = np.asarray(ids)
     if array.shape != (n_obs,) or not (array.size == 0 or np.issubdtype(array.dtype, np.integer)):
         raise InvalidArrayError(
-            f"ids must be {n_obs} integers (one per row, negative: empty row), got {ids!r}"
-        )
+            f"ids must be {n_obs} integers (one per row, negative: empty row), got {ids!r}")
     identities = array.astype(np.int64)
     occupied = identities[identities >= 0]
     if np.unique(occupied).size != occupied.size:

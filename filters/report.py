@@ -84,11 +84,7 @@ class FilterReport:
         # the report immutable, whatever the caller does with the arrays it passed.
         for key in ("proposed_action", "applied_action", "slack", "normals", "offsets",
                     "planned_states"):
-            value = getattr(self, key)
-            if value is not None:
-                value = np.array(value, dtype=np.float64)
-                value.setflags(write=False)
-                object.__setattr__(self, key, value)
+            object.__setattr__(self, key, _owned(getattr(self, key)))
 
     def __getitem__(self, key: str) -> Any:
         if key not in _REPORT_KEYS:
@@ -105,9 +101,7 @@ class FilterReport:
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, FilterReport):
             return NotImplemented
-        for key in self.keys():
-            if key in _TIMING_FIELDS:
-                continue
+        for key in _COMPARED_KEYS:
             a, b = getattr(self, key), getattr(other, key)
             if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
                 if a is None or b is None or not np.array_equal(a, b, equal_nan=True):
@@ -130,6 +124,8 @@ class FilterReport:
 
 _REPORT_KEYS: tuple[str, ...] = tuple(f.name for f in fields(FilterReport))
 """The field names of :class:`FilterReport`, computed once (``keys`` runs every step)."""
+_COMPARED_KEYS = tuple(key for key in _REPORT_KEYS if key not in _TIMING_FIELDS)
+
 
 def _report(status: str, proposed: np.ndarray, applied: np.ndarray, intervention: float,
             solve_time: float = 0.0, halfspace_time: float = 0.0, filter_time: float = 0.0,
@@ -138,15 +134,10 @@ def _report(status: str, proposed: np.ndarray, applied: np.ndarray, intervention
             planned_states: np.ndarray | None = None, error: str = "") -> FilterReport:
     """A :class:`FilterReport` built without the frozen ``__init__``'s per-field
     ``object.__setattr__`` and array copies (the same object; the arrays given must be
-    read-only and the report's own)."""
+    read-only and the report's own). The parameters are the fields, in their order."""
+    fields = dict(zip(_REPORT_KEYS, locals().values(), strict=True))
     report = object.__new__(FilterReport)
-    report.__dict__.update({
-        "status": status, "proposed_action": proposed, "applied_action": applied,
-        "intervention": intervention, "solve_time": solve_time,
-        "halfspace_time": halfspace_time, "filter_time": filter_time,
-        "reference_time": reference_time, "slack": slack, "normals": normals,
-        "offsets": offsets, "planned_states": planned_states, "error": error,
-    })
+    report.__dict__.update(fields)
     return report
 
 
@@ -154,7 +145,7 @@ def _owned(array: np.ndarray | None) -> np.ndarray | None:
     """A read-only float64 copy of ``array`` that only the report holds (``None`` stays)."""
     if array is None:
         return None
-    copy = array.astype(np.float64)  # always a copy
+    copy = np.array(array, dtype=np.float64)  # always a copy
     copy.setflags(write=False)
     return copy
 
@@ -162,16 +153,7 @@ def _owned(array: np.ndarray | None) -> np.ndarray | None:
 def _distance(a: np.ndarray, b: np.ndarray) -> float:
     """Euclidean distance between two actions (the intervention size, m/s²).
 
-    :math:`\\sqrt{\\sum_i (a_i - b_i)^2}`, summed in index order on floats: the value of
-    ``numpy.linalg.norm(a - b)`` without its per-call overhead (to the last bit, or within
-    two ulps where numpy's BLAS fuses the multiply-adds of its dot product).
+    :math:`\\sqrt{\\sum_i (a_i - b_i)^2}` by :func:`math.dist`: the value of
+    ``numpy.linalg.norm(a - b)`` within rounding, without its per-call overhead.
     """
-    xs, ys = np.asarray(a, dtype=float).tolist(), np.asarray(b, dtype=float).tolist()
-    if len(xs) == 2 == len(ys):  # the usual planar action, the loop below unrolled
-        dx, dy = xs[0] - ys[0], xs[1] - ys[1]
-        return math.sqrt(dx * dx + dy * dy)
-    total = 0.0
-    for x, y in zip(xs, ys, strict=True):
-        difference = x - y
-        total += difference * difference
-    return math.sqrt(total)
+    return math.dist(np.asarray(a, dtype=float).tolist(), np.asarray(b, dtype=float).tolist())

@@ -41,20 +41,12 @@ import math
 import numpy as np
 from scipy.special import ndtri
 
-from filters._validation import finite_array, scalar_in_range
+from filters._validation import finite_array, finite_scalar, scalar_in_range
 from filters.constants import ALPHA, EPSILON
 from filters.errors import InvalidArrayError, InvalidParameterError, InvalidTypeError
 
-__all__ = [
-    "CHANCE_RISKS",
-    "PAPER_RISKS",
-    "RISKS",
-    "cantelli_factor",
-    "check_risk",
-    "empirical_cvar",
-    "gaussian_factor",
-    "risk_value",
-]
+__all__ = ["CHANCE_RISKS", "PAPER_RISKS", "RISKS", "cantelli_factor", "check_risk",
+           "empirical_cvar", "gaussian_factor", "risk_value"]
 
 #: The paper's metrics (Definition 2); the CVXPY reference of
 #: :mod:`filters.halfspace_cvxpy` formulates these.
@@ -85,11 +77,11 @@ def check_risk(risk: object, choices: tuple[str, ...] = RISKS) -> str:
     InvalidParameterError
         If ``risk`` is not one of ``choices``.
     """
-    if isinstance(risk, str) and risk in choices:
-        return risk
     if not isinstance(risk, str):
         raise InvalidTypeError(f"risk must be a string, one of {choices}, got {risk!r}")
-    raise InvalidParameterError(f"risk must be one of {choices}, got {risk!r}")
+    if risk not in choices:
+        raise InvalidParameterError(f"risk must be one of {choices}, got {risk!r}")
+    return risk
 
 
 def check_alpha(alpha: object, risk: str | None = None) -> float:
@@ -105,8 +97,7 @@ def check_alpha(alpha: object, risk: str | None = None) -> float:
     if value == 1.0 and risk in CHANCE_RISKS:
         raise InvalidParameterError(
             f"alpha must lie in (0, 1) for risk={risk!r} (it is the allowed violation "
-            f"probability of a chance constraint; 1 constrains nothing), got {alpha!r}"
-        )
+            f"probability of a chance constraint; 1 constrains nothing), got {alpha!r}")
     return value
 
 
@@ -140,12 +131,7 @@ def check_epsilon_array(epsilon: object, length: int) -> float | np.ndarray:
     """
     if np.ndim(epsilon) == 0:
         return check_epsilon(epsilon)
-    array = finite_array("epsilon", epsilon, shape=(length,))
-    if np.any(array < 0.0):
-        raise InvalidArrayError(
-            f"epsilon must be >= 0 at every step (metres), got {array.tolist()}"
-        )
-    array = array.copy()
+    array = _nonnegative("epsilon", finite_array("epsilon", epsilon, shape=(length,))).copy()
     array.flags.writeable = False
     return array
 
@@ -166,29 +152,19 @@ def check_margins(margins: object, shape: tuple[int, ...]) -> np.ndarray:
     if margins is None:
         raise InvalidParameterError(
             "risk='conformal' needs conformal_margins: one margin q_k >= 0 (m) per "
-            "look-ahead step, e.g. filters.calibration.ConformalMargin(...).margins()"
-        )
+            "look-ahead step, e.g. filters.calibration.ConformalMargin(...).margins()")
     array = finite_array("conformal_margins", margins)
     if array.ndim > len(shape) or array.shape != shape[len(shape) - array.ndim :]:
-        raise InvalidArrayError(
-            f"conformal_margins must be a scalar or have shape {shape[1:]} or {shape}, "
-            f"got {array.shape}"
-        )
-    if np.any(array < 0.0):
-        raise InvalidArrayError(
-            f"conformal_margins must be >= 0 (m), got minimum {float(array.min())}"
-        )
-    return array
+        raise InvalidArrayError(f"conformal_margins must be a scalar or have shape {shape[1:]} "
+                                f"or {shape}, got {array.shape}")
+    return _nonnegative("conformal_margins", array)
 
 
 def check_epsilon(epsilon: object) -> float:
     """Return ``epsilon`` as a finite float ``>= 0``, or raise ``InvalidParameterError``."""
     if type(epsilon) is float and 0.0 <= epsilon < math.inf:
         return epsilon
-    value = scalar_in_range("epsilon", epsilon, low=0.0)
-    if not math.isfinite(value):
-        raise InvalidParameterError(f"epsilon must be finite and >= 0, got {epsilon!r}")
-    return value
+    return finite_scalar("epsilon (metres)", epsilon, low=0.0)
 
 
 def tail_count(alpha: float, n: int) -> float:
@@ -200,9 +176,7 @@ def tail_count(alpha: float, n: int) -> float:
     """
     mass = alpha * n
     nearest = round(mass)
-    if abs(mass - nearest) <= 1e-9 * max(1.0, mass):
-        return float(nearest)
-    return mass
+    return float(nearest) if abs(mass - nearest) <= 1e-9 * max(1.0, mass) else mass
 
 
 def cvar_last_axis(x: np.ndarray, alpha: float, *, overwrite: bool = False) -> np.ndarray:
@@ -220,9 +194,7 @@ def cvar_last_axis(x: np.ndarray, alpha: float, *, overwrite: bool = False) -> n
     # everything to its right is the top k.
     if overwrite:
         x.partition(n - k - 1, axis=-1)
-        part = x
-    else:
-        part = np.partition(x, n - k - 1, axis=-1)
+    part = x if overwrite else np.partition(x, n - k - 1, axis=-1)
     top = part[..., n - k :].sum(axis=-1)
     return (top + (mass - k) * part[..., n - k - 1]) / mass
 
@@ -265,19 +237,7 @@ def empirical_cvar(x: object, alpha: float, axis: int = -1) -> np.ndarray:
     InvalidParameterError
         If ``alpha`` is outside :math:`(0, 1]`.
     """
-    alpha = check_alpha(alpha)
-    array = finite_array("x", x)
-    if array.ndim == 0:
-        raise InvalidArrayError(f"x must have at least one axis of samples, got scalar {x!r}")
-    try:
-        array = np.moveaxis(array, axis, -1)
-    except (ValueError, IndexError) as exc:  # numpy AxisError subclasses both
-        raise InvalidArrayError(
-            f"axis {axis} is out of range for x of shape {array.shape}"
-        ) from exc
-    if array.shape[-1] == 0:
-        raise InvalidArrayError(f"x must hold at least one sample along axis {axis}, got 0")
-    return cvar_last_axis(array, alpha)
+    return cvar_last_axis(_samples_last("x", x, axis), check_alpha(alpha))
 
 
 def risk_value(
@@ -351,22 +311,33 @@ def risk_value(
     """
     risk = check_risk(risk)
     alpha = check_alpha(alpha, risk)
-    array = finite_array("losses", losses)
-    if array.ndim == 0 or array.shape[axis] == 0:
-        raise InvalidArrayError(
-            f"losses must hold at least one sample along axis {axis}, got shape {array.shape}"
-        )
-    x = np.moveaxis(array, axis, -1)
-    out_shape = x.shape[:-1]
-    if np.ndim(epsilon) == 0 and not isinstance(epsilon, np.ndarray):
-        epsilon = check_epsilon(epsilon)
-    else:
-        epsilon = _broadcastable("epsilon", epsilon, out_shape)
-    if risk == "conformal":
-        if margin is None:
-            check_margins(None, (1, 1))  # raises, naming what is needed
-        margin = _broadcastable("margin", margin, out_shape)
+    x = _samples_last("losses", losses, axis)
+    epsilon = check_epsilon(epsilon) if np.ndim(epsilon) == 0 and not isinstance(
+        epsilon, np.ndarray) else _broadcastable("epsilon", epsilon, x.shape[:-1])
+    if risk == "conformal":  # (check_margins raises for a missing margin, naming it)
+        margin = check_margins(None, (1, 1)) if margin is None else _broadcastable(
+            "margin", margin, x.shape[:-1])
     return risk_of_samples(x, risk, alpha, epsilon, margin=margin)
+
+
+def _samples_last(name: str, value: object, axis: int) -> np.ndarray:
+    """Finite samples with the sample ``axis`` (at least one sample) moved last."""
+    array = finite_array(name, value)
+    try:
+        if array.ndim and array.shape[axis]:
+            return np.moveaxis(array, axis, -1)
+    except IndexError as exc:
+        raise InvalidArrayError(f"axis {axis} is out of range for {name} of shape "
+                                f"{array.shape}") from exc
+    raise InvalidArrayError(
+        f"{name} must hold at least one sample along axis {axis}, got shape {array.shape}")
+
+
+def _nonnegative(name: str, array: np.ndarray) -> np.ndarray:
+    """``array`` if every entry is ``>= 0``, else ``InvalidArrayError``."""
+    if np.any(array < 0.0):
+        raise InvalidArrayError(f"{name} must be >= 0 (metres), got minimum {float(array.min())}")
+    return array
 
 
 def _broadcastable(name: str, value: object, shape: tuple[int, ...]) -> np.ndarray:
@@ -375,19 +346,9 @@ def _broadcastable(name: str, value: object, shape: tuple[int, ...]) -> np.ndarr
     try:
         np.broadcast_shapes(array.shape, shape)
     except ValueError as exc:
-        raise InvalidArrayError(
-            f"{name} of shape {array.shape} does not broadcast against the result shape {shape}"
-        ) from exc
-    if np.any(array < 0.0):
-        raise InvalidArrayError(f"{name} must be >= 0 (metres), got minimum {float(array.min())}")
-    return array
-
-
-def sample_std(x: np.ndarray) -> np.ndarray:
-    """Unbiased sample standard deviation along the last axis (``ddof = 1``); 0 for one sample."""
-    if x.shape[-1] < 2:
-        return np.zeros(x.shape[:-1])
-    return np.std(x, axis=-1, ddof=1)
+        raise InvalidArrayError(f"{name} of shape {array.shape} does not broadcast against the "
+                                f"result shape {shape}") from exc
+    return _nonnegative(name, array)
 
 
 def risk_of_samples(
@@ -408,10 +369,9 @@ def risk_of_samples(
         return np.mean(x, axis=-1)
     if risk in CHANCE_RISKS:
         factor = gaussian_factor(alpha) if risk == "gaussian_cc" else cantelli_factor(alpha)
-        return np.mean(x, axis=-1) + factor * sample_std(x)
+        spread = np.std(x, axis=-1, ddof=1) if x.shape[-1] > 1 else 0.0  # s = 0: one sample
+        return np.mean(x, axis=-1) + factor * spread
     if risk == "conformal":
         return np.mean(x, axis=-1) + margin
     value = cvar_last_axis(x, alpha, overwrite=overwrite)
-    if risk == "dr_cvar":
-        value = value + epsilon / alpha
-    return value
+    return value + epsilon / alpha if risk == "dr_cvar" else value

@@ -52,9 +52,8 @@ _GOLDEN_ITERATIONS = 48
 _INV_PHI = (math.sqrt(5.0) - 1.0) / 2.0
 
 
-def check_support(
-    support: tuple[object, object], points: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
+def check_support(support: tuple[object, object], points: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
     """Return ``(V, v)`` with unit rows, shapes ``(n, m, d)`` and ``(n, m)``.
 
     Raises
@@ -68,21 +67,15 @@ def check_support(
     n_obstacles, _, _, dim = points.shape
     if not isinstance(support, (tuple, list)) or len(support) != 2:
         raise InvalidTypeError(f"support must be None or a pair (V, v), got {support!r}")
-    V = finite_array("support V", support[0])
-    v = finite_array("support v", support[1])
+    V, v = finite_array("support V", support[0]), finite_array("support v", support[1])
     if V.ndim == 2:
-        V, v = V[None], v[None]
-        if v.shape[1:] != V.shape[1:2]:
+        if v.shape != V.shape[:1]:
             raise InvalidArrayError(
-                f"support v must have shape ({V.shape[1]},) to match V, got {v.shape[1:]}"
-            )
-        V = np.broadcast_to(V, (n_obstacles, *V.shape[1:]))
-        v = np.broadcast_to(v, (n_obstacles, v.shape[1]))
+                f"support v must have shape ({V.shape[0]},) to match V, got {v.shape}")
+        V, v = (np.broadcast_to(a, (n_obstacles, *a.shape)) for a in (V, v))
     if V.ndim != 3 or V.shape[0] != n_obstacles or V.shape[2] != dim or V.shape[1] == 0:
-        raise InvalidArrayError(
-            f"support V must have shape (m, {dim}) or ({n_obstacles}, m, {dim}) with m >= 1, "
-            f"got {V.shape}"
-        )
+        raise InvalidArrayError(f"support V must have shape (m, {dim}) or ({n_obstacles}, m, "
+                                f"{dim}) with m >= 1, got {V.shape}")
     if v.shape != V.shape[:2]:
         raise InvalidArrayError(f"support v must have shape {V.shape[:2]}, got {v.shape}")
     finite_array("samples", points)  # before the support test, so NaN/inf is named as such
@@ -96,19 +89,13 @@ def check_support(
         i, s, t, _ = np.argwhere(excess > tol)[0]
         raise InvalidArrayError(
             f"samples must lie in the support {{p : V p <= v}}; samples[{i}, {s}, {t}] = "
-            f"{points[i, s, t].tolist()} is outside (clip or project predictions first)"
-        )
+            f"{points[i, s, t].tolist()} is outside (clip or project predictions first)")
     return V, v
 
 
-def dr_cvar_on_polytope(
-    losses: np.ndarray,
-    points: np.ndarray,
-    normals: np.ndarray,
-    polytope: tuple[np.ndarray, np.ndarray],
-    alpha: float,
-    epsilon: float | np.ndarray,
-) -> np.ndarray:
+def dr_cvar_on_polytope(losses: np.ndarray, points: np.ndarray, normals: np.ndarray,
+                        polytope: tuple[np.ndarray, np.ndarray], alpha: float,
+                        epsilon: float | np.ndarray) -> np.ndarray:
     """DR-CVaR of ``-h . p`` with support ``{p : V p <= v}`` (Proposition 1), shape ``(n, T)``.
 
     Parameters
@@ -130,8 +117,10 @@ def dr_cvar_on_polytope(
         :math:`R_\\Xi`, shape ``(n, T)``, never above the unbounded-support value
         :math:`\\mathrm{CVaR}_\\alpha + \\epsilon/\\alpha`.
     """
-    if points.shape[-1] != 2:
-        return _dr_cvar_on_polytope_cvxpy(losses, points, normals, polytope, alpha, epsilon)
+    unbounded = cvar_last_axis(losses, alpha) + epsilon / alpha  # lambda = 1/alpha: feasible
+    if points.shape[-1] != 2:  # never report more than the unbounded value
+        return np.fmin(unbounded, _dr_cvar_on_polytope_cvxpy(points, normals, polytope, alpha,
+                                                             epsilon))
     edges = _PlanarEdges(points, normals, *polytope)
 
     def objective(lam: np.ndarray) -> np.ndarray:
@@ -139,7 +128,6 @@ def dr_cvar_on_polytope(
         value = lam * epsilon + cvar_last_axis(losses + edges.transport_gain(kappa), alpha)
         return np.where(kappa < edges.kappa_recession, np.inf, value)
 
-    unbounded = cvar_last_axis(losses, alpha) + epsilon / alpha  # lambda = 1/alpha
     return np.minimum(unbounded, _golden_section(objective, 1.0 / alpha, losses.shape[:2]))
 
 
@@ -153,16 +141,13 @@ def _golden_section(
     Returns the smallest value seen: an upper bound (a feasible multiplier, hence a
     conservative offset) within about ``1e-10 * upper`` times the slope of the minimum.
     """
-    a = np.zeros(shape)
-    b = np.full(shape, upper)
-    c = b - _INV_PHI * (b - a)
-    d = a + _INV_PHI * (b - a)
+    a, b = np.zeros(shape), np.full(shape, upper)
+    c, d = b - _INV_PHI * (b - a), a + _INV_PHI * (b - a)
     fc, fd = objective(c), objective(d)
     best = np.minimum(fc, fd)
     for _ in range(_GOLDEN_ITERATIONS):
         left = fc < fd  # minimum in [a, d]; ties (also inf, inf) move right
-        b = np.where(left, d, b)
-        a = np.where(left, a, c)
+        a, b = np.where(left, a, c), np.where(left, d, b)
         c, d = np.where(left, b - _INV_PHI * (b - a), d), np.where(left, c, a + _INV_PHI * (b - a))
         fresh = objective(np.where(left, c, d))
         fc, fd = np.where(left, fresh, fd), np.where(left, fc, fresh)
@@ -258,34 +243,16 @@ def _recession_threshold(normals: np.ndarray, V: np.ndarray, tangent: np.ndarray
     return best
 
 
-def _dr_cvar_on_polytope_cvxpy(
-    losses: np.ndarray,
-    points: np.ndarray,
-    normals: np.ndarray,
-    polytope: tuple[np.ndarray, np.ndarray],
-    alpha: float,
-    epsilon: float | np.ndarray,
-) -> np.ndarray:
+def _dr_cvar_on_polytope_cvxpy(points: np.ndarray, normals: np.ndarray,
+                               polytope: tuple[np.ndarray, np.ndarray], alpha: float,
+                               epsilon: float | np.ndarray) -> np.ndarray:
     """Slow path for ``d != 2``: Proposition 1 with CVXPY per obstacle and step."""
     from filters.halfspace_cvxpy import cvxpy_halfspace
 
-    V, v = polytope
-    n_obstacles, _, horizon, _ = points.shape
-    value = np.empty((n_obstacles, horizon))
-    for i in range(n_obstacles):
-        for t in range(horizon):
-            # With r = 0 and delta = 0, g* is exactly the risk value R(-h . p).
-            result = cvxpy_halfspace(
-                points[i, :, t],
-                normals[i, t],
-                0.0,
-                risk="dr_cvar",
-                alpha=alpha,
-                delta=0.0,
-                epsilon=epsilon if np.ndim(epsilon) == 0 else float(epsilon[t]),
-                support=(V[i], v[i]),
-            )
-            value[i, t] = result.g
-    # lambda = 1/alpha is always feasible: never report more than the unbounded value.
-    unbounded = cvar_last_axis(losses, alpha) + epsilon / alpha
-    return np.fmin(unbounded, value)
+    (V, v), (n_obstacles, _, horizon, _) = polytope, points.shape
+    radii = np.broadcast_to(epsilon, (horizon,))
+    # With r = 0 and delta = 0, g* is exactly the risk value R(-h . p).
+    return np.array([[cvxpy_halfspace(points[i, :, t], normals[i, t], 0.0, risk="dr_cvar",
+                                      alpha=alpha, delta=0.0, epsilon=float(radii[t]),
+                                      support=(V[i], v[i])).g for t in range(horizon)]
+                     for i in range(n_obstacles)]).reshape(n_obstacles, horizon)

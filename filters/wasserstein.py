@@ -16,8 +16,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from filters._validation import finite_array, integer_at_least, scalar_in_range
-from filters.errors import InvalidArrayError, InvalidParameterError
+from filters._validation import finite_array, integer_at_least, lookahead_index, scalar_in_range
+from filters.errors import InvalidArrayError
 
 if TYPE_CHECKING:
     from filters.prediction_record import Realisation
@@ -25,19 +25,30 @@ if TYPE_CHECKING:
 __all__ = ["WassersteinRadius", "sliced_wasserstein_max"]
 
 
-def _directions(dim: int, count: int) -> np.ndarray:
-    """Unit directions: ``[[1]]`` for ``d = 1``; ``count`` evenly spaced on a half circle for 2."""
+def grid_directions(
+    dim: int, count: int, caller: str, *, full: bool = False
+) -> tuple[np.ndarray, float]:
+    """Unit directions of a grid and its slack, for ``d = 1`` or ``2`` positions.
+
+    ``full=False``: ``[[1]]`` for ``d = 1``, else ``count`` directions evenly spaced on
+    the half circle, :math:`\\theta_m = \\pi m / M` (a grid up to sign); ``full=True``:
+    ``[[1], [-1]]``, else ``count`` on the full circle, :math:`\\theta_m = 2\\pi m / M`.
+    The slack is the largest distance :math:`\\lVert h - h_m \\rVert` from a unit ``h`` to
+    the nearest grid direction (up to sign for the half circle): 0 for ``d = 1``, else
+    :math:`2 \\sin(\\pi / 4M)` (half) or :math:`2 \\sin(\\pi / 2M)` (full).
+
+    Raises
+    ------
+    InvalidArrayError
+        For ``d`` other than 1 or 2 (``caller`` names who asked).
+    """
     if dim == 1:
-        return np.ones((1, 1))
-    if dim == 2:
-        angles = np.pi * np.arange(count) / count
-        return np.stack([np.cos(angles), np.sin(angles)], axis=-1)
-    raise InvalidArrayError(f"WassersteinRadius supports d = 1 or 2 positions, got d = {dim}")
-
-
-def _grid_slack(dim: int, count: int) -> float:
-    """Largest :math:`\\lVert h - h_m \\rVert` from a unit ``h`` to the nearest ``±`` grid one."""
-    return 0.0 if dim == 1 else 2.0 * math.sin(math.pi / (4.0 * count))
+        return (np.array([[1.0], [-1.0]]) if full else np.ones((1, 1))), 0.0
+    if dim != 2:
+        raise InvalidArrayError(f"{caller} supports d = 1 or 2 positions, got d = {dim}")
+    span = 2.0 * np.pi if full else np.pi
+    angles = span * np.arange(count) / count
+    return np.stack([np.cos(angles), np.sin(angles)], axis=-1), 2.0 * math.sin(span / (4 * count))
 
 
 def sliced_wasserstein_max(a: object, b: object, directions: object) -> np.ndarray:
@@ -68,18 +79,17 @@ def sliced_wasserstein_max(a: object, b: object, directions: object) -> np.ndarr
     InvalidArrayError
         For empty, non-finite or mismatched arrays.
     """
-    pa = finite_array("a", a, ndim=2)
-    pb = finite_array("b", b, ndim=2)
-    h = finite_array("directions", directions, ndim=2)
-    if pa.shape[0] == 0 or pb.shape[0] == 0 or not (pa.shape[1] == pb.shape[1] == h.shape[1]):
+    a, b, h = (finite_array(name, value, ndim=2) for name, value in
+               (("a", a), ("b", b), ("directions", directions)))
+    if a.shape[0] == 0 or b.shape[0] == 0 or not (a.shape[1] == b.shape[1] == h.shape[1]):
         raise InvalidArrayError(
             f"a, b and directions must be (n_a, d), (n_b, d), (M, d) with n >= 1, got "
-            f"{pa.shape}, {pb.shape}, {h.shape}"
-        )
-    return _sliced_w1(pa, pb, h)
+            f"{a.shape}, {b.shape}, {h.shape}")
+    return _sliced_w1(a, b, h)
 
 
 def _sliced_w1(a: np.ndarray, b: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """:func:`sliced_wasserstein_max` on checked arrays."""
     na, nb = a.shape[0], b.shape[0]
     qa = np.sort(directions @ a.T, axis=1)  # (M, na), sorted projections
     qb = np.sort(directions @ b.T, axis=1)
@@ -203,54 +213,31 @@ class WassersteinRadius:
         For a parameter outside its domain.
     """
 
-    def __init__(
-        self,
-        *,
-        horizon: int,
-        confidence: float = 0.9,
-        window: int = 200,
-        max_predicted: int = 1000,
-        n_directions: int = 32,
-        n_bootstrap: int = 50,
-        refresh: int = 10,
-        bootstrap_refresh: int = 100,
-        min_errors: int = 10,
-        fallback: float = math.inf,
-        seed: int | np.random.Generator = 0,
-    ) -> None:
-        self.horizon = integer_at_least("horizon", horizon)
-        self.confidence = scalar_in_range(
-            "confidence", confidence, low=0.0, high=1.0, low_inclusive=False,
-            high_inclusive=False,
-        )
-        self.window = integer_at_least("window", window)
-        self.max_predicted = integer_at_least("max_predicted", max_predicted)
-        self.n_directions = integer_at_least("n_directions", n_directions)
-        self.n_bootstrap = integer_at_least("n_bootstrap", n_bootstrap, low=10)
-        self.refresh = integer_at_least("refresh", refresh)
-        self.bootstrap_refresh = integer_at_least("bootstrap_refresh", bootstrap_refresh)
-        self.min_errors = integer_at_least("min_errors", min_errors, low=2)
+    def __init__(self, *, horizon: int, confidence: float = 0.9, window: int = 200,
+                 max_predicted: int = 1000, n_directions: int = 32, n_bootstrap: int = 50,
+                 refresh: int = 10, bootstrap_refresh: int = 100, min_errors: int = 10,
+                 fallback: float = math.inf, seed: int | np.random.Generator = 0) -> None:
+        self.horizon = T = integer_at_least("horizon", horizon)
+        self.confidence = scalar_in_range("confidence", confidence, low=0.0, high=1.0,
+                                          low_inclusive=False, high_inclusive=False)
+        for name, value, low in (("window", window, 1), ("max_predicted", max_predicted, 1),
+                                 ("n_directions", n_directions, 1), ("refresh", refresh, 1),
+                                 ("n_bootstrap", n_bootstrap, 10), ("min_errors", min_errors, 2),
+                                 ("bootstrap_refresh", bootstrap_refresh, 1)):
+            setattr(self, name, integer_at_least(name, value, low=low))
         self.fallback = scalar_in_range("fallback", fallback, low=0.0)
         self._rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
-        self._errors: list[deque[np.ndarray]] = [deque() for _ in range(self.horizon)]
-        self._predicted: list[deque[np.ndarray]] = [deque() for _ in range(self.horizon)]
-        self._n_errors = np.zeros(self.horizon, dtype=np.int64)
-        self._n_predicted = np.zeros(self.horizon, dtype=np.int64)
-        self._n_samples = np.zeros(self.horizon, dtype=np.int64)  # N_s of the centre
-        self._cache: list[float | None] = [None] * self.horizon
-        self._constants: list[tuple[float, float] | None] = [None] * self.horizon
-        self._since = np.zeros(self.horizon, dtype=np.int64)  # updates since the radius
-        self._since_bootstrap = np.zeros(self.horizon, dtype=np.int64)
+        self._errors: list[deque[np.ndarray]] = [deque() for _ in range(T)]
+        self._predicted: list[deque[np.ndarray]] = [deque() for _ in range(T)]
+        # counts of the buffers, N_s of the centre, updates since the radius / bootstrap
+        self._n_errors, self._n_predicted, self._n_samples, self._since, self._since_bootstrap = (
+            np.zeros(T, dtype=np.int64) for _ in range(5))
+        self._cache: list[float | None] = [None] * T
+        self._constants: list[tuple[float, float] | None] = [None] * T
         self._dim: int | None = None
 
-    def update_errors(
-        self,
-        lookahead: int,
-        errors: object,
-        predicted_errors: object,
-        *,
-        n_samples: int | None = None,
-    ) -> None:
+    def update_errors(self, lookahead: int, errors: object, predicted_errors: object, *,
+                      n_samples: int | None = None) -> None:
         """Add realised errors ``(n, d)``, predicted errors ``(m, d)`` or ``(n, m, d)`` at ``k``.
 
         ``n_samples`` is ``N_s``, the number of samples of the filter's empirical law
@@ -261,7 +248,7 @@ class WassersteinRadius:
         InvalidArrayError
             For non-finite or mismatched arrays, or ``d`` not 1 or 2.
         """
-        k = self._index(lookahead)
+        k = lookahead_index(lookahead, self.horizon)
         e = finite_array("errors", errors, ndim=2)
         xi = finite_array("predicted_errors", predicted_errors)
         per_obstacle = xi.shape[-2] if xi.ndim == 3 else xi.shape[0]
@@ -270,10 +257,9 @@ class WassersteinRadius:
         if xi.ndim != 2 or xi.shape[1] != e.shape[1] or xi.shape[0] == 0:
             raise InvalidArrayError(
                 f"predicted_errors must have shape (m, {e.shape[1]}) or (n, m, {e.shape[1]}) "
-                f"with m >= 1, got {np.shape(predicted_errors)}"
-            )
+                f"with m >= 1, got {np.shape(predicted_errors)}")
         if self._dim is None:
-            _directions(e.shape[1], 1)  # rejects d > 2
+            grid_directions(e.shape[1], 1, "WassersteinRadius")  # rejects d > 2
             self._dim = e.shape[1]
         elif e.shape[1] != self._dim:
             raise InvalidArrayError(f"errors must have d = {self._dim}, got shape {e.shape}")
@@ -282,7 +268,7 @@ class WassersteinRadius:
         self._push(self._errors[k], e, self._n_errors, k, self.window)
         self._push(self._predicted[k], xi, self._n_predicted, k, self.max_predicted)
         self._since[k] += 1
-        self._since_bootstrap[k] += 1
+        self._since_bootstrap[k] += 1  # (the cache is dropped after `refresh` updates)
         if self._since[k] >= self.refresh:
             self._cache[k] = None
 
@@ -297,26 +283,22 @@ class WassersteinRadius:
         """Feed the output of :meth:`PredictionRecord.update` (look-aheads beyond ``T`` skipped)."""
         for r in realisations:
             if r.lookahead <= self.horizon:
-                self.update_errors(r.lookahead, r.errors, r.predicted_errors,
-                                   n_samples=r.n_samples)
+                self.update_errors(r.lookahead, r.errors, r.predicted_errors, n_samples=r.n_samples)
 
     def radius(self, lookahead: int) -> float:
         """:math:`\\epsilon_k` in m (``fallback`` with fewer than ``min_errors`` errors)."""
-        k = self._index(lookahead)
+        k = lookahead_index(lookahead, self.horizon)
         if self._n_errors[k] < self.min_errors:
             return self.fallback
-        cached = self._cache[k]
-        if cached is not None:
-            return cached
+        if self._cache[k] is not None:
+            return self._cache[k]
         self._since[k] = 0
         errors = np.concatenate(list(self._errors[k]))[-self.window :]
         predicted = np.concatenate(list(self._predicted[k]))[-self.max_predicted :]
-        dim = errors.shape[1]
-        directions = _directions(dim, self.n_directions)
-        distance = float(_sliced_w1(errors, predicted, directions).max())
-        mean_norms = (np.linalg.norm(errors, axis=1).mean()
-                      + np.linalg.norm(predicted, axis=1).mean())
-        distance += _grid_slack(dim, self.n_directions) * float(mean_norms)
+        directions, slack = grid_directions(errors.shape[1], self.n_directions, "WassersteinRadius")
+        mean_norms = float(np.linalg.norm(errors, axis=1).mean()
+                           + np.linalg.norm(predicted, axis=1).mean())
+        distance = float(_sliced_w1(errors, predicted, directions).max()) + slack * mean_norms
         if self._constants[k] is None or self._since_bootstrap[k] >= self.bootstrap_refresh:
             level = 0.5 * (1.0 + self.confidence)
             boot = directions[::2] if directions.shape[0] >= 16 else directions
@@ -334,9 +316,3 @@ class WassersteinRadius:
     def radii(self) -> np.ndarray:
         """Radii for every look-ahead, shape ``(T,)``, m (``epsilon=`` of ``safe_halfspaces``)."""
         return np.array([self.radius(k) for k in range(1, self.horizon + 1)])
-
-    def _index(self, lookahead: int) -> int:
-        k = integer_at_least("lookahead", lookahead)
-        if k > self.horizon:
-            raise InvalidParameterError(f"lookahead must be in 1..{self.horizon}, got {k}")
-        return k - 1

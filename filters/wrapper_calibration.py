@@ -49,25 +49,21 @@ def _plain_settings(value: object) -> tuple | None:
     dataclass is read through the fields that define its equality (``compare=True``):
     derived caches such as the noise laws' scaled mean array are left out.
     """
+    cls = type(value)
     if value is None or isinstance(value, bool | int | float | str):
-        return (type(value).__qualname__, value)
+        return (cls.__qualname__, value)
     if isinstance(value, tuple | list):
-        items = tuple(_plain_settings(item) for item in value)
-        return None if any(item is None for item in items) else (type(value).__qualname__, items)
-    if isinstance(value, dict):
-        if not all(isinstance(name, str) for name in value):
-            return None
-        items = tuple((name, _plain_settings(value[name])) for name in sorted(value))
-        return None if any(item is None for _, item in items) else ("dict", items)
-    if (dataclasses.is_dataclass(value) and not isinstance(value, type)
-            and value.__dataclass_params__.frozen):
-        cls = type(value)
-        items = tuple((f.name, _plain_settings(getattr(value, f.name)))
-                      for f in dataclasses.fields(value) if f.compare)
-        return None if any(item is None for _, item in items) else (
-            f"{cls.__module__}.{cls.__qualname__}", items)
-    return None
-
+        tag, named = cls.__qualname__, enumerate(value)
+    elif isinstance(value, dict) and all(isinstance(name, str) for name in value):
+        tag, named = "dict", ((name, value[name]) for name in sorted(value))
+    elif (dataclasses.is_dataclass(value) and not isinstance(value, type)
+          and value.__dataclass_params__.frozen):
+        tag = f"{cls.__module__}.{cls.__qualname__}"
+        named = ((f.name, getattr(value, f.name)) for f in dataclasses.fields(value) if f.compare)
+    else:
+        return None
+    items = tuple((name, _plain_settings(item)) for name, item in named)
+    return None if any(item is None for _, item in items) else (tag, items)
 
 
 class CalibrationMixin:
@@ -83,7 +79,7 @@ class CalibrationMixin:
         """
         base = self._base
         predictions = np.asarray(base.predictions, dtype=float)[:, :, : self.horizon]
-        if np.all(np.isfinite(predictions)):
+        if np.isfinite(predictions).all():
             self._calibration.update(predictions, np.asarray(base.obstacle_positions),
                                      ids=getattr(base, "obstacle_ids", None))
 
@@ -98,8 +94,7 @@ class CalibrationMixin:
         begin = time.perf_counter()
         key = self._snapshot_key() if self.calibration_episodes else None
         if key is not None and key in _SNAPSHOTS:
-            self._calibration = _SNAPSHOTS[key].copy()
-            self._calibrated = _SNAPSHOTS[key].copy()
+            self._calibration, self._calibrated = _SNAPSHOTS[key].copy(), _SNAPSHOTS[key].copy()
             self.calibration_time = time.perf_counter() - begin
             return
         base = self._base
@@ -157,12 +152,12 @@ class CalibrationMixin:
 
     def _risk_options(self) -> dict[str, Any]:
         """Risk settings of this step (the calibrated ones per look-ahead step)."""
-        options: dict[str, Any] = dict(risk=self.risk, alpha=self.alpha, delta=self.delta,
-                                       epsilon=self.epsilon)
-        if self.epsilon == "auto":
-            options["epsilon"] = self._calibration.radii()
+        epsilon = self.epsilon
+        if epsilon == "auto":
+            epsilon = self._calibration.radii()
         elif self.adaptive_epsilon:
-            options["epsilon"] = self._calibration.adaptive_radii()
+            epsilon = self._calibration.adaptive_radii()
+        options = dict(risk=self.risk, alpha=self.alpha, delta=self.delta, epsilon=epsilon)
         if self.risk == "conformal":
             options["conformal_margins"] = self._calibration.margins()
         return options

@@ -1,10 +1,8 @@
 """Input checks of the MPC safety filter: constructor arguments and per-step arrays.
 
-Integers, weight matrices, input/position boxes, the per-step arrays (with a
-one-reduction fast path for the common case) and the halfspaces in any accepted
-form (:func:`parse_halfspaces`). Errors are the project's (:mod:`filters.errors`);
-the per-step fast path :func:`finite_step_array` raises exactly what
-:func:`filters._validation.finite_array` raises.
+Integers, weight matrices, input/position boxes, the per-step arrays and the
+halfspaces in any accepted form (:func:`parse_halfspaces`). Errors are the project's
+(:mod:`filters.errors`).
 """
 
 from __future__ import annotations
@@ -14,43 +12,21 @@ import numbers
 
 import numpy as np
 
-from filters._validation import finite_array
+from filters._validation import finite_array, integer_at_least
 from filters.errors import InvalidArrayError, InvalidParameterError, InvalidTypeError
 
 __all__ = ["all_finite", "box", "finite_step_array", "integer", "parse_halfspaces", "weight"]
 
-_FLOAT64 = np.dtype(np.float64)  # a singleton: ``dtype is _FLOAT64`` is the cheap test
-
-
-def finite_step_array(name: str, value: object, shape: tuple[int, ...]) -> np.ndarray:
-    """Fast path of :func:`finite_array` for the per-step arrays (same errors).
-
-    A float64 array of the right shape is accepted when its sum is finite (one
-    reduction instead of two passes and a temporary). A sum that overflows, or any
-    NaN/inf, takes the full check, which raises only if an entry is really not finite.
-    """
-    if type(value) is np.ndarray and value.dtype is _FLOAT64 and value.shape == shape:
-        if math.isfinite(np.add.reduce(value, axis=None)):
-            return value
-        array = value
-    elif isinstance(value, np.ndarray) and value.dtype == np.float64:
-        array = value
-    else:
-        try:
-            array = np.asarray(value, dtype=np.float64)
-        except (TypeError, ValueError):
-            return finite_array(name, value, shape=shape)  # raises with the message
-    if array.shape == shape and np.isfinite(array).all():
-        return array
-    return finite_array(name, value, shape=shape)  # raises with the message
+#: The per-step arrays of :class:`filters.mpc.MPCSafetyFilter` are checked by
+#: :func:`filters._validation.finite_array` (one reduction for a finite float64 array).
+finite_step_array = finite_array
 
 
 def integer(name: str, value: object, *, low: int) -> int:
+    """``value`` as an int ``>= low``: ``InvalidTypeError`` for a non-integer."""
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):
         raise InvalidTypeError(f"{name} must be an integer, got {value!r}")
-    if int(value) < low:
-        raise InvalidParameterError(f"{name} must be >= {low}, got {value!r}")
-    return int(value)
+    return integer_at_least(name, value, low=low)
 
 
 def weight(name: str, value: object, size: int, *, definite: bool) -> np.ndarray:
@@ -59,19 +35,16 @@ def weight(name: str, value: object, size: int, *, definite: bool) -> np.ndarray
     if not np.allclose(matrix, matrix.T, rtol=0.0, atol=1e-10 * scale):
         raise InvalidParameterError(
             f"{name} must be symmetric, got max |{name} - {name}.T| = "
-            f"{np.max(np.abs(matrix - matrix.T)):.3g}; pass ({name} + {name}.T) / 2"
-        )
+            f"{np.max(np.abs(matrix - matrix.T)):.3g}; pass ({name} + {name}.T) / 2")
     matrix = 0.5 * (matrix + matrix.T)
     smallest = float(np.linalg.eigvalsh(matrix)[0]) if size else 0.0
     if definite and smallest <= 1e-12 * scale:
         raise InvalidParameterError(
             f"{name} must be positive definite (it keeps the QP strictly convex and "
-            f"the filtered input unique), got smallest eigenvalue {smallest:.3g}"
-        )
+            f"the filtered input unique), got smallest eigenvalue {smallest:.3g}")
     if not definite and smallest < -1e-10 * scale:
         raise InvalidParameterError(
-            f"{name} must be positive semidefinite, got smallest eigenvalue {smallest:.3g}"
-        )
+            f"{name} must be positive semidefinite, got smallest eigenvalue {smallest:.3g}")
     return matrix
 
 
@@ -84,26 +57,20 @@ def box(name: str, value: object, size: int) -> tuple[np.ndarray, np.ndarray]:
     sides = []
     for side, raw in zip(("low", "high"), value, strict=True):
         try:
-            array = np.asarray(raw, dtype=np.float64)
-            array = np.array(np.broadcast_to(array, (size,)))
+            sides.append(np.array(np.broadcast_to(np.asarray(raw, dtype=np.float64), (size,))))
         except (TypeError, ValueError) as exc:
-            raise InvalidArrayError(
-                f"{name} {side} must be a number or an array of shape ({size},), got {raw!r}"
-            ) from exc
-        if np.any(np.isnan(array)):
-            raise InvalidArrayError(f"{name} {side} must not contain NaN, got {array}")
-        sides.append(array)
+            raise InvalidArrayError(f"{name} {side} must be a number or an array of shape "
+                                    f"({size},), got {raw!r}") from exc
+        if np.isnan(sides[-1]).any():
+            raise InvalidArrayError(f"{name} {side} must not contain NaN, got {sides[-1]}")
     low, high = sides
     if np.any(low == np.inf) or np.any(high == -np.inf):
         raise InvalidParameterError(
-            f"{name} must have low < +inf and high > -inf, got low={low}, high={high}"
-        )
+            f"{name} must have low < +inf and high > -inf, got low={low}, high={high}")
     if np.any(low > high):
         index = int(np.argmax(low > high))
-        raise InvalidParameterError(
-            f"{name} lower bound exceeds upper bound at index {index}: "
-            f"{low[index]} > {high[index]}"
-        )
+        raise InvalidParameterError(f"{name} lower bound exceeds upper bound at index {index}: "
+                                    f"{low[index]} > {high[index]}")
     return low, high
 
 
@@ -112,9 +79,8 @@ def all_finite(array: np.ndarray) -> bool:
     return math.isfinite(np.add.reduce(array, axis=None)) or bool(np.isfinite(array).all())
 
 
-def parse_halfspaces(
-    halfspaces: object, horizon: int, dim: int, n_obstacles: int
-) -> tuple[np.ndarray, np.ndarray]:
+def parse_halfspaces(halfspaces: object, horizon: int, dim: int, n_obstacles: int
+                     ) -> tuple[np.ndarray, np.ndarray]:
     """Validate halfspaces given as an object, a pair, or ``None``.
 
     Parameters
@@ -139,38 +105,18 @@ def parse_halfspaces(
     """
     if halfspaces is None:
         return np.zeros((0, horizon, dim)), np.zeros((0, horizon))
-    if type(halfspaces) is tuple and len(halfspaces) == 2:  # no .normals: the pair
-        raw_normals, raw_offsets = halfspaces
-    elif hasattr(halfspaces, "normals") and hasattr(halfspaces, "offsets"):
+    if hasattr(halfspaces, "normals") and hasattr(halfspaces, "offsets"):
         raw_normals, raw_offsets = halfspaces.normals, halfspaces.offsets
     elif isinstance(halfspaces, (tuple, list)) and len(halfspaces) == 2:
         raw_normals, raw_offsets = halfspaces
     else:
         raise InvalidTypeError(
             "halfspaces must be None, a pair (normals, offsets) or an object with "
-            f".normals and .offsets, got {type(halfspaces).__name__}"
-        )
-    if (  # fast path: valid float64 arrays pass with one reduction each (same answer)
-        type(raw_normals) is np.ndarray and type(raw_offsets) is np.ndarray
-        and raw_normals.dtype is _FLOAT64 and raw_offsets.dtype is _FLOAT64
-        and raw_normals.ndim == 3 and raw_normals.shape[1:] == (horizon, dim)
-        and raw_offsets.shape == (raw_normals.shape[0], horizon)
-        and raw_normals.shape[0] <= n_obstacles
-        and math.isfinite(np.add.reduce(raw_normals, axis=None))
-        and math.isfinite(np.add.reduce(raw_offsets, axis=None))
-    ):
-        return raw_normals, raw_offsets
-    try:
-        normals = np.asarray(raw_normals, dtype=np.float64)
-    except (TypeError, ValueError):
-        normals = None
-    if normals is None or normals.ndim != 3:  # let finite_array raise the message
-        normals = finite_array("halfspaces.normals", raw_normals, shape=(None, horizon, dim))
-    normals = finite_step_array("halfspaces.normals", normals, (normals.shape[0], horizon, dim))
-    offsets = finite_step_array("halfspaces.offsets", raw_offsets, (normals.shape[0], horizon))
+            f".normals and .offsets, got {type(halfspaces).__name__}")
+    normals = finite_array("halfspaces.normals", raw_normals, (None, horizon, dim))
+    offsets = finite_array("halfspaces.offsets", raw_offsets, (normals.shape[0], horizon))
     if normals.shape[0] > n_obstacles:
         raise InvalidArrayError(
             f"halfspaces has {normals.shape[0]} obstacle rows but the filter was built "
-            f"for n_obstacles={n_obstacles}; build it with a larger n_obstacles"
-        )
+            f"for n_obstacles={n_obstacles}; build it with a larger n_obstacles")
     return normals, offsets

@@ -51,7 +51,7 @@ from filters.mpc.problem import MPCProblem
 __all__ = ["CondensedQP", "StepRows"]
 
 #: dot products over the last axis, broadcast (np.vecdot on NumPy >= 2).
-_vecdot = getattr(np, "vecdot", None) or (lambda a, b: np.einsum("...d,...d->...", a, b))
+vecdot = getattr(np, "vecdot", None) or (lambda a, b: np.einsum("...d,...d->...", a, b))
 
 
 @dataclass
@@ -123,15 +123,13 @@ class CondensedQP:
         T, n, m, d, K = p.horizon, p.n, p.m, p.d, p.n_obstacles
         nu = T * m
         phi, gamma = p.rollout
-        R_bar = scipy.linalg.block_diag(*p.input_weights)
-        Q_bar = scipy.linalg.block_diag(*p.state_weights)
-        hessian = 2.0 * (R_bar + gamma.T @ Q_bar @ gamma)
-        hessian = 0.5 * (hessian + hessian.T)
+        R_bar, Q_bar, half_hessian = p.condensed_weights
+        hessian = 2.0 * half_hessian
         reverse = np.arange(nu)[::-1]
         lower = np.linalg.cholesky(hessian[np.ix_(reverse, reverse)])
         upper = np.ascontiguousarray(lower[np.ix_(reverse, reverse)])  # H = U U'
-        u_of_z = scipy.linalg.solve_triangular(upper, np.eye(nu), lower=False).T
-        u_of_z = np.tril(u_of_z)  # exact zeros above the diagonal
+        # exact zeros above the diagonal
+        u_of_z = np.tril(scipy.linalg.solve_triangular(upper, np.eye(nu), lower=False).T)
         self.hessian = hessian
         self.z_of_u = np.ascontiguousarray(upper.T)
         self.u_of_z = np.ascontiguousarray(u_of_z)
@@ -142,14 +140,13 @@ class CondensedQP:
 
         C_phi = np.einsum("dn,tnk->tdk", p.C, phi.reshape(T, n, n))  # (T, d, n)
         C_gamma = np.einsum("dn,tnk->tdk", p.C, gamma.reshape(T, n, nu))  # (T, d, nu)
-        W = np.ascontiguousarray(C_gamma @ u_of_z)  # (T, d, nu)
-        self.position_maps = W
+        self.position_maps = W = np.ascontiguousarray(C_gamma @ u_of_z)  # (T, d, nu)
 
         u_low, u_high = p.input_bounds
         y_low, y_high = p.position_bounds
         input_axes = np.flatnonzero(np.isfinite(u_low) | np.isfinite(u_high))
         arena_axes = np.flatnonzero(np.isfinite(y_low) | np.isfinite(y_high))
-        G, g = p.terminal_set if p.terminal_set is not None else (np.zeros((0, n)), np.zeros(0))
+        G, g = p.terminal_rows
         S, s = p.speed_rows
         speed_map = np.einsum("jn,tnk->tjk", S, gamma.reshape(T, n, nu)).reshape(-1, nu)
         input_index = (np.arange(T)[:, None] * m + input_axes[None]).reshape(-1)
@@ -189,15 +186,12 @@ class CondensedQP:
                   normals: np.ndarray, offsets: np.ndarray) -> StepRows:
         """The step's linear cost and bounds; ``normals`` ``(K, T, d)``, ``offsets`` ``(K, T)``."""
         v = np.concatenate((x0, ref_states.reshape(-1), ref_inputs.reshape(-1)), out=self._v)
-        f = self._F @ v
-        shift = self._S @ x0
-        n_fixed = self.n_fixed
+        shift, n_fixed = self._S @ x0, self.n_fixed
         positions0 = shift[n_fixed:].reshape(self.T, self.d)
-        upper = self.fixed_upper - shift[:n_fixed]
-        lower = self.fixed_lower - shift[:n_fixed]
         normals_t = normals.transpose(1, 0, 2)  # (T, K, d)
-        hs_upper = offsets.T - _vecdot(normals_t, positions0[:, None, :])
-        return StepRows(f, upper, lower, normals_t, hs_upper, positions0)
+        return StepRows(self._F @ v, self.fixed_upper - shift[:n_fixed],
+                        self.fixed_lower - shift[:n_fixed], normals_t,
+                        offsets.T - vecdot(normals_t, positions0[:, None, :]), positions0)
 
     def halfspace_rows(self, rows: StepRows, steps: np.ndarray, obstacles: np.ndarray,
                        out: np.ndarray | None = None) -> np.ndarray:
@@ -206,18 +200,6 @@ class CondensedQP:
         W = self.position_maps[steps]  # (r, d, nu)
         return np.matmul(a[:, None, :], W, out=None if out is None else out[:, None, :])[:, 0]
 
-    def values(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(u, fixed, positions)`` at ``z``: the inputs ``(T m,)``, the left-hand sides of
-        the fixed rows before the :math:`x_0` shift ``(n_fixed,)``, and :math:`C \\Gamma_t u`
-        ``(T, d)``; one matrix-vector product."""
-        values = self._E @ z
-        nu, T, d = self.nu, self.T, self.d
-        u = values[:nu]
-        positions = values[nu : nu + T * d].reshape(T, d)
-        fixed = np.concatenate((u[self._input_index], positions[:, self.arena_axes].reshape(-1),
-                                values[nu + T * d :]))
-        return u, fixed, positions
-
     def excess(self, z: np.ndarray, rows: StepRows) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Excess ``lhs - rhs`` (<= 0: the row holds) of every row at ``z``.
 
@@ -225,9 +207,13 @@ class CondensedQP:
         row's excess is the larger of its two sides'), ``halfspace`` ``(T, K)``, and the
         fixed rows' values (for :meth:`bound_slack`).
         """
-        _, values, positions = self.values(z)
+        # One product: the inputs, C Gamma_t u, then the terminal and speed rows' values.
+        product, nu, T, d = self._E @ z, self.nu, self.T, self.d
+        positions = product[nu : nu + T * d].reshape(T, d)
+        values = np.concatenate((product[:nu][self._input_index],
+                                 positions[:, self.arena_axes].reshape(-1), product[nu + T * d :]))
         fixed = np.maximum(values - rows.upper, rows.lower - values)
-        halfspace = _vecdot(rows.normals, positions[:, None, :]) - rows.hs_upper
+        halfspace = vecdot(rows.normals, positions[:, None, :]) - rows.hs_upper
         return fixed, halfspace, values
 
     def bound_slack(self, values: np.ndarray, rows: StepRows) -> np.ndarray:

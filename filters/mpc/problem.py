@@ -48,7 +48,7 @@ from functools import cached_property
 import numpy as np
 import scipy.linalg
 
-from filters._validation import finite_array, scalar_in_range
+from filters._validation import finite_array, finite_scalar, scalar_in_range
 from filters.constants import SPEED_SIDES
 from filters.errors import InvalidArrayError, InvalidParameterError, InvalidTypeError
 from filters.mpc.checks import box, integer, weight
@@ -87,8 +87,8 @@ def speed_polygon(max_speed: float, sides: int, dim: int) -> tuple[np.ndarray, n
     if dim == 1:
         return np.array([[1.0], [-1.0]]), np.full(2, float(max_speed))
     if dim != 2:
-        raise InvalidParameterError(
-            f"max_speed: a speed polygon needs 1 or 2 velocity axes, got {dim}")
+        raise InvalidParameterError(f"max_speed: a speed polygon needs 1 or 2 velocity axes, "
+                                    f"got {dim}")
     angles = (2.0 * np.arange(1, sides + 1) - 1.0) * np.pi / sides
     H = np.column_stack([np.cos(angles), np.sin(angles)])
     return H, np.full(sides, max_speed * np.cos(np.pi / sides))
@@ -163,69 +163,54 @@ class MPCProblem:
         put = object.__setattr__  # frozen: normalise the fields once, here
         A = finite_array("A", self.A, ndim=2)
         n = A.shape[0]
-        A = finite_array("A", A, shape=(n, n))
-        B = finite_array("B", self.B, ndim=2)
-        B = finite_array("B", B, shape=(n, None))
-        C = finite_array("C", self.C, ndim=2)
-        C = finite_array("C", C, shape=(None, n))
+        A = finite_array("A", A, (n, n))
+        B = finite_array("B", self.B, (n, None))
+        C = finite_array("C", self.C, (None, n))
         m, d = B.shape[1], C.shape[0]
         if n == 0 or m == 0 or d == 0:
             raise InvalidArrayError(
-                f"A, B and C must be non-empty, got shapes {A.shape}, {B.shape}, {C.shape}"
-            )
-        put(self, "A", A)
-        put(self, "B", B)
-        put(self, "C", C)
-        put(self, "horizon", integer("horizon", self.horizon, low=1))
-        put(self, "n_obstacles", integer("n_obstacles", self.n_obstacles, low=0))
+                f"A, B and C must be non-empty, got shapes {A.shape}, {B.shape}, {C.shape}")
         if self.objective not in OBJECTIVES:
             raise InvalidParameterError(
-                f"objective must be one of {OBJECTIVES}, got {self.objective!r}"
-            )
-        put(self, "R", weight("R", self.R, m, definite=True))
-        if self.objective == "trajectory":
-            for name in ("Q", "Q_terminal"):
-                if getattr(self, name) is None:
-                    raise InvalidParameterError(
-                        f'{name} is required by objective="trajectory" (or pass '
-                        'objective="first_input", which has no state terms)'
-                    )
-                put(self, name, weight(name, getattr(self, name), n, definite=False))
-        else:
-            put(self, "Q", None)
-            put(self, "Q_terminal", None)
-        put(self, "later_input_weight", scalar_in_range(
-            "later_input_weight", self.later_input_weight, low=0.0, low_inclusive=False,
-            high=np.inf, high_inclusive=False,
-        ))
-        put(self, "input_bounds", box("input_bounds", self.input_bounds, m))
-        put(self, "position_bounds", box("position_bounds", self.position_bounds, d))
-        if self.terminal_set is not None:
-            terminal = self.terminal_set
+                f"objective must be one of {OBJECTIVES}, got {self.objective!r}")
+        trajectory = self.objective == "trajectory"
+        for name in ("Q", "Q_terminal") if trajectory else ():
+            if getattr(self, name) is None:
+                raise InvalidParameterError(
+                    f'{name} is required by objective="trajectory" (or pass '
+                    'objective="first_input", which has no state terms)')
+        terminal = self.terminal_set
+        if terminal is not None:
             if isinstance(terminal, (str, bytes)) or not hasattr(terminal, "__len__") or len(
-                terminal
-            ) != 2:
-                raise InvalidTypeError(
-                    f"terminal_set must be None or a pair (G, g), got {terminal!r}"
-                )
-            G = finite_array("terminal_set G", terminal[0], ndim=2)
-            G = finite_array("terminal_set G", G, shape=(None, n))
-            g = finite_array("terminal_set g", terminal[1], shape=(G.shape[0],))
-            put(self, "terminal_set", (G, g))
+                    terminal) != 2:
+                raise InvalidTypeError(f"terminal_set must be None or a pair (G, g), got "
+                                       f"{terminal!r}")
+            G = finite_array("terminal_set G", terminal[0], (None, n))
+            terminal = (G, finite_array("terminal_set g", terminal[1], (G.shape[0],)))
         if not isinstance(self.soft_rows, (set, frozenset, tuple, list)) or not set(
-            self.soft_rows
-        ) <= SOFT_ROWS:
+                self.soft_rows) <= SOFT_ROWS:
             raise InvalidParameterError(
-                f"soft_rows must be a subset of {sorted(SOFT_ROWS)}, got {self.soft_rows!r}"
-            )
-        put(self, "soft_rows", frozenset(self.soft_rows))
-        put(self, "slack_penalty", scalar_in_range(
-            "slack_penalty", self.slack_penalty, low=0.0, low_inclusive=False, high=np.inf,
-            high_inclusive=False,
-        ))
-        put(self, "max_speed", scalar_in_range(
-            "max_speed", self.max_speed, low=0.0, low_inclusive=False, high=np.inf))
-        put(self, "speed_sides", integer("speed_sides", self.speed_sides, low=3))
+                f"soft_rows must be a subset of {sorted(SOFT_ROWS)}, got {self.soft_rows!r}")
+        for name, value in (
+            ("A", A), ("B", B), ("C", C), ("terminal_set", terminal),
+            ("horizon", integer("horizon", self.horizon, low=1)),
+            ("n_obstacles", integer("n_obstacles", self.n_obstacles, low=0)),
+            ("R", weight("R", self.R, m, definite=True)),
+            ("Q", weight("Q", self.Q, n, definite=False) if trajectory else None),
+            ("Q_terminal", weight("Q_terminal", self.Q_terminal, n, definite=False)
+             if trajectory else None),
+            ("later_input_weight", finite_scalar("later_input_weight", self.later_input_weight,
+                                                 low=0.0, strict=True)),
+            ("input_bounds", box("input_bounds", self.input_bounds, m)),
+            ("position_bounds", box("position_bounds", self.position_bounds, d)),
+            ("soft_rows", frozenset(self.soft_rows)),
+            ("slack_penalty", finite_scalar("slack_penalty", self.slack_penalty, low=0.0,
+                                            strict=True)),
+            ("max_speed", scalar_in_range("max_speed", self.max_speed, low=0.0,
+                                          low_inclusive=False, high=np.inf)),
+            ("speed_sides", integer("speed_sides", self.speed_sides, low=3)),
+        ):
+            put(self, name, value)
         if np.isfinite(self.max_speed) and (n != 2 * d or d > 2):
             raise InvalidParameterError(
                 f"max_speed needs a state [position; velocity] with 1 or 2 axes (n = 2 d), "
@@ -264,6 +249,11 @@ class MPCProblem:
     def soft_bounds(self) -> bool:
         """Whether the arena and terminal rows carry slacks."""
         return "bounds" in self.soft_rows
+
+    @property
+    def terminal_rows(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(G, g)`` of the terminal set, or empty ``(0, n)`` and ``(0,)`` rows without one."""
+        return self.terminal_set or (np.zeros((0, self.n)), np.zeros(0))
 
     @cached_property
     def speed_rows(self) -> tuple[np.ndarray, np.ndarray]:
@@ -331,24 +321,22 @@ class MPCProblem:
 
         For ``"first_input"`` :math:`\bar Q = 0`, so :math:`K = 0` and :math:`u^\circ = u^r`.
         """
-        T, n, m = self.horizon, self.n, self.m
         if not self.has_state_cost:
-            return np.zeros((T * m, T * n))
-        _, gamma = self.rollout
-        q_block = scipy.linalg.block_diag(*self.state_weights)
-        hessian = scipy.linalg.block_diag(*self.input_weights) + gamma.T @ q_block @ gamma
+            return np.zeros((self.horizon * self.m, self.horizon * self.n))
+        _, q_block, hessian = self.condensed_weights
+        gamma = self.rollout[1]
         return scipy.linalg.solve(hessian, gamma.T @ q_block, assume_a="pos")
 
     @cached_property
-    def evaluation_map(self) -> np.ndarray:
-        r"""``M`` with ``M @ [x0; u] = [x_0..x_T; C x_1..C x_T]`` (one product per roll-out)."""
-        T, n = self.horizon, self.n
-        phi, gamma = self.rollout
-        rollout = np.vstack([
-            np.hstack([np.eye(n), np.zeros((n, T * self.m))]), np.hstack([phi, gamma])
-        ])
-        positions = np.kron(np.eye(T), self.C) @ rollout[n:]
-        return np.vstack([rollout, positions])
+    def condensed_weights(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        r"""``(R_bar, Q_bar, H)``: the block-diagonal :math:`\bar R` ``(T m, T m)`` and
+        :math:`\bar Q` ``(T n, T n)``, and :math:`H = \bar R + \Gamma^\top \bar Q \Gamma`
+        (symmetrised), the cost's Hessian in the inputs up to the factor 2."""
+        gamma = self.rollout[1]
+        R_bar = scipy.linalg.block_diag(*self.input_weights)
+        Q_bar = scipy.linalg.block_diag(*self.state_weights)
+        hessian = R_bar + gamma.T @ Q_bar @ gamma
+        return R_bar, Q_bar, 0.5 * (hessian + hessian.T)
 
     @cached_property
     def check_map(self) -> tuple[np.ndarray, np.ndarray]:
@@ -358,13 +346,14 @@ class MPCProblem:
         then the speed rows (by step, then side), which are never soft.
         One product checks a whole plan (small NumPy calls cost microseconds each)."""
         T, n, d = self.horizon, self.n, self.d
-        evaluation = self.evaluation_map
+        phi, gamma = self.rollout  # [x_0..x_T] = rollout @ [x0; u], then C x_1..C x_T
+        rollout = np.block([[np.eye(n), np.zeros((n, T * self.m))], [phi, gamma]])
+        evaluation = np.vstack([rollout, np.kron(np.eye(T), self.C) @ rollout[n:]])
         split = (T + 1) * n
         positions = evaluation[split:].reshape(T, d, -1)
         y_low, y_high = self.position_bounds
         hi, lo = np.flatnonzero(np.isfinite(y_high)), np.flatnonzero(np.isfinite(y_low))
-        G, g = self.terminal_set if self.terminal_set is not None else (
-            np.zeros((0, n)), np.zeros(0))
+        G, g = self.terminal_rows
         columns = evaluation.shape[1]
         S, s = self.speed_rows
         states = evaluation[n:split].reshape(T, n, columns)
@@ -376,10 +365,8 @@ class MPCProblem:
         return np.vstack(rows), np.concatenate(offsets)
 
     # ------------------------------------------------------------------ cost
-    def cost(
-        self, inputs: np.ndarray, states: np.ndarray, ref_states: np.ndarray,
-        ref_inputs: np.ndarray,
-    ) -> float:
+    def cost(self, inputs: np.ndarray, states: np.ndarray, ref_states: np.ndarray,
+             ref_inputs: np.ndarray) -> float:
         """The cost (8) of a trajectory (penalties not included).
 
         ``inputs`` ``(T, m)``, ``states`` ``(T + 1, n)``, ``ref_states`` ``(T, n)`` (steps

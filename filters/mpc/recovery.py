@@ -45,8 +45,7 @@ import scipy.linalg
 
 from filters.mpc.problem import MPCProblem
 
-__all__ = ["RECOVERY_INPUT_WEIGHT", "RECOVERY_SPEED_WEIGHT", "braking_gain",
-           "recovery_problems", "rollout_with_brake", "shifted_plan"]
+__all__ = ["RECOVERY_INPUT_WEIGHT", "RECOVERY_SPEED_WEIGHT", "recovery_problems"]
 
 #: :math:`w_v`, weight of the planned speeds :math:`\|v_t\|^2` in the recovery QPs, per (m/s)².
 RECOVERY_SPEED_WEIGHT = 1.0

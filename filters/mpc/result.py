@@ -15,8 +15,7 @@ import numpy as np
 
 from filters.constants import DISABLED_OFFSET
 
-__all__ = ["FilterResult", "FilterStatus", "QPSolution", "StepData", "filter_result",
-           "padded_step", "recovery_status"]
+__all__ = ["FilterResult", "FilterStatus", "QPSolution", "StepData"]
 
 
 class FilterStatus(str, Enum):
@@ -175,13 +174,10 @@ def padded_step(x0: np.ndarray, ref_states: np.ndarray, ref_inputs: np.ndarray,
     """The back ends' step data: the ``k`` halfspaces padded to ``K`` rows (unused rows
     read ``0 @ y <= DISABLED_OFFSET``)."""
     k, T, d = normals.shape
-    if k == K:
-        return StepData(x0, ref_states, ref_inputs, normals, offsets)
-    padded_normals = np.zeros((K, T, d))
-    padded_offsets = np.full((K, T), DISABLED_OFFSET)
-    padded_normals[:k] = normals
-    padded_offsets[:k] = offsets
-    return StepData(x0, ref_states, ref_inputs, padded_normals, padded_offsets)
+    if k < K:
+        normals = np.concatenate([normals, np.zeros((K - k, T, d))])
+        offsets = np.concatenate([offsets, np.full((K - k, T), DISABLED_OFFSET)])
+    return StepData(x0, ref_states, ref_inputs, normals, offsets)
 
 
 def filter_result(
@@ -195,12 +191,10 @@ def filter_result(
         if array is not None:
             array.setflags(write=False)
     result = object.__new__(FilterResult)
-    result.__dict__.update({
-        "status": status, "inputs": inputs, "states": states, "solve_time": solve_time,
-        "total_time": total_time, "slack": slack, "solver_status": solver_status,
-        "iterations": iterations, "objective": objective, "consecutive_failures": failures,
-        "bound_slack": bound_slack,
-    })
+    result.__dict__.update(
+        status=status, inputs=inputs, states=states, solve_time=solve_time, total_time=total_time,
+        slack=slack, solver_status=solver_status, iterations=iterations, objective=objective,
+        consecutive_failures=failures, bound_slack=bound_slack)
     return result
 
 
@@ -211,6 +205,4 @@ def recovery_status(slack: np.ndarray, bound_total: float) -> FilterStatus:
     after all: the exact penalty returned its solution)."""
     if bound_total > 0.0:
         return FilterStatus.RECOVERY
-    if slack.any():
-        return FilterStatus.SOFT
-    return FilterStatus.OPTIMAL
+    return FilterStatus.SOFT if slack.any() else FilterStatus.OPTIMAL

@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from filters._validation import scalar_in_range
+from filters._validation import finite_scalar
+from filters.errors import InvalidParameterError
 from filters.mpc.checks import box
 
 __all__ = ["stopping_terminal_set", "stopping_input"]
@@ -79,30 +80,23 @@ def stopping_terminal_set(
     InvalidParameterError
         If ``dt <= 0``, ``stop_time < dt / 2``, or the input box does not contain 0.
     """
-    from filters.errors import InvalidParameterError
-
-    dt = scalar_in_range("dt", dt, low=0.0, low_inclusive=False, high=np.inf,
-                         high_inclusive=False)
-    c = scalar_in_range("stop_time", stop_time, low=dt / 2, high=np.inf, high_inclusive=False)
+    dt = finite_scalar("dt", dt, low=0.0, strict=True)
+    c = finite_scalar("stop_time", stop_time, low=dt / 2)
     u_low, u_high = box("input_bounds", input_bounds, dim)
     y_low, y_high = box("position_bounds", position_bounds, dim)
     if np.any(u_low > 0.0) or np.any(u_high < 0.0):
-        raise InvalidParameterError(
-            f"input_bounds must contain 0 (braking must be possible), got low={u_low}, "
-            f"high={u_high}"
-        )
+        raise InvalidParameterError(f"input_bounds must contain 0 (braking must be possible), "
+                                    f"got low={u_low}, high={u_high}")
     accel = np.minimum(np.abs(u_low), u_high)
-    eye, rows, rhs = np.eye(dim), [], []
+    eye, rows = np.eye(dim), []
     for j in range(dim):
         reach = np.concatenate([eye[j], c * eye[j]])  # p_j + c v_j
         speed = np.concatenate([np.zeros(dim), eye[j]])  # v_j
-        for row, bound in ((reach, y_high[j]), (-reach, -y_low[j]),
-                           (speed, accel[j] * (dt / 2 + c)), (-speed, accel[j] * (dt / 2 + c))):
-            if np.isfinite(bound):
-                rows.append(row)
-                rhs.append(bound)
-    G = np.array(rows).reshape(-1, 2 * dim)
-    return G, np.array(rhs, dtype=float)
+        rows += [(row, bound) for row, bound in (
+            (reach, y_high[j]), (-reach, -y_low[j]), (speed, accel[j] * (dt / 2 + c)),
+            (-speed, accel[j] * (dt / 2 + c))) if np.isfinite(bound)]
+    return (np.array([row for row, _ in rows]).reshape(-1, 2 * dim),
+            np.array([bound for _, bound in rows], dtype=float))
 
 
 def stopping_input(x: np.ndarray, dt: float, stop_time: float = 0.5) -> np.ndarray:
@@ -111,5 +105,4 @@ def stopping_input(x: np.ndarray, dt: float, stop_time: float = 0.5) -> np.ndarr
     ``x`` is ``[p, v]`` (or a batch, last axis); returns ``v``'s shape (m/s²).
     """
     x = np.asarray(x, dtype=float)
-    dim = x.shape[-1] // 2
-    return -x[..., dim:] / (dt / 2 + stop_time)
+    return -x[..., x.shape[-1] // 2 :] / (dt / 2 + stop_time)

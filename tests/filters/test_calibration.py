@@ -14,11 +14,11 @@ from filters.calibration import (
     OnlineCalibration,
     PredictionRecord,
     WassersteinRadius,
-    _grid_slack,
     conformal_rank,
     sliced_wasserstein_max,
 )
 from filters.errors import InvalidArrayError, InvalidParameterError
+from filters.wasserstein import grid_directions
 
 
 def clopper_pearson(successes: int, trials: int, confidence: float = 0.99) -> tuple[float, float]:
@@ -270,12 +270,13 @@ def test_grid_maximum_plus_slack_bounds_the_supremum_over_all_directions(count):
     for _ in range(5):
         a = rng.normal(size=(40, 2)) * rng.uniform(0.1, 1.0, size=2)
         b = rng.standard_t(3, size=(30, 2)) * 0.3 + rng.normal(size=2) * 0.2
-        grid = np.pi * np.arange(count) / count
-        coarse = np.stack([np.cos(grid), np.sin(grid)], axis=1)
+        coarse, slack = grid_directions(2, count, "test")
+        assert np.allclose(coarse, np.stack([np.cos(np.pi * np.arange(count) / count),
+                                             np.sin(np.pi * np.arange(count) / count)], axis=1))
         fine_angles = np.linspace(0, np.pi, 2001)
         fine = np.stack([np.cos(fine_angles), np.sin(fine_angles)], axis=1)
         moments = np.linalg.norm(a, axis=1).mean() + np.linalg.norm(b, axis=1).mean()
-        bound = sliced_wasserstein_max(a, b, coarse).max() + _grid_slack(2, count) * moments
+        bound = sliced_wasserstein_max(a, b, coarse).max() + slack * moments
         assert sliced_wasserstein_max(a, b, fine).max() <= bound + 1e-12
 
 

@@ -48,18 +48,12 @@ class CVXPYBackend:
 
     name = "cvxpy"
 
-    def __init__(
-        self, problem: MPCProblem, *, solver_settings: Mapping[str, Any] | None = None
-    ) -> None:
-        self.problem = problem
-        self._kwargs: dict[str, Any] = {}
-        if problem.soft_rows:
-            self._kwargs.update(tol_gap_abs=SOFT_GAP_TOLERANCE, tol_gap_rel=SOFT_GAP_TOLERANCE)
+    def __init__(self, problem: MPCProblem, *,
+                 solver_settings: Mapping[str, Any] | None = None) -> None:
+        self.problem = p = problem
+        self._kwargs: dict[str, Any] = dict(tol_gap_abs=SOFT_GAP_TOLERANCE,
+                                            tol_gap_rel=SOFT_GAP_TOLERANCE) if p.soft_rows else {}
         self._kwargs.update(solver_settings or {})
-        self._build()
-
-    def _build(self) -> None:
-        p = self.problem
         T, n, m, d, K = p.horizon, p.n, p.m, p.d, p.n_obstacles
         A, B, C = p.A, p.B, p.C
         self._x0 = cp.Parameter(n, name="x0")
@@ -68,65 +62,47 @@ class CVXPYBackend:
         self._normals = [cp.Parameter((T, d), name=f"normals_{i}") for i in range(K)]
         self._offsets = cp.Parameter((K, T), name="offsets") if K else None
 
-        u = cp.Variable((T, m), name="u")  # u_0..u_{T-1}
+        self._u = u = cp.Variable((T, m), name="u")  # u_0..u_{T-1}
         x = cp.Variable((T, n), name="x")  # x_1..x_T
-        self._u = u
         constraints = [x[0] == A @ self._x0 + B @ u[0]]
         if T > 1:
             constraints.append(x[1:].T == A @ x[:-1].T + B @ u[1:].T)
 
-        u_low, u_high = p.input_bounds
-        for bound, sign in ((u_high, 1.0), (u_low, -1.0)):
-            finite = np.flatnonzero(np.isfinite(bound))
-            if finite.size:
-                constraints.append(sign * u[:, finite] <= sign * np.tile(bound[finite], (T, 1)))
+        self._bound_slack = bound_slack = []  # slacks of the arena and terminal rows
 
-        bound_slack = []  # slacks of the arena and terminal rows (soft_bounds)
-
-        def bounded(lhs: cp.Expression, rhs: Any) -> cp.Constraint:
-            if p.soft_bounds:
-                slack = cp.Variable(lhs.shape, nonneg=True)
-                bound_slack.append(slack)
-                return lhs <= rhs + slack
-            return lhs <= rhs
+        def bounded(lhs: cp.Expression, rhs: Any, soft: bool) -> cp.Constraint:
+            if not soft:
+                return lhs <= rhs
+            bound_slack.append(cp.Variable(lhs.shape, nonneg=True))
+            return lhs <= rhs + bound_slack[-1]
 
         y = x @ C.T  # positions y_1..y_T, (T, d)
-        y_low, y_high = p.position_bounds
-        for bound, sign in ((y_high, 1.0), (y_low, -1.0)):
-            finite = np.flatnonzero(np.isfinite(bound))
-            if finite.size:
-                constraints.append(
-                    bounded(sign * y[:, finite], sign * np.tile(bound[finite], (T, 1)))
-                )
-        if p.terminal_set is not None and p.terminal_set[0].shape[0]:
-            G, g = p.terminal_set
-            constraints.append(bounded(G @ x[-1], g))
+        for values, (low, high), soft in ((u, p.input_bounds, False),  # the input box: hard
+                                          (y, p.position_bounds, p.soft_bounds)):
+            for bound, sign in ((high, 1.0), (low, -1.0)):
+                finite = np.flatnonzero(np.isfinite(bound))
+                if finite.size:
+                    constraints.append(bounded(sign * values[:, finite],
+                                               sign * np.tile(bound[finite], (T, 1)), soft))
+        G, g = p.terminal_rows
+        if G.shape[0]:
+            constraints.append(bounded(G @ x[-1], g, p.soft_bounds))
         S, s = p.speed_rows  # the speed polygon on v_1..v_T, always hard
         if S.shape[0]:
             constraints.append(x @ S.T <= np.tile(s, (T, 1)))
 
-        self._hs_slack = (
-            cp.Variable((K, T), nonneg=True, name="slack") if (p.soft_halfspaces and K) else None
-        )
-        for i in range(K):
-            lhs = cp.sum(cp.multiply(self._normals[i], y), axis=1)  # a_it . y_t, (T,)
-            rhs = self._offsets[i]
-            if self._hs_slack is not None:
-                rhs = rhs + self._hs_slack[i]
-            constraints.append(lhs <= rhs)
-        self._bound_slack = bound_slack
-
+        self._hs_slack = slack = (
+            cp.Variable((K, T), nonneg=True, name="slack") if (p.soft_halfspaces and K) else None)
+        for i in range(K):  # a_it . y_t <= b_it (+ s_it), (T,)
+            constraints.append(cp.sum(cp.multiply(self._normals[i], y), axis=1)
+                               <= self._offsets[i] + (0.0 if slack is None else slack[i]))
         cost = 0
         for t in range(T):
             cost += cp.sum_squares(_square_root(p.input_weights[t]) @ (u[t] - self._u_ref[t]))
             if p.has_state_cost:
-                cost += cp.sum_squares(
-                    _square_root(p.state_weights[t]) @ (x[t] - self._x_ref[t])
-                )
-        if self._hs_slack is not None:
-            cost += p.slack_penalty * cp.sum(self._hs_slack)
-        for slack in bound_slack:
-            cost += p.slack_penalty * cp.sum(slack)
+                cost += cp.sum_squares(_square_root(p.state_weights[t]) @ (x[t] - self._x_ref[t]))
+        for penalised in bound_slack + ([slack] if slack is not None else []):
+            cost += p.slack_penalty * cp.sum(penalised)
         self._problem = cp.Problem(cp.Minimize(cost), constraints)
         if not self._problem.is_dpp():  # pragma: no cover - formulation bug
             raise RuntimeError("the CVXPY safety-filter QP must be DPP")
@@ -154,13 +130,10 @@ class CVXPYBackend:
             return QPSolution(False, status, iterations=iterations, solve_time=solve_time)
         hs_slack = bound_slack = None
         if p.soft_halfspaces:
-            hs_slack = (
-                np.array(self._hs_slack.value) if self._hs_slack is not None
-                else np.zeros((0, p.horizon))
-            )
+            hs_slack = np.zeros((0, p.horizon)) if self._hs_slack is None else np.array(
+                self._hs_slack.value)
         if p.soft_bounds:
-            parts = [np.ravel(s.value) for s in self._bound_slack]
-            bound_slack = np.concatenate(parts) if parts else np.zeros(0)
-        return QPSolution(
-            True, status, np.array(self._u.value), hs_slack, bound_slack, iterations, solve_time
-        )
+            bound_slack = np.concatenate([np.zeros(0)]
+                                         + [np.ravel(s.value) for s in self._bound_slack])
+        return QPSolution(True, status, np.array(self._u.value), hs_slack, bound_slack, iterations,
+                          solve_time)
