@@ -443,16 +443,7 @@ def _dispatch(args: argparse.Namespace) -> int:
     return EXIT_BAD_INPUT  # pragma: no cover - argparse rejects unknown commands
 
 
-def _evaluate(args: argparse.Namespace) -> int:
-    from agents.evaluation.executors import make_executor
-
-    # One executor for the whole command (its workers start once); closed on the way out,
-    # stopped at once on Ctrl-C or an error.
-    with make_executor(args.executor, args.workers, address=args.address) as executor:
-        return _evaluate_on(args, executor)
-
-
-def _evaluation_config(args: argparse.Namespace, executor: Any):
+def _evaluation_config(args: argparse.Namespace):
     """The command's :class:`~agents.evaluation.config.EvaluationConfig` (a suite's output
     folder is ``results/<suite>`` unless ``--output`` is given)."""
     from agents.evaluation.config import EvaluationConfig
@@ -460,12 +451,12 @@ def _evaluation_config(args: argparse.Namespace, executor: Any):
     output = args.output
     if args.suite != "scenarios" and output == Path("results/evaluate"):
         output = Path(f"results/{args.suite}")
-    return EvaluationConfig(output=output, workers=args.workers, executor=executor,
-                            overwrite=args.overwrite, plots=not args.no_plots,
-                            progress=not args.no_progress)
+    return EvaluationConfig(output=output, workers=args.workers, executor=args.executor,
+                            address=args.address, overwrite=args.overwrite,
+                            plots=not args.no_plots, progress=not args.no_progress)
 
 
-def _evaluate_on(args: argparse.Namespace, executor: Any) -> int:
+def _evaluate(args: argparse.Namespace) -> int:
     from agents.evaluation.campaign import run_evaluation, run_sweep
     from safe_nav_env.scenarios import CUSTOM
 
@@ -491,7 +482,7 @@ def _evaluate_on(args: argparse.Namespace, executor: Any) -> int:
                   f"{', '.join(clash)} (use {use})", file=sys.stderr)
             return EXIT_BAD_INPUT
 
-    common = dict(config=_evaluation_config(args, executor), episodes=args.episodes,
+    common = dict(config=_evaluation_config(args), episodes=args.episodes,
                   seed=args.seed, reference=args.reference, policy_path=args.policy,
                   alpha=args.alpha, filter_options=dict(args.filter_options),
                   env_options=dict(args.env_options))

@@ -20,7 +20,7 @@ The parts live in :mod:`agents.evaluation.records` (specs, records, CSV, run key
 from __future__ import annotations
 
 from collections.abc import Sequence
-from contextlib import nullcontext
+from contextlib import AbstractContextManager, nullcontext
 from dataclasses import fields, replace
 from pathlib import Path
 from typing import Any
@@ -166,8 +166,7 @@ def run_specs(
     open, so its workers serve the next call too). An executor made here is closed at
     the end and stopped at once on an error or Ctrl-C.
     """
-    with (nullcontext(executor) if isinstance(executor, Executor)
-          else make_executor(executor, workers, address=address)) as runner:
+    with _executor(executor, workers, address) as runner:
         for record in runner.run(specs):
             if on_record is not None:
                 on_record(record)
@@ -238,7 +237,7 @@ def evaluate(
     specs: Sequence[EpisodeSpec] | None = None,
     vary: Sequence[str] = (),
     **spec_kwargs: Any,
-) -> list[EpisodeRecord]:
+) -> EvaluationRecords:
     """Run the Monte Carlo comparison of risk settings and return every episode's record.
 
     Parameters
@@ -291,9 +290,23 @@ def evaluate(
         specs = episode_specs(scenarios, risks, episodes, seed, **spec_kwargs)
     elif spec_kwargs:
         raise InvalidParameterError(f"pass either specs or settings, got both ({spec_kwargs})")
+    with _executor(executor, workers, address) as runner:
+        runner.start()  # its workers get ready while the policy loads here
+        return _run(check_specs(specs), runner, csv_path, vary, progress, overwrite)
+
+
+def _executor(executor: str | Executor, workers: int,
+              address: str | None) -> AbstractContextManager[Executor]:
+    """``executor`` as is (its owner closes it), or a new one that the ``with`` block closes
+    at its end and stops at once on an error or Ctrl-C."""
     if isinstance(executor, Executor):
-        executor.start()  # its workers get ready while the policy loads here
-    specs = check_specs(specs)
+        return nullcontext(executor)
+    return make_executor(executor, workers, address=address)
+
+
+def _run(specs: list[EpisodeSpec], executor: Executor, csv_path: str | Path | None,
+         vary: Sequence[str], progress: bool, overwrite: bool) -> EvaluationRecords:
+    """The records of ``specs`` (resumed from ``csv_path``, the rest run on ``executor``)."""
     done: list[EpisodeRecord] = []
     writer = None
     path = None
@@ -308,8 +321,7 @@ def evaluate(
     records = list(done)
     bar = None
     try:
-        iterator = run_specs(todo, workers=workers, executor=executor, address=address,
-                             on_record=writer)
+        iterator = run_specs(todo, executor=executor, on_record=writer)
         if progress and todo:
             from tqdm.auto import tqdm
 

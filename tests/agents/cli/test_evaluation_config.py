@@ -49,8 +49,14 @@ def test_every_campaign_gets_the_same_config(calls, argv, name, output):
     assert config.output == Path(output)
     assert (config.workers, config.overwrite, config.plots, config.progress) == (
         1, True, False, False)
-    assert not isinstance(config.executor, str)  # the command's one executor, made once
+    assert (config.executor, config.address) == ("process", None)
     assert (calls["kwargs"]["episodes"], calls["kwargs"]["seed"]) == (3, 5)
+
+
+def test_the_executor_flags_go_into_the_config(calls):
+    assert main(["evaluate", "--executor", "ray", "--address", "head:6379",
+                 "--no-progress"]) == 0
+    assert (calls["config"].executor, calls["config"].address) == ("ray", "head:6379")
 
 
 def test_an_address_without_ray_is_one_line_and_exit_code_2(calls, capsys):
