@@ -251,8 +251,9 @@ def evaluate(
     workers
         Local worker processes (``executor="process"``).
     executor
-        ``"process"`` (default), ``"ray"``, or an :class:`~agents.evaluation.executors.Executor`
-        to reuse (a sweep passes one, so its worker pool serves every grid point).
+        ``"process"`` (default) or ``"ray"``: an executor made here, started before the
+        settings are checked (its workers get ready meanwhile) and closed at the end; or
+        an :class:`~agents.evaluation.executors.Executor` to reuse across calls (left open).
     csv_path
         If given, records are appended there as they finish, and the finished episodes
         of the same run are not run again (an interrupted run resumes; failed rows are
