@@ -11,57 +11,13 @@ paper is :data:`safe_nav_env.constants.PAPER_SCENARIOS`, the risk names
 
 from __future__ import annotations
 
-from agents.evaluation.episodes import (
-    AUTO,
-    COLUMN_DOCS,
-    CYCLED_FIELDS,
-    FILTER_STATUSES,
-    KEY_FIELDS,
-    PLANNERS,
-    RECORD_FIELDS,
-    REFERENCES,
-    TIMING_FIELDS,
-    EpisodeRecord,
-    EpisodeSpec,
-    episode_key,
-    options_json,
-)
-from agents.evaluation.record_csv import RecordWriter, read_records, sort_records, write_records
-from agents.evaluation.run_keys import (
-    check_run_key,
-    file_sha256,
-    package_version,
-    run_key,
-    run_key_path,
-)
+from agents.evaluation import episodes, record_csv, run_keys
+from agents.evaluation.episodes import *  # noqa: F403 (the façade: every name of __all__)
+from agents.evaluation.record_csv import *  # noqa: F403
+from agents.evaluation.run_keys import *  # noqa: F403
 from filters.wrapper import RISKS
 from safe_nav_env.constants import PAPER_SCENARIOS
 from safe_nav_env.scenarios import SCENARIO_NAMES
 
-__all__ = [
-    "AUTO",
-    "COLUMN_DOCS",
-    "CYCLED_FIELDS",
-    "FILTER_STATUSES",
-    "KEY_FIELDS",
-    "PAPER_SCENARIOS",
-    "PLANNERS",
-    "RECORD_FIELDS",
-    "REFERENCES",
-    "RISKS",
-    "SCENARIO_NAMES",
-    "TIMING_FIELDS",
-    "EpisodeRecord",
-    "EpisodeSpec",
-    "RecordWriter",
-    "check_run_key",
-    "episode_key",
-    "file_sha256",
-    "options_json",
-    "package_version",
-    "read_records",
-    "run_key",
-    "run_key_path",
-    "sort_records",
-    "write_records",
-]
+__all__ = ["PAPER_SCENARIOS", "RISKS", "SCENARIO_NAMES"]
+__all__ += episodes.__all__ + record_csv.__all__ + run_keys.__all__
