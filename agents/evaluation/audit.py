@@ -55,7 +55,7 @@ import numpy as np
 from agents.errors import RecordsFileError
 from agents.evaluation.statistics import wilson_interval
 from filters._validation import finite_array, scalar_in_range
-from filters.risk import check_alpha, empirical_cvar
+from filters.risk import CHANCE_RISKS, check_alpha, empirical_cvar
 
 __all__ = [
     "AUDIT_TOLERANCE",
@@ -74,14 +74,8 @@ AUDIT_TOLERANCE = 1e-3
 """How close (m) the plan's step-1 position must come to a halfspace's tightest row
 for that halfspace to count as active (see the module docstring)."""
 
-PROMISES: dict[str, str] = {
-    "mean": "mean",
-    "cvar": "cvar",
-    "dr_cvar": "cvar",
-    "gaussian_cc": "chance",
-    "moment_dr": "chance",
-    "conformal": "chance",
-}
+PROMISES: dict[str, str] = {"mean": "mean", "cvar": "cvar", "dr_cvar": "cvar",
+                            **dict.fromkeys((*CHANCE_RISKS, "conformal"), "chance")}
 """What each risk promises about the loss: ``"mean"`` (E ℓ <= δ), ``"cvar"``
 (CVaR_α ℓ <= δ) or ``"chance"`` (P(ℓ > δ) <= α)."""
 

@@ -357,16 +357,11 @@ class EpisodeRecord:
         """Field by field, NaN equal to NaN (a CSV round trip keeps a record equal)."""
         if not isinstance(other, EpisodeRecord):
             return NotImplemented
-        return all(_same(getattr(self, name), getattr(other, name)) for name in RECORD_FIELDS)
+        pairs = ((getattr(self, name), getattr(other, name)) for name in RECORD_FIELDS)
+        return all(a == b or (a != a and b != b) for a, b in pairs)  # x != x: x is NaN
 
     def __hash__(self) -> int:
         return hash(self.key())
-
-
-def _same(a: Any, b: Any) -> bool:
-    if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
-        return True
-    return a == b
 
 
 RECORD_FIELDS = tuple(f.name for f in fields(EpisodeRecord))

@@ -69,10 +69,8 @@ def run_key(specs: Sequence[EpisodeSpec], *, vary: Sequence[str] = ()) -> dict[s
     InvalidParameterError
         If such a field differs between the specs.
     """
-    varying = set(CYCLED_FIELDS) | set(vary)
-    names = [name for name in KEY_FIELDS if name not in varying]
     key: dict[str, Any] = {}
-    for name in names:
+    for name in (name for name in KEY_FIELDS if name not in {*CYCLED_FIELDS, *vary}):
         values = {getattr(spec, name) for spec in specs}
         if len(values) > 1:
             raise InvalidParameterError(
@@ -121,9 +119,8 @@ def check_run_key(csv_path: str | Path, key: Mapping[str, Any]) -> None:
     except (OSError, json.JSONDecodeError) as exc:
         raise RunMismatchError(f"{key_path} is not a readable run key ({exc}); {hint}") from None
     wanted = json.loads(json.dumps(dict(key)))
-    names = sorted(set(stored) | set(wanted))
-    differ = [f"{name} {stored.get(name)!r} != {wanted.get(name)!r}" for name in names
-              if stored.get(name) != wanted.get(name)]
+    differ = [f"{name} {stored.get(name)!r} != {wanted.get(name)!r}"
+              for name in sorted({*stored, *wanted}) if stored.get(name) != wanted.get(name)]
     if differ:
         raise RunMismatchError(f"{csv_path.parent} holds a run with other settings "
                                f"({'; '.join(differ)} now); {hint}")
