@@ -44,21 +44,7 @@ def __getattr__(name: str):
     raise AttributeError(f"module 'agents' has no attribute {name!r}")
 
 
-__all__ = [
-    "AgentsError",
-    "EpisodeRecord",
-    "EpisodeSpec",
-    "MPCReferencePlanner",
-    "NumpyPolicy",
-    "PPOLagrangian",
-    "PolicyFileError",
-    "RunMismatchError",
-    "SafetyEvalCallback",
-    "SafetyMetricsCallback",
-    "evaluate",
-    "load_numpy_policy",
-    "load_ppo",
-    "run_episode",
-    "summarise",
-    "train_ppo",
-]
+__all__ = ["AgentsError", "EpisodeRecord", "EpisodeSpec", "MPCReferencePlanner", "NumpyPolicy",
+           "PPOLagrangian", "PolicyFileError", "RunMismatchError", "SafetyEvalCallback",
+           "SafetyMetricsCallback", "evaluate", "load_numpy_policy", "load_ppo", "run_episode",
+           "summarise", "train_ppo"]

@@ -57,18 +57,8 @@ from agents.evaluation.statistics import wilson_interval
 from filters._validation import finite_array, scalar_in_range
 from filters.risk import CHANCE_RISKS, check_alpha, empirical_cvar
 
-__all__ = [
-    "AUDIT_TOLERANCE",
-    "PROMISES",
-    "AuditResult",
-    "audit_losses",
-    "cluster_bootstrap",
-    "decode_losses",
-    "encode_losses",
-    "first_step_losses",
-    "weighted_cvar",
-    "weighted_mean",
-]
+__all__ = ["AUDIT_TOLERANCE", "PROMISES", "AuditResult", "audit_losses", "cluster_bootstrap",
+           "decode_losses", "encode_losses", "first_step_losses", "weighted_cvar", "weighted_mean"]
 
 AUDIT_TOLERANCE = 1e-3
 """How close (m) the plan's step-1 position must come to a halfspace's tightest row
@@ -273,9 +263,8 @@ def cluster_bootstrap(
     order = np.argsort(-values, kind="stable")
     n_groups = len(groups)
     draws = rng.integers(0, n_groups, (n_boot, n_groups))  # row b: the groups of replicate b
-    rows = np.arange(n_boot)[:, None] * n_groups
-    counts = np.bincount((rows + draws).ravel(), minlength=n_boot * n_groups).reshape(
-        n_boot, n_groups).astype(float)  # (replicates, groups): times each group was drawn
+    counts = np.zeros((n_boot, n_groups))  # (replicates, groups): times each group was drawn
+    np.add.at(counts, (np.arange(n_boot)[:, None], draws), 1.0)
     counts = counts[counts @ sizes > 0]  # replicates with no values are skipped
     replicates = statistic(values[order], owner[order], counts)
     low, high = np.quantile(replicates, [(1 - level) / 2, (1 + level) / 2])

@@ -150,13 +150,12 @@ def find_collisions(trajectory: Any, *, dt: float | None = None) -> list[Collisi
     inputs = getattr(trajectory, "inputs", None)
     step_length = float(dt if dt is not None else getattr(trajectory, "dt", 0.2))
     exact = velocities is not None and inputs is not None
+    if not exact:  # the ego on the chord between its samples
+        velocities, inputs = np.diff(ego, axis=0) / step_length, np.zeros((len(ego) - 1, 2))
     marks = []
     for i in range(obstacles.shape[1]):
         for k in range(ego.shape[0] - 1):
-            if exact:
-                v, u = np.asarray(velocities[k], float), np.asarray(inputs[k], float)
-            else:
-                v, u = (ego[k + 1] - ego[k]) / step_length, np.zeros(2)
+            v, u = np.asarray(velocities[k], dtype=float), np.asarray(inputs[k], dtype=float)
             result = step_clearance(ego[k], v, u, obstacles[k, i], obstacles[k + 1, i],
                                     radius_sum=float(radii[i]), dt=step_length)
             if result.clearance <= 0.0:

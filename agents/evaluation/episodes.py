@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from filters._validation import integer_at_least
 from filters.config import FilterConfig
 from filters.constants import ALPHA, DELTA, EPSILON
 from filters.errors import InvalidParameterError
@@ -28,21 +29,9 @@ from filters.mpc import FilterStatus
 from safe_nav_env import NOISE_PRESETS, STRESS_SUITE
 from safe_nav_env.scenarios import CUSTOM, scenario_name
 
-__all__ = [
-    "AUTO",
-    "COLUMN_DOCS",
-    "CYCLED_FIELDS",
-    "FILTER_STATUSES",
-    "KEY_FIELDS",
-    "PLANNERS",
-    "RECORD_FIELDS",
-    "REFERENCES",
-    "TIMING_FIELDS",
-    "EpisodeRecord",
-    "EpisodeSpec",
-    "episode_key",
-    "options_json",
-]
+__all__ = ["AUTO", "COLUMN_DOCS", "CYCLED_FIELDS", "FILTER_STATUSES", "KEY_FIELDS", "PLANNERS",
+           "RECORD_FIELDS", "REFERENCES", "TIMING_FIELDS", "EpisodeRecord", "EpisodeSpec",
+           "episode_key", "options_json"]
 
 PLANNERS = ("ppo", "mpc", "goal")
 """Reference planners: the shipped PPO policy, the paper's obstacle-agnostic MPC, or the
@@ -188,9 +177,7 @@ class EpisodeSpec:
             set_(self, name, getattr(config, name))
         _check_choice("planner", self.planner, PLANNERS)
         _check_choice("reference", self.reference, REFERENCES)
-        if isinstance(self.seed, bool) or not isinstance(self.seed, int | np.integer):
-            raise InvalidParameterError(f"seed must be an integer, got {self.seed!r}")
-        set_(self, "seed", int(self.seed))
+        set_(self, "seed", integer_at_least("seed", self.seed, low=0))  # as env.reset wants
         _check_choice("case", self.case, sorted(STRESS_SUITE), blank=True)
         if self.case and self.noise:
             raise InvalidParameterError(f"a stress case brings its own noise; got noise "
