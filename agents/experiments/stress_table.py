@@ -16,7 +16,7 @@ from __future__ import annotations
 import csv
 import math
 from collections import Counter
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
@@ -86,6 +86,15 @@ def _rate(count: int, n: int) -> float:
     return count / n if n else math.nan
 
 
+def _by_cell(records: Iterable[EpisodeRecord], method_of: Callable[[EpisodeRecord], tuple[str, str]]
+             ) -> dict[tuple[str, str, str], list[EpisodeRecord]]:
+    """The records by (case, planner, method name)."""
+    groups: dict[tuple[str, str, str], list[EpisodeRecord]] = {}
+    for record in records:
+        groups.setdefault((record.case, record.planner, method_of(record)[0]), []).append(record)
+    return groups
+
+
 def stress_cells(
     records: Sequence[EpisodeRecord],
     method_of: Callable[[EpisodeRecord], tuple[str, str]],
@@ -102,16 +111,11 @@ def stress_cells(
     order
         Sort key of a ``(case, planner, method)``.
     """
-    groups: dict[tuple[str, str, str], list[EpisodeRecord]] = {}
-    labels: dict[tuple[str, str, str], str] = {}
-    for record in records:
-        method, label = method_of(record)
-        key = (record.case, record.planner, method)
-        groups.setdefault(key, []).append(record)
-        labels[key] = label
+    groups = _by_cell(records, method_of)
     cells = []
     for key in sorted(groups, key=order):
-        ran = [r for r in groups[key] if not r.error]
+        group = groups[key]
+        ran = [r for r in group if not r.error]
         n = len(ran)
         collided = [r for r in ran if r.collision]
         goals = [r for r in ran if r.goal_reached]
@@ -119,7 +123,7 @@ def stress_cells(
         low, high = wilson_interval(len(collided), n)
         causes = Counter(r.collision_cause for r in collided)
         cells.append(StressCell(
-            *key, label=labels[key], episodes=len(groups[key]), failed=len(groups[key]) - n,
+            *key, label=method_of(group[-1])[1], episodes=len(group), failed=len(group) - n,
             collisions=len(collided), collision_rate=rate, collision_low=low,
             collision_high=high, goal_rate=goal_rate,
             time_to_goal=float(np.mean([r.time_to_goal for r in goals])) if goals else math.nan,
@@ -177,10 +181,7 @@ def explain_collisions(
     from the first infeasible step to the collision, and the status transitions
     ``before -> at`` the collision with their counts.
     """
-    collided: dict[tuple[str, str, str], list[EpisodeRecord]] = {}
-    for r in records:
-        if r.collision and not r.error:
-            collided.setdefault((r.case, r.planner, method_of(r)[0]), []).append(r)
+    collided = _by_cell((r for r in records if r.collision and not r.error), method_of)
     out = []
     for case in dict.fromkeys(c.case for c in cells):
         rows = []
