@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from scipy.optimize import brentq
 
 from filters._validation import finite_array, scalar_in_range
 from filters.errors import InvalidArrayError
@@ -97,21 +98,15 @@ def step_clearance(
     closest = candidates[best]
     clearance = math.sqrt(max(values[best], 0.0)) - radius_sum
     contact = math.nan
-    if clearance <= 0.0:  # the first root of ||.||² = radius_sum² up to the closest approach
-        shifted = quartic - [0.0, 0.0, 0.0, 0.0, radius_sum**2]
-        roots = [0.0] if shifted[-1] <= 0.0 else [
-            float(r.real) for r in _roots(shifted)
-            if abs(r.imag) < 1e-7 and -1e-12 <= r.real <= closest + 1e-12]
-        contact = min(roots) if roots else closest
+    if clearance <= 0.0:  # the first root of ||.||² = radius_sum², bracketed: between two
+        # successive candidates up to the closest approach ||.||² is monotone
+        def excess(t: float) -> float:
+            return float(np.polyval(quartic, t)) - radius_sum**2
+
+        ends = sorted(t for t in candidates if t <= closest)
+        j = next(i for i, t in enumerate(ends) if excess(t) <= 0.0)
+        contact = ends[0] if j == 0 else brentq(excess, ends[j - 1], ends[j], xtol=1e-15)
     return StepClearance(clearance=clearance, closest=closest * dt, contact=contact * dt)
-
-
-def _roots(coefficients: np.ndarray) -> np.ndarray:
-    """Roots of a polynomial whose negligible leading coefficients (1e-14 relative) are 0."""
-    scale = np.max(np.abs(coefficients))
-    trimmed = np.trim_zeros(np.where(np.abs(coefficients) <= 1e-14 * scale, 0.0, coefficients),
-                            "f")
-    return np.roots(trimmed) if trimmed.size > 1 else np.zeros(0)
 
 
 @dataclass(frozen=True)
