@@ -179,13 +179,10 @@ class EpisodeSpec:
         _check_choice("reference", self.reference, REFERENCES)
         set_(self, "seed", integer_at_least("seed", self.seed, low=0))  # as env.reset wants
         _check_choice("case", self.case, sorted(STRESS_SUITE), blank=True)
-        if self.case and self.noise:
-            raise InvalidParameterError(f"a stress case brings its own noise; got noise "
-                                        f"{self.noise!r} with case {self.case!r}")
-        if self.case and self.scenario != CUSTOM:
+        if self.case and (self.noise or self.scenario != CUSTOM):
             raise InvalidParameterError(
-                f"a stress case runs on the scenario {CUSTOM!r}, got scenario "
-                f"{self.scenario!r} with case {self.case!r}")
+                f"a stress case runs on the scenario {CUSTOM!r} and brings its own noise, got "
+                f"scenario {self.scenario!r} and noise {self.noise!r} with case {self.case!r}")
         _check_choice("noise", self.noise, sorted(NOISE_PRESETS), blank=True)
         set_(self, "policy_path", str(self.policy_path or ""))
         if self.planner != "ppo" and self.policy_path:  # it would be silently ignored
