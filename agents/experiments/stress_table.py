@@ -34,6 +34,12 @@ TARGET_COLLISION_RATE = 0.01
 TARGET_GOAL_RATE = 0.95
 """... and at least this share reaching the goal."""
 
+_Cell = tuple[str, str, str]
+"""A stress cell's (case, planner, method name)."""
+
+_MethodOf = Callable[[EpisodeRecord], tuple[str, str]]
+"""``record -> (method name, label)`` of the caller (:mod:`agents.experiments.stress`)."""
+
 
 @dataclass(frozen=True)
 class StressCell:
@@ -86,10 +92,10 @@ def _rate(count: int, n: int) -> float:
     return count / n if n else math.nan
 
 
-def _by_cell(records: Iterable[EpisodeRecord], method_of: Callable[[EpisodeRecord], tuple[str, str]]
-             ) -> dict[tuple[str, str, str], list[EpisodeRecord]]:
+def _by_cell(records: Iterable[EpisodeRecord],
+             method_of: _MethodOf) -> dict[_Cell, list[EpisodeRecord]]:
     """The records by (case, planner, method name)."""
-    groups: dict[tuple[str, str, str], list[EpisodeRecord]] = {}
+    groups: dict[_Cell, list[EpisodeRecord]] = {}
     for record in records:
         groups.setdefault((record.case, record.planner, method_of(record)[0]), []).append(record)
     return groups
@@ -97,8 +103,8 @@ def _by_cell(records: Iterable[EpisodeRecord], method_of: Callable[[EpisodeRecor
 
 def stress_cells(
     records: Sequence[EpisodeRecord],
-    method_of: Callable[[EpisodeRecord], tuple[str, str]],
-    order: Callable[[tuple[str, str, str]], tuple],
+    method_of: _MethodOf,
+    order: Callable[[_Cell], tuple],
 ) -> list[StressCell]:
     """One :class:`StressCell` per (case, planner, method), sorted by ``order``.
 
@@ -171,7 +177,7 @@ def overview_table(cells: Sequence[StressCell]) -> str:
 def explain_collisions(
     records: Sequence[EpisodeRecord],
     cells: Sequence[StressCell],
-    method_of: Callable[[EpisodeRecord], tuple[str, str]],
+    method_of: _MethodOf,
 ) -> str:
     """Per case, the cells with collisions and why they happened (Markdown).
 
