@@ -87,8 +87,7 @@ def run_key(specs: Sequence[EpisodeSpec], *, vary: Sequence[str] = ()) -> dict[s
 
 def run_key_path(csv_path: str | Path) -> Path:
     """Where the run key of a results CSV is kept: ``episodes.csv`` -> ``episodes.run.json``."""
-    csv_path = Path(csv_path)
-    return csv_path.with_name(csv_path.stem + ".run.json")
+    return Path(csv_path).with_suffix(".run.json")
 
 
 def check_run_key(csv_path: str | Path, key: Mapping[str, Any]) -> None:
@@ -104,10 +103,9 @@ def check_run_key(csv_path: str | Path, key: Mapping[str, Any]) -> None:
     """
     csv_path = Path(csv_path)
     key_path = run_key_path(csv_path)
-    has_rows = csv_path.exists() and csv_path.stat().st_size > 0
     hint = "choose another output folder (--output), or discard it (--overwrite)"
     if not key_path.exists():
-        if has_rows:
+        if csv_path.exists() and csv_path.stat().st_size > 0:  # rows of an unknown run
             raise RunMismatchError(f"{csv_path} holds results but no run key {key_path.name} "
                                    f"(an older safe-nav wrote it?), so they cannot be reused; "
                                    f"{hint}")
