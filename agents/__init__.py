@@ -30,15 +30,13 @@ _LAZY = {
     "SafetyMetricsCallback": "agents.training.callbacks",
     "SafetyEvalCallback": "agents.training.callbacks",
     "PPOLagrangian": "agents.training.lagrangian",
+    "TorchActorPolicy": "agents.policies.numpy_policy",  # deprecated alias: warns
 }
-"""Names whose modules import Stable-Baselines3 (and torch): loaded on first access."""
+"""Names loaded on first access: modules that import Stable-Baselines3 (and torch), and
+the deprecated alias ``TorchActorPolicy`` of :class:`NumpyPolicy` (its access warns)."""
 
 
 def __getattr__(name: str):
-    if name == "TorchActorPolicy":  # deprecated alias of NumpyPolicy: warns
-        from agents.policies import numpy_policy
-
-        return numpy_policy.__getattr__(name)
     if name in _LAZY:
         import importlib
 
@@ -46,21 +44,7 @@ def __getattr__(name: str):
     raise AttributeError(f"module 'agents' has no attribute {name!r}")
 
 
-__all__ = [
-    "AgentsError",
-    "EpisodeRecord",
-    "EpisodeSpec",
-    "MPCReferencePlanner",
-    "NumpyPolicy",
-    "PPOLagrangian",
-    "PolicyFileError",
-    "RunMismatchError",
-    "SafetyEvalCallback",
-    "SafetyMetricsCallback",
-    "evaluate",
-    "load_numpy_policy",
-    "load_ppo",
-    "run_episode",
-    "summarise",
-    "train_ppo",
-]
+__all__ = ["AgentsError", "EpisodeRecord", "EpisodeSpec", "MPCReferencePlanner", "NumpyPolicy",
+           "PPOLagrangian", "PolicyFileError", "RunMismatchError", "SafetyEvalCallback",
+           "SafetyMetricsCallback", "evaluate", "load_numpy_policy", "load_ppo", "run_episode",
+           "summarise", "train_ppo"]

@@ -58,6 +58,8 @@ def finite_array(
 def scalar_in_range(name: str, value: object, *, low: float = -np.inf, high: float = np.inf,
                     low_inclusive: bool = True, high_inclusive: bool = True) -> float:
     """Return ``value`` as a float inside the given interval, or raise ``InvalidParameterError``."""
+    if isinstance(value, bool | np.bool_ | str | bytes):  # float() would take True, "0.1"
+        raise InvalidParameterError(f"{name} must be a real number, got {value!r}")
     try:
         number = float(value)  # type: ignore[arg-type]
     except (TypeError, ValueError) as exc:

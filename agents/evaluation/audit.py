@@ -53,34 +53,19 @@ from dataclasses import dataclass
 import numpy as np
 
 from agents.errors import RecordsFileError
-from filters.errors import InvalidArrayError, InvalidParameterError
-from filters.risk import empirical_cvar
+from agents.evaluation.statistics import wilson_interval
+from filters._validation import finite_array, scalar_in_range
+from filters.risk import CHANCE_RISKS, check_alpha, empirical_cvar
 
-__all__ = [
-    "AUDIT_TOLERANCE",
-    "PROMISES",
-    "AuditResult",
-    "audit_losses",
-    "cluster_bootstrap",
-    "decode_losses",
-    "encode_losses",
-    "first_step_losses",
-    "weighted_cvar",
-    "weighted_mean",
-]
+__all__ = ["AUDIT_TOLERANCE", "PROMISES", "AuditResult", "audit_losses", "cluster_bootstrap",
+           "decode_losses", "encode_losses", "first_step_losses", "weighted_cvar", "weighted_mean"]
 
 AUDIT_TOLERANCE = 1e-3
 """How close (m) the plan's step-1 position must come to a halfspace's tightest row
 for that halfspace to count as active (see the module docstring)."""
 
-PROMISES: dict[str, str] = {
-    "mean": "mean",
-    "cvar": "cvar",
-    "dr_cvar": "cvar",
-    "gaussian_cc": "chance",
-    "moment_dr": "chance",
-    "conformal": "chance",
-}
+PROMISES: dict[str, str] = {"mean": "mean", "cvar": "cvar", "dr_cvar": "cvar",
+                            **dict.fromkeys((*CHANCE_RISKS, "conformal"), "chance")}
 """What each risk promises about the loss: ``"mean"`` (E ℓ <= δ), ``"cvar"``
 (CVaR_α ℓ <= δ) or ``"chance"`` (P(ℓ > δ) <= α)."""
 
@@ -131,27 +116,15 @@ def first_step_losses(
     InvalidParameterError
         If ``tolerance`` is negative or not finite.
     """
-    h = np.asarray(normals, dtype=float)
-    b = np.asarray(offsets, dtype=float)
-    y = np.asarray(planned_position, dtype=float)
-    p = np.asarray(realised_positions, dtype=float)
-    r = np.asarray(radii, dtype=float)
-    if h.ndim != 2:
-        raise InvalidArrayError(f"normals must have shape (k, d), got {h.shape}")
+    h = finite_array("normals", normals, ndim=2)
     k, d = h.shape
-    for name, array, shape in (("offsets", b, (k,)), ("planned_position", y, (d,)),
-                               ("realised_positions", p, (k, d)), ("radii", r, (k,))):
-        if array.shape != shape:
-            raise InvalidArrayError(f"{name} must have shape {shape} (normals are {h.shape}), "
-                                    f"got {array.shape}")
-    m = np.broadcast_to(np.asarray(margins, dtype=float), (k,))
-    for name, array in (("normals", h), ("offsets", b), ("planned_position", y),
-                        ("realised_positions", p), ("radii", r), ("margins", m)):
-        if not np.all(np.isfinite(array)):
-            raise InvalidArrayError(f"{name} must be finite, got {array}")
-    if isinstance(tolerance, bool) or not (math.isfinite(tolerance) and tolerance >= 0.0):
-        raise InvalidParameterError(f"tolerance must be a finite number >= 0 (m), "
-                                    f"got {tolerance!r}")
+    b = finite_array("offsets", offsets, shape=(k,))
+    y = finite_array("planned_position", planned_position, shape=(d,))
+    p = finite_array("realised_positions", realised_positions, shape=(k, d))
+    r = finite_array("radii", radii, shape=(k,))
+    m = finite_array("margins", np.broadcast_to(np.asarray(margins, dtype=float), (k,)))
+    tolerance = scalar_in_range("tolerance", tolerance, low=0.0, high=np.inf,
+                                high_inclusive=False)
     active = b - h @ y <= m + tolerance
     losses = b + r - np.einsum("kd,kd->k", h, p)
     return active, losses
@@ -203,12 +176,9 @@ class AuditResult:
         """
         if self.n == 0:
             return "-"
-        if promise == "chance":
-            value, bound, low = self.violation_rate, self.alpha, self.violation_low
-        elif promise == "mean":
-            value, bound, low = self.mean_loss, self.delta, self.mean_low
-        else:
-            value, bound, low = self.cvar_loss, self.delta, self.cvar_low
+        value, bound, low = {"chance": (self.violation_rate, self.alpha, self.violation_low),
+                             "mean": (self.mean_loss, self.delta, self.mean_low)}.get(
+            promise, (self.cvar_loss, self.delta, self.cvar_low))
         if value <= bound:
             return "held"
         return "within noise" if not math.isnan(low) and low <= bound else "violated"
@@ -293,9 +263,8 @@ def cluster_bootstrap(
     order = np.argsort(-values, kind="stable")
     n_groups = len(groups)
     draws = rng.integers(0, n_groups, (n_boot, n_groups))  # row b: the groups of replicate b
-    rows = np.arange(n_boot)[:, None] * n_groups
-    counts = np.bincount((rows + draws).ravel(), minlength=n_boot * n_groups).reshape(
-        n_boot, n_groups).astype(float)  # (replicates, groups): times each group was drawn
+    counts = np.zeros((n_boot, n_groups))  # (replicates, groups): times each group was drawn
+    np.add.at(counts, (np.arange(n_boot)[:, None], draws), 1.0)
     counts = counts[counts @ sizes > 0]  # replicates with no values are skipped
     replicates = statistic(values[order], owner[order], counts)
     low, high = np.quantile(replicates, [(1 - level) / 2, (1 + level) / 2])
@@ -328,32 +297,24 @@ def audit_losses(losses: Sequence[float] | np.ndarray, *, alpha: float,
     InvalidParameterError
         If ``alpha`` is outside (0, 1] or ``delta`` is not finite.
     """
-    from agents.evaluation.statistics import wilson_interval
-
     if groups is not None:
         groups = [np.asarray(g, dtype=float).reshape(-1) for g in groups]
         losses = np.concatenate(groups) if groups else np.zeros(0)
-    x = np.asarray(losses, dtype=float).reshape(-1)
-    if not np.all(np.isfinite(x)):
-        raise InvalidArrayError("losses must be finite")
-    if isinstance(alpha, bool) or not 0.0 < float(alpha) <= 1.0:
-        raise InvalidParameterError(f"alpha must lie in (0, 1], got {alpha!r}")
-    if isinstance(delta, bool) or not math.isfinite(float(delta)):
-        raise InvalidParameterError(f"delta must be a finite number (m), got {delta!r}")
+    x = finite_array("losses", losses).reshape(-1)
+    alpha = check_alpha(alpha)
+    delta = scalar_in_range("delta", delta)  # in m, finite
     n = int(x.size)
     violations = int(np.count_nonzero(x > delta))
     low, high = wilson_interval(violations, n)
     intervals: dict[str, float] = {}
     if groups is not None and n:
-        intervals["mean_low"], intervals["mean_high"] = cluster_bootstrap(
-            groups, weighted_mean, n_boot=n_boot, seed=seed)
-        intervals["cvar_low"], intervals["cvar_high"] = cluster_bootstrap(
-            groups, functools.partial(weighted_cvar, alpha=float(alpha)), n_boot=n_boot,
-            seed=seed)
+        for name, statistic in (("mean", weighted_mean),
+                                ("cvar", functools.partial(weighted_cvar, alpha=alpha))):
+            intervals[f"{name}_low"], intervals[f"{name}_high"] = cluster_bootstrap(
+                groups, statistic, n_boot=n_boot, seed=seed)
     return AuditResult(
-        n=n, alpha=float(alpha), delta=float(delta),
-        mean_loss=float(x.mean()) if n else math.nan,
-        cvar_loss=float(empirical_cvar(x, float(alpha))) if n else math.nan,
+        n=n, alpha=alpha, delta=delta, mean_loss=float(x.mean()) if n else math.nan,
+        cvar_loss=float(empirical_cvar(x, alpha)) if n else math.nan,
         violations=violations,
         violation_rate=violations / n if n else math.nan,
         violation_low=low, violation_high=high, **intervals,
@@ -361,14 +322,12 @@ def audit_losses(losses: Sequence[float] | np.ndarray, *, alpha: float,
 
 
 def encode_losses(losses: Iterable[float]) -> str:
-    """Losses as the records' ``audit_losses`` text: ``";"``-separated, rounded to 0.1 mm."""
-    return ";".join(_short(f"{float(v):.{_DECIMALS}f}") for v in losses)
+    """Losses as the records' ``audit_losses`` text: ``";"``-separated, rounded to 0.1 mm.
 
-
-def _short(text: str) -> str:
-    """``"0.1000"`` -> ``"0.1"``, ``"-0.0000"`` -> ``"0"``."""
-    text = text.rstrip("0").rstrip(".") if "." in text else text
-    return "0" if text in ("-0", "") else text
+    Trailing zeros are dropped and ``-0`` is written ``0``: ``0.1000`` -> ``0.1``.
+    """
+    texts = (f"{float(v):.{_DECIMALS}f}".rstrip("0").rstrip(".") for v in losses)
+    return ";".join("0" if text == "-0" else text for text in texts)
 
 
 def decode_losses(text: str) -> np.ndarray:

@@ -14,8 +14,11 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from scipy.optimize import brentq
 
-from filters.errors import InvalidArrayError, InvalidParameterError
+from filters._validation import finite_array, scalar_in_range
+from filters.errors import InvalidArrayError
+from safe_nav_env.collision import real_cubic_roots
 
 __all__ = ["CollisionMark", "StepClearance", "find_collisions", "step_clearance"]
 
@@ -77,45 +80,33 @@ def step_clearance(
     InvalidParameterError
         If ``dt <= 0`` or ``radius_sum < 0``.
     """
-    vectors = [np.asarray(v, dtype=float) for v in
-               (ego_position, ego_velocity, ego_input, obstacle_start, obstacle_end)]
-    if not all(np.all(np.isfinite(v)) for v in vectors):
-        raise InvalidArrayError(f"step_clearance needs finite vectors, got {vectors}")
-    if not (math.isfinite(dt) and dt > 0):
-        raise InvalidParameterError(f"dt must be finite and > 0 (s), got {dt!r}")
-    if not (math.isfinite(radius_sum) and radius_sum >= 0):
-        raise InvalidParameterError(f"radius_sum must be finite and >= 0 (m), got {radius_sum!r}")
-    p, v, u, q0, q1 = vectors
-    d0, d1, d2 = p - q0, v - (q1 - q0) / dt, 0.5 * u
-    # ||d0 + d1 s + d2 s²||² = c4 s⁴ + c3 s³ + c2 s² + c1 s + c0
-    quartic = np.array([d2 @ d2, 2 * d1 @ d2, d1 @ d1 + 2 * d0 @ d2, 2 * d0 @ d1, d0 @ d0])
-    derivative = np.polyder(quartic)
-    candidates = [0.0, dt] + [float(r.real) for r in _roots(derivative)
-                              if abs(r.imag) < 1e-9 and 0.0 < r.real < dt]
-    values = [np.polyval(quartic, s) for s in candidates]
+    p, v, u, q0, q1 = (finite_array(name, value, ndim=1) for name, value in (
+        ("ego_position", ego_position), ("ego_velocity", ego_velocity), ("ego_input", ego_input),
+        ("obstacle_start", obstacle_start), ("obstacle_end", obstacle_end)))
+    dt = scalar_in_range("dt", dt, low=0.0, high=np.inf, low_inclusive=False,
+                         high_inclusive=False)
+    radius_sum = scalar_in_range("radius_sum", radius_sum, low=0.0, high=np.inf,
+                                 high_inclusive=False)
+    # In the normalised time tau = s / dt (as safe_nav_env.collision.swept_clearance):
+    # ||d0 + tau w + tau² c||² = c4 tau⁴ + c3 tau³ + c2 tau² + c1 tau + c0
+    d0, w, c = p - q0, dt * v - (q1 - q0), 0.5 * dt * dt * u
+    quartic = np.array([c @ c, 2 * w @ c, w @ w + 2 * d0 @ c, 2 * d0 @ w, d0 @ d0])
+    stationary = real_cubic_roots(*(quartic[:4] * [2.0, 1.5, 1.0, 0.5]))  # half the derivative
+    candidates = [0.0, 1.0] + [t for t in stationary if 0.0 < t < 1.0]
+    values = [np.polyval(quartic, t) for t in candidates]
     best = int(np.argmin(values))
     closest = candidates[best]
     clearance = math.sqrt(max(values[best], 0.0)) - radius_sum
     contact = math.nan
-    if clearance <= 0.0:
-        if np.polyval(quartic, 0.0) <= radius_sum**2:
-            contact = 0.0
-        else:
-            shifted = quartic.copy()
-            shifted[-1] -= radius_sum**2
-            roots = [float(r.real) for r in _roots(shifted)
-                     if abs(r.imag) < 1e-7 and -1e-12 <= r.real <= closest + 1e-12]
-            contact = min(roots) if roots else closest
-    return StepClearance(clearance=clearance, closest=closest, contact=contact)
+    if clearance <= 0.0:  # the first root of ||.||² = radius_sum², bracketed: between two
+        # successive candidates up to the closest approach ||.||² is monotone
+        def excess(t: float) -> float:
+            return float(np.polyval(quartic, t)) - radius_sum**2
 
-
-def _roots(coefficients: np.ndarray) -> np.ndarray:
-    scale = np.max(np.abs(coefficients))
-    if scale == 0.0:
-        return np.zeros(0)
-    trimmed = np.trim_zeros(np.where(np.abs(coefficients) <= 1e-14 * scale, 0.0, coefficients),
-                            "f")
-    return np.roots(trimmed) if trimmed.size > 1 else np.zeros(0)
+        ends = sorted(t for t in candidates if t <= closest)
+        j = next(i for i, t in enumerate(ends) if excess(t) <= 0.0)
+        contact = ends[0] if j == 0 else brentq(excess, ends[j - 1], ends[j], xtol=1e-15)
+    return StepClearance(clearance=clearance, closest=closest * dt, contact=contact * dt)
 
 
 @dataclass(frozen=True)
@@ -154,13 +145,12 @@ def find_collisions(trajectory: Any, *, dt: float | None = None) -> list[Collisi
     inputs = getattr(trajectory, "inputs", None)
     step_length = float(dt if dt is not None else getattr(trajectory, "dt", 0.2))
     exact = velocities is not None and inputs is not None
+    if not exact:  # the ego on the chord between its samples
+        velocities, inputs = np.diff(ego, axis=0) / step_length, np.zeros((len(ego) - 1, 2))
     marks = []
     for i in range(obstacles.shape[1]):
         for k in range(ego.shape[0] - 1):
-            if exact:
-                v, u = np.asarray(velocities[k], float), np.asarray(inputs[k], float)
-            else:
-                v, u = (ego[k + 1] - ego[k]) / step_length, np.zeros(2)
+            v, u = np.asarray(velocities[k], dtype=float), np.asarray(inputs[k], dtype=float)
             result = step_clearance(ego[k], v, u, obstacles[k, i], obstacles[k + 1, i],
                                     radius_sum=float(radii[i]), dt=step_length)
             if result.clearance <= 0.0:

@@ -15,32 +15,23 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Mapping
-from dataclasses import dataclass, fields
+from collections.abc import Mapping, Sequence
+from dataclasses import MISSING, dataclass, field, fields
 from typing import Any
 
 import numpy as np
 
+from filters._validation import integer_at_least
 from filters.config import FilterConfig
 from filters.constants import ALPHA, DELTA, EPSILON
 from filters.errors import InvalidParameterError
 from filters.mpc import FilterStatus
+from safe_nav_env import NOISE_PRESETS, STRESS_SUITE
 from safe_nav_env.scenarios import CUSTOM, scenario_name
 
-__all__ = [
-    "AUTO",
-    "CYCLED_FIELDS",
-    "FILTER_STATUSES",
-    "KEY_FIELDS",
-    "PLANNERS",
-    "RECORD_FIELDS",
-    "REFERENCES",
-    "TIMING_FIELDS",
-    "EpisodeRecord",
-    "EpisodeSpec",
-    "episode_key",
-    "options_json",
-]
+__all__ = ["AUTO", "COLUMN_DOCS", "CYCLED_FIELDS", "FILTER_STATUSES", "KEY_FIELDS", "PLANNERS",
+           "RECORD_FIELDS", "REFERENCES", "TIMING_FIELDS", "EpisodeRecord", "EpisodeSpec",
+           "episode_key", "options_json"]
 
 PLANNERS = ("ppo", "mpc", "goal")
 """Reference planners: the shipped PPO policy, the paper's obstacle-agnostic MPC, or the
@@ -71,46 +62,51 @@ def options_json(options: Mapping[str, Any] | str | None, name: str = "options")
         ``None`` or a (nested) list or string-keyed mapping of them (e.g. the
         ``scenario`` of ``"Custom"``).
     """
-    if options is None or options == "":
-        return ""
-    if isinstance(options, str):
+    if isinstance(options, str) and options:
         try:
             options = json.loads(options)
         except json.JSONDecodeError as exc:
             raise InvalidParameterError(f"{name} must be a JSON object, got {options!r}") from exc
+    if options is None or options == "":
+        return ""
     if not isinstance(options, Mapping):
         raise InvalidParameterError(f"{name} must be a mapping of settings, got {options!r}")
-    if not options:
-        return ""
 
     def plain(value: Any, path: str) -> Any:
-        if isinstance(value, np.ndarray):
+        if isinstance(value, np.ndarray | np.generic):
             value = value.tolist()
         if isinstance(value, tuple | list):
             return [plain(v, f"{path}[{i}]") for i, v in enumerate(value)]
-        if isinstance(value, Mapping) and all(isinstance(key, str) for key in value):
+        if isinstance(value, Mapping):
+            if bad := [key for key in value if not isinstance(key, str)]:
+                raise InvalidParameterError(f"{path} keys must be strings, got {bad[0]!r}")
             return {key: plain(v, f"{path}[{key!r}]") for key, v in value.items()}
-        if isinstance(value, np.generic):
-            value = value.item()
-        if value is None or isinstance(value, bool | str):
-            return value
-        if isinstance(value, int | float):
-            if not math.isfinite(value):
-                raise InvalidParameterError(f"{path} must be finite, got {value!r}")
+        if isinstance(value, float) and not math.isfinite(value):
+            raise InvalidParameterError(f"{path} must be finite, got {value!r}")
+        if value is None or isinstance(value, bool | str | int | float):
             return value
         raise InvalidParameterError(
             f"{path} must be a number, string, bool, None or a list or mapping of them "
             f"(recorded in the CSV), got {value!r}")
 
-    for key in options:
-        if not isinstance(key, str):
-            raise InvalidParameterError(f"{name} keys must be strings, got {key!r}")
-    plain_options = {key: plain(value, f"{name}[{key!r}]") for key, value in options.items()}
-    return json.dumps(plain_options, sort_keys=True, separators=(",", ":"))
+    plain_options = plain(options, name)
+    return json.dumps(plain_options, sort_keys=True, separators=(",", ":")) if plain_options else ""
 
 
 def _options_dict(text: str) -> dict[str, Any]:
     return json.loads(text) if text else {}
+
+
+def _check_choice(name: str, value: Any, choices: Sequence[str], blank: bool = False) -> None:
+    """Raise unless ``value`` is one of ``choices`` (or ``""`` when ``blank``)."""
+    if value not in choices and not (blank and value == ""):
+        either = "'' or one of" if blank else "one of"
+        raise InvalidParameterError(f"{name} must be {either} {choices}, got {value!r}")
+
+
+def _column(unit: str, meaning: str, default: Any = MISSING) -> Any:
+    """A record field and its CSV column's unit and meaning (:data:`COLUMN_DOCS`)."""
+    return field(default=default, metadata={"unit": unit, "meaning": meaning})
 
 
 @dataclass(frozen=True)
@@ -177,45 +173,25 @@ class EpisodeSpec:
         set_(self, "scenario", scenario_name(self.scenario))
         config = FilterConfig(risk=self.risk, alpha=self.alpha, delta=self.delta,
                               epsilon=self.epsilon)  # the filter's own checks
-        if self.planner not in PLANNERS:
-            raise InvalidParameterError(f"planner must be one of {PLANNERS}, got {self.planner!r}")
-        if self.reference not in REFERENCES:
-            raise InvalidParameterError(
-                f"reference must be one of {REFERENCES}, got {self.reference!r}")
-        if isinstance(self.seed, bool) or not isinstance(self.seed, int | np.integer):
-            raise InvalidParameterError(f"seed must be an integer, got {self.seed!r}")
-        set_(self, "seed", int(self.seed))
         for name in ("alpha", "delta", "epsilon"):
             set_(self, name, getattr(config, name))
-        if self.case:
-            from safe_nav_env.stress import STRESS_SUITE
-
-            if self.case not in STRESS_SUITE:
-                raise InvalidParameterError(
-                    f"case must be '' or one of {sorted(STRESS_SUITE)}, got {self.case!r}")
-            if self.noise:
-                raise InvalidParameterError(
-                    f"a stress case brings its own noise; got noise {self.noise!r} with case "
-                    f"{self.case!r}")
-            if self.scenario != CUSTOM:
-                raise InvalidParameterError(
-                    f"a stress case runs on the scenario {CUSTOM!r}, got scenario "
-                    f"{self.scenario!r} with case {self.case!r}")
-        if self.noise:
-            from safe_nav_env import NOISE_PRESETS
-
-            if self.noise not in NOISE_PRESETS:
-                raise InvalidParameterError(
-                    f"noise must be '' or one of {sorted(NOISE_PRESETS)}, got {self.noise!r}")
+        _check_choice("planner", self.planner, PLANNERS)
+        _check_choice("reference", self.reference, REFERENCES)
+        set_(self, "seed", integer_at_least("seed", self.seed, low=0))  # as env.reset wants
+        _check_choice("case", self.case, sorted(STRESS_SUITE), blank=True)
+        if self.case and (self.noise or self.scenario != CUSTOM):
+            raise InvalidParameterError(
+                f"a stress case runs on the scenario {CUSTOM!r} and brings its own noise, got "
+                f"scenario {self.scenario!r} and noise {self.noise!r} with case {self.case!r}")
+        _check_choice("noise", self.noise, sorted(NOISE_PRESETS), blank=True)
         set_(self, "policy_path", str(self.policy_path or ""))
         if self.planner != "ppo" and self.policy_path:  # it would be silently ignored
             raise InvalidParameterError(
                 f"planner {self.planner!r} uses no policy file, got policy_path "
                 f"{self.policy_path!r} (--policy): drop it, or use planner 'ppo'")
         set_(self, "filter_options", options_json(self.filter_options, "filter_options"))
-        clash = sorted({"risk", "alpha", "delta", "epsilon"} & set(_options_dict(
-            self.filter_options)))
-        if clash:  # filter_kwargs() would silently replace them by the fields
+        if clash := sorted({"risk", "alpha", "delta", "epsilon"} & set(_options_dict(
+                self.filter_options))):  # filter_kwargs() would silently replace them
             raise InvalidParameterError(
                 f"filter_options must not set {clash} (fields of the episode), got "
                 f"filter_options {self.filter_options}")
@@ -232,11 +208,8 @@ class EpisodeSpec:
 
     def env_kwargs(self) -> dict[str, Any]:
         """Keywords of ``gym.make`` (the noise preset and the stress case included)."""
-        kwargs = _options_dict(self.env_options)
-        if self.case:
-            from safe_nav_env.stress import STRESS_SUITE
-
-            kwargs = {**STRESS_SUITE[self.case].env_kwargs(), **kwargs}
+        kwargs = {**(STRESS_SUITE[self.case].env_kwargs() if self.case else {}),
+                  **_options_dict(self.env_options)}
         if self.noise:
             kwargs.setdefault("noise", self.noise)
         return kwargs
@@ -253,124 +226,112 @@ class EpisodeRecord:
     Distances are in m, times in s, interventions in m/s². Collisions are in
     continuous time (``info["collision"]``: the exact clearance over each step);
     the ``sampled_*`` columns count them at the sample instants only, as the paper does.
+    Each field is a CSV column, in order; its unit and meaning are in the field's
+    metadata (:data:`COLUMN_DOCS`, the docs' glossary). Further notes:
 
-    Attributes
-    ----------
-    scenario, risk, seed, planner, reference, alpha, delta, epsilon, noise, case
-        The episode's :class:`EpisodeSpec`.
-    filter_options, env_options
-        Further filter and environment settings, as canonical JSON.
-    policy, policy_sha256
-        The PPO policy file that ran and the SHA-256 of its content (empty for the MPC).
-    version
-        Version of the safe-nav package that ran the episode.
-    steps
-        Environment steps.
-    collision, collision_steps, first_collision_step
-        Whether, how many steps and at which step (1-based, 0: none) the ego collided
-        in continuous time.
     collision_cause
-        For a collided episode: ``"fallback"`` if a step within the two steps before
-        the first collision (or that step itself) had a filter status other than
-        ``"optimal"``/``"passthrough"``; else ``"inter_sample"`` if that first collision
-        is between samples only (no sampled collision at that step); else ``"noise"``
-        (the obstacles' noise went beyond the filter's margin). Empty otherwise.
-    first_infeasible_step
-        The first step (1-based) whose hard filter problem had no solution, i.e. whose
-        status is a fallback (``soft``, ``recovery``, ``shifted``, ``brake``, ``error``);
-        0 if none.
-    status_before_collision, status_at_collision
-        For a collided episode, the filter status at the step before the first
-        collision (empty if the collision is in step 1) and at that step; else empty.
+        ``"fallback"`` if a step within the two steps before the first collision (or
+        that step itself) had a filter status other than ``"optimal"``/``"passthrough"``;
+        else ``"inter_sample"`` if that first collision is between samples only; else
+        ``"noise"`` (the obstacles' noise went beyond the filter's margin).
     standing_collision
-        Whether the first collision happened with the ego standing still (speed below
-        0.1 m/s over the whole step): on recorded data, someone walked into it.
-    sampled_collision, sampled_collision_steps
-        The same at the sample instants only.
-    min_distance, min_swept_distance
-        Smallest clearance to any obstacle at the sample instants, and over the
-        whole continuous-time path (NaN if the environment does not report it).
-    discomfort_steps
-        Steps whose sampled clearance to some obstacle was below the environment's
-        discomfort distance (``info["discomfort"]``: 0.2 m in ``SafeNav/Crowd-v0``;
-        always 0 where the environment does not report it).
-    goal_reached, time_to_goal, path_length, episode_return
-        Goal reached, when (s), the ego's path length (m) and the summed reward.
-    mean_intervention, max_intervention
-        :math:`\\|u_{applied} - u_{proposed}\\|` over the steps, in m/s².
-    statuses
-        Filter status counts, e.g. ``"optimal:38;soft:2"``.
-    share_optimal, share_soft, share_recovery, share_shifted, share_brake, share_error
-        Share of the steps with each filter status.
-    fallback_steps
-        Steps with the paper's fallbacks ``"shifted"`` or ``"brake"``.
-    first_error
-        The first step's reason for braking on bad data (``"step 3: NaN action"``).
-    filter_time_median, filter_time_max, wall_time
-        Filter step times and the episode's wall time, in s.
-    audit_steps, audit_losses
-        The guarantee audit (:mod:`agents.evaluation.audit`): the number of active first-step
-        halfspaces (obstacle-steps) and their realised losses, in m, as
-        ``";"``-separated numbers rounded to 0.1 mm (pooling over episodes needs every
-        loss, since a CVaR is not a sum). Empty when no filter ran.
-    audit_all_steps, audit_all_losses
-        The same over *every* first-step halfspace, active or not.
-    error
-        Why the episode failed (an exception), else ``""``.
+        On recorded data: someone walked into the standing ego.
+    audit_steps, audit_losses, audit_all_steps, audit_all_losses
+        The guarantee audit (:mod:`agents.evaluation.audit`); pooling over episodes
+        needs every loss, since a CVaR is not a sum. Empty when no filter ran.
     """
 
-    scenario: str
-    risk: str
-    seed: int
-    planner: str
-    reference: str
-    alpha: float
-    delta: float
-    epsilon: float | str
-    noise: str = ""
-    case: str = ""
-    filter_options: str = ""
-    env_options: str = ""
-    policy: str = ""
-    policy_sha256: str = ""
-    version: str = ""
-    steps: int = 0
-    collision: bool = False
-    collision_steps: int = 0
-    first_collision_step: int = 0
-    collision_cause: str = ""
-    first_infeasible_step: int = 0
-    status_before_collision: str = ""
-    status_at_collision: str = ""
-    standing_collision: bool = False
-    sampled_collision: bool = False
-    sampled_collision_steps: int = 0
-    min_distance: float = math.nan
-    min_swept_distance: float = math.nan
-    discomfort_steps: int = 0
-    goal_reached: bool = False
-    time_to_goal: float = math.nan
-    path_length: float = 0.0
-    mean_intervention: float = 0.0
-    max_intervention: float = 0.0
-    statuses: str = ""
-    share_optimal: float = 0.0
-    share_soft: float = 0.0
-    share_recovery: float = 0.0
-    share_shifted: float = 0.0
-    share_brake: float = 0.0
-    share_error: float = 0.0
-    fallback_steps: int = 0
-    first_error: str = ""
-    filter_time_median: float = 0.0
-    filter_time_max: float = 0.0
-    episode_return: float = 0.0
-    audit_steps: int = 0
-    audit_losses: str = ""
-    audit_all_steps: int = 0
-    audit_all_losses: str = ""
-    wall_time: float = 0.0
-    error: str = ""
+    scenario: str = _column("", "Canonical scenario name (HeadOn for SafeNav/HeadOn-v0); Custom "
+                                "for a stress case")
+    risk: str = _column("", "Risk metric of the safe halfspaces; none is the unfiltered planner")
+    seed: int = _column("", "Seed of env.reset: the obstacles' noise and any random scenario data")
+    planner: str = _column("", "Reference planner: ppo (the policy), mpc (the paper's "
+                               "obstacle-agnostic MPC) or goal (the obstacle-blind go-to-goal "
+                               "controller)")
+    reference: str = _column("", "How a PPO proposal becomes a reference: rollout (the policy "
+                                 "rolled out on the predicted mean motion) or hold (the action "
+                                 "held)")
+    alpha: float = _column("1", "Tail mass α of CVaR and DR-CVaR (α = 1 gives the mean)")
+    delta: float = _column("m", "Risk bound δ on the intrusion depth")
+    epsilon: float | str = _column("m", "Wasserstein radius ε of DR-CVaR, or auto (estimated "
+                                        "online)")
+    noise: str = _column("", "Noise preset of the environment (e.g. authors_code); empty for the "
+                             "scenario's own", "")
+    case: str = _column("", "Stress-suite case (e.g. heavy_tail); empty outside the stress "
+                            "suite", "")
+    filter_options: str = _column("", "Further SafetyFilterWrapper keywords, as canonical JSON", "")
+    env_options: str = _column("", "Further gym.make keywords, as canonical JSON", "")
+    policy: str = _column("", "PPO policy file that ran; empty for the shipped one or the MPC "
+                              "planner", "")
+    policy_sha256: str = _column("", "SHA-256 of the policy file's content", "")
+    version: str = _column("", "Version of the safe-nav package that ran the episode", "")
+    steps: int = _column("steps", "Environment steps of the episode (0.2 s each by default)", 0)
+    collision: bool = _column("bool", "Whether the ego collided, in continuous time (exact "
+                                      "clearance over each step)", False)
+    collision_steps: int = _column("steps", "Steps with a continuous-time collision", 0)
+    first_collision_step: int = _column("step", "First step with a continuous-time collision "
+                                                "(1-based; 0: none)", 0)
+    collision_cause: str = _column("", "For a collided episode: fallback (a non-optimal filter "
+                                       "status at the colliding step or the two before), "
+                                       "inter_sample (overlap only between samples) or noise "
+                                       "(noise beyond the margin); else empty", "")
+    first_infeasible_step: int = _column("step", "First step whose hard filter problem had no "
+                                                 "solution (status soft, recovery, shifted, brake "
+                                                 "or error; 1-based; 0: none)", 0)
+    status_before_collision: str = _column("", "Filter status at the step before the first "
+                                               "collision (empty without a collision or if it is "
+                                               "in step 1)", "")
+    status_at_collision: str = _column("", "Filter status at the first colliding step (empty "
+                                           "without a collision)", "")
+    standing_collision: bool = _column("bool", "Whether the first collision happened with the ego "
+                                               "standing still (speed below 0.1 m/s over the whole "
+                                               "step)", False)
+    sampled_collision: bool = _column("bool", "Whether the ego collided at the sample instants "
+                                              "(the paper's statistic)", False)
+    sampled_collision_steps: int = _column("steps", "Steps with a collision at the sample "
+                                                    "instants", 0)
+    min_distance: float = _column("m", "Smallest clearance to any obstacle at the sample instants "
+                                       "(negative: overlap)", math.nan)
+    min_swept_distance: float = _column("m", "Smallest clearance over the continuous-time path "
+                                             "(negative: overlap; NaN if not reported)", math.nan)
+    discomfort_steps: int = _column("steps", "Steps whose sampled clearance to some obstacle was "
+                                             "below the environment's discomfort distance (0.2 m "
+                                             "in SafeNav/Crowd-v0; 0 where not reported)", 0)
+    goal_reached: bool = _column("bool", "Whether the ego reached its goal", False)
+    time_to_goal: float = _column("s", "Time at which the goal was reached (NaN if not "
+                                       "reached)", math.nan)
+    path_length: float = _column("m", "Length of the ego's path", 0.0)
+    mean_intervention: float = _column("m/s²", "Mean of ||u_applied - u_proposed|| over the "
+                                               "steps", 0.0)
+    max_intervention: float = _column("m/s²", "Largest ||u_applied - u_proposed|| over the "
+                                              "steps", 0.0)
+    statuses: str = _column("", "Filter status counts, e.g. optimal:38;soft:2", "")
+    share_optimal: float = _column("1", "Share of the steps whose QP was solved as posed", 0.0)
+    share_soft: float = _column("1", "Share of the steps answered by the exact-penalty QP with "
+                                     "halfspace slack", 0.0)
+    share_recovery: float = _column("1", "Share of the steps answered by the recovery QP with "
+                                         "arena slack", 0.0)
+    share_shifted: float = _column("1", "Share of the steps that applied the last optimal plan, "
+                                        "shifted (the paper's fallback)", 0.0)
+    share_brake: float = _column("1", "Share of the steps that braked (last resort)", 0.0)
+    share_error: float = _column("1", "Share of the steps that braked on bad data (NaN action or "
+                                      "predictions)", 0.0)
+    fallback_steps: int = _column("steps", "Steps with the paper's fallbacks shifted or brake", 0)
+    first_error: str = _column("", "The first step's reason for braking on bad data, e.g. step 3: "
+                                   "NaN action", "")
+    filter_time_median: float = _column("s", "Median time of one filter step (halfspaces + "
+                                             "QP)", 0.0)
+    filter_time_max: float = _column("s", "Largest time of one filter step", 0.0)
+    episode_return: float = _column("1", "Sum of the environment's rewards over the episode", 0.0)
+    audit_steps: int = _column("count", "Active first-step halfspaces (obstacle-steps) in the "
+                                        "guarantee audit", 0)
+    audit_losses: str = _column("m", "Their realised losses, ';'-separated, rounded to 0.1 mm", "")
+    audit_all_steps: int = _column("count", "Every first-step halfspace in the audit, active or "
+                                            "not", 0)
+    audit_all_losses: str = _column("m", "Their realised losses, ';'-separated, rounded to 0.1 "
+                                         "mm", "")
+    wall_time: float = _column("s", "Wall-clock time of the episode", 0.0)
+    error: str = _column("", "Why the episode failed (an exception); empty if it ran", "")
 
     def key(self) -> tuple:
         """Identity of the episode (:data:`KEY_FIELDS`), as for its :class:`EpisodeSpec`."""
@@ -380,20 +341,20 @@ class EpisodeRecord:
         """Field by field, NaN equal to NaN (a CSV round trip keeps a record equal)."""
         if not isinstance(other, EpisodeRecord):
             return NotImplemented
-        return all(_same(getattr(self, name), getattr(other, name)) for name in RECORD_FIELDS)
+        pairs = ((getattr(self, name), getattr(other, name)) for name in RECORD_FIELDS)
+        return all(a == b or (a != a and b != b) for a, b in pairs)  # x != x: x is NaN
 
     def __hash__(self) -> int:
         return hash(self.key())
 
 
-def _same(a: Any, b: Any) -> bool:
-    if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
-        return True
-    return a == b
-
-
 RECORD_FIELDS = tuple(f.name for f in fields(EpisodeRecord))
 """CSV columns, in order."""
+
+COLUMN_DOCS: dict[str, tuple[str, str]] = {
+    f.name: (f.metadata["unit"], f.metadata["meaning"]) for f in fields(EpisodeRecord)}
+"""Unit and meaning of every CSV column (:data:`RECORD_FIELDS`), for the docs' glossary.
+Units: ``""`` for labels and text, ``"1"`` for dimensionless numbers and shares."""
 
 TIMING_FIELDS = ("wall_time", "filter_time_median", "filter_time_max")
 """Columns measured in seconds of this machine's time: the only ones that differ between two

@@ -69,10 +69,8 @@ def run_key(specs: Sequence[EpisodeSpec], *, vary: Sequence[str] = ()) -> dict[s
     InvalidParameterError
         If such a field differs between the specs.
     """
-    varying = set(CYCLED_FIELDS) | set(vary)
-    names = [name for name in KEY_FIELDS if name not in varying]
     key: dict[str, Any] = {}
-    for name in names:
+    for name in (name for name in KEY_FIELDS if name not in {*CYCLED_FIELDS, *vary}):
         values = {getattr(spec, name) for spec in specs}
         if len(values) > 1:
             raise InvalidParameterError(
@@ -89,8 +87,7 @@ def run_key(specs: Sequence[EpisodeSpec], *, vary: Sequence[str] = ()) -> dict[s
 
 def run_key_path(csv_path: str | Path) -> Path:
     """Where the run key of a results CSV is kept: ``episodes.csv`` -> ``episodes.run.json``."""
-    csv_path = Path(csv_path)
-    return csv_path.with_name(csv_path.stem + ".run.json")
+    return Path(csv_path).with_suffix(".run.json")
 
 
 def check_run_key(csv_path: str | Path, key: Mapping[str, Any]) -> None:
@@ -106,10 +103,9 @@ def check_run_key(csv_path: str | Path, key: Mapping[str, Any]) -> None:
     """
     csv_path = Path(csv_path)
     key_path = run_key_path(csv_path)
-    has_rows = csv_path.exists() and csv_path.stat().st_size > 0
     hint = "choose another output folder (--output), or discard it (--overwrite)"
     if not key_path.exists():
-        if has_rows:
+        if csv_path.exists() and csv_path.stat().st_size > 0:  # rows of an unknown run
             raise RunMismatchError(f"{csv_path} holds results but no run key {key_path.name} "
                                    f"(an older safe-nav wrote it?), so they cannot be reused; "
                                    f"{hint}")
@@ -121,9 +117,8 @@ def check_run_key(csv_path: str | Path, key: Mapping[str, Any]) -> None:
     except (OSError, json.JSONDecodeError) as exc:
         raise RunMismatchError(f"{key_path} is not a readable run key ({exc}); {hint}") from None
     wanted = json.loads(json.dumps(dict(key)))
-    names = sorted(set(stored) | set(wanted))
-    differ = [f"{name} {stored.get(name)!r} != {wanted.get(name)!r}" for name in names
-              if stored.get(name) != wanted.get(name)]
+    differ = [f"{name} {stored.get(name)!r} != {wanted.get(name)!r}"
+              for name in sorted({*stored, *wanted}) if stored.get(name) != wanted.get(name)]
     if differ:
         raise RunMismatchError(f"{csv_path.parent} holds a run with other settings "
                                f"({'; '.join(differ)} now); {hint}")

@@ -75,22 +75,16 @@ class TrajectoryRecorder:
 
     def __init__(self, env: Any, render: bool, info: dict[str, Any]) -> None:
         self._env, self._base, self._render = env, env.unwrapped, render
-        self._states: list[np.ndarray] = []
-        self._obstacles: list[np.ndarray] = []
-        self._distances: list[np.ndarray] = []
-        self._inputs: list[np.ndarray] = []
-        self._swept: list[np.ndarray] = []
-        self._filter_times: list[float] = []
-        self._statuses: list[str] = []
-        self._collisions: list[bool] = []
-        self._halfspaces: list[tuple[np.ndarray, np.ndarray]] = []
-        self._frames: list[np.ndarray] = []
+        # Per sample (states, obstacles, distances, frames) and per step (the others).
+        (self._states, self._obstacles, self._distances, self._inputs, self._swept,
+         self._filter_times, self._statuses, self._collisions, self._halfspaces,
+         self._frames) = ([] for _ in range(10))
         self._snapshot(info)
 
     def _snapshot(self, info: dict[str, Any]) -> None:
-        self._states.append(np.asarray(self._base.ego_state, dtype=float).copy())
-        self._obstacles.append(np.asarray(self._base.obstacle_positions, dtype=float).copy())
-        self._distances.append(np.asarray(info["distance_to_collision"], dtype=float).copy())
+        self._states.append(np.array(self._base.ego_state, dtype=float))
+        self._obstacles.append(np.array(self._base.obstacle_positions, dtype=float))
+        self._distances.append(np.array(info["distance_to_collision"], dtype=float))
         if self._render:
             self._frames.append(self._env.render())
 
@@ -98,17 +92,16 @@ class TrajectoryRecorder:
         """After a step: the new state and positions, the clearances and what the filter did."""
         self._snapshot(info)
         report = info["filter"]
-        self._inputs.append(np.asarray(report["applied_action"], dtype=float).copy())
+        self._inputs.append(np.array(report["applied_action"], dtype=float))
         if "swept_distance_to_collision" not in info:
             raise KeyError("the environment does not report "
                            "info['swept_distance_to_collision'] (continuous time)")
-        self._swept.append(np.asarray(info["swept_distance_to_collision"], dtype=float).copy())
+        self._swept.append(np.array(info["swept_distance_to_collision"], dtype=float))
         self._filter_times.append(float(report["filter_time"]))
         self._statuses.append(str(report["status"]))
         self._collisions.append(bool(info.get("collision", False)))
         if report["normals"] is not None:
-            self._halfspaces.append((np.asarray(report["normals"]).copy(),
-                                     np.asarray(report["offsets"]).copy()))
+            self._halfspaces.append((np.array(report["normals"]), np.array(report["offsets"])))
 
     def trajectory(self) -> Trajectory:
         base = self._base
@@ -122,8 +115,8 @@ class TrajectoryRecorder:
         states = stack(self._states, (4,))
         return Trajectory(
             ego=states[:, :2].copy(), obstacles=stack(self._obstacles, (n, 2)),
-            obstacle_radii=np.asarray(base.obstacle_radii, dtype=float).copy(),
-            ego_radius=float(base.ego_radius), goal=np.asarray(base.goal, dtype=float).copy(),
+            obstacle_radii=np.array(base.obstacle_radii, dtype=float),
+            ego_radius=float(base.ego_radius), goal=np.array(base.goal, dtype=float),
             halfspaces=self._halfspaces, statuses=self._statuses, frames=self._frames,
             collisions=self._collisions, ego_states=states,
             inputs=stack(self._inputs, (2,)), distances=stack(self._distances, (-1,)),

@@ -16,7 +16,7 @@ from __future__ import annotations
 import csv
 import math
 from collections import Counter
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
@@ -33,6 +33,12 @@ TARGET_COLLISION_RATE = 0.01
 
 TARGET_GOAL_RATE = 0.95
 """... and at least this share reaching the goal."""
+
+_Cell = tuple[str, str, str]
+"""A stress cell's (case, planner, method name)."""
+
+_MethodOf = Callable[[EpisodeRecord], tuple[str, str]]
+"""``record -> (method name, label)`` of the caller (:mod:`agents.experiments.stress`)."""
 
 
 @dataclass(frozen=True)
@@ -82,10 +88,23 @@ def _infeasible_before(record: EpisodeRecord) -> bool:
     return 0 < record.first_infeasible_step <= record.first_collision_step
 
 
+def _rate(count: int, n: int) -> float:
+    return count / n if n else math.nan
+
+
+def _by_cell(records: Iterable[EpisodeRecord],
+             method_of: _MethodOf) -> dict[_Cell, list[EpisodeRecord]]:
+    """The records by (case, planner, method name)."""
+    groups: dict[_Cell, list[EpisodeRecord]] = {}
+    for record in records:
+        groups.setdefault((record.case, record.planner, method_of(record)[0]), []).append(record)
+    return groups
+
+
 def stress_cells(
     records: Sequence[EpisodeRecord],
-    method_of: Callable[[EpisodeRecord], tuple[str, str]],
-    order: Callable[[tuple[str, str, str]], tuple],
+    method_of: _MethodOf,
+    order: Callable[[_Cell], tuple],
 ) -> list[StressCell]:
     """One :class:`StressCell` per (case, planner, method), sorted by ``order``.
 
@@ -98,28 +117,21 @@ def stress_cells(
     order
         Sort key of a ``(case, planner, method)``.
     """
-    groups: dict[tuple[str, str, str], list[EpisodeRecord]] = {}
-    labels: dict[tuple[str, str, str], str] = {}
-    for record in records:
-        method, label = method_of(record)
-        key = (record.case, record.planner, method)
-        groups.setdefault(key, []).append(record)
-        labels[key] = label
+    groups = _by_cell(records, method_of)
     cells = []
     for key in sorted(groups, key=order):
         group = groups[key]
         ran = [r for r in group if not r.error]
         n = len(ran)
         collided = [r for r in ran if r.collision]
-        low, high = wilson_interval(len(collided), n)
-        rate = len(collided) / n if n else math.nan
         goals = [r for r in ran if r.goal_reached]
-        goal_rate = len(goals) / n if n else math.nan
+        rate, goal_rate = _rate(len(collided), n), _rate(len(goals), n)
+        low, high = wilson_interval(len(collided), n)
         causes = Counter(r.collision_cause for r in collided)
         cells.append(StressCell(
-            case=key[0], planner=key[1], method=key[2], label=labels[key],
-            episodes=len(group), failed=len(group) - n, collisions=len(collided),
-            collision_rate=rate, collision_low=low, collision_high=high, goal_rate=goal_rate,
+            *key, label=method_of(group[-1])[1], episodes=len(group), failed=len(group) - n,
+            collisions=len(collided), collision_rate=rate, collision_low=low,
+            collision_high=high, goal_rate=goal_rate,
             time_to_goal=float(np.mean([r.time_to_goal for r in goals])) if goals else math.nan,
             meets_target=bool(n and rate <= TARGET_COLLISION_RATE
                               and goal_rate >= TARGET_GOAL_RATE),
@@ -129,28 +141,23 @@ def stress_cells(
     return cells
 
 
-def _ttg(cell: StressCell) -> str:
-    return "-" if math.isnan(cell.time_to_goal) else f"{cell.time_to_goal:.2f}"
-
-
-def _mark(cell: StressCell) -> str:
-    return "yes" if cell.meets_target else "**MISS**"
+def _table(columns: Sequence[str], rows: Sequence[str], title: str = "") -> list[str]:
+    """Markdown lines of a table (after a ``### title`` if given, then a blank line)."""
+    head = [f"### {title}\n"] if title else []
+    return [*head, "| " + " | ".join(columns) + " |", "|---" * len(columns) + "|", *rows, ""]
 
 
 def cells_table(cells: Sequence[StressCell], descriptions: dict[str, str]) -> str:
     """Per case, a Markdown table of its cells (collisions, goal, time to goal, target)."""
     out = []
     for case in dict.fromkeys(c.case for c in cells):
-        out.append(f"### {case}: {descriptions.get(case, '')}\n")
-        out.append("| planner | setting | episodes | collisions [95 % CI] | goal rate | "
-                   "time to goal (s) | target |")
-        out.append("|---|---|---|---|---|---|---|")
-        for c in (c for c in cells if c.case == case):
-            failed = f" ({c.failed} failed)" if c.failed else ""
-            out.append(f"| {c.planner} | {c.label} | {c.episodes}{failed} | "
-                       f"{c.collision_rate:.1%} [{c.collision_low:.1%}, {c.collision_high:.1%}] "
-                       f"| {c.goal_rate:.1%} | {_ttg(c)} | {_mark(c)} |")
-        out.append("")
+        rows = [f"| {c.planner} | {c.label} | {c.episodes}"
+                f"{f' ({c.failed} failed)' if c.failed else ''} | {c.collision_rate:.1%} "
+                f"[{c.collision_low:.1%}, {c.collision_high:.1%}] | {c.goal_rate:.1%} | "
+                f"{'-' if math.isnan(c.time_to_goal) else f'{c.time_to_goal:.2f}'} | "
+                f"{'yes' if c.meets_target else '**MISS**'} |" for c in cells if c.case == case]
+        out += _table(("planner", "setting", "episodes", "collisions [95 % CI]", "goal rate",
+                       "time to goal (s)", "target"), rows, f"{case}: {descriptions.get(case, '')}")
     return "\n".join(out)
 
 
@@ -158,25 +165,19 @@ def overview_table(cells: Sequence[StressCell]) -> str:
     """Classes as rows, (planner, setting) as columns: ``collisions / goal``, MISS marked."""
     columns = list(dict.fromkeys((c.planner, c.label) for c in cells))
     by_key = {(c.case, c.planner, c.label): c for c in cells}
-    out = ["| class | " + " | ".join(f"{p}: {label}" for p, label in columns) + " |",
-           "|---|" + "---|" * len(columns)]
+    rows = []
     for case in dict.fromkeys(c.case for c in cells):
-        row = []
-        for planner, label in columns:
-            c = by_key.get((case, planner, label))
-            if c is None:
-                row.append("")
-            else:
-                miss = "" if c.meets_target else " ✗"
-                row.append(f"{c.collision_rate:.1%} / {c.goal_rate:.0%}{miss}")
-        out.append(f"| {case} | " + " | ".join(row) + " |")
-    return "\n".join(out) + "\n"
+        entries = (by_key.get((case, *column)) for column in columns)
+        rows.append(f"| {case} | " + " | ".join(
+            "" if c is None else f"{c.collision_rate:.1%} / {c.goal_rate:.0%}"
+            f"{'' if c.meets_target else ' ✗'}" for c in entries) + " |")
+    return "\n".join(_table(("class", *(f"{p}: {label}" for p, label in columns)), rows))
 
 
 def explain_collisions(
     records: Sequence[EpisodeRecord],
     cells: Sequence[StressCell],
-    method_of: Callable[[EpisodeRecord], tuple[str, str]],
+    method_of: _MethodOf,
 ) -> str:
     """Per case, the cells with collisions and why they happened (Markdown).
 
@@ -186,13 +187,10 @@ def explain_collisions(
     from the first infeasible step to the collision, and the status transitions
     ``before -> at`` the collision with their counts.
     """
-    collided: dict[tuple[str, str, str], list[EpisodeRecord]] = {}
-    for r in records:
-        if r.collision and not r.error:
-            collided.setdefault((r.case, r.planner, method_of(r)[0]), []).append(r)
+    collided = _by_cell((r for r in records if r.collision and not r.error), method_of)
     out = []
     for case in dict.fromkeys(c.case for c in cells):
-        lines = []
+        rows = []
         for c in (c for c in cells if c.case == case and c.collisions):
             group = collided.get((c.case, c.planner, c.method), [])
             leads = [r.first_collision_step - r.first_infeasible_step for r in group
@@ -201,16 +199,13 @@ def explain_collisions(
             transitions = Counter(f"{r.status_before_collision or '(start)'} → "
                                   f"{r.status_at_collision}" for r in group)
             text = ", ".join(f"{t}: {n}" for t, n in transitions.most_common())
-            lines.append(f"| {c.planner} | {c.label} | {c.collisions} | "
-                         f"{c.fallback_collisions} / {c.inter_sample_collisions} / "
-                         f"{c.noise_collisions} | {c.infeasible_before} | {lead} | {text} |")
-        if lines:
-            out.append(f"### {case}\n")
-            out.append("| planner | setting | collisions | fallback / inter-sample / noise | "
-                       "infeasible before | median lead (steps) | status before → at |")
-            out.append("|---|---|---|---|---|---|---|")
-            out.extend(lines)
-            out.append("")
+            rows.append(f"| {c.planner} | {c.label} | {c.collisions} | "
+                        f"{c.fallback_collisions} / {c.inter_sample_collisions} / "
+                        f"{c.noise_collisions} | {c.infeasible_before} | {lead} | {text} |")
+        if rows:
+            out += _table(("planner", "setting", "collisions", "fallback / inter-sample / noise",
+                           "infeasible before", "median lead (steps)", "status before → at"),
+                          rows, case)
     return "\n".join(out) if out else "No collisions.\n"
 
 
@@ -224,6 +219,5 @@ def write_cells(cells: Sequence[StressCell], path: str | Path) -> Path:
     with path.open("w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=CELL_FIELDS)
         writer.writeheader()
-        for cell in cells:
-            writer.writerow(asdict(cell))
+        writer.writerows(asdict(cell) for cell in cells)
     return path

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from filters.errors import InvalidArrayError, InvalidParameterError, InvalidTypeError
-from filters.risk import RISKS, empirical_cvar, risk_value, tail_count
+from filters.risk import RISKS, check_alpha, empirical_cvar, risk_value, tail_count
 
 
 def cvar_by_minimisation(x: np.ndarray, alpha: float) -> float:
@@ -127,3 +127,9 @@ def test_risk_value_rejects_bad_losses():
         risk_value(np.array([np.inf, 1.0]), "mean", 0.2, 0.05)
     with pytest.raises(InvalidArrayError, match="losses"):
         risk_value(np.zeros(0), "mean", 0.2, 0.05)
+
+
+@pytest.mark.parametrize("value", [True, np.bool_(False), "0.2", b"0.2"])
+def test_a_bool_or_string_is_not_a_number(value):
+    with pytest.raises(InvalidParameterError, match="alpha must be a real number"):
+        check_alpha(value)
