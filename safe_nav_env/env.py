@@ -18,9 +18,9 @@ from safe_nav_env.errors import ConfigError, ScenarioError
 from safe_nav_env.info import _padded
 from safe_nav_env.noise import NoiseModel, resolve_noise
 from safe_nav_env.obstacles import ObstacleModel, distance_to_collision
-from safe_nav_env.options import _check_start_speed, _option, _resolve_scenario, _speed_option
+from safe_nav_env.options import _option, _speed_option
 from safe_nav_env.predictors import Predictor, check_predictions, resolve_predictor
-from safe_nav_env.scenarios import Scenario, ScenarioFactory
+from safe_nav_env.scenarios import Scenario, ScenarioFactory, _resolve_scenario
 from safe_nav_env.starts import RandomStart, resolve_random_start
 
 _EGO_SIZE = 6  # ego position, ego velocity, goal - ego position
@@ -273,17 +273,30 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         first = self._scenario_source if isinstance(self._scenario_source, Scenario) else None
         self._load(first)
 
-    def _predict_from_history(self, *, reset: bool) -> np.ndarray:
-        """Samples from :attr:`predictor` given the positions observed since reset."""
-        if reset:
-            self._history = []
-        self._history.append(self.obstacle_positions)
-        n, dim = self.obstacle_positions.shape
-        samples = self.predictor(
-            np.stack(self._history), dt=self.dt, horizon=self.horizon,
-            n_samples=self.n_samples, rng=self.np_random,
-        )
-        return check_predictions(samples, n, self.n_samples, self.horizon, dim)
+    def _predict(self, *, reset: bool) -> None:
+        """Draw :attr:`predictions`: the obstacle model's sampler, or :attr:`predictor` given
+        the positions observed since reset."""
+        if self.predictor is None:
+            samples = self._model.predict(self.np_random, self.noise.prediction, self.n_samples,
+                                          self.horizon)
+        else:
+            if reset:
+                self._history = []
+            self._history.append(self.obstacle_positions)
+            n, dim = self.obstacle_positions.shape
+            samples = check_predictions(self.predictor(
+                np.stack(self._history), dt=self.dt, horizon=self.horizon,
+                n_samples=self.n_samples, rng=self.np_random), n, self.n_samples, self.horizon, dim)
+        self.predictions = _read_only(samples)
+
+    def _trail_and_show(self, reset: bool) -> None:
+        """Record the positions for the renderer (human mode: draw the frame)."""
+        if self.render_mode is not None:
+            if reset:
+                self._trail = []
+            self._trail.append((self.ego_state[:2].copy(), self.obstacle_positions))
+            if self.render_mode == "human":
+                self.render()
 
     # ------------------------------------------------------------------ setup
 
@@ -455,26 +468,21 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
                 f"max_obstacles={self.max_obstacles}; pass a larger max_obstacles"
             )
         self._load(scenario)
-        model = self._model
-        model.reset(self.np_random)
-        self.obstacle_positions = _read_only(model.positions)
-        self.obstacle_velocities = _read_only(model.velocities)
+        self._model.reset(self.np_random)
+        self.obstacle_positions = _read_only(self._model.positions)
+        self.obstacle_velocities = _read_only(self._model.velocities)
         if self.random_start is not None:
             self._draw_start()
-        _check_start_speed(scenario.name, self.ego_state, self.max_speed)
-        self.predictions = _read_only(
-            model.predict(self.np_random, self.noise.prediction, self.n_samples, self.horizon)
-            if self.predictor is None else self._predict_from_history(reset=True)
-        )
-        p = self.ego_state[:2]
-        distances = distance_to_collision(p, self.obstacle_positions, self.ego_radius,
-                                          self.obstacle_radii)
-        if self.render_mode is not None:
-            self._trail = [(p.copy(), self.obstacle_positions)]
-            if self.render_mode == "human":
-                self.render()
+        speed = math.hypot(self.ego_state[2], self.ego_state[3])
+        if speed > self.max_speed:
+            raise ScenarioError(
+                f"scenario {scenario.name!r}: the ego starts at {speed:g} m/s, above "
+                f"max_speed={self.max_speed:g} m/s; pass a larger max_speed (inf: no limit)")
+        self._predict(reset=True)
+        distances = _read_only(distance_to_collision(
+            self.ego_state[:2], self.obstacle_positions, self.ego_radius, self.obstacle_radii))
+        self._trail_and_show(reset=True)
         obs = self.observe(self.ego_state, self.obstacle_positions, self.obstacle_velocities)
-        distances = _read_only(distances)
         return obs, self._info(distances, distances, self._distance_to_goal)
 
     def _draw_start(self) -> None:
@@ -531,10 +539,7 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         self.obstacle_positions = _read_only(model.step(self.np_random, self.noise.reality))
         before = model.chord_starts  # each obstacle's own position before the step
         self.obstacle_velocities = _read_only(model.velocities)
-        self.predictions = _read_only(
-            model.predict(self.np_random, self.noise.prediction, self.n_samples, self.horizon)
-            if self.predictor is None else self._predict_from_history(reset=False)
-        )
+        self._predict(reset=False)
         self.step_count += 1
 
         delta = self.obstacle_positions - self.ego_state[:2]
@@ -559,10 +564,7 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
 
         terminated = info["is_success"] or (self.terminate_on_collision and info["collision"])
         truncated = self.step_count >= self.max_episode_steps
-        if self.render_mode is not None:
-            self._trail.append((self.ego_state[:2].copy(), self.obstacle_positions))
-            if self.render_mode == "human":
-                self.render()
+        self._trail_and_show(reset=False)
         obs = self._observe(self.ego_state, delta, self.obstacle_velocities, centre)
         return obs, reward, bool(terminated), bool(truncated), info
 

@@ -31,13 +31,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import numpy as np
 
 from safe_nav_env.constants import N_SAMPLES
 from safe_nav_env.errors import ScenarioError
+from safe_nav_env.options import _from_fields, _named, _option
 
 # A covariance as given by the user: σ², (σ²_1, ..., σ²_d) or a d × d matrix.
 Covariance = float | tuple[float, ...] | tuple[tuple[float, ...], ...]
@@ -257,8 +258,8 @@ class StudentT(_Law):
     law: ClassVar[str] = "student_t"
 
     def _check_extra(self) -> None:
-        if not (isinstance(self.dof, int | float) and math.isfinite(self.dof) and self.dof > 2):
-            raise ScenarioError(f"StudentT.dof must be a finite number > 2, got {self.dof!r}")
+        object.__setattr__(self, "dof", _option("StudentT.dof", self.dof, low=2.0, strict=True,
+                                                error=ScenarioError))
 
     def _standard(self, rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
         z = rng.standard_t(self.dof, shape)
@@ -271,13 +272,6 @@ NoiseLaw = Gaussian | Laplace | StudentT
 
 LAWS: dict[str, type[_Law]] = {cls.law: cls for cls in (Gaussian, Laplace, StudentT)}
 """Noise laws by name, as used in mappings: ``{"law": "laplace", "covariance": 0.01}``."""
-
-
-def _reprefix(exc: ScenarioError, old: str, new: str) -> ScenarioError:
-    message = str(exc)
-    if message.startswith(old):
-        message = new + message[len(old) :]
-    return ScenarioError(message)
 
 
 def noise_law(value: Any, path: str = "law") -> _Law:
@@ -309,15 +303,7 @@ def noise_law(value: Any, path: str = "law") -> _Law:
     name = params.pop("law", None)
     if name not in LAWS:
         raise ScenarioError(f"{path}.law must be one of {sorted(LAWS)}, got {name!r}")
-    cls = LAWS[name]
-    allowed = {f.name for f in fields(cls) if f.init}
-    unknown = sorted(set(params) - allowed)
-    if unknown:
-        raise ScenarioError(f"{path}: unknown parameter(s) {unknown} for law {name!r}")
-    try:
-        return cls(**params)
-    except ScenarioError as exc:
-        raise _reprefix(exc, cls.__name__, path) from None
+    return _from_fields(LAWS[name], params, path)
 
 
 @dataclass(frozen=True)
@@ -351,11 +337,8 @@ class NoiseModel:
     def __post_init__(self) -> None:
         object.__setattr__(self, "prediction", noise_law(self.prediction, "noise.prediction"))
         object.__setattr__(self, "reality", noise_law(self.reality, "noise.reality"))
-        if isinstance(self.n_samples, bool) or int(self.n_samples) != self.n_samples:
-            raise ScenarioError(f"noise.n_samples must be an integer, got {self.n_samples!r}")
-        if self.n_samples < 1:
-            raise ScenarioError(f"noise.n_samples must be >= 1, got {self.n_samples}")
-        object.__setattr__(self, "n_samples", int(self.n_samples))
+        object.__setattr__(self, "n_samples", _option("noise.n_samples", self.n_samples, low=1,
+                                                      integer=True, error=ScenarioError))
         for name in ("prediction", "reality"):
             dim = getattr(self, name).dim
             if dim is not None and dim != 2:
@@ -403,20 +386,9 @@ def resolve_noise(value: Any, path: str = "noise") -> NoiseModel:
     if isinstance(value, NoiseModel):
         return value
     if isinstance(value, str):
-        if value not in NOISE_PRESETS:
-            raise ScenarioError(
-                f"{path}: unknown noise preset {value!r}; choose one of {sorted(NOISE_PRESETS)} "
-                "or pass a NoiseModel"
-            )
-        return NOISE_PRESETS[value]
+        return _named(NOISE_PRESETS, value, path, "noise preset")
     if isinstance(value, Mapping):
-        unknown = sorted(set(value) - {"prediction", "reality", "n_samples"})
-        if unknown:
-            raise ScenarioError(f"{path}: unknown field(s) {unknown} of NoiseModel")
-        try:
-            return NoiseModel(**value)
-        except ScenarioError as exc:
-            raise _reprefix(exc, "noise", path) from None
+        return _from_fields(NoiseModel, value, path)
     raise ScenarioError(
         f"{path} must be a NoiseModel, a preset name in {sorted(NOISE_PRESETS)} or a mapping, "
         f"got {value!r}"

@@ -28,8 +28,9 @@ import numpy as np
 from safe_nav_env.constants import EGO_RADIUS
 from safe_nav_env.crowd.humans import HUMAN_POLICIES, make_humans
 from safe_nav_env.crowd.model import CrowdModel
-from safe_nav_env.env import SafeNavEnv, _option
+from safe_nav_env.env import SafeNavEnv
 from safe_nav_env.errors import ConfigError
+from safe_nav_env.options import _option
 from safe_nav_env.scenarios import ObstacleSpec, Scenario
 
 __all__ = ["CIRCLE_RADIUS", "DISCOMFORT_DISTANCE", "HUMAN_RADIUS", "HUMAN_SPEED", "N_HUMANS",

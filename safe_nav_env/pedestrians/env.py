@@ -8,13 +8,14 @@ from typing import Any
 
 import numpy as np
 
-from safe_nav_env.env import SafeNavEnv, _option, _read_only
+from safe_nav_env.env import SafeNavEnv, _read_only
 from safe_nav_env.errors import ConfigError, ScenarioError
+from safe_nav_env.options import _option
 from safe_nav_env.pedestrians.forecast import Forecaster
 from safe_nav_env.pedestrians.recording import Recording, load_recording
 from safe_nav_env.pedestrians.replay import ReplayModel
 from safe_nav_env.pedestrians.residuals import residual_bank
-from safe_nav_env.scenarios import Scenario
+from safe_nav_env.scenarios import Scenario, _arena
 
 __all__ = [
     "EGO_SPEED",
@@ -57,18 +58,6 @@ def time_limit(distance: float, speed: float = EGO_SPEED) -> float:
     people, and 4 s to accelerate, brake and wait.
     """
     return 1.5 * distance / speed + 4.0
-
-
-def _box(arena: Any) -> tuple[tuple[float, float], tuple[float, float]]:
-    try:
-        box = np.asarray(arena, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ConfigError(f"arena must be ((x_min, y_min), (x_max, y_max)), got {arena!r}") from exc
-    if box.shape != (2, 2) or not np.isfinite(box).all() or np.any(box[0] >= box[1]):
-        raise ConfigError(
-            f"arena must be finite ((x_min, y_min), (x_max, y_max)) with min < max, got {arena!r}"
-        )
-    return (float(box[0, 0]), float(box[0, 1])), (float(box[1, 0]), float(box[1, 1]))
 
 
 class PedestrianEnv(SafeNavEnv):
@@ -190,7 +179,7 @@ class PedestrianEnv(SafeNavEnv):
         self.scene: str = recording.name
         self.forecaster = Forecaster(predictor, dt, history_steps)
         self.residuals = residual_bank(self.scene, self.forecaster, horizon)
-        self.arena = recording.walkable_box() if arena is None else _box(arena)
+        self.arena = recording.walkable_box() if arena is None else _arena(arena, error=ConfigError)
         self._replay = ReplayModel(
             recording, self.forecaster, self.residuals, max_obstacles=max_obstacles,
             radius=self.pedestrian_radius, arena=self.arena,
@@ -277,16 +266,9 @@ class PedestrianEnv(SafeNavEnv):
             raise ConfigError("options['scenario'] does not apply; make a new environment "
                               "with scene=...")
         start_step = options.pop("start_step", None)
-        if start_step is not None and (
-            isinstance(start_step, bool)
-            or not isinstance(start_step, int | np.integer)
-            or not 0 <= start_step < self.recording.n_steps
-        ):
-            raise ConfigError(
-                f"options['start_step'] must be an integer in [0, {self.recording.n_steps - 1}] "
-                f"(a recording step), got {start_step!r}"
-            )
-        self._start_step = None if start_step is None else int(start_step)
+        self._start_step = None if start_step is None else _option(
+            "options['start_step'] (a recording step)", start_step, integer=True,
+            high=self.recording.n_steps - 1)
         return super().reset(seed=seed, options=options or None)
 
     @property
