@@ -103,19 +103,12 @@ class MPCReferencePlanner:
         If a weight or bound has the wrong shape or is not finite.
     """
 
-    def __init__(
-        self,
-        dynamics: tuple[np.ndarray, np.ndarray, np.ndarray],
-        *,
-        input_bounds: tuple[np.ndarray, np.ndarray],
-        position_bounds: tuple[np.ndarray, np.ndarray] | None = None,
-        horizon: int = HORIZON,
-        Q: float | np.ndarray = 1.0,
-        Q_terminal: float | np.ndarray = 3.0,
-        R: float | np.ndarray = 1.0,
-        convention: str = "quadratic",
-        max_speed: float = np.inf,
-    ) -> None:
+    def __init__(self, dynamics: tuple[np.ndarray, np.ndarray, np.ndarray], *,
+                 input_bounds: tuple[np.ndarray, np.ndarray],
+                 position_bounds: tuple[np.ndarray, np.ndarray] | None = None,
+                 horizon: int = HORIZON, Q: float | np.ndarray = 1.0,
+                 Q_terminal: float | np.ndarray = 3.0, R: float | np.ndarray = 1.0,
+                 convention: str = "quadratic", max_speed: float = np.inf) -> None:
         if convention not in CONVENTIONS:
             raise InvalidParameterError(
                 f"convention must be one of {CONVENTIONS}, got {convention!r}")
@@ -262,13 +255,8 @@ class MPCReferencePlanner:
         self.last_status = str(result.status.value)
         return result.states, result.inputs
 
-    def predict(
-        self,
-        observation: np.ndarray,
-        state: Any = None,
-        episode_start: Any = None,
-        deterministic: bool = True,
-    ) -> tuple[np.ndarray, None]:
+    def predict(self, observation: np.ndarray, state: Any = None, episode_start: Any = None,
+                deterministic: bool = True) -> tuple[np.ndarray, None]:
         """First planned input for a ``safe_nav_env`` observation (or a batch of them).
 
         The observation's first six entries are the ego state and the goal offset.

@@ -114,10 +114,8 @@ def parse_action(action: Any) -> tuple[float, float]:
     return ux, uy
 
 
-def applied_acceleration(
-    velocity: tuple[float, float], action: tuple[float, float], dt: float,
-    max_acceleration: float, max_speed: float,
-) -> tuple[float, float]:
+def applied_acceleration(velocity: tuple[float, float], action: tuple[float, float], dt: float,
+                         max_acceleration: float, max_speed: float) -> tuple[float, float]:
     r"""The acceleration the ego applies for ``action``: the box, then the speed limit.
 
     The action is clipped to the box :math:`|u_i| \le a_\max`. If the next velocity

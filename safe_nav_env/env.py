@@ -192,43 +192,27 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 5}
 
-    def __init__(
-        self,
-        scenario: Scenario | ScenarioFactory | str | Mapping[str, Any] | None = None,
-        *,
-        render_mode: str | None = None,
-        noise: NoiseModel | str | Mapping[str, Any] | None = None,
-        n_samples: int | None = None,
-        horizon: int = HORIZON,
-        episode_length: float | None = None,
-        dt: float = DT,
-        max_acceleration: float = MAX_ACCELERATION,
-        max_speed: float | None = MAX_SPEED,
-        max_obstacles: int = 4,
-        progress_weight: float = 1.0,
-        arrival_bonus: float = 10.0,
-        control_cost_weight: float = 1e-3,
-        collision_penalty: float = 1.0,
-        time_penalty: float = 0.0,
-        goal_tolerance: float = 0.3,
-        terminate_on_collision: bool = False,
-        pad_info: bool | None = None,
-        predictor: Predictor | str | None = None,
-        random_start: RandomStart | float | Mapping[str, Any] | None = None,
-        actuator_lag: float = 0.0,
-        drag: float = 0.0,
-    ) -> None:
+    def __init__(self, scenario: Scenario | ScenarioFactory | str | Mapping[str, Any] | None = None,
+                 *, render_mode: str | None = None,
+                 noise: NoiseModel | str | Mapping[str, Any] | None = None,
+                 n_samples: int | None = None, horizon: int = HORIZON,
+                 episode_length: float | None = None, dt: float = DT,
+                 max_acceleration: float = MAX_ACCELERATION, max_speed: float | None = MAX_SPEED,
+                 max_obstacles: int = 4, progress_weight: float = 1.0, arrival_bonus: float = 10.0,
+                 control_cost_weight: float = 1e-3, collision_penalty: float = 1.0,
+                 time_penalty: float = 0.0, goal_tolerance: float = 0.3,
+                 terminate_on_collision: bool = False, pad_info: bool | None = None,
+                 predictor: Predictor | str | None = None,
+                 random_start: RandomStart | float | Mapping[str, Any] | None = None,
+                 actuator_lag: float = 0.0, drag: float = 0.0) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ConfigError(
-                f"render_mode must be None or one of {self.metadata['render_modes']}, "
-                f"got {render_mode!r}"
-            )
+            raise ConfigError(f"render_mode must be None or one of "
+                              f"{self.metadata['render_modes']}, got {render_mode!r}")
         self.render_mode = render_mode
         self._scenario_source = _resolve_scenario(scenario)
         self._noise_override = None if noise is None else resolve_noise(noise, "noise")
-        self._n_samples_override = (
-            None if n_samples is None else _option("n_samples", n_samples, low=1, integer=True)
-        )
+        self._n_samples_override = None if n_samples is None else _option(
+            "n_samples", n_samples, low=1, integer=True)
         self.horizon: int = _option("horizon", horizon, low=1, integer=True)
         self._episode_length = None if episode_length is None else _option(
             "episode_length", episode_length, strict=True)
@@ -243,9 +227,8 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         self.time_penalty = _option("time_penalty", time_penalty)
         self.goal_tolerance = _option("goal_tolerance", goal_tolerance, strict=True)
         self.terminate_on_collision = bool(terminate_on_collision)
-        self.pad_info = (
-            not isinstance(self._scenario_source, Scenario) if pad_info is None else bool(pad_info)
-        )
+        self.pad_info = (not isinstance(self._scenario_source, Scenario) if pad_info is None
+                         else bool(pad_info))
         self.predictor: Predictor | None = resolve_predictor(predictor)
         self.random_start: RandomStart | None = resolve_random_start(random_start)
         self.actuation: Actuation | None = resolve_actuation(actuator_lag, drag, self.dt)
@@ -324,9 +307,8 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         self.ego_state: np.ndarray = _read_only(np.array(scenario.ego_start, dtype=np.float64))
         self.obstacle_positions: np.ndarray = _read_only(self._model.starts.copy())
         self.obstacle_velocities: np.ndarray = _read_only(self._model.initial_velocities.copy())
-        self.predictions: np.ndarray = _read_only(
-            np.zeros((self._model.n, self.n_samples, self.horizon, 2))
-        )
+        self.predictions: np.ndarray = _read_only(np.zeros((self._model.n, self.n_samples,
+                                                            self.horizon, 2)))
         self.step_count = 0
         self._applied = _read_only(np.zeros(2))
         start, goal = scenario.ego_start, scenario.goal
@@ -344,12 +326,8 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
 
     # ------------------------------------------------------------ observation
 
-    def observe(
-        self,
-        ego_state: np.ndarray,
-        obstacle_positions: np.ndarray,
-        obstacle_velocities: np.ndarray,
-    ) -> np.ndarray:
+    def observe(self, ego_state: np.ndarray, obstacle_positions: np.ndarray,
+                obstacle_velocities: np.ndarray) -> np.ndarray:
         """Observation the agent would receive in the given (hypothetical) situation.
 
         Uses the current goal; does not touch the environment's state. Returns the
@@ -368,10 +346,8 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         if x.shape != (4,):
             raise ValueError(f"ego_state must have shape (4,), got {x.shape}")
         if positions.ndim != 2 or positions.shape[1] != 2 or velocities.shape != positions.shape:
-            raise ValueError(
-                "obstacle_positions and obstacle_velocities must both have shape (n, 2), got "
-                f"{positions.shape} and {velocities.shape}"
-            )
+            raise ValueError("obstacle_positions and obstacle_velocities must both have shape "
+                             f"(n, 2), got {positions.shape} and {velocities.shape}")
         delta = positions - x[:2]
         n = delta.shape[0]
         centre = np.hypot(delta[:, 0], delta[:, 1]) if n > 1 else None  # only to sort
@@ -463,10 +439,8 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         if not isinstance(scenario, Scenario):
             raise ScenarioError(f"the scenario function returned {scenario!r}, not a Scenario")
         if self.pad_info and scenario.n_obstacles > self.max_obstacles:
-            raise ScenarioError(
-                f"scenario {scenario.name!r} has {scenario.n_obstacles} obstacles but "
-                f"max_obstacles={self.max_obstacles}; pass a larger max_obstacles"
-            )
+            raise ScenarioError(f"scenario {scenario.name!r} has {scenario.n_obstacles} obstacles "
+                                f"but max_obstacles={self.max_obstacles}; pass a larger one")
         self._load(scenario)
         self._model.reset(self.np_random)
         self.obstacle_positions = _read_only(self._model.positions)
@@ -488,10 +462,9 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
     def _draw_start(self) -> None:
         """Replace the scenario's ego start by a :attr:`random_start` draw (training only)."""
         drawn = self.random_start.draw(
-            self.np_random, goal=self.goal, goal_tolerance=self.goal_tolerance,
-            arena=self._arena, ego_radius=self.ego_radius,
-            obstacle_positions=self.obstacle_positions, obstacle_radii=self.obstacle_radii,
-        )
+            self.np_random, goal=self.goal, goal_tolerance=self.goal_tolerance, arena=self._arena,
+            ego_radius=self.ego_radius, obstacle_positions=self.obstacle_positions,
+            obstacle_radii=self.obstacle_radii)
         if drawn is not None:
             start, goal = drawn
             speed = math.hypot(start[2], start[3])
@@ -582,16 +555,14 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         axes after the scene is drawn.
         """
         if self.render_mode is None:
-            gym.logger.warn(
-                "render() called without a render_mode; pass render_mode='rgb_array' or "
-                "'human' to gym.make"
-            )
+            gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' "
+                            "or 'human' to gym.make")
             return None
         if self._renderer is None:
             from safe_nav_env.rendering import Renderer
 
-            self._renderer = Renderer(human=self.render_mode == "human", fps=self.metadata[
-                "render_fps"])
+            self._renderer = Renderer(human=self.render_mode == "human",
+                                      fps=self.metadata["render_fps"])
         return self._renderer.draw(self, getattr(self, "_trail", []))
 
     def close(self) -> None:

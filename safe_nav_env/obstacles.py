@@ -48,12 +48,8 @@ from safe_nav_env.noise import NoiseLaw
 from safe_nav_env.scenarios import ObstacleSpec
 
 
-def distance_to_collision(
-    ego_position: np.ndarray,
-    obstacle_positions: np.ndarray,
-    ego_radius: float,
-    obstacle_radii: np.ndarray,
-) -> np.ndarray:
+def distance_to_collision(ego_position: np.ndarray, obstacle_positions: np.ndarray,
+                          ego_radius: float, obstacle_radii: np.ndarray) -> np.ndarray:
     """Signed clearance between the ego disc and each obstacle disc.
 
     .. math::  d_i = \\lVert y - p_i \\rVert - r_A - r_{O,i}

@@ -111,13 +111,8 @@ class ConstantVelocityKalman:
         For a non-finite or non-positive parameter.
     """
 
-    def __init__(
-        self,
-        *,
-        acceleration_psd: float = 0.02,
-        measurement_variance: float = 0.01,
-        initial_speed_std: float = 2.0,
-    ) -> None:
+    def __init__(self, *, acceleration_psd: float = 0.02, measurement_variance: float = 0.01,
+                 initial_speed_std: float = 2.0) -> None:
         self.acceleration_psd = _option("acceleration_psd", acceleration_psd)
         self.measurement_variance = _option("measurement_variance", measurement_variance,
                                             strict=True)

@@ -310,14 +310,9 @@ MULTI_OBSTACLE = Scenario(
 """Three obstacles moving along +x around the ego's path (the paper's Fig. 4)."""
 
 
-def random_crossing(
-    rng: np.random.Generator,
-    *,
-    noise: NoiseModel | str = "paper",
-    min_obstacles: int = 1,
-    max_obstacles: int = 4,
-    duration: float = 8.0,
-) -> Scenario:
+def random_crossing(rng: np.random.Generator, *, noise: NoiseModel | str = "paper",
+                    min_obstacles: int = 1, max_obstacles: int = 4,
+                    duration: float = 8.0) -> Scenario:
     """Draw a randomised crossing scenario, for training.
 
     The ego starts at ``x = -4.5`` with ``y ~ U(-2.5, 2.5)`` and speed

@@ -98,17 +98,10 @@ class RandomStart:
         high = _option("random_start.goal_distance[1]", distance[1], low=low)
         set_(self, "goal_distance", (low, high))
 
-    def draw(
-        self,
-        rng: np.random.Generator,
-        *,
-        goal: np.ndarray,
-        goal_tolerance: float,
-        arena: tuple[tuple[float, float], tuple[float, float]],
-        ego_radius: float,
-        obstacle_positions: np.ndarray,
-        obstacle_radii: np.ndarray,
-    ) -> tuple[np.ndarray, np.ndarray] | None:
+    def draw(self, rng: np.random.Generator, *, goal: np.ndarray, goal_tolerance: float,
+             arena: tuple[tuple[float, float], tuple[float, float]], ego_radius: float,
+             obstacle_positions: np.ndarray,
+             obstacle_radii: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """A random initial ego state ``(p_x, p_y, v_x, v_y)`` and goal ``(x, y)``, or ``None``.
 
         ``None`` (keep the scenario's start and goal) when this episode is not a random

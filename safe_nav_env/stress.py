@@ -153,15 +153,9 @@ TURNING = Scenario(
 """Two obstacles that may turn (probability 0.5 each) into the ego's path: bimodal predictions."""
 
 
-def crossing_scenario(
-    name: str,
-    xs: Sequence[float],
-    *,
-    speed: float = 0.8,
-    stop_window: tuple[float, float] | None = None,
-    duration: float = 6.0,
-    episode_length: float = 10.0,
-) -> Scenario:
+def crossing_scenario(name: str, xs: Sequence[float], *, speed: float = 0.8,
+                      stop_window: tuple[float, float] | None = None, duration: float = 6.0,
+                      episode_length: float = 10.0) -> Scenario:
     """Obstacles crossing the ego's path ``(-4.7, 0) -> (4.7, 0)`` at the given ``x``.
 
     Obstacle ``j`` moves vertically at ``speed`` (m/s), upwards for even ``j`` and

@@ -194,14 +194,9 @@ def plot_distance_boxplots(records: Sequence[EpisodeRecord], path: str | Path) -
     return save_figure(fig, path)
 
 
-def plot_window_boxplots(
-    distances: Mapping[str, Mapping[str, np.ndarray]],
-    windows: Mapping[str, tuple[int, int]],
-    path: str | Path,
-    *,
-    dt: float = DT,
-    title: str = "",
-) -> Path:
+def plot_window_boxplots(distances: Mapping[str, Mapping[str, np.ndarray]],
+                         windows: Mapping[str, tuple[int, int]], path: str | Path, *,
+                         dt: float = DT, title: str = "") -> Path:
     """Per-step box plots of the sampled distance to collision in each scenario's window.
 
     The paper's Fig. 4, bottom row: for every sample ``k`` of the window, one box
@@ -301,10 +296,8 @@ def plot_collision_rates(
     return save_figure(fig, path)
 
 
-def plot_safe_polytopes(
-    trajectory: Trajectory | Any, path: str | Path, *, every: int = 3,
-    bounds=((-5.0, -5.0), (5.0, 5.0)), title: str = "",
-) -> Path:
+def plot_safe_polytopes(trajectory: Trajectory | Any, path: str | Path, *, every: int = 3,
+                        bounds=((-5.0, -5.0), (5.0, 5.0)), title: str = "") -> Path:
     """Ego and obstacle paths with the safe polytope of every ``every``-th step (Fig. 5).
 
     The polytope at step t is the intersection of the first-step halfspaces of all
@@ -365,14 +358,8 @@ def polytope_figures(trajectory: Any, folder: Path, *, title: str, label: str
     return files
 
 
-def save_gif(
-    frames: Sequence[np.ndarray],
-    path: str | Path,
-    fps: int = 5,
-    *,
-    label: str = "",
-    legend: Sequence[tuple[str, tuple[int, int, int]]] = GIF_LEGEND,
-) -> Path:
+def save_gif(frames: Sequence[np.ndarray], path: str | Path, fps: int = 5, *, label: str = "",
+             legend: Sequence[tuple[str, tuple[int, int, int]]] = GIF_LEGEND) -> Path:
     """Write RGB frames (H, W, 3) uint8 as an animated GIF (Pillow, a matplotlib dependency).
 
     A banner is added under every frame with ``label`` (e.g. the risk setting:

@@ -95,15 +95,10 @@ def dominated(points: Sequence[ParetoPoint]) -> list[bool]:
     return flags
 
 
-def plot_pareto(
-    panels: Mapping[str, Sequence[ParetoPoint]],
-    path: str | Path,
-    *,
-    title: str | None = None,
-    xlabel: str = TIME_LABEL,
-    ylabel: str = "collision rate (continuous time), Wilson 95 % CI",
-    columns: int = 2,
-) -> Path:
+def plot_pareto(panels: Mapping[str, Sequence[ParetoPoint]], path: str | Path, *,
+                title: str | None = None, xlabel: str = TIME_LABEL,
+                ylabel: str = "collision rate (continuous time), Wilson 95 % CI",
+                columns: int = 2) -> Path:
     """One figure, one panel per case: collision rate against time to goal for every method.
 
     Parameters

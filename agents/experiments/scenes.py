@@ -74,27 +74,12 @@ def scene_setting(record: EpisodeRecord, catalogue: Mapping[str, Mapping[str, An
     return record.env_options
 
 
-def run_scene_suite(
-    output: str | Path,
-    scenario: str,
-    catalogue: Mapping[str, Mapping[str, Any]],
-    settings: Sequence[str],
-    risks: Sequence[str],
-    *,
-    table: Callable[[Sequence[EpisodeRecord]], str],
-    title: str,
-    shipped_policy: str,
-    episodes: int,
-    seed: int,
-    workers: int,
-    planner: str,
-    reference: str,
-    policy_path: str,
-    alpha: float,
-    delta: float,
-    epsilon: float,
-    **options: Any,
-) -> EvaluationOutputs:
+def run_scene_suite(output: str | Path, scenario: str, catalogue: Mapping[str, Mapping[str, Any]],
+                    settings: Sequence[str], risks: Sequence[str], *,
+                    table: Callable[[Sequence[EpisodeRecord]], str], title: str,
+                    shipped_policy: str, episodes: int, seed: int, workers: int, planner: str,
+                    reference: str, policy_path: str, alpha: float, delta: float, epsilon: float,
+                    **options: Any) -> EvaluationOutputs:
     """Run a scene suite through the evaluation pipeline; write ``episodes.csv`` and
     ``summary.md`` (``title``, the run's description and ``table(records)``) to ``output``.
 

@@ -169,14 +169,9 @@ def _time_ours(
     return OurTiming(risk, n_samples, one, full, per_call, per_call * n_obstacles * horizon)
 
 
-def benchmark_table_one(
-    sample_counts: Sequence[int] = (50, 500, 1500),
-    repeats: int = 20,
-    seed: int = 0,
-    *,
-    risks: Sequence[str] = ("cvar", "dr_cvar"),
-    formulation: str = "vectorized",
-) -> TableOneResult:
+def benchmark_table_one(sample_counts: Sequence[int] = (50, 500, 1500), repeats: int = 20,
+                        seed: int = 0, *, risks: Sequence[str] = ("cvar", "dr_cvar"),
+                        formulation: str = "vectorized") -> TableOneResult:
     """Reproduce the paper's Table I and time :func:`safe_halfspaces` on the same setup.
 
     Parameters

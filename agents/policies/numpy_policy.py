@@ -168,14 +168,8 @@ class NumpyPolicy:
         of clipped.
     """
 
-    def __init__(
-        self,
-        layers: list[Layer],
-        observation_space: Any,
-        action_space: Any,
-        *,
-        squash_output: bool = False,
-    ) -> None:
+    def __init__(self, layers: list[Layer], observation_space: Any, action_space: Any, *,
+                 squash_output: bool = False) -> None:
         if not layers:
             raise InvalidParameterError("a NumpyPolicy needs at least one affine layer, got none")
         self.observation_space = observation_space
@@ -232,13 +226,8 @@ class NumpyPolicy:
             )
         return rows, batched
 
-    def predict(
-        self,
-        observation: object,
-        state: Any = None,
-        episode_start: Any = None,
-        deterministic: bool = True,
-    ) -> tuple[np.ndarray, Any]:
+    def predict(self, observation: object, state: Any = None, episode_start: Any = None,
+                deterministic: bool = True) -> tuple[np.ndarray, Any]:
         """Stable-Baselines3's ``predict``, deterministic only.
 
         Parameters

@@ -94,19 +94,11 @@ class CrowdEnv(SafeNavEnv):
         For an unknown human policy or an invalid option.
     """
 
-    def __init__(
-        self,
-        *,
-        human_policy: str = "orca",
-        robot_visible: bool = False,
-        n_humans: int = N_HUMANS,
-        circle_radius: float = CIRCLE_RADIUS,
-        human_radius: float = HUMAN_RADIUS,
-        human_speed: float = HUMAN_SPEED,
-        discomfort_distance: float = DISCOMFORT_DISTANCE,
-        predictor: Any = "environment",
-        **options: Any,
-    ) -> None:
+    def __init__(self, *, human_policy: str = "orca", robot_visible: bool = False,
+                 n_humans: int = N_HUMANS, circle_radius: float = CIRCLE_RADIUS,
+                 human_radius: float = HUMAN_RADIUS, human_speed: float = HUMAN_SPEED,
+                 discomfort_distance: float = DISCOMFORT_DISTANCE, predictor: Any = "environment",
+                 **options: Any) -> None:
         if human_policy not in HUMAN_POLICIES:
             raise ConfigError(f"human_policy must be one of {HUMAN_POLICIES}, got "
                               f"{human_policy!r}")

@@ -142,21 +142,12 @@ class PedestrianEnv(SafeNavEnv):
         For an empty or malformed file (the message names the line).
     """
 
-    def __init__(
-        self,
-        scene: str | Path | Recording = "eth",
-        *,
-        predictor: str = "constant_velocity",
-        max_obstacles: int = MAX_PEDESTRIANS,
-        n_samples: int = 100,
-        horizon: int = 10,
-        dt: float = 0.2,
-        history_steps: int = 8,
-        pedestrian_radius: float = PEDESTRIAN_RADIUS,
-        ego_speed: float = EGO_SPEED,
-        arena: tuple[tuple[float, float], tuple[float, float]] | None = None,
-        **options: Any,
-    ) -> None:
+    def __init__(self, scene: str | Path | Recording = "eth", *,
+                 predictor: str = "constant_velocity", max_obstacles: int = MAX_PEDESTRIANS,
+                 n_samples: int = 100, horizon: int = 10, dt: float = 0.2, history_steps: int = 8,
+                 pedestrian_radius: float = PEDESTRIAN_RADIUS, ego_speed: float = EGO_SPEED,
+                 arena: tuple[tuple[float, float], tuple[float, float]] | None = None,
+                 **options: Any) -> None:
         unsupported = sorted({"scenario", "noise", "pad_info", "random_start"} & set(options))
         if unsupported:
             raise ConfigError(
