@@ -40,15 +40,8 @@ import numpy as np
 from safe_nav_env.errors import ConfigError
 from safe_nav_env.options import _named, _option
 
-__all__ = [
-    "ENVIRONMENT",
-    "PREDICTORS",
-    "ConstantVelocityKalman",
-    "Predictor",
-    "StalePredictor",
-    "check_predictions",
-    "resolve_predictor",
-]
+__all__ = ["ENVIRONMENT", "PREDICTORS", "ConstantVelocityKalman", "Predictor", "StalePredictor",
+    "check_predictions", "resolve_predictor"]
 
 ENVIRONMENT = "environment"
 """Name of the environment's own sampler (the default predictor)."""

@@ -87,20 +87,8 @@ from safe_nav_env.scenarios import (
     Scenario,
 )
 
-__all__ = [
-    "ACTUATOR_LAG",
-    "CROSSING5",
-    "DENSE8",
-    "DRAG",
-    "DRIFT",
-    "STOPPING",
-    "STRESS_SUITE",
-    "TURNING",
-    "FasterObstacles",
-    "StressCase",
-    "crossing_scenario",
-    "understated_noise",
-]
+__all__ = ["ACTUATOR_LAG", "CROSSING5", "DENSE8", "DRAG", "DRIFT", "STOPPING", "STRESS_SUITE",
+    "TURNING", "FasterObstacles", "StressCase", "crossing_scenario", "understated_noise"]
 
 
 DRIFT: tuple[float, float] = (-0.03, 0.03)

@@ -31,16 +31,8 @@ from filters.geometry import Disc
 from filters.halfspaces import safe_halfspaces
 from safe_nav_env.constants import N_SAMPLES, OBSTACLE_RADIUS
 
-__all__ = [
-    "EXAMPLE_ONE",
-    "PAPER_TABLE_ONE",
-    "CvxpyTiming",
-    "OurTiming",
-    "TableOneResult",
-    "benchmark_table_one",
-    "format_table_one",
-    "halfspace_timing_table",
-]
+__all__ = ["EXAMPLE_ONE", "PAPER_TABLE_ONE", "CvxpyTiming", "OurTiming", "TableOneResult",
+    "benchmark_table_one", "format_table_one", "halfspace_timing_table"]
 
 #: The paper's Table I: mean (solve, call) times in ms, keyed by (risk, N_s); CVXPY + ECOS
 #: on a Xeon E3-1535M.

@@ -17,15 +17,8 @@ from safe_nav_env.pedestrians.replay import ReplayModel
 from safe_nav_env.pedestrians.residuals import residual_bank
 from safe_nav_env.scenarios import Scenario, _arena
 
-__all__ = [
-    "EGO_SPEED",
-    "MAX_PEDESTRIANS",
-    "MIN_SEPARATION",
-    "PEDESTRIAN_RADIUS",
-    "START_CLEARANCE",
-    "PedestrianEnv",
-    "time_limit",
-]
+__all__ = ["EGO_SPEED", "MAX_PEDESTRIANS", "MIN_SEPARATION", "PEDESTRIAN_RADIUS", "START_CLEARANCE",
+    "PedestrianEnv", "time_limit"]
 
 MAX_PEDESTRIANS = 8
 """Default number of obstacle slots ``K``: the 8 pedestrians nearest the ego. In the

@@ -38,17 +38,8 @@ from safe_nav_env.errors import ConfigError
 from safe_nav_env.options import _option
 from safe_nav_env.predictors import ConstantVelocityKalman
 
-__all__ = [
-    "FORECASTERS",
-    "MOVING",
-    "NEW",
-    "STANDING",
-    "STANDING_SPEED",
-    "STRATA",
-    "Forecaster",
-    "headings",
-    "strata_of",
-]
+__all__ = ["FORECASTERS", "MOVING", "NEW", "STANDING", "STANDING_SPEED", "STRATA", "Forecaster",
+    "headings", "strata_of"]
 
 NEW, STANDING, MOVING = 0, 1, 2
 STRATA = ("new", "standing", "moving")

@@ -36,16 +36,8 @@ import numpy as np
 from safe_nav_env.errors import ConfigError, ScenarioError
 from safe_nav_env.options import _option
 
-__all__ = [
-    "SCENES",
-    "SECONDS_PER_FRAME",
-    "Recording",
-    "RecordingError",
-    "load_recording",
-    "parse_tracks",
-    "resample",
-    "scene_path",
-]
+__all__ = ["SCENES", "SECONDS_PER_FRAME", "Recording", "RecordingError", "load_recording",
+    "parse_tracks", "resample", "scene_path"]
 
 SECONDS_PER_FRAME = 0.04
 """Duration of one frame number in the ETH/UCY files, s (10 frames = 0.4 s)."""
