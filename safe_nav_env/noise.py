@@ -51,9 +51,8 @@ def _as_float_tuple(value: Any, path: str) -> float | tuple[float, ...] | tuple[
     except (TypeError, ValueError) as exc:
         raise ScenarioError(f"{path} must be numeric, got {value!r}") from exc
     if array.ndim > 2:
-        raise ScenarioError(
-            f"{path} must be a scalar, a vector or a matrix, got shape {array.shape}"
-        )
+        raise ScenarioError(f"{path} must be a scalar, a vector or a matrix, got shape "
+                            f"{array.shape}")
     if not np.all(np.isfinite(array)):
         raise ScenarioError(f"{path} must be finite, got {value!r}")
     return array.tolist() if array.ndim == 0 else _to_tuple(array.tolist())
@@ -84,39 +83,29 @@ class _Law:
         object.__setattr__(self, "covariance", cov)
         object.__setattr__(self, "mean", mean)
         cov_array = np.asarray(cov, dtype=np.float64)
-        if cov_array.ndim == 0:
-            if cov_array < 0:
-                raise ScenarioError(f"{name}.covariance must be >= 0 (in m²), got {cov}")
-            kind, scale = "iso", math.sqrt(float(cov_array))
-        elif cov_array.ndim == 1:
+        if cov_array.ndim < 2:  # σ² or per-axis variances
             if np.any(cov_array < 0):
-                raise ScenarioError(
-                    f"{name}.covariance (per-axis variances) must be >= 0 (in m²), got {cov}"
-                )
-            kind, scale = "diag", np.sqrt(cov_array)
+                raise ScenarioError(f"{name}.covariance must be >= 0 (variances in m²), got {cov}")
+            kind = "iso" if cov_array.ndim == 0 else "diag"
+            scale = math.sqrt(float(cov_array)) if kind == "iso" else np.sqrt(cov_array)
         else:
             if cov_array.shape[0] != cov_array.shape[1]:
-                raise ScenarioError(
-                    f"{name}.covariance must be a square matrix, got shape {cov_array.shape}"
-                )
+                raise ScenarioError(f"{name}.covariance must be a square matrix, got shape "
+                                    f"{cov_array.shape}")
             if not np.allclose(cov_array, cov_array.T, rtol=0.0, atol=1e-12):
                 raise ScenarioError(f"{name}.covariance must be symmetric, got {cov}")
             eigenvalues, eigenvectors = np.linalg.eigh(cov_array)
             if eigenvalues.min() < -1e-12 * max(1.0, float(np.abs(eigenvalues).max())):
-                raise ScenarioError(
-                    f"{name}.covariance must be positive semidefinite, got eigenvalues "
-                    f"{eigenvalues.tolist()}"
-                )
+                raise ScenarioError(f"{name}.covariance must be positive semidefinite, got "
+                                    f"eigenvalues {eigenvalues.tolist()}")
             kind = "full"
             scale = eigenvectors * np.sqrt(np.clip(eigenvalues, 0.0, None))  # L with L L' = Σ
         mean_array = np.asarray(mean, dtype=np.float64)
         if mean_array.ndim > 1:
             raise ScenarioError(f"{name}.mean must be a scalar or a vector, got {mean}")
         if kind != "iso" and mean_array.ndim == 1 and mean_array.shape[0] != cov_array.shape[0]:
-            raise ScenarioError(
-                f"{name}.mean has {mean_array.shape[0]} entries but {name}.covariance is for "
-                f"{cov_array.shape[0]} axes"
-            )
+            raise ScenarioError(f"{name}.mean has {mean_array.shape[0]} entries but "
+                                f"{name}.covariance is for {cov_array.shape[0]} axes")
         object.__setattr__(self, "_kind", kind)
         object.__setattr__(self, "_scale", scale)
         object.__setattr__(self, "_mean_array", None if not np.any(mean_array) else mean_array)
@@ -163,14 +152,10 @@ class _Law:
             Float64 array of ``shape``, in m.
         """
         z = self._standard(rng, shape)
-        kind = self._kind
-        if kind == "iso":
-            if self._scale != 1.0:
-                z *= self._scale
-        elif kind == "diag":
-            z *= self._scale
-        else:
+        if self._kind == "full":
             z = z @ self._scale.T
+        elif self._kind == "diag" or self._scale != 1.0:
+            z *= self._scale
         if self._mean_array is not None:
             z += self._mean_array
         return z
@@ -295,10 +280,8 @@ def noise_law(value: Any, path: str = "law") -> _Law:
     if isinstance(value, str):
         value = {"law": value}
     if not isinstance(value, Mapping):
-        raise ScenarioError(
-            f"{path} must be a noise law (Gaussian, Laplace, StudentT), a law name in "
-            f"{sorted(LAWS)} or a mapping with a 'law' key, got {value!r}"
-        )
+        raise ScenarioError(f"{path} must be a noise law (Gaussian, Laplace, StudentT), a law "
+                            f"name in {sorted(LAWS)} or a mapping with a 'law' key, got {value!r}")
     params = dict(value)
     name = params.pop("law", None)
     if name not in LAWS:
@@ -389,7 +372,5 @@ def resolve_noise(value: Any, path: str = "noise") -> NoiseModel:
         return _named(NOISE_PRESETS, value, path, "noise preset")
     if isinstance(value, Mapping):
         return _from_fields(NoiseModel, value, path)
-    raise ScenarioError(
-        f"{path} must be a NoiseModel, a preset name in {sorted(NOISE_PRESETS)} or a mapping, "
-        f"got {value!r}"
-    )
+    raise ScenarioError(f"{path} must be a NoiseModel, a preset name in "
+                        f"{sorted(NOISE_PRESETS)} or a mapping, got {value!r}")

@@ -149,9 +149,8 @@ def _fit_bounds(trajectories: Any, margin: float = 0.5) -> tuple[tuple[float, fl
     points = []
     for traj in trajectories:
         reach = max([float(traj.ego_radius)] + list(np.asarray(traj.obstacle_radii, float)))
-        points.append(np.asarray(traj.ego, float).reshape(-1, 2))
-        points.append(np.asarray(traj.obstacles, float).reshape(-1, 2))
-        points.append(np.asarray(traj.goal, float).reshape(1, 2))
+        points += [np.asarray(getattr(traj, key), float).reshape(-1, 2)
+                   for key in ("ego", "obstacles", "goal")]
     if not points:
         return ((-5.0, -5.0), (5.0, 5.0))
     cloud = np.concatenate(points)
@@ -178,8 +177,7 @@ def plot_distance_boxplots(records: Sequence[EpisodeRecord], path: str | Path) -
                  and np.isfinite(r.min_distance)] for risk in risks]
         boxes = ax.boxplot(data, patch_artist=True, whis=(0, 100))
         for patch, risk in zip(boxes["boxes"], risks, strict=True):
-            patch.set_facecolor(RISK_COLORS.get(risk, "w"))
-            patch.set_alpha(0.6)
+            patch.set(facecolor=RISK_COLORS.get(risk, "w"), alpha=0.6)
         ax.set_xticks(range(1, len(risks) + 1), [RISK_LABELS.get(r, r) for r in risks],
                       rotation=30)
         ax.axhline(0.0, color="k", lw=1, ls="--")
@@ -226,9 +224,7 @@ def plot_window_boxplots(distances: Mapping[str, Mapping[str, np.ndarray]],
             positions = np.arange(len(steps)) + (j - (len(risks) - 1) / 2) * width
             boxes = ax.boxplot(data, positions=positions, widths=width * 0.9,
                                patch_artist=True, whis=(0, 100), manage_ticks=False)
-            for patch in boxes["boxes"]:
-                patch.set_facecolor(RISK_COLORS.get(risk, "w"))
-                patch.set_alpha(0.6)
+            plt.setp(boxes["boxes"], facecolor=RISK_COLORS.get(risk, "w"), alpha=0.6)
             ax.plot([], [], "s", color=RISK_COLORS.get(risk, "w"),
                     label=RISK_LABELS.get(risk, risk))
         ax.set_xticks(range(len(steps)), [f"{k}\n{k * dt:.1f} s" for k in steps])

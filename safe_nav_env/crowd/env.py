@@ -132,13 +132,9 @@ class CrowdEnv(SafeNavEnv):
                 angle = rng.random() * 2.0 * math.pi
                 offset = (rng.random(2) - 0.5) * self.human_speed
                 start = np.array([r * math.cos(angle), r * math.sin(angle)]) + offset
-                clear = all(
-                    math.dist(start, other) >= self.human_radius + radius
-                    + self.discomfort_distance
-                    and math.dist(start, goal) >= self.human_radius + radius
-                    + self.discomfort_distance
-                    for other, goal, radius in placed)
-                if clear:
+                if all(min(math.dist(start, other), math.dist(start, goal))
+                       >= self.human_radius + radius + self.discomfort_distance
+                       for other, goal, radius in placed):
                     break
             else:
                 raise ConfigError(f"no free start for human {index} on a circle of radius {r} m "

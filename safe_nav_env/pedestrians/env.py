@@ -10,6 +10,7 @@ import numpy as np
 
 from safe_nav_env.env import SafeNavEnv, _read_only
 from safe_nav_env.errors import ConfigError, ScenarioError
+from safe_nav_env.info import _PADDED
 from safe_nav_env.options import _option
 from safe_nav_env.pedestrians.forecast import Forecaster
 from safe_nav_env.pedestrians.recording import Recording, load_recording
@@ -288,17 +289,14 @@ class PedestrianEnv(SafeNavEnv):
             return super()._info(distances, swept, distance_to_goal)
         present = model.present
         absent = ~present
-        masked = bool(absent.any())
-        if masked:
+        if absent.any():  # absent rows as padded ones: infinitely far, at rest
             distances = _read_only(np.where(present, distances, np.inf))
             swept = _read_only(np.where(present, swept, np.inf))
         info = super()._info(distances, swept, distance_to_goal)
-        if masked:
-            for key, fill in (("predictions", np.inf), ("obstacle_positions", np.inf),
-                              ("obstacle_velocities", 0.0)):
-                array = info[key].copy()
-                array[absent] = fill
-                info[key] = _read_only(array)
+        for key, fill in _PADDED[:3] if absent.any() else ():
+            array = info[key].copy()
+            array[absent] = fill
+            info[key] = _read_only(array)
         info["obstacle_present"] = _read_only(present.copy())
         info["pedestrian_index"] = _read_only(model.slots.copy())
         info["recording_step"] = model.step_index
