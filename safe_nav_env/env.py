@@ -353,9 +353,8 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         centre = np.hypot(delta[:, 0], delta[:, 1]) if n > 1 else None  # only to sort
         return self._observe(x, delta, velocities, centre)
 
-    def _observe(
-        self, x: np.ndarray, delta: np.ndarray, velocities: np.ndarray, centre: np.ndarray | None
-    ) -> np.ndarray:
+    def _observe(self, x: np.ndarray, delta: np.ndarray, velocities: np.ndarray,
+                 centre: np.ndarray | None) -> np.ndarray:
         """:meth:`observe` without the checks, given ``delta = positions - p`` and its norms.
 
         The few entries are computed on Python floats (the same IEEE double operations
@@ -379,9 +378,8 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
 
     # ------------------------------------------------------------------ info
 
-    def _info(
-        self, distances: np.ndarray, swept: np.ndarray, distance_to_goal: float
-    ) -> dict[str, Any]:
+    def _info(self, distances: np.ndarray, swept: np.ndarray,
+              distance_to_goal: float) -> dict[str, Any]:
         minimum = float(distances.min()) if distances.shape[0] else math.inf
         swept_minimum = float(swept.min()) if swept.shape[0] else math.inf
         collision = swept_minimum <= 0.0
@@ -411,9 +409,8 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
 
     # ------------------------------------------------------------------- API
 
-    def reset(
-        self, *, seed: int | None = None, options: dict[str, Any] | None = None
-    ) -> tuple[np.ndarray, dict[str, Any]]:
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
+              ) -> tuple[np.ndarray, dict[str, Any]]:
         """Start an episode.
 
         Parameters
@@ -475,9 +472,8 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
             self._goal = (float(goal[0]), float(goal[1]))
             self._distance_to_goal = math.hypot(start[0] - goal[0], start[1] - goal[1])
 
-    def step(
-        self, action: np.ndarray
-    ) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict[str, Any]]:
+    def step(self, action: np.ndarray
+             ) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict[str, Any]]:
         """Apply the acceleration ``action`` for one sampling period.
 
         Order of events: the ego moves (``x_{t+1} = A x_t + B u_t``), the obstacles

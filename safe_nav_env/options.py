@@ -26,14 +26,14 @@ def _option(
     if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
         raise error(f"{name} must be a number, got {value!r}")
     finite = math.isfinite(value)
-    relation = (f"in {'(' if strict else '['}{low:g}, {high:g}]" if high < math.inf
-                else f"{'>' if strict else '>='} {low:g}" if low > -math.inf else "a number")
+    bounds = (f"in {'(' if strict else '['}{low:g}, {high:g}]" if high < math.inf
+              else f"{'>' if strict else '>='} {low:g}" if low > -math.inf else "")
     if integer and not (finite and int(value) == value):
-        raise error(f"{name} must be an integer {relation}, got {value!r}")
+        raise error(f"{name} must be an integer {bounds}".rstrip() + f", got {value!r}")
     if (math.isnan(value) or not (finite or allow_inf) or value > high
             or (value <= low if strict else value < low)):
-        raise error(f"{name} must be {relation if finite or allow_inf else 'finite, ' + relation}"
-                    f", got {value!r}")
+        need = " and ".join(w for w in ("" if finite or allow_inf else "finite", bounds) if w)
+        raise error(f"{name} must be {need}, got {value!r}")
     return int(value) if integer else float(value)
 
 

@@ -23,6 +23,7 @@ import re
 import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -52,8 +53,7 @@ def _vector(value: Any, path: str, sizes: Sequence[int]) -> Vector:
     return tuple(float(v) for v in array)
 
 
-def _number(value: Any, path: str, **bounds: Any) -> float:
-    return _option(path, value, error=ScenarioError, **bounds)
+_number = partial(_option, error=ScenarioError)  # scenario data: a ScenarioError
 
 
 def _arena(value: Any, path: str = "arena", error: type[ValueError] = ScenarioError
@@ -131,12 +131,12 @@ class ObstacleSpec:
         set_ = object.__setattr__
         set_(self, "start", _vector(self.start, "ObstacleSpec.start", (2,)))
         set_(self, "velocity", _vector(self.velocity, "ObstacleSpec.velocity", (2,)))
-        set_(self, "radius", _number(self.radius, "ObstacleSpec.radius", strict=True))
-        set_(self, "turn_rate", _number(self.turn_rate, "ObstacleSpec.turn_rate", low=-math.inf))
+        set_(self, "radius", _number("ObstacleSpec.radius", self.radius, strict=True))
+        set_(self, "turn_rate", _number("ObstacleSpec.turn_rate", self.turn_rate, low=-math.inf))
         set_(self, "turn_probability",
-             _number(self.turn_probability, "ObstacleSpec.turn_probability", high=1.0))
-        set_(self, "turn_start", _number(self.turn_start, "ObstacleSpec.turn_start"))
-        set_(self, "turn_angle", _number(self.turn_angle, "ObstacleSpec.turn_angle", strict=True,
+             _number("ObstacleSpec.turn_probability", self.turn_probability, high=1.0))
+        set_(self, "turn_start", _number("ObstacleSpec.turn_start", self.turn_start))
+        set_(self, "turn_angle", _number("ObstacleSpec.turn_angle", self.turn_angle, strict=True,
                                          allow_inf=True))
         if self.stop_window is not None:
             window = _vector(self.stop_window, "ObstacleSpec.stop_window", (2,))
@@ -244,14 +244,14 @@ class Scenario:
              tuple(_obstacle(o, f"obstacles[{i}]") for i, o in enumerate(self.obstacles)))
 
         if self.episode_length is not None:
-            set_(self, "episode_length", _number(self.episode_length, "episode_length",
+            set_(self, "episode_length", _number("episode_length", self.episode_length,
                                                  strict=True))
         if self.duration is None:
             set_(self, "duration", DEFAULT_DURATION if self.episode_length is None
                  else self.episode_length)
-        set_(self, "duration", _number(self.duration, "duration", strict=True))
+        set_(self, "duration", _number("duration", self.duration, strict=True))
         set_(self, "noise", resolve_noise(self.noise, "noise"))
-        set_(self, "ego_radius", _number(self.ego_radius, "ego_radius", strict=True))
+        set_(self, "ego_radius", _number("ego_radius", self.ego_radius, strict=True))
 
     @property
     def time_limit(self) -> float:

@@ -64,12 +64,8 @@ def save_figure(fig, path: str | Path) -> Path:
 
 def _arena(ax, bounds=((-5.0, -5.0), (5.0, 5.0))) -> None:
     (x0, y0), (x1, y1) = bounds
-    ax.set_xlim(x0, x1)
-    ax.set_ylim(y0, y1)
-    ax.set_aspect("equal")
+    ax.set(xlim=(x0, x1), ylim=(y0, y1), aspect="equal", xlabel="x (m)", ylabel="y (m)")
     ax.grid(alpha=0.3)
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
 
 
 def _discs(ax, path: np.ndarray, radius: float, instants: Any, **style: Any) -> None:
@@ -229,8 +225,7 @@ def plot_window_boxplots(distances: Mapping[str, Mapping[str, np.ndarray]],
                     label=RISK_LABELS.get(risk, risk))
         ax.set_xticks(range(len(steps)), [f"{k}\n{k * dt:.1f} s" for k in steps])
         ax.axhline(0.0, color="k", lw=1, ls="--")
-        ax.set_title(f"{short_name(scenario)}: samples {first}-{last}")
-        ax.set_xlabel("sample (time)")
+        ax.set(title=f"{short_name(scenario)}: samples {first}-{last}", xlabel="sample (time)")
         ax.grid(alpha=0.3, axis="y")
     axes[0][0].set_ylabel("sampled distance to collision (m)")
     axes[0][-1].legend(fontsize=7)
@@ -282,9 +277,7 @@ def plot_collision_rates(
             ax.text(x, rate + top + 0.02, text, ha="center", va="bottom", fontsize=6,
                     rotation=90, gid="bar-count")
     ax.set_xticks(range(len(scenarios)), [short_name(s) for s in scenarios])
-    ax.set_ylabel(ylabel)
-    ax.set_ylim(0, 1.18)
-    ax.set_yticks(np.linspace(0, 1, 6))
+    ax.set(ylabel=ylabel, ylim=(0, 1.18), yticks=np.linspace(0, 1, 6))
     ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=len(risks),
               frameon=False)
     ax.grid(alpha=0.3, axis="y")
@@ -447,8 +440,8 @@ def plot_sweep(points: Sequence[dict], path: str | Path) -> Path:
         for p in pts:
             ax.annotate(f"ε={p['epsilon']:g} m", (p["mean_intervention"], p["collision_rate"]),
                         fontsize=7, textcoords="offset points", xytext=(3, 3))
-    ax.set_xlabel("mean intervention ‖u_safe − u_ref‖ per step (m/s²)")
-    ax.set_ylabel("collision rate (continuous time, share of episodes)")
+    ax.set(xlabel="mean intervention ‖u_safe − u_ref‖ per step (m/s²)",
+           ylabel="collision rate (continuous time, share of episodes)")
     ax.set_title("Safety against intervention: sweep of the Wasserstein radius ε (m)",
                  fontsize=10)
     ax.grid(alpha=0.3)

@@ -227,9 +227,8 @@ class PedestrianEnv(SafeNavEnv):
             self._model, self._model_scenario = self._replay, scenario
         super()._load(scenario)
 
-    def reset(
-        self, *, seed: int | None = None, options: dict[str, Any] | None = None
-    ) -> tuple[np.ndarray, dict[str, Any]]:
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
+              ) -> tuple[np.ndarray, dict[str, Any]]:
         """Start an episode (see the class docstring).
 
         Parameters
@@ -269,9 +268,8 @@ class PedestrianEnv(SafeNavEnv):
 
     # ---------------------------------------------------- observation and info
 
-    def _observe(
-        self, x: np.ndarray, delta: np.ndarray, velocities: np.ndarray, centre: np.ndarray | None
-    ) -> np.ndarray:
+    def _observe(self, x: np.ndarray, delta: np.ndarray, velocities: np.ndarray,
+                 centre: np.ndarray | None) -> np.ndarray:
         """The base observation without the absent slots (their observation slots stay zero)."""
         model = self._model
         if model is self._replay and delta.shape[0] == model.n:
@@ -281,9 +279,8 @@ class PedestrianEnv(SafeNavEnv):
                 centre = centre[present] if centre is not None and delta.shape[0] > 1 else None
         return super()._observe(x, delta, velocities, centre)
 
-    def _info(
-        self, distances: np.ndarray, swept: np.ndarray, distance_to_goal: float
-    ) -> dict[str, Any]:
+    def _info(self, distances: np.ndarray, swept: np.ndarray,
+              distance_to_goal: float) -> dict[str, Any]:
         model = self._model
         if model is not self._replay:
             return super()._info(distances, swept, distance_to_goal)
