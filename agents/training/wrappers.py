@@ -1,5 +1,9 @@
 """Wrappers for learners: episode cost for ``Monitor``, and a normalised action view.
 
+:class:`SafetyTally` is the one per-episode tally (collision, cost, success, mean
+intervention, filter statuses): :class:`EpisodeCostInfo` closes each episode with it, and
+the callbacks of :mod:`agents.training.callbacks` count rollouts and evaluations with it.
+
 The stack :func:`agents.training.ppo.make_training_env` builds, inside out::
 
     gym.make(id)                 physical units: accelerations in m/s², box [-10, 10]²
