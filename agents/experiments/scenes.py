@@ -19,6 +19,7 @@ from agents.evaluation.evaluate import evaluate
 from agents.evaluation.records import EpisodeRecord, EpisodeSpec
 from agents.evaluation.summary import summarise
 from agents.policies.loading import pretrained_policy_path
+from filters._validation import integer_at_least
 from filters.errors import InvalidParameterError
 
 __all__ = ["run_scene_suite", "scene_setting", "scene_specs"]
@@ -54,8 +55,7 @@ def scene_specs(scenario: str, catalogue: Mapping[str, Mapping[str, Any]],
     if unknown:
         raise InvalidParameterError(f"unknown {scenario} settings {unknown}; choose from "
                                     f"{list(catalogue)}")
-    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
-        raise InvalidParameterError(f"episodes must be an integer >= 1, got {episodes!r}")
+    integer_at_least("episodes", episodes)
     env_options = common.pop("env_options", "") or {}
     if isinstance(env_options, str):
         env_options = json.loads(env_options)
@@ -74,27 +74,12 @@ def scene_setting(record: EpisodeRecord, catalogue: Mapping[str, Mapping[str, An
     return record.env_options
 
 
-def run_scene_suite(
-    output: str | Path,
-    scenario: str,
-    catalogue: Mapping[str, Mapping[str, Any]],
-    settings: Sequence[str],
-    risks: Sequence[str],
-    *,
-    table: Callable[[Sequence[EpisodeRecord]], str],
-    title: str,
-    shipped_policy: str,
-    episodes: int,
-    seed: int,
-    workers: int,
-    planner: str,
-    reference: str,
-    policy_path: str,
-    alpha: float,
-    delta: float,
-    epsilon: float,
-    **options: Any,
-) -> EvaluationOutputs:
+def run_scene_suite(output: str | Path, scenario: str, catalogue: Mapping[str, Mapping[str, Any]],
+                    settings: Sequence[str], risks: Sequence[str], *,
+                    table: Callable[[Sequence[EpisodeRecord]], str], title: str,
+                    shipped_policy: str, episodes: int, seed: int, workers: int, planner: str,
+                    reference: str, policy_path: str, alpha: float, delta: float, epsilon: float,
+                    **options: Any) -> EvaluationOutputs:
     """Run a scene suite through the evaluation pipeline; write ``episodes.csv`` and
     ``summary.md`` (``title``, the run's description and ``table(records)``) to ``output``.
 
