@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from filters import MPCSafetyFilter
+from filters._validation import finite_array, integer_at_least
 from filters.constants import HORIZON
 from filters.errors import InvalidArrayError, InvalidParameterError
 from filters.protocol import FilterableEnv
@@ -103,36 +104,25 @@ class MPCReferencePlanner:
         If a weight or bound has the wrong shape or is not finite.
     """
 
-    def __init__(
-        self,
-        dynamics: tuple[np.ndarray, np.ndarray, np.ndarray],
-        *,
-        input_bounds: tuple[np.ndarray, np.ndarray],
-        position_bounds: tuple[np.ndarray, np.ndarray] | None = None,
-        horizon: int = HORIZON,
-        Q: float | np.ndarray = 1.0,
-        Q_terminal: float | np.ndarray = 3.0,
-        R: float | np.ndarray = 1.0,
-        convention: str = "quadratic",
-        max_speed: float = np.inf,
-    ) -> None:
+    def __init__(self, dynamics: tuple[np.ndarray, np.ndarray, np.ndarray], *,
+                 input_bounds: tuple[np.ndarray, np.ndarray],
+                 position_bounds: tuple[np.ndarray, np.ndarray] | None = None,
+                 horizon: int = HORIZON, Q: float | np.ndarray = 1.0,
+                 Q_terminal: float | np.ndarray = 3.0, R: float | np.ndarray = 1.0,
+                 convention: str = "quadratic", max_speed: float = np.inf) -> None:
         if convention not in CONVENTIONS:
             raise InvalidParameterError(
                 f"convention must be one of {CONVENTIONS}, got {convention!r}")
-        if isinstance(horizon, bool) or not isinstance(horizon, int | np.integer) or horizon < 1:
-            raise InvalidParameterError(f"horizon must be an integer >= 1, got {horizon!r}")
         A, B, C = (np.asarray(M, dtype=float) for M in dynamics)
         n, m = B.shape
         if C.shape[0] * 2 != n:
-            raise InvalidArrayError(
-                f"MPCReferencePlanner expects a state [position, velocity]; C has shape {C.shape}"
-                f" and the state has {n} entries"
-            )
+            raise InvalidArrayError(f"MPCReferencePlanner expects a state [position, velocity]; "
+                                    f"C has shape {C.shape} and the state has {n} entries")
         self.dynamics = (A, B, C)
-        self.horizon = int(horizon)
+        self.horizon = integer_at_least("horizon", horizon)
         self.convention = convention
-        weights = (_weight("Q", Q, n), _weight("Q_terminal", Q_terminal, n), _weight("R", R, m))
-        self.weights = weights
+        self.weights = weights = (_weight("Q", Q, n), _weight("Q_terminal", Q_terminal, n),
+                                  _weight("R", R, m))
         """``(Q, Q_terminal, R)`` as given, as matrices, in ``convention``."""
         self.last_status: str | None = None
         if convention == "quadratic":
@@ -144,14 +134,13 @@ class MPCReferencePlanner:
             return
         if position_bounds is not None or max_speed != np.inf:
             raise InvalidParameterError(
-                "position_bounds must be None and max_speed inf with "
-                "convention='authors_code' (the authors' planner has neither bound), got "
+                "position_bounds must be None and max_speed inf with convention='authors_code' "
+                "(the authors' planner has neither bound), got "
                 f"position_bounds={position_bounds!r}, max_speed={max_speed!r}")
         self._qp = None
-        low, high = (np.broadcast_to(np.asarray(b, dtype=float), (m,)) for b in input_bounds)
-        if not (np.all(np.isfinite(low)) and np.all(np.isfinite(high)) and np.all(low <= high)):
-            raise InvalidArrayError(
-                f"input_bounds must be finite with low <= high, got {input_bounds!r}")
+        low, high = (np.broadcast_to(finite_array("input_bounds", b), (m,)) for b in input_bounds)
+        if not np.all(low <= high):
+            raise InvalidArrayError(f"input_bounds must have low <= high, got {input_bounds!r}")
         self._u_low, self._u_high = np.tile(low, self.horizon), np.tile(high, self.horizon)
         self._build_least_squares()
 
@@ -249,8 +238,7 @@ class MPCReferencePlanner:
         target = np.concatenate([goal, np.zeros(state.shape[0] - goal.shape[0])])
         if self._qp is None:
             A, B, _ = self.dynamics
-            m = B.shape[1]
-            inputs = self._plan_least_squares(state, target).reshape(self.horizon, m)
+            inputs = self._plan_least_squares(state, target).reshape(self.horizon, B.shape[1])
             states = np.empty((self.horizon + 1, state.shape[0]))
             states[0] = state
             for t in range(self.horizon):
@@ -262,13 +250,8 @@ class MPCReferencePlanner:
         self.last_status = str(result.status.value)
         return result.states, result.inputs
 
-    def predict(
-        self,
-        observation: np.ndarray,
-        state: Any = None,
-        episode_start: Any = None,
-        deterministic: bool = True,
-    ) -> tuple[np.ndarray, None]:
+    def predict(self, observation: np.ndarray, state: Any = None, episode_start: Any = None,
+                deterministic: bool = True) -> tuple[np.ndarray, None]:
         """First planned input for a ``safe_nav_env`` observation (or a batch of them).
 
         The observation's first six entries are the ego state and the goal offset.
@@ -278,8 +261,7 @@ class MPCReferencePlanner:
         actions = np.empty((batch.shape[0], self.dynamics[1].shape[1]), dtype=np.float32)
         for k, row in enumerate(batch):
             ego = row[OBSERVATION_EGO_STATE]
-            goal = ego[:2] + row[OBSERVATION_GOAL_OFFSET]
-            actions[k] = self.plan(ego, goal)[1][0]
+            actions[k] = self.plan(ego, ego[:2] + row[OBSERVATION_GOAL_OFFSET])[1][0]
         return (actions if observation.ndim > 1 else actions[0]), None
 
     def __call__(
@@ -288,18 +270,12 @@ class MPCReferencePlanner:
         """Reference maker for :class:`filters.SafetyFilterWrapper`: the whole plan."""
         if horizon != self.horizon:
             raise InvalidParameterError(
-                f"the filter horizon {horizon} differs from the planner horizon {self.horizon}"
-            )
+                f"the filter horizon {horizon} differs from the planner horizon {self.horizon}")
         return self.plan(env.ego_state, env.goal)
 
 
 def _weight(name: str, value: float | np.ndarray, size: int) -> np.ndarray:
-    weight = np.asarray(value, dtype=float)
-    if not np.all(np.isfinite(weight)):
-        raise InvalidArrayError(f"{name} must be finite, got {value!r}")
-    if weight.ndim == 0:
-        return float(weight) * np.eye(size)
-    if weight.shape != (size, size):
-        raise InvalidArrayError(f"{name} must be a scalar or shape ({size}, {size}), got "
-                                f"{weight.shape}")
-    return weight
+    """A scalar weight times the identity, or a finite ``(size, size)`` matrix."""
+    weight = finite_array(name, value)
+    return float(weight) * np.eye(size) if weight.ndim == 0 else finite_array(
+        f"{name} (a scalar or a matrix)", weight, shape=(size, size))

@@ -78,14 +78,10 @@ def real_cubic_roots(a3: float, a2: float, a1: float, a0: float) -> tuple[float,
     return tuple(m * math.cos(theta - 2.0 * math.pi * k / 3.0) - shift for k in range(3))
 
 
-def swept_clearance(
-    ego_state: Sequence[float],
-    ego_input: Sequence[float],
-    dt: float,
-    obstacles_before: Sequence[Sequence[float]],
-    obstacles_after: Sequence[Sequence[float]],
-    radii_sum: Sequence[float],
-) -> list[float]:
+def swept_clearance(ego_state: Sequence[float], ego_input: Sequence[float], dt: float,
+                    obstacles_before: Sequence[Sequence[float]],
+                    obstacles_after: Sequence[Sequence[float]],
+                    radii_sum: Sequence[float]) -> list[float]:
     r"""Minimum clearance between the ego arc and each obstacle chord over one step.
 
     Parameters

@@ -25,14 +25,13 @@ from typing import Any
 
 import numpy as np
 
-from safe_nav_env.errors import ConfigError, InvalidActionError
+from safe_nav_env.errors import InvalidActionError
+from safe_nav_env.options import _option
 
 
 def _check(dt: float, dim: int) -> None:
-    if not (np.isfinite(dt) and dt > 0):
-        raise ConfigError(f"dt must be a finite number > 0 (in s), got {dt!r}")
-    if int(dim) != dim or dim < 1:
-        raise ConfigError(f"dim must be a positive integer, got {dim!r}")
+    _option("dt (s)", dt, strict=True)
+    _option("dim", dim, low=1, integer=True)
 
 
 def _read_only(*arrays: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -101,9 +100,8 @@ def parse_action(action: Any) -> tuple[float, float]:
     try:
         u = np.asarray(action, dtype=np.float64).ravel()
     except (TypeError, ValueError) as exc:
-        raise InvalidActionError(
-            f"action must be 2 accelerations (a_x, a_y) in m/s², shape (2,), got {action!r}"
-        ) from exc
+        raise InvalidActionError(f"action must be 2 accelerations (a_x, a_y) in m/s², shape "
+                                 f"(2,), got {action!r}") from exc
     if u.shape != (2,):  # a scalar is not broadcast to both axes
         raise InvalidActionError(
             f"action must have shape (2,) (a_x, a_y in m/s²), got shape {np.shape(action)}: "
@@ -114,10 +112,8 @@ def parse_action(action: Any) -> tuple[float, float]:
     return ux, uy
 
 
-def applied_acceleration(
-    velocity: tuple[float, float], action: tuple[float, float], dt: float,
-    max_acceleration: float, max_speed: float,
-) -> tuple[float, float]:
+def applied_acceleration(velocity: tuple[float, float], action: tuple[float, float], dt: float,
+                         max_acceleration: float, max_speed: float) -> tuple[float, float]:
     r"""The acceleration the ego applies for ``action``: the box, then the speed limit.
 
     The action is clipped to the box :math:`|u_i| \le a_\max`. If the next velocity

@@ -18,9 +18,9 @@ from safe_nav_env.errors import ConfigError, ScenarioError
 from safe_nav_env.info import _padded
 from safe_nav_env.noise import NoiseModel, resolve_noise
 from safe_nav_env.obstacles import ObstacleModel, distance_to_collision
-from safe_nav_env.options import _check_start_speed, _option, _resolve_scenario, _speed_option
+from safe_nav_env.options import _option, _speed_option
 from safe_nav_env.predictors import Predictor, check_predictions, resolve_predictor
-from safe_nav_env.scenarios import Scenario, ScenarioFactory
+from safe_nav_env.scenarios import Scenario, ScenarioFactory, _resolve_scenario
 from safe_nav_env.starts import RandomStart, resolve_random_start
 
 _EGO_SIZE = 6  # ego position, ego velocity, goal - ego position
@@ -192,43 +192,27 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 5}
 
-    def __init__(
-        self,
-        scenario: Scenario | ScenarioFactory | str | Mapping[str, Any] | None = None,
-        *,
-        render_mode: str | None = None,
-        noise: NoiseModel | str | Mapping[str, Any] | None = None,
-        n_samples: int | None = None,
-        horizon: int = HORIZON,
-        episode_length: float | None = None,
-        dt: float = DT,
-        max_acceleration: float = MAX_ACCELERATION,
-        max_speed: float | None = MAX_SPEED,
-        max_obstacles: int = 4,
-        progress_weight: float = 1.0,
-        arrival_bonus: float = 10.0,
-        control_cost_weight: float = 1e-3,
-        collision_penalty: float = 1.0,
-        time_penalty: float = 0.0,
-        goal_tolerance: float = 0.3,
-        terminate_on_collision: bool = False,
-        pad_info: bool | None = None,
-        predictor: Predictor | str | None = None,
-        random_start: RandomStart | float | Mapping[str, Any] | None = None,
-        actuator_lag: float = 0.0,
-        drag: float = 0.0,
-    ) -> None:
+    def __init__(self, scenario: Scenario | ScenarioFactory | str | Mapping[str, Any] | None = None,
+                 *, render_mode: str | None = None,
+                 noise: NoiseModel | str | Mapping[str, Any] | None = None,
+                 n_samples: int | None = None, horizon: int = HORIZON,
+                 episode_length: float | None = None, dt: float = DT,
+                 max_acceleration: float = MAX_ACCELERATION, max_speed: float | None = MAX_SPEED,
+                 max_obstacles: int = 4, progress_weight: float = 1.0, arrival_bonus: float = 10.0,
+                 control_cost_weight: float = 1e-3, collision_penalty: float = 1.0,
+                 time_penalty: float = 0.0, goal_tolerance: float = 0.3,
+                 terminate_on_collision: bool = False, pad_info: bool | None = None,
+                 predictor: Predictor | str | None = None,
+                 random_start: RandomStart | float | Mapping[str, Any] | None = None,
+                 actuator_lag: float = 0.0, drag: float = 0.0) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ConfigError(
-                f"render_mode must be None or one of {self.metadata['render_modes']}, "
-                f"got {render_mode!r}"
-            )
+            raise ConfigError(f"render_mode must be None or one of "
+                              f"{self.metadata['render_modes']}, got {render_mode!r}")
         self.render_mode = render_mode
         self._scenario_source = _resolve_scenario(scenario)
         self._noise_override = None if noise is None else resolve_noise(noise, "noise")
-        self._n_samples_override = (
-            None if n_samples is None else _option("n_samples", n_samples, low=1, integer=True)
-        )
+        self._n_samples_override = None if n_samples is None else _option(
+            "n_samples", n_samples, low=1, integer=True)
         self.horizon: int = _option("horizon", horizon, low=1, integer=True)
         self._episode_length = None if episode_length is None else _option(
             "episode_length", episode_length, strict=True)
@@ -243,9 +227,8 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         self.time_penalty = _option("time_penalty", time_penalty)
         self.goal_tolerance = _option("goal_tolerance", goal_tolerance, strict=True)
         self.terminate_on_collision = bool(terminate_on_collision)
-        self.pad_info = (
-            not isinstance(self._scenario_source, Scenario) if pad_info is None else bool(pad_info)
-        )
+        self.pad_info = (not isinstance(self._scenario_source, Scenario) if pad_info is None
+                         else bool(pad_info))
         self.predictor: Predictor | None = resolve_predictor(predictor)
         self.random_start: RandomStart | None = resolve_random_start(random_start)
         self.actuation: Actuation | None = resolve_actuation(actuator_lag, drag, self.dt)
@@ -273,17 +256,30 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         first = self._scenario_source if isinstance(self._scenario_source, Scenario) else None
         self._load(first)
 
-    def _predict_from_history(self, *, reset: bool) -> np.ndarray:
-        """Samples from :attr:`predictor` given the positions observed since reset."""
-        if reset:
-            self._history = []
-        self._history.append(self.obstacle_positions)
-        n, dim = self.obstacle_positions.shape
-        samples = self.predictor(
-            np.stack(self._history), dt=self.dt, horizon=self.horizon,
-            n_samples=self.n_samples, rng=self.np_random,
-        )
-        return check_predictions(samples, n, self.n_samples, self.horizon, dim)
+    def _predict(self, *, reset: bool) -> None:
+        """Draw :attr:`predictions`: the obstacle model's sampler, or :attr:`predictor` given
+        the positions observed since reset."""
+        if self.predictor is None:
+            samples = self._model.predict(self.np_random, self.noise.prediction, self.n_samples,
+                                          self.horizon)
+        else:
+            if reset:
+                self._history = []
+            self._history.append(self.obstacle_positions)
+            n, dim = self.obstacle_positions.shape
+            samples = check_predictions(self.predictor(
+                np.stack(self._history), dt=self.dt, horizon=self.horizon,
+                n_samples=self.n_samples, rng=self.np_random), n, self.n_samples, self.horizon, dim)
+        self.predictions = _read_only(samples)
+
+    def _trail_and_show(self, reset: bool) -> None:
+        """Record the positions for the renderer (human mode: draw the frame)."""
+        if self.render_mode is not None:
+            if reset:
+                self._trail = []
+            self._trail.append((self.ego_state[:2].copy(), self.obstacle_positions))
+            if self.render_mode == "human":
+                self.render()
 
     # ------------------------------------------------------------------ setup
 
@@ -311,9 +307,8 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         self.ego_state: np.ndarray = _read_only(np.array(scenario.ego_start, dtype=np.float64))
         self.obstacle_positions: np.ndarray = _read_only(self._model.starts.copy())
         self.obstacle_velocities: np.ndarray = _read_only(self._model.initial_velocities.copy())
-        self.predictions: np.ndarray = _read_only(
-            np.zeros((self._model.n, self.n_samples, self.horizon, 2))
-        )
+        self.predictions: np.ndarray = _read_only(np.zeros((self._model.n, self.n_samples,
+                                                            self.horizon, 2)))
         self.step_count = 0
         self._applied = _read_only(np.zeros(2))
         start, goal = scenario.ego_start, scenario.goal
@@ -331,12 +326,8 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
 
     # ------------------------------------------------------------ observation
 
-    def observe(
-        self,
-        ego_state: np.ndarray,
-        obstacle_positions: np.ndarray,
-        obstacle_velocities: np.ndarray,
-    ) -> np.ndarray:
+    def observe(self, ego_state: np.ndarray, obstacle_positions: np.ndarray,
+                obstacle_velocities: np.ndarray) -> np.ndarray:
         """Observation the agent would receive in the given (hypothetical) situation.
 
         Uses the current goal; does not touch the environment's state. Returns the
@@ -355,18 +346,15 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         if x.shape != (4,):
             raise ValueError(f"ego_state must have shape (4,), got {x.shape}")
         if positions.ndim != 2 or positions.shape[1] != 2 or velocities.shape != positions.shape:
-            raise ValueError(
-                "obstacle_positions and obstacle_velocities must both have shape (n, 2), got "
-                f"{positions.shape} and {velocities.shape}"
-            )
+            raise ValueError("obstacle_positions and obstacle_velocities must both have shape "
+                             f"(n, 2), got {positions.shape} and {velocities.shape}")
         delta = positions - x[:2]
         n = delta.shape[0]
         centre = np.hypot(delta[:, 0], delta[:, 1]) if n > 1 else None  # only to sort
         return self._observe(x, delta, velocities, centre)
 
-    def _observe(
-        self, x: np.ndarray, delta: np.ndarray, velocities: np.ndarray, centre: np.ndarray | None
-    ) -> np.ndarray:
+    def _observe(self, x: np.ndarray, delta: np.ndarray, velocities: np.ndarray,
+                 centre: np.ndarray | None) -> np.ndarray:
         """:meth:`observe` without the checks, given ``delta = positions - p`` and its norms.
 
         The few entries are computed on Python floats (the same IEEE double operations
@@ -390,9 +378,8 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
 
     # ------------------------------------------------------------------ info
 
-    def _info(
-        self, distances: np.ndarray, swept: np.ndarray, distance_to_goal: float
-    ) -> dict[str, Any]:
+    def _info(self, distances: np.ndarray, swept: np.ndarray,
+              distance_to_goal: float) -> dict[str, Any]:
         minimum = float(distances.min()) if distances.shape[0] else math.inf
         swept_minimum = float(swept.min()) if swept.shape[0] else math.inf
         collision = swept_minimum <= 0.0
@@ -422,9 +409,8 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
 
     # ------------------------------------------------------------------- API
 
-    def reset(
-        self, *, seed: int | None = None, options: dict[str, Any] | None = None
-    ) -> tuple[np.ndarray, dict[str, Any]]:
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
+              ) -> tuple[np.ndarray, dict[str, Any]]:
         """Start an episode.
 
         Parameters
@@ -450,40 +436,32 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         if not isinstance(scenario, Scenario):
             raise ScenarioError(f"the scenario function returned {scenario!r}, not a Scenario")
         if self.pad_info and scenario.n_obstacles > self.max_obstacles:
-            raise ScenarioError(
-                f"scenario {scenario.name!r} has {scenario.n_obstacles} obstacles but "
-                f"max_obstacles={self.max_obstacles}; pass a larger max_obstacles"
-            )
+            raise ScenarioError(f"scenario {scenario.name!r} has {scenario.n_obstacles} obstacles "
+                                f"but max_obstacles={self.max_obstacles}; pass a larger one")
         self._load(scenario)
-        model = self._model
-        model.reset(self.np_random)
-        self.obstacle_positions = _read_only(model.positions)
-        self.obstacle_velocities = _read_only(model.velocities)
+        self._model.reset(self.np_random)
+        self.obstacle_positions = _read_only(self._model.positions)
+        self.obstacle_velocities = _read_only(self._model.velocities)
         if self.random_start is not None:
             self._draw_start()
-        _check_start_speed(scenario.name, self.ego_state, self.max_speed)
-        self.predictions = _read_only(
-            model.predict(self.np_random, self.noise.prediction, self.n_samples, self.horizon)
-            if self.predictor is None else self._predict_from_history(reset=True)
-        )
-        p = self.ego_state[:2]
-        distances = distance_to_collision(p, self.obstacle_positions, self.ego_radius,
-                                          self.obstacle_radii)
-        if self.render_mode is not None:
-            self._trail = [(p.copy(), self.obstacle_positions)]
-            if self.render_mode == "human":
-                self.render()
+        speed = math.hypot(self.ego_state[2], self.ego_state[3])
+        if speed > self.max_speed:
+            raise ScenarioError(
+                f"scenario {scenario.name!r}: the ego starts at {speed:g} m/s, above "
+                f"max_speed={self.max_speed:g} m/s; pass a larger max_speed (inf: no limit)")
+        self._predict(reset=True)
+        distances = _read_only(distance_to_collision(
+            self.ego_state[:2], self.obstacle_positions, self.ego_radius, self.obstacle_radii))
+        self._trail_and_show(reset=True)
         obs = self.observe(self.ego_state, self.obstacle_positions, self.obstacle_velocities)
-        distances = _read_only(distances)
         return obs, self._info(distances, distances, self._distance_to_goal)
 
     def _draw_start(self) -> None:
         """Replace the scenario's ego start by a :attr:`random_start` draw (training only)."""
         drawn = self.random_start.draw(
-            self.np_random, goal=self.goal, goal_tolerance=self.goal_tolerance,
-            arena=self._arena, ego_radius=self.ego_radius,
-            obstacle_positions=self.obstacle_positions, obstacle_radii=self.obstacle_radii,
-        )
+            self.np_random, goal=self.goal, goal_tolerance=self.goal_tolerance, arena=self._arena,
+            ego_radius=self.ego_radius, obstacle_positions=self.obstacle_positions,
+            obstacle_radii=self.obstacle_radii)
         if drawn is not None:
             start, goal = drawn
             speed = math.hypot(start[2], start[3])
@@ -494,9 +472,8 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
             self._goal = (float(goal[0]), float(goal[1]))
             self._distance_to_goal = math.hypot(start[0] - goal[0], start[1] - goal[1])
 
-    def step(
-        self, action: np.ndarray
-    ) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict[str, Any]]:
+    def step(self, action: np.ndarray
+             ) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict[str, Any]]:
         """Apply the acceleration ``action`` for one sampling period.
 
         Order of events: the ego moves (``x_{t+1} = A x_t + B u_t``), the obstacles
@@ -531,10 +508,7 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         self.obstacle_positions = _read_only(model.step(self.np_random, self.noise.reality))
         before = model.chord_starts  # each obstacle's own position before the step
         self.obstacle_velocities = _read_only(model.velocities)
-        self.predictions = _read_only(
-            model.predict(self.np_random, self.noise.prediction, self.n_samples, self.horizon)
-            if self.predictor is None else self._predict_from_history(reset=False)
-        )
+        self._predict(reset=False)
         self.step_count += 1
 
         delta = self.obstacle_positions - self.ego_state[:2]
@@ -559,10 +533,7 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
 
         terminated = info["is_success"] or (self.terminate_on_collision and info["collision"])
         truncated = self.step_count >= self.max_episode_steps
-        if self.render_mode is not None:
-            self._trail.append((self.ego_state[:2].copy(), self.obstacle_positions))
-            if self.render_mode == "human":
-                self.render()
+        self._trail_and_show(reset=False)
         obs = self._observe(self.ego_state, delta, self.obstacle_velocities, centre)
         return obs, reward, bool(terminated), bool(truncated), info
 
@@ -580,16 +551,14 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         axes after the scene is drawn.
         """
         if self.render_mode is None:
-            gym.logger.warn(
-                "render() called without a render_mode; pass render_mode='rgb_array' or "
-                "'human' to gym.make"
-            )
+            gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' "
+                            "or 'human' to gym.make")
             return None
         if self._renderer is None:
             from safe_nav_env.rendering import Renderer
 
-            self._renderer = Renderer(human=self.render_mode == "human", fps=self.metadata[
-                "render_fps"])
+            self._renderer = Renderer(human=self.render_mode == "human",
+                                      fps=self.metadata["render_fps"])
         return self._renderer.draw(self, getattr(self, "_trail", []))
 
     def close(self) -> None:

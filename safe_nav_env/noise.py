@@ -31,13 +31,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import numpy as np
 
 from safe_nav_env.constants import N_SAMPLES
 from safe_nav_env.errors import ScenarioError
+from safe_nav_env.options import _from_fields, _named, _option
 
 # A covariance as given by the user: σ², (σ²_1, ..., σ²_d) or a d × d matrix.
 Covariance = float | tuple[float, ...] | tuple[tuple[float, ...], ...]
@@ -50,9 +51,8 @@ def _as_float_tuple(value: Any, path: str) -> float | tuple[float, ...] | tuple[
     except (TypeError, ValueError) as exc:
         raise ScenarioError(f"{path} must be numeric, got {value!r}") from exc
     if array.ndim > 2:
-        raise ScenarioError(
-            f"{path} must be a scalar, a vector or a matrix, got shape {array.shape}"
-        )
+        raise ScenarioError(f"{path} must be a scalar, a vector or a matrix, got shape "
+                            f"{array.shape}")
     if not np.all(np.isfinite(array)):
         raise ScenarioError(f"{path} must be finite, got {value!r}")
     return array.tolist() if array.ndim == 0 else _to_tuple(array.tolist())
@@ -83,39 +83,29 @@ class _Law:
         object.__setattr__(self, "covariance", cov)
         object.__setattr__(self, "mean", mean)
         cov_array = np.asarray(cov, dtype=np.float64)
-        if cov_array.ndim == 0:
-            if cov_array < 0:
-                raise ScenarioError(f"{name}.covariance must be >= 0 (in m²), got {cov}")
-            kind, scale = "iso", math.sqrt(float(cov_array))
-        elif cov_array.ndim == 1:
+        if cov_array.ndim < 2:  # σ² or per-axis variances
             if np.any(cov_array < 0):
-                raise ScenarioError(
-                    f"{name}.covariance (per-axis variances) must be >= 0 (in m²), got {cov}"
-                )
-            kind, scale = "diag", np.sqrt(cov_array)
+                raise ScenarioError(f"{name}.covariance must be >= 0 (variances in m²), got {cov}")
+            kind = "iso" if cov_array.ndim == 0 else "diag"
+            scale = math.sqrt(float(cov_array)) if kind == "iso" else np.sqrt(cov_array)
         else:
             if cov_array.shape[0] != cov_array.shape[1]:
-                raise ScenarioError(
-                    f"{name}.covariance must be a square matrix, got shape {cov_array.shape}"
-                )
+                raise ScenarioError(f"{name}.covariance must be a square matrix, got shape "
+                                    f"{cov_array.shape}")
             if not np.allclose(cov_array, cov_array.T, rtol=0.0, atol=1e-12):
                 raise ScenarioError(f"{name}.covariance must be symmetric, got {cov}")
             eigenvalues, eigenvectors = np.linalg.eigh(cov_array)
             if eigenvalues.min() < -1e-12 * max(1.0, float(np.abs(eigenvalues).max())):
-                raise ScenarioError(
-                    f"{name}.covariance must be positive semidefinite, got eigenvalues "
-                    f"{eigenvalues.tolist()}"
-                )
+                raise ScenarioError(f"{name}.covariance must be positive semidefinite, got "
+                                    f"eigenvalues {eigenvalues.tolist()}")
             kind = "full"
             scale = eigenvectors * np.sqrt(np.clip(eigenvalues, 0.0, None))  # L with L L' = Σ
         mean_array = np.asarray(mean, dtype=np.float64)
         if mean_array.ndim > 1:
             raise ScenarioError(f"{name}.mean must be a scalar or a vector, got {mean}")
         if kind != "iso" and mean_array.ndim == 1 and mean_array.shape[0] != cov_array.shape[0]:
-            raise ScenarioError(
-                f"{name}.mean has {mean_array.shape[0]} entries but {name}.covariance is for "
-                f"{cov_array.shape[0]} axes"
-            )
+            raise ScenarioError(f"{name}.mean has {mean_array.shape[0]} entries but "
+                                f"{name}.covariance is for {cov_array.shape[0]} axes")
         object.__setattr__(self, "_kind", kind)
         object.__setattr__(self, "_scale", scale)
         object.__setattr__(self, "_mean_array", None if not np.any(mean_array) else mean_array)
@@ -162,14 +152,10 @@ class _Law:
             Float64 array of ``shape``, in m.
         """
         z = self._standard(rng, shape)
-        kind = self._kind
-        if kind == "iso":
-            if self._scale != 1.0:
-                z *= self._scale
-        elif kind == "diag":
-            z *= self._scale
-        else:
+        if self._kind == "full":
             z = z @ self._scale.T
+        elif self._kind == "diag" or self._scale != 1.0:
+            z *= self._scale
         if self._mean_array is not None:
             z += self._mean_array
         return z
@@ -257,8 +243,8 @@ class StudentT(_Law):
     law: ClassVar[str] = "student_t"
 
     def _check_extra(self) -> None:
-        if not (isinstance(self.dof, int | float) and math.isfinite(self.dof) and self.dof > 2):
-            raise ScenarioError(f"StudentT.dof must be a finite number > 2, got {self.dof!r}")
+        object.__setattr__(self, "dof", _option("StudentT.dof", self.dof, low=2.0, strict=True,
+                                                error=ScenarioError))
 
     def _standard(self, rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
         z = rng.standard_t(self.dof, shape)
@@ -271,13 +257,6 @@ NoiseLaw = Gaussian | Laplace | StudentT
 
 LAWS: dict[str, type[_Law]] = {cls.law: cls for cls in (Gaussian, Laplace, StudentT)}
 """Noise laws by name, as used in mappings: ``{"law": "laplace", "covariance": 0.01}``."""
-
-
-def _reprefix(exc: ScenarioError, old: str, new: str) -> ScenarioError:
-    message = str(exc)
-    if message.startswith(old):
-        message = new + message[len(old) :]
-    return ScenarioError(message)
 
 
 def noise_law(value: Any, path: str = "law") -> _Law:
@@ -301,23 +280,13 @@ def noise_law(value: Any, path: str = "law") -> _Law:
     if isinstance(value, str):
         value = {"law": value}
     if not isinstance(value, Mapping):
-        raise ScenarioError(
-            f"{path} must be a noise law (Gaussian, Laplace, StudentT), a law name in "
-            f"{sorted(LAWS)} or a mapping with a 'law' key, got {value!r}"
-        )
+        raise ScenarioError(f"{path} must be a noise law (Gaussian, Laplace, StudentT), a law "
+                            f"name in {sorted(LAWS)} or a mapping with a 'law' key, got {value!r}")
     params = dict(value)
     name = params.pop("law", None)
     if name not in LAWS:
         raise ScenarioError(f"{path}.law must be one of {sorted(LAWS)}, got {name!r}")
-    cls = LAWS[name]
-    allowed = {f.name for f in fields(cls) if f.init}
-    unknown = sorted(set(params) - allowed)
-    if unknown:
-        raise ScenarioError(f"{path}: unknown parameter(s) {unknown} for law {name!r}")
-    try:
-        return cls(**params)
-    except ScenarioError as exc:
-        raise _reprefix(exc, cls.__name__, path) from None
+    return _from_fields(LAWS[name], params, path)
 
 
 @dataclass(frozen=True)
@@ -351,11 +320,8 @@ class NoiseModel:
     def __post_init__(self) -> None:
         object.__setattr__(self, "prediction", noise_law(self.prediction, "noise.prediction"))
         object.__setattr__(self, "reality", noise_law(self.reality, "noise.reality"))
-        if isinstance(self.n_samples, bool) or int(self.n_samples) != self.n_samples:
-            raise ScenarioError(f"noise.n_samples must be an integer, got {self.n_samples!r}")
-        if self.n_samples < 1:
-            raise ScenarioError(f"noise.n_samples must be >= 1, got {self.n_samples}")
-        object.__setattr__(self, "n_samples", int(self.n_samples))
+        object.__setattr__(self, "n_samples", _option("noise.n_samples", self.n_samples, low=1,
+                                                      integer=True, error=ScenarioError))
         for name in ("prediction", "reality"):
             dim = getattr(self, name).dim
             if dim is not None and dim != 2:
@@ -403,21 +369,8 @@ def resolve_noise(value: Any, path: str = "noise") -> NoiseModel:
     if isinstance(value, NoiseModel):
         return value
     if isinstance(value, str):
-        if value not in NOISE_PRESETS:
-            raise ScenarioError(
-                f"{path}: unknown noise preset {value!r}; choose one of {sorted(NOISE_PRESETS)} "
-                "or pass a NoiseModel"
-            )
-        return NOISE_PRESETS[value]
+        return _named(NOISE_PRESETS, value, path, "noise preset")
     if isinstance(value, Mapping):
-        unknown = sorted(set(value) - {"prediction", "reality", "n_samples"})
-        if unknown:
-            raise ScenarioError(f"{path}: unknown field(s) {unknown} of NoiseModel")
-        try:
-            return NoiseModel(**value)
-        except ScenarioError as exc:
-            raise _reprefix(exc, "noise", path) from None
-    raise ScenarioError(
-        f"{path} must be a NoiseModel, a preset name in {sorted(NOISE_PRESETS)} or a mapping, "
-        f"got {value!r}"
-    )
+        return _from_fields(NoiseModel, value, path)
+    raise ScenarioError(f"{path} must be a NoiseModel, a preset name in "
+                        f"{sorted(NOISE_PRESETS)} or a mapping, got {value!r}")

@@ -48,12 +48,8 @@ from safe_nav_env.noise import NoiseLaw
 from safe_nav_env.scenarios import ObstacleSpec
 
 
-def distance_to_collision(
-    ego_position: np.ndarray,
-    obstacle_positions: np.ndarray,
-    ego_radius: float,
-    obstacle_radii: np.ndarray,
-) -> np.ndarray:
+def distance_to_collision(ego_position: np.ndarray, obstacle_positions: np.ndarray,
+                          ego_radius: float, obstacle_radii: np.ndarray) -> np.ndarray:
     """Signed clearance between the ego disc and each obstacle disc.
 
     .. math::  d_i = \\lVert y - p_i \\rVert - r_A - r_{O,i}
@@ -135,9 +131,7 @@ class ObstacleModel:
         self.any_can_stop = bool(self.can_stop.any())
         self.stop_times = np.full(self.n, math.inf)
         self.radii.flags.writeable = False
-        self.step_count = 0
-        self._set_state(self.starts.copy(), self.initial_velocities.copy(), self.starts.copy())
-        self.turning = np.zeros(self.n, dtype=bool)
+        self.reset(None)
 
     def _set_state(
         self, positions: np.ndarray, velocities: np.ndarray, anchors: np.ndarray
@@ -153,14 +147,16 @@ class ObstacleModel:
         self._projected: np.ndarray | None = None
         self._offsets: np.ndarray | None = None  # k T_s v_t, valid while v_t is unchanged
 
-    def reset(self, rng: np.random.Generator) -> None:
-        """Put every obstacle at its start and draw which ones turn in this episode."""
+    def reset(self, rng: np.random.Generator | None) -> None:
+        """Put every obstacle at its start and draw which ones turn (and when they stop) in
+        this episode; without ``rng`` (at construction) none turns or stops."""
         self.step_count = 0
         self._set_state(self.starts.copy(), self.initial_velocities.copy(), self.starts.copy())
+        self.turning = np.zeros(self.n, dtype=bool)
+        if rng is None:
+            return
         if self.any_can_turn:
             self.turning = self.can_turn & (rng.random(self.n) < self.turn_probabilities)
-        else:
-            self.turning = np.zeros(self.n, dtype=bool)
         if self.any_can_stop:
             low, high = self.stop_windows[:, 0], self.stop_windows[:, 1]
             draws = low + (high - low) * rng.random(self.n)

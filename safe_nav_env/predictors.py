@@ -33,22 +33,15 @@ noise sequence differs from the default's for the same seed.
 
 from __future__ import annotations
 
-import math
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
 from safe_nav_env.errors import ConfigError
+from safe_nav_env.options import _named, _option
 
-__all__ = [
-    "ENVIRONMENT",
-    "PREDICTORS",
-    "ConstantVelocityKalman",
-    "Predictor",
-    "StalePredictor",
-    "check_predictions",
-    "resolve_predictor",
-]
+__all__ = ["ENVIRONMENT", "PREDICTORS", "ConstantVelocityKalman", "Predictor", "StalePredictor",
+    "check_predictions", "resolve_predictor"]
 
 ENVIRONMENT = "environment"
 """Name of the environment's own sampler (the default predictor)."""
@@ -58,27 +51,10 @@ ENVIRONMENT = "environment"
 class Predictor(Protocol):
     """Observed obstacle positions -> prediction samples (see the module docstring)."""
 
-    def __call__(
-        self,
-        history: np.ndarray,
-        *,
-        dt: float,
-        horizon: int,
-        n_samples: int,
-        rng: np.random.Generator,
-    ) -> np.ndarray:
+    def __call__(self, history: np.ndarray, *, dt: float, horizon: int, n_samples: int,
+                 rng: np.random.Generator) -> np.ndarray:
         """Samples of shape ``(n_obs, n_samples, horizon, d)``, in m."""
         ...
-
-
-def _positive(name: str, value: Any, *, allow_zero: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
-        raise ConfigError(f"{name} must be a number, got {value!r}")
-    number = float(value)
-    if not math.isfinite(number) or number < 0.0 or (number == 0.0 and not allow_zero):
-        relation = ">= 0" if allow_zero else "> 0"
-        raise ConfigError(f"{name} must be finite and {relation}, got {value!r}")
-    return number
 
 
 class ConstantVelocityKalman:
@@ -128,16 +104,12 @@ class ConstantVelocityKalman:
         For a non-finite or non-positive parameter.
     """
 
-    def __init__(
-        self,
-        *,
-        acceleration_psd: float = 0.02,
-        measurement_variance: float = 0.01,
-        initial_speed_std: float = 2.0,
-    ) -> None:
-        self.acceleration_psd = _positive("acceleration_psd", acceleration_psd, allow_zero=True)
-        self.measurement_variance = _positive("measurement_variance", measurement_variance)
-        self.initial_speed_std = _positive("initial_speed_std", initial_speed_std)
+    def __init__(self, *, acceleration_psd: float = 0.02, measurement_variance: float = 0.01,
+                 initial_speed_std: float = 2.0) -> None:
+        self.acceleration_psd = _option("acceleration_psd", acceleration_psd)
+        self.measurement_variance = _option("measurement_variance", measurement_variance,
+                                            strict=True)
+        self.initial_speed_std = _option("initial_speed_std", initial_speed_std, strict=True)
         self._state: tuple[Any, ...] | None = None  # (rows, last row, dt, mean, P)
 
     def __repr__(self) -> str:
@@ -174,8 +146,9 @@ class ConstantVelocityKalman:
         ConfigError
             If ``history`` is not a finite ``(n_steps, n_obs, d)`` array with ``n_steps >= 1``.
         """
-        obs = _check_history(history)
-        dt = _positive("dt", dt)
+        obs = _finite_array("history", history, "(n_steps, n_obs, d) with n_steps >= 1",
+                            lambda shape: len(shape) == 3 and shape[0] > 0)
+        dt = _option("dt", dt, strict=True)
         F, Q = self._matrices(dt)
         r = self.measurement_variance
         state = self._state
@@ -228,15 +201,8 @@ class ConstantVelocityKalman:
         future = np.einsum("kab,odb->okda", steps, mean)[..., 0]  # (n_obs, T, d)
         return future, cov
 
-    def __call__(
-        self,
-        history: np.ndarray,
-        *,
-        dt: float,
-        horizon: int,
-        n_samples: int,
-        rng: np.random.Generator,
-    ) -> np.ndarray:
+    def __call__(self, history: np.ndarray, *, dt: float, horizon: int, n_samples: int,
+                 rng: np.random.Generator) -> np.ndarray:
         """Samples ``(n_obs, n_samples, horizon, d)`` from the predictive law, m."""
         future, cov = self.predictive(history, dt=dt, horizon=horizon)
         n_obs, _, dim = future.shape
@@ -279,41 +245,30 @@ class StalePredictor:
             raise ConfigError(
                 "StalePredictor needs a predictor that uses the observed history (e.g. "
                 f"'kalman'), not the environment's own sampler; got base={base!r}")
-        if (isinstance(delay, bool) or not isinstance(delay, int | np.integer)
-                or delay < 0):
-            raise ConfigError(f"delay must be an integer >= 0 (steps), got {delay!r}")
         self.base: Predictor = resolved
-        self.delay = int(delay)
+        self.delay = _option("delay (steps)", delay, integer=True)
 
     def __repr__(self) -> str:
         return f"StalePredictor({self.base!r}, delay={self.delay})"
 
-    def __call__(
-        self,
-        history: np.ndarray,
-        *,
-        dt: float,
-        horizon: int,
-        n_samples: int,
-        rng: np.random.Generator,
-    ) -> np.ndarray:
+    def __call__(self, history: np.ndarray, *, dt: float, horizon: int, n_samples: int,
+                 rng: np.random.Generator) -> np.ndarray:
         """The base predictor's samples from ``history[: len - delay]`` (at least one row), m."""
         rows = max(1, len(history) - self.delay)
         return self.base(history[:rows], dt=dt, horizon=horizon, n_samples=n_samples, rng=rng)
 
 
-def _check_history(history: object) -> np.ndarray:
+def _finite_array(name: str, value: object, expected: str, shape_ok: Any) -> np.ndarray:
+    """``value`` as a float64 array whose shape passes ``shape_ok`` and entries are finite."""
     try:
-        obs = np.asarray(history, dtype=np.float64)
+        array = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
-        raise ConfigError(f"history must be a numeric array, got {history!r}") from exc
-    if obs.ndim != 3 or obs.shape[0] == 0:
-        raise ConfigError(
-            f"history must have shape (n_steps, n_obs, d) with n_steps >= 1, got {obs.shape}"
-        )
-    if not np.isfinite(obs).all():
-        raise ConfigError("history must be finite (observed positions, m)")
-    return obs
+        raise ConfigError(f"{name}: a non-numeric value {value!r}") from exc
+    if not shape_ok(array.shape):
+        raise ConfigError(f"{name} must have shape {expected}, got {array.shape}")
+    if not np.isfinite(array).all():
+        raise ConfigError(f"{name} must be finite, got NaN or infinite entries")
+    return array
 
 
 PREDICTORS: dict[str, Any] = {ENVIRONMENT: None, "kalman": ConstantVelocityKalman}
@@ -338,12 +293,7 @@ def resolve_predictor(value: object) -> Predictor | None:
     if value is None or value == ENVIRONMENT:
         return None
     if isinstance(value, str):
-        if value not in PREDICTORS:
-            raise ConfigError(
-                f"predictor: unknown name {value!r}; choose one of {sorted(PREDICTORS)} or "
-                "pass a callable (history, *, dt, horizon, n_samples, rng) -> samples"
-            )
-        return PREDICTORS[value]()
+        return _named(PREDICTORS, value, "predictor", "name", ConfigError)()
     if isinstance(value, type) or not callable(value):
         raise ConfigError(
             "predictor must be None, a name in "
@@ -363,16 +313,6 @@ def check_predictions(
     ConfigError
         If the output has another shape or holds NaN/inf.
     """
-    try:
-        array = np.asarray(samples, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ConfigError(f"the predictor returned a non-numeric value {samples!r}") from exc
     expected = (n_obs, n_samples, horizon, dim)
-    if array.shape != expected:
-        raise ConfigError(
-            f"the predictor must return samples of shape (n_obs, n_samples, horizon, d) = "
-            f"{expected}, got {array.shape}"
-        )
-    if not np.isfinite(array).all():
-        raise ConfigError("the predictor returned NaN or infinite samples")
-    return array
+    return _finite_array("the predictor's samples", samples,
+                         f"(n_obs, n_samples, horizon, d) = {expected}", lambda s: s == expected)

@@ -72,9 +72,7 @@ class Renderer:
         self._layout: tuple | None = None
         self._background: Any = None
         self._arena: tuple | None = None
-        self._plt: Any = None
-        self._window: Any = None
-        self._image: Any = None
+        self._plt = self._window = self._image = None  # the pyplot window of human mode
 
     # -------------------------------------------------------------- set-up
 
@@ -85,11 +83,8 @@ class Renderer:
         low, high = env.position_bounds
         margin = 0.5
         self._limits = ((low[0] - margin, high[0] + margin), (low[1] - margin, high[1] + margin))
-        ax.set_xlim(*self._limits[0])
-        ax.set_ylim(*self._limits[1])
-        ax.set_aspect("equal")
-        ax.set_xlabel("x [m]")
-        ax.set_ylabel("y [m]")
+        ax.set(xlim=self._limits[0], ylim=self._limits[1], aspect="equal", xlabel="x [m]",
+               ylabel="y [m]")
         ax.add_patch(Rectangle(tuple(low), *(high - low), fill=False, edgecolor="0.6", lw=1.5))
         self.canvas.draw()
         self._background = self.canvas.copy_from_bbox(self.fig.bbox)
@@ -251,8 +246,7 @@ class Renderer:
             for hook in env.render_hooks:
                 hook(ax)
             if ax.get_xlim() != self._limits[0] or ax.get_ylim() != self._limits[1]:
-                ax.set_xlim(*self._limits[0])  # a hook moved the view: put it back
-                ax.set_ylim(*self._limits[1])
+                ax.set(xlim=self._limits[0], ylim=self._limits[1])  # a hook moved the view
             added = [a for a in ax.get_children() if a not in before]
             for artist in sorted(added, key=lambda a: a.get_zorder()):
                 ax.draw_artist(artist)
@@ -289,9 +283,7 @@ class Renderer:
         if self._plt is not None and self._window is not None:
             self._plt.close(self._window)
         self._plt = self._window = self._image = None
-        self._layout = None
-        self._background = None
-        self._arena = None
+        self._layout = self._background = self._arena = None
 
 
 class _Caption:

@@ -22,14 +22,16 @@ import math
 import re
 import warnings
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
+from functools import partial
 from typing import Any
 
 import numpy as np
 
 from safe_nav_env.constants import ARENA, EGO_RADIUS, EGO_START_SPEED, OBSTACLE_RADIUS
-from safe_nav_env.errors import ScenarioError
+from safe_nav_env.errors import ConfigError, ScenarioError
 from safe_nav_env.noise import NoiseModel, resolve_noise
+from safe_nav_env.options import _from_fields, _named, _option
 
 Vector = tuple[float, ...]
 
@@ -51,28 +53,20 @@ def _vector(value: Any, path: str, sizes: Sequence[int]) -> Vector:
     return tuple(float(v) for v in array)
 
 
-def _number(
-    value: Any, path: str, *, low: float = -math.inf, strict: bool = False, allow_inf: bool = False
-) -> float:
-    """Return ``value`` as a float ``> low`` (``strict``) or ``>= low``.
-
-    It must be finite unless ``allow_inf``.
-    """
-    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
-        raise ScenarioError(f"{path} must be a number, got {value!r}")
-    number = float(value)
-    if math.isnan(number) or (math.isinf(number) and not allow_inf):
-        raise ScenarioError(f"{path} must be finite, got {value!r}")
-    if (strict and number <= low) or (not strict and number < low):
-        raise ScenarioError(f"{path} must be {'>' if strict else '>='} {low}, got {value!r}")
-    return number
+_number = partial(_option, error=ScenarioError)  # scenario data: a ScenarioError
 
 
-def _prefixed(exc: ScenarioError, prefix: str) -> ScenarioError:
-    message = str(exc)
-    if message.startswith("ObstacleSpec."):
-        message = message[len("ObstacleSpec.") :]
-    return ScenarioError(f"{prefix}.{message}")
+def _arena(value: Any, path: str = "arena", error: type[ValueError] = ScenarioError
+           ) -> tuple[Vector, Vector]:
+    """``((x_min, y_min), (x_max, y_max))`` as float tuples, finite with min < max, or ``error``."""
+    try:
+        box = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise error(f"{path} must be ((x_min, y_min), (x_max, y_max)), got {value!r}") from exc
+    if box.shape != (2, 2) or not np.isfinite(box).all() or np.any(box[0] >= box[1]):
+        raise error(f"{path} must have x_min < x_max and y_min < y_max, finite "
+                    f"((x_min, y_min), (x_max, y_max)), got {value!r}")
+    return tuple(box[0].tolist()), tuple(box[1].tolist())
 
 
 @dataclass(frozen=True)
@@ -137,21 +131,13 @@ class ObstacleSpec:
         set_ = object.__setattr__
         set_(self, "start", _vector(self.start, "ObstacleSpec.start", (2,)))
         set_(self, "velocity", _vector(self.velocity, "ObstacleSpec.velocity", (2,)))
-        set_(self, "radius", _number(self.radius, "ObstacleSpec.radius", low=0.0, strict=True))
-        set_(self, "turn_rate", _number(self.turn_rate, "ObstacleSpec.turn_rate"))
-        probability = _number(self.turn_probability, "ObstacleSpec.turn_probability", low=0.0)
-        if probability > 1.0:
-            raise ScenarioError(
-                f"ObstacleSpec.turn_probability must be in [0, 1], got {self.turn_probability!r}"
-            )
-        set_(self, "turn_probability", probability)
-        set_(self, "turn_start", _number(self.turn_start, "ObstacleSpec.turn_start", low=0.0))
-        set_(
-            self,
-            "turn_angle",
-            _number(self.turn_angle, "ObstacleSpec.turn_angle", low=0.0, strict=True,
-                    allow_inf=True),
-        )
+        set_(self, "radius", _number("ObstacleSpec.radius", self.radius, strict=True))
+        set_(self, "turn_rate", _number("ObstacleSpec.turn_rate", self.turn_rate, low=-math.inf))
+        set_(self, "turn_probability",
+             _number("ObstacleSpec.turn_probability", self.turn_probability, high=1.0))
+        set_(self, "turn_start", _number("ObstacleSpec.turn_start", self.turn_start))
+        set_(self, "turn_angle", _number("ObstacleSpec.turn_angle", self.turn_angle, strict=True,
+                                         allow_inf=True))
         if self.stop_window is not None:
             window = _vector(self.stop_window, "ObstacleSpec.stop_window", (2,))
             if not 0.0 <= window[0] <= window[1]:
@@ -170,17 +156,7 @@ def _obstacle(value: Any, path: str) -> ObstacleSpec:
         return value
     if not isinstance(value, Mapping):
         raise ScenarioError(f"{path} must be an ObstacleSpec or a mapping, got {value!r}")
-    allowed = {f.name for f in fields(ObstacleSpec)}
-    unknown = sorted(set(value) - allowed)
-    if unknown:
-        raise ScenarioError(f"{path}: unknown field(s) {unknown} of ObstacleSpec")
-    missing = sorted({"start", "velocity"} - set(value))
-    if missing:
-        raise ScenarioError(f"{path}: missing field(s) {missing}")
-    try:
-        return ObstacleSpec(**value)
-    except ScenarioError as exc:
-        raise _prefixed(exc, path) from None
+    return _from_fields(ObstacleSpec, value, path)
 
 
 @dataclass(frozen=True)
@@ -244,19 +220,8 @@ class Scenario:
         set_ = object.__setattr__
         if not isinstance(self.name, str) or not self.name:
             raise ScenarioError(f"name must be a non-empty string, got {self.name!r}")
-        try:
-            arena = np.asarray(self.arena, dtype=np.float64)
-        except (TypeError, ValueError) as exc:
-            raise ScenarioError(f"arena must be ((x_min, y_min), (x_max, y_max)), got "
-                                f"{self.arena!r}") from exc
-        if arena.shape != (2, 2) or not np.all(np.isfinite(arena)):
-            raise ScenarioError(
-                f"arena must be finite ((x_min, y_min), (x_max, y_max)), got {self.arena!r}"
-            )
-        if np.any(arena[0] >= arena[1]):
-            raise ScenarioError(f"arena must have x_min < x_max and y_min < y_max, got "
-                                f"{arena.tolist()}")
-        set_(self, "arena", (tuple(arena[0].tolist()), tuple(arena[1].tolist())))
+        set_(self, "arena", _arena(self.arena))
+        arena = np.asarray(self.arena)
 
         start = _vector(self.ego_start, "ego_start", (2, 4))
         if len(start) == 2:
@@ -279,14 +244,14 @@ class Scenario:
              tuple(_obstacle(o, f"obstacles[{i}]") for i, o in enumerate(self.obstacles)))
 
         if self.episode_length is not None:
-            set_(self, "episode_length",
-                 _number(self.episode_length, "episode_length", low=0.0, strict=True))
+            set_(self, "episode_length", _number("episode_length", self.episode_length,
+                                                 strict=True))
         if self.duration is None:
             set_(self, "duration", DEFAULT_DURATION if self.episode_length is None
                  else self.episode_length)
-        set_(self, "duration", _number(self.duration, "duration", low=0.0, strict=True))
+        set_(self, "duration", _number("duration", self.duration, strict=True))
         set_(self, "noise", resolve_noise(self.noise, "noise"))
-        set_(self, "ego_radius", _number(self.ego_radius, "ego_radius", low=0.0, strict=True))
+        set_(self, "ego_radius", _number("ego_radius", self.ego_radius, strict=True))
 
     @property
     def time_limit(self) -> float:
@@ -345,14 +310,9 @@ MULTI_OBSTACLE = Scenario(
 """Three obstacles moving along +x around the ego's path (the paper's Fig. 4)."""
 
 
-def random_crossing(
-    rng: np.random.Generator,
-    *,
-    noise: NoiseModel | str = "paper",
-    min_obstacles: int = 1,
-    max_obstacles: int = 4,
-    duration: float = 8.0,
-) -> Scenario:
+def random_crossing(rng: np.random.Generator, *, noise: NoiseModel | str = "paper",
+                    min_obstacles: int = 1, max_obstacles: int = 4,
+                    duration: float = 8.0) -> Scenario:
     """Draw a randomised crossing scenario, for training.
 
     The ego starts at ``x = -4.5`` with ``y ~ U(-2.5, 2.5)`` and speed
@@ -491,6 +451,29 @@ points. ``SafeNav/<name>-v0`` makes one; its options choose the scene."""
 
 SCENARIO_NAMES: tuple[str, ...] = (*SCENARIOS, *SCENES, CUSTOM)
 """Every canonical scenario name, one per registered gym id."""
+
+
+def _resolve_scenario(value: Any, path: str = "scenario") -> Scenario | ScenarioFactory:
+    """The scenario (or factory ``rng -> Scenario``) named or described by ``value``.
+
+    ``value``: a :class:`Scenario`, a function ``rng -> Scenario``, a name in
+    :data:`SCENARIOS`, or a mapping of :class:`Scenario` fields; ``path`` names it in
+    errors. Raises :class:`ConfigError` for ``None`` (the scenario is required),
+    :class:`ScenarioError` for anything else invalid.
+    """
+    if isinstance(value, Scenario) or (callable(value) and not isinstance(value, type)):
+        return value
+    if isinstance(value, str):
+        return _named(SCENARIOS, value, path, "scenario")
+    if isinstance(value, Mapping):
+        return _from_fields(Scenario, value, path)
+    if value is None:
+        raise ConfigError(
+            f"{path} is required: pass scenario=safe_nav_env.Scenario(...), a name in "
+            f"{sorted(SCENARIOS)}, or a function rng -> Scenario, e.g. "
+            "gym.make('SafeNav/Custom-v0', scenario=my_scenario)")
+    raise ScenarioError(f"{path} must be a Scenario, a scenario name, a mapping or a function "
+                        f"rng -> Scenario, got {value!r}")
 
 
 def scenario_name(name: str, *, warn: bool = True) -> str:

@@ -15,28 +15,16 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from safe_nav_env.errors import ConfigError
+from safe_nav_env.options import _from_fields, _option
 
 _ATTEMPTS = 100
 """Position draws before a random start gives up and keeps the scenario's start."""
-
-
-def _real(name: str, value: Any, *, low: float, high: float = math.inf,
-          open_low: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
-        raise ConfigError(f"random_start.{name} must be a number, got {value!r}")
-    number = float(value)
-    if not math.isfinite(number) or number < low or (open_low and number == low) or number > high:
-        left = "(" if open_low else "["
-        right = "]" if math.isfinite(high) else ")"
-        raise ConfigError(f"random_start.{name} must be finite and in {left}{low}, {high}{right}, "
-                          f"got {value!r}")
-    return number
 
 
 @dataclass(frozen=True)
@@ -99,28 +87,21 @@ class RandomStart:
     def __post_init__(self) -> None:
         set_ = object.__setattr__
         for name in ("probability", "near_goal", "rest", "random_goal"):
-            set_(self, name, _real(name, getattr(self, name), low=0.0, high=1.0))
+            set_(self, name, _option(f"random_start.{name}", getattr(self, name), high=1.0))
         for name in ("max_speed", "clearance", "wall_margin"):
-            set_(self, name, _real(name, getattr(self, name), low=0.0))
+            set_(self, name, _option(f"random_start.{name}", getattr(self, name)))
         distance = self.goal_distance
         if isinstance(distance, str) or not hasattr(distance, "__len__") or len(distance) != 2:
             raise ConfigError(
                 f"random_start.goal_distance must be (low, high) in m, got {distance!r}")
-        low = _real("goal_distance[0]", distance[0], low=0.0, open_low=True)
-        high = _real("goal_distance[1]", distance[1], low=low)
+        low = _option("random_start.goal_distance[0]", distance[0], strict=True)
+        high = _option("random_start.goal_distance[1]", distance[1], low=low)
         set_(self, "goal_distance", (low, high))
 
-    def draw(
-        self,
-        rng: np.random.Generator,
-        *,
-        goal: np.ndarray,
-        goal_tolerance: float,
-        arena: tuple[tuple[float, float], tuple[float, float]],
-        ego_radius: float,
-        obstacle_positions: np.ndarray,
-        obstacle_radii: np.ndarray,
-    ) -> tuple[np.ndarray, np.ndarray] | None:
+    def draw(self, rng: np.random.Generator, *, goal: np.ndarray, goal_tolerance: float,
+             arena: tuple[tuple[float, float], tuple[float, float]], ego_radius: float,
+             obstacle_positions: np.ndarray,
+             obstacle_radii: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """A random initial ego state ``(p_x, p_y, v_x, v_y)`` and goal ``(x, y)``, or ``None``.
 
         ``None`` (keep the scenario's start and goal) when this episode is not a random
@@ -179,12 +160,7 @@ def resolve_random_start(value: Any) -> RandomStart | None:
     if value is None or isinstance(value, RandomStart):
         return None if value is None or value.probability == 0.0 else value
     if isinstance(value, Mapping):
-        allowed = {f.name for f in fields(RandomStart)}
-        unknown = sorted(set(value) - allowed)
-        if unknown:
-            raise ConfigError(f"random_start: unknown field(s) {unknown}; the fields are "
-                              f"{sorted(allowed)}")
-        start = RandomStart(**value)
+        start = _from_fields(RandomStart, value, "random_start", ConfigError)
     elif isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool):
         start = RandomStart(probability=value)
     else:

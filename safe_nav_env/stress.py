@@ -76,6 +76,7 @@ import numpy as np
 from safe_nav_env.constants import EGO_START_SPEED, N_SAMPLES
 from safe_nav_env.errors import ScenarioError
 from safe_nav_env.noise import NOISE_PRESETS, Gaussian, Laplace, NoiseModel
+from safe_nav_env.options import _option
 from safe_nav_env.predictors import Predictor, StalePredictor, resolve_predictor
 from safe_nav_env.scenarios import (
     HEAD_ON,
@@ -86,20 +87,8 @@ from safe_nav_env.scenarios import (
     Scenario,
 )
 
-__all__ = [
-    "ACTUATOR_LAG",
-    "CROSSING5",
-    "DENSE8",
-    "DRAG",
-    "DRIFT",
-    "STOPPING",
-    "STRESS_SUITE",
-    "TURNING",
-    "FasterObstacles",
-    "StressCase",
-    "crossing_scenario",
-    "understated_noise",
-]
+__all__ = ["ACTUATOR_LAG", "CROSSING5", "DENSE8", "DRAG", "DRIFT", "STOPPING", "STRESS_SUITE",
+    "TURNING", "FasterObstacles", "StressCase", "crossing_scenario", "understated_noise"]
 
 
 DRIFT: tuple[float, float] = (-0.03, 0.03)
@@ -129,9 +118,7 @@ def understated_noise(factor: float) -> NoiseModel:
     ScenarioError
         If ``factor`` is not a finite number ``>= 1``.
     """
-    if isinstance(factor, bool) or not isinstance(factor, int | float) or not (
-            math.isfinite(factor) and factor >= 1.0):
-        raise ScenarioError(f"factor must be a finite number >= 1, got {factor!r}")
+    factor = _option("factor", factor, low=1.0, error=ScenarioError)
     return NoiseModel(Gaussian(PREDICTION_VARIANCE),
                       Laplace(PREDICTION_VARIANCE * factor**2), n_samples=N_SAMPLES)
 
@@ -154,15 +141,9 @@ TURNING = Scenario(
 """Two obstacles that may turn (probability 0.5 each) into the ego's path: bimodal predictions."""
 
 
-def crossing_scenario(
-    name: str,
-    xs: Sequence[float],
-    *,
-    speed: float = 0.8,
-    stop_window: tuple[float, float] | None = None,
-    duration: float = 6.0,
-    episode_length: float = 10.0,
-) -> Scenario:
+def crossing_scenario(name: str, xs: Sequence[float], *, speed: float = 0.8,
+                      stop_window: tuple[float, float] | None = None, duration: float = 6.0,
+                      episode_length: float = 10.0) -> Scenario:
     """Obstacles crossing the ego's path ``(-4.7, 0) -> (4.7, 0)`` at the given ``x``.
 
     Obstacle ``j`` moves vertically at ``speed`` (m/s), upwards for even ``j`` and
@@ -191,8 +172,7 @@ def crossing_scenario(
     xs = [float(x) for x in xs]
     if not xs or not all(-4.7 < x < 4.7 for x in xs):
         raise ScenarioError(f"xs must be crossing points in (-4.7, 4.7) m, got {xs!r}")
-    if not (math.isfinite(speed) and speed > 0):
-        raise ScenarioError(f"speed must be finite and > 0 (m/s), got {speed!r}")
+    speed = _option("speed (m/s)", speed, strict=True, error=ScenarioError)
     specs = []
     for index, x in enumerate(xs):
         arrival = (x + 4.7) / EGO_START_SPEED  # when an ego at its start speed reaches x
@@ -242,9 +222,9 @@ class FasterObstacles:
         if not self.scenes or not all(isinstance(s, Scenario) for s in self.scenes):
             raise ScenarioError(
                 f"scenes must be a non-empty tuple of Scenario, got {self.scenes!r}")
-        if not (math.isfinite(self.low) and math.isfinite(self.high) and 0 < self.low <= self.high):
-            raise ScenarioError(f"need 0 < low <= high (finite), got low={self.low!r}, "
-                                f"high={self.high!r}")
+        _option("high (>= low)", self.high,
+                low=_option("low", self.low, strict=True, error=ScenarioError),
+                error=ScenarioError)
 
     def __call__(self, rng: np.random.Generator) -> Scenario:
         """One episode's scene, drawn with ``rng``."""

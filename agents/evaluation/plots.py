@@ -65,12 +65,8 @@ def save_figure(fig, path: str | Path) -> Path:
 
 def _arena(ax, bounds=((-5.0, -5.0), (5.0, 5.0))) -> None:
     (x0, y0), (x1, y1) = bounds
-    ax.set_xlim(x0, x1)
-    ax.set_ylim(y0, y1)
-    ax.set_aspect("equal")
+    ax.set(xlim=(x0, x1), ylim=(y0, y1), aspect="equal", xlabel="x (m)", ylabel="y (m)")
     ax.grid(alpha=0.3)
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
 
 
 def _discs(ax, path: np.ndarray, radius: float, instants: Any, **style: Any) -> None:
@@ -150,9 +146,8 @@ def _fit_bounds(trajectories: Any, margin: float = 0.5) -> tuple[tuple[float, fl
     points = []
     for traj in trajectories:
         reach = max([float(traj.ego_radius)] + list(np.asarray(traj.obstacle_radii, float)))
-        points.append(np.asarray(traj.ego, float).reshape(-1, 2))
-        points.append(np.asarray(traj.obstacles, float).reshape(-1, 2))
-        points.append(np.asarray(traj.goal, float).reshape(1, 2))
+        points += [np.asarray(getattr(traj, key), float).reshape(-1, 2)
+                   for key in ("ego", "obstacles", "goal")]
     if not points:
         return ((-5.0, -5.0), (5.0, 5.0))
     cloud = np.concatenate(points)
@@ -179,8 +174,7 @@ def plot_distance_boxplots(records: Sequence[EpisodeRecord], path: str | Path) -
                  and np.isfinite(r.min_distance)] for risk in risks]
         boxes = ax.boxplot(data, patch_artist=True, whis=(0, 100))
         for patch, risk in zip(boxes["boxes"], risks, strict=True):
-            patch.set_facecolor(RISK_COLORS.get(risk, "w"))
-            patch.set_alpha(0.6)
+            patch.set(facecolor=RISK_COLORS.get(risk, "w"), alpha=0.6)
         ax.set_xticks(range(1, len(risks) + 1), [RISK_LABELS.get(r, r) for r in risks],
                       rotation=30)
         ax.axhline(0.0, color="k", lw=1, ls="--")
@@ -195,14 +189,9 @@ def plot_distance_boxplots(records: Sequence[EpisodeRecord], path: str | Path) -
     return save_figure(fig, path)
 
 
-def plot_window_boxplots(
-    distances: Mapping[str, Mapping[str, np.ndarray]],
-    windows: Mapping[str, tuple[int, int]],
-    path: str | Path,
-    *,
-    dt: float = DT,
-    title: str = "",
-) -> Path:
+def plot_window_boxplots(distances: Mapping[str, Mapping[str, np.ndarray]],
+                         windows: Mapping[str, tuple[int, int]], path: str | Path, *,
+                         dt: float = DT, title: str = "") -> Path:
     """Per-step box plots of the sampled distance to collision in each scenario's window.
 
     The paper's Fig. 4, bottom row: for every sample ``k`` of the window, one box
@@ -232,15 +221,12 @@ def plot_window_boxplots(
             positions = np.arange(len(steps)) + (j - (len(risks) - 1) / 2) * width
             boxes = ax.boxplot(data, positions=positions, widths=width * 0.9,
                                patch_artist=True, whis=(0, 100), manage_ticks=False)
-            for patch in boxes["boxes"]:
-                patch.set_facecolor(RISK_COLORS.get(risk, "w"))
-                patch.set_alpha(0.6)
+            plt.setp(boxes["boxes"], facecolor=RISK_COLORS.get(risk, "w"), alpha=0.6)
             ax.plot([], [], "s", color=RISK_COLORS.get(risk, "w"),
                     label=RISK_LABELS.get(risk, risk))
         ax.set_xticks(range(len(steps)), [f"{k}\n{k * dt:.1f} s" for k in steps])
         ax.axhline(0.0, color="k", lw=1, ls="--")
-        ax.set_title(f"{short_name(scenario)}: samples {first}-{last}")
-        ax.set_xlabel("sample (time)")
+        ax.set(title=f"{short_name(scenario)}: samples {first}-{last}", xlabel="sample (time)")
         ax.grid(alpha=0.3, axis="y")
     axes[0][0].set_ylabel("sampled distance to collision (m)")
     axes[0][-1].legend(fontsize=7)
@@ -292,9 +278,7 @@ def plot_collision_rates(
             ax.text(x, rate + top + 0.02, text, ha="center", va="bottom", fontsize=6,
                     rotation=90, gid="bar-count")
     ax.set_xticks(range(len(scenarios)), [short_name(s) for s in scenarios])
-    ax.set_ylabel(ylabel)
-    ax.set_ylim(0, 1.18)
-    ax.set_yticks(np.linspace(0, 1, 6))
+    ax.set(ylabel=ylabel, ylim=(0, 1.18), yticks=np.linspace(0, 1, 6))
     ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=len(risks),
               frameon=False)
     ax.grid(alpha=0.3, axis="y")
@@ -302,10 +286,8 @@ def plot_collision_rates(
     return save_figure(fig, path)
 
 
-def plot_safe_polytopes(
-    trajectory: Trajectory | Any, path: str | Path, *, every: int = 3,
-    bounds=((-5.0, -5.0), (5.0, 5.0)), title: str = "",
-) -> Path:
+def plot_safe_polytopes(trajectory: Trajectory | Any, path: str | Path, *, every: int = 3,
+                        bounds=((-5.0, -5.0), (5.0, 5.0)), title: str = "") -> Path:
     """Ego and obstacle paths with the safe polytope of every ``every``-th step (Fig. 5).
 
     The polytope at step t is the intersection of the first-step halfspaces of all
@@ -366,14 +348,8 @@ def polytope_figures(trajectory: Any, folder: Path, *, title: str, label: str
     return files
 
 
-def save_gif(
-    frames: Sequence[np.ndarray],
-    path: str | Path,
-    fps: int = 5,
-    *,
-    label: str = "",
-    legend: Sequence[tuple[str, tuple[int, int, int]]] = GIF_LEGEND,
-) -> Path:
+def save_gif(frames: Sequence[np.ndarray], path: str | Path, fps: int = 5, *, label: str = "",
+             legend: Sequence[tuple[str, tuple[int, int, int]]] = GIF_LEGEND) -> Path:
     """Write RGB frames (H, W, 3) uint8 as an animated GIF (Pillow, a matplotlib dependency).
 
     A banner is added under every frame with ``label`` (e.g. the risk setting:
@@ -465,8 +441,8 @@ def plot_sweep(points: Sequence[dict], path: str | Path) -> Path:
         for p in pts:
             ax.annotate(f"ε={p['epsilon']:g} m", (p["mean_intervention"], p["collision_rate"]),
                         fontsize=7, textcoords="offset points", xytext=(3, 3))
-    ax.set_xlabel("mean intervention ‖u_safe − u_ref‖ per step (m/s²)")
-    ax.set_ylabel("collision rate (continuous time, share of episodes)")
+    ax.set(xlabel="mean intervention ‖u_safe − u_ref‖ per step (m/s²)",
+           ylabel="collision rate (continuous time, share of episodes)")
     ax.set_title("Safety against intervention: sweep of the Wasserstein radius ε (m)",
                  fontsize=10)
     ax.grid(alpha=0.3)

@@ -49,16 +49,9 @@ class GoalReaching:
         return self.reached / self.starts
 
 
-def goal_reaching(
-    policy: Any,
-    *,
-    starts: int = 120,
-    distance: tuple[float, float] = (0.4, 1.2),
-    max_speed: float = 0.0,
-    seed: int = 0,
-    episode_length: float = 8.0,
-    goals: tuple[tuple[float, float], ...] = GOALS,
-) -> GoalReaching:
+def goal_reaching(policy: Any, *, starts: int = 120, distance: tuple[float, float] = (0.4, 1.2),
+                  max_speed: float = 0.0, seed: int = 0, episode_length: float = 8.0,
+                  goals: tuple[tuple[float, float], ...] = GOALS) -> GoalReaching:
     """Run ``policy`` unfiltered from random starts near each goal, no obstacles; count arrivals.
 
     Start ``i`` uses goal ``goals[i % len(goals)]`` and a state drawn by

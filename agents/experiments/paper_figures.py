@@ -50,9 +50,7 @@ def plot_example_one(example: dict, path: Path) -> Path:
     from filters.plotting import draw_halfspace
 
     fig, ax = plt.subplots(figsize=(8, 5))
-    ax.set_xlim(-2, 1.5)
-    ax.set_ylim(-1.8, 1.2)
-    ax.set_aspect("equal")
+    ax.set(xlim=(-2, 1.5), ylim=(-1.8, 1.2), aspect="equal", xlabel="x (m)", ylabel="y (m)")
     samples = example["samples"]
     ax.scatter(samples[:, 0], samples[:, 1], s=4, color="k", alpha=0.5,
                label="predicted obstacle positions (samples)")
@@ -70,8 +68,6 @@ def plot_example_one(example: dict, path: Path) -> Path:
     for label, data in example["halfspaces"].items():
         draw_halfspace(ax, example["normal"], data["offset"],
                        color=colors.get(label) or next(greens), alpha=0.9, label=label)
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0),
               title="boundary h·y = b of each risk\n(safe side: below-left)", title_fontsize=7)
@@ -97,10 +93,7 @@ def plot_halfspace_times(table: dict, path: Path) -> Path:
             label="CVaR CVXPY call")
     ax.plot(counts, [table["ours"][n] for n in counts], "-^", color="k",
             label="ours (closed form), per halfspace")
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    ax.set_xlabel("number of samples N_s")
-    ax.set_ylabel("time (ms)")
+    ax.set(xscale="log", yscale="log", xlabel="number of samples N_s", ylabel="time (ms)")
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=7)
     return save_figure(fig, path)

@@ -46,21 +46,15 @@ class ParetoPoint:
     time_to_goal: float
 
     def __post_init__(self) -> None:
-        for name in ("collisions", "n"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int):
-                raise InvalidParameterError(f"{name} must be an integer, got {value!r}")
-        if self.n < 1 or not 0 <= self.collisions <= self.n:
-            raise InvalidParameterError(
-                f"need n >= 1 and 0 <= collisions <= n, got collisions {self.collisions}, "
-                f"n {self.n} ({self.label!r})")
-        if isinstance(self.time_to_goal, bool) or not isinstance(self.time_to_goal,
-                                                                 int | float):
-            raise InvalidParameterError(f"time_to_goal must be a number (s) or NaN, got "
-                                        f"{self.time_to_goal!r}")
-        if math.isinf(self.time_to_goal) or self.time_to_goal < 0:
-            raise InvalidParameterError(f"time_to_goal must be >= 0 (s) or NaN, got "
-                                        f"{self.time_to_goal!r} ({self.label!r})")
+        collisions = integer_at_least("collisions", self.collisions, low=0)
+        if integer_at_least("n", self.n, low=0) < max(1, collisions):
+            raise InvalidParameterError(f"need n >= 1 and 0 <= collisions <= n, got collisions "
+                                        f"{self.collisions}, n {self.n} ({self.label!r})")
+        time = self.time_to_goal
+        if (isinstance(time, bool) or not isinstance(time, int | float) or time < 0
+                or time == math.inf):
+            raise InvalidParameterError(f"time_to_goal must be a number >= 0 (s) or NaN, got "
+                                        f"{time!r} ({self.label!r})")
 
     @property
     def rate(self) -> float:
@@ -95,15 +89,10 @@ def dominated(points: Sequence[ParetoPoint]) -> list[bool]:
     return flags
 
 
-def plot_pareto(
-    panels: Mapping[str, Sequence[ParetoPoint]],
-    path: str | Path,
-    *,
-    title: str | None = None,
-    xlabel: str = TIME_LABEL,
-    ylabel: str = "collision rate (continuous time), Wilson 95 % CI",
-    columns: int = 2,
-) -> Path:
+def plot_pareto(panels: Mapping[str, Sequence[ParetoPoint]], path: str | Path, *,
+                title: str | None = None, xlabel: str = TIME_LABEL,
+                ylabel: str = "collision rate (continuous time), Wilson 95 % CI",
+                columns: int = 2) -> Path:
     """One figure, one panel per case: collision rate against time to goal for every method.
 
     Parameters

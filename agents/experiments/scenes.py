@@ -18,6 +18,7 @@ from agents.evaluation.config import EvaluationConfig, split_options
 from agents.evaluation.records import EpisodeRecord, EpisodeSpec
 from agents.evaluation.summary import summarise
 from agents.policies.loading import pretrained_policy_path
+from filters._validation import integer_at_least
 from filters.errors import InvalidParameterError
 
 __all__ = ["run_scene_suite", "scene_setting", "scene_specs"]
@@ -53,8 +54,7 @@ def scene_specs(scenario: str, catalogue: Mapping[str, Mapping[str, Any]],
     if unknown:
         raise InvalidParameterError(f"unknown {scenario} settings {unknown}; choose from "
                                     f"{list(catalogue)}")
-    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
-        raise InvalidParameterError(f"episodes must be an integer >= 1, got {episodes!r}")
+    integer_at_least("episodes", episodes)
     env_options = common.pop("env_options", "") or {}
     if isinstance(env_options, str):
         env_options = json.loads(env_options)
@@ -73,21 +73,11 @@ def scene_setting(record: EpisodeRecord, catalogue: Mapping[str, Mapping[str, An
     return record.env_options
 
 
-def run_scene_suite(
-    output: str | Path | None,
-    scenario: str,
-    catalogue: Mapping[str, Mapping[str, Any]],
-    settings: Sequence[str],
-    risks: Sequence[str],
-    *,
-    table: Callable[[Sequence[EpisodeRecord]], str],
-    title: str,
-    shipped_policy: str,
-    config: EvaluationConfig | None,
-    episodes: int,
-    seed: int,
-    **options: Any,
-) -> EvaluationOutputs:
+def run_scene_suite(output: str | Path | None, scenario: str,
+                    catalogue: Mapping[str, Mapping[str, Any]], settings: Sequence[str],
+                    risks: Sequence[str], *, table: Callable[[Sequence[EpisodeRecord]], str],
+                    title: str, shipped_policy: str, config: EvaluationConfig | None,
+                    episodes: int, seed: int, **options: Any) -> EvaluationOutputs:
     """Run a scene suite as a campaign; write ``episodes.csv`` and ``summary.md`` (``title``,
     the run's description and ``table(records)``) to ``output`` (default
     ``results/<scenario in lower case>``).

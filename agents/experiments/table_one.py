@@ -31,16 +31,8 @@ from filters.geometry import Disc
 from filters.halfspaces import safe_halfspaces
 from safe_nav_env.constants import N_SAMPLES, OBSTACLE_RADIUS
 
-__all__ = [
-    "EXAMPLE_ONE",
-    "PAPER_TABLE_ONE",
-    "CvxpyTiming",
-    "OurTiming",
-    "TableOneResult",
-    "benchmark_table_one",
-    "format_table_one",
-    "halfspace_timing_table",
-]
+__all__ = ["EXAMPLE_ONE", "PAPER_TABLE_ONE", "CvxpyTiming", "OurTiming", "TableOneResult",
+    "benchmark_table_one", "format_table_one", "halfspace_timing_table"]
 
 #: The paper's Table I: mean (solve, call) times in ms, keyed by (risk, N_s); CVXPY + ECOS
 #: on a Xeon E3-1535M.
@@ -113,17 +105,12 @@ class TableOneResult:
     seed: int
 
 
-def _normal() -> np.ndarray:
-    diff = _OBSTACLE - _Y_REF
-    return diff / np.linalg.norm(diff)
-
-
 def _time_cvxpy(
     rng: np.random.Generator, risk: str, n_samples: int, repeats: int, formulation: str
 ) -> CvxpyTiming:
     from filters.halfspace_cvxpy import time_cvxpy_halfspace
 
-    normal = _normal()
+    normal = (_OBSTACLE - _Y_REF) / np.linalg.norm(_OBSTACLE - _Y_REF)
     times = 1e3 * np.array([
         time_cvxpy_halfspace(rng.normal(_OBSTACLE, _STD, size=(n_samples, 2)), normal,
                              2 * OBSTACLE_RADIUS, risk, alpha=ALPHA, delta=DELTA,
@@ -131,9 +118,8 @@ def _time_cvxpy(
         for _ in range(repeats)])
     mean, median = times.mean(axis=0), np.median(times, axis=0)
     paper = PAPER_TABLE_ONE.get((risk, n_samples), (np.nan, np.nan))
-    return CvxpyTiming(
-        risk, n_samples, mean[0], median[0], mean[1], median[1], mean[2], median[2], *paper
-    )
+    return CvxpyTiming(risk, n_samples, mean[0], median[0], mean[1], median[1], mean[2],
+                       median[2], *paper)
 
 
 def _median_call_us(call: Callable[[], object], budget_s: float = 0.2) -> float:
@@ -169,14 +155,9 @@ def _time_ours(
     return OurTiming(risk, n_samples, one, full, per_call, per_call * n_obstacles * horizon)
 
 
-def benchmark_table_one(
-    sample_counts: Sequence[int] = (50, 500, 1500),
-    repeats: int = 20,
-    seed: int = 0,
-    *,
-    risks: Sequence[str] = ("cvar", "dr_cvar"),
-    formulation: str = "vectorized",
-) -> TableOneResult:
+def benchmark_table_one(sample_counts: Sequence[int] = (50, 500, 1500), repeats: int = 20,
+                        seed: int = 0, *, risks: Sequence[str] = ("cvar", "dr_cvar"),
+                        formulation: str = "vectorized") -> TableOneResult:
     """Reproduce the paper's Table I and time :func:`safe_halfspaces` on the same setup.
 
     Parameters
@@ -229,26 +210,18 @@ def format_table_one(result: TableOneResult) -> str:
         f"{'paper solve':>13}{'paper call':>12}",
     ]
     for row in result.cvxpy:
-        cells = [
-            _mean_median(row.setup_mean, row.setup_median),
-            _mean_median(row.solve_mean, row.solve_median),
-            _mean_median(row.call_mean, row.call_median),
-        ]
-        lines.append(
-            f"{row.risk:<8}{row.n_samples:>6}{''.join(cells)}"
-            f"{row.paper_solve:>13.3g}{row.paper_call:>12.3g}"
-        )
+        cells = "".join(_mean_median(getattr(row, f"{key}_mean"), getattr(row, f"{key}_median"))
+                        for key in ("setup", "solve", "call"))
+        lines.append(f"{row.risk:<8}{row.n_samples:>6}{cells}"
+                     f"{row.paper_solve:>13.3g}{row.paper_call:>12.3g}")
     lines += [
         "",
         "Ours: safe_halfspaces, median wall-clock µs (one call)",
         f"{'risk':<8}{'N_s':>6}{'1 x 1':>10}{'3 x 10':>10}"
         f"{'CVXPY call / ours(3x10)':>26}{'30 calls / ours(3x10)':>24}",
     ]
-    for row in result.ours:
-        lines.append(
-            f"{row.risk:<8}{row.n_samples:>6}{row.one_halfspace_us:>10.1f}{row.grid_us:>10.1f}"
-            f"{row.speedup:>25.0f}x{row.speedup_same_work:>23.0f}x"
-        )
+    lines += [f"{row.risk:<8}{row.n_samples:>6}{row.one_halfspace_us:>10.1f}{row.grid_us:>10.1f}"
+              f"{row.speedup:>25.0f}x{row.speedup_same_work:>23.0f}x" for row in result.ours]
     return "\n".join(lines)
 
 

@@ -183,10 +183,8 @@ def resolve_windows(
 def closest_approach_sample(records: Sequence[EncounterRecord]) -> int | None:
     """Median sample of closest approach of the finished unfiltered episodes (or None)."""
     reference = [r for r in records if r.risk == "none" and not r.error]
-    if not reference:
-        return None
-    series = _series(reference, "distances")
-    return int(np.floor(np.median(np.nanargmin(series, axis=1))))
+    return (closest_approach_window(_series(reference, "distances"), before=0, after=0)[0]
+            if reference else None)
 
 
 def summarise_windows(records: Sequence[EncounterRecord]) -> list[WindowRow]:

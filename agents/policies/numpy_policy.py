@@ -85,25 +85,17 @@ def _activation(module: Any) -> Callable[[np.ndarray], None] | None:
     """In-place numpy version of a torch activation module, or ``None`` if unknown."""
     from torch import nn
 
-    kind = type(module)
-    if kind is nn.Tanh:
-        return _Activation("tanh")
-    if kind is nn.ReLU:
-        return _Activation("relu")
-    if kind is nn.LeakyReLU:
-        return _Activation("leaky_relu", module.negative_slope)
-    if kind is nn.ELU:
-        return _Activation("elu", module.alpha)
-    return None
+    name = {nn.Tanh: "tanh", nn.ReLU: "relu", nn.LeakyReLU: "leaky_relu", nn.ELU: "elu"}.get(
+        type(module))
+    parameter = getattr(module, "negative_slope", getattr(module, "alpha", 0.0))
+    return None if name is None else _Activation(name, parameter)
 
 
 def _linear(module: Any) -> tuple[np.ndarray, np.ndarray]:
     """``(W^T, b)`` of a torch ``Linear`` as read-only float64 arrays (``b = 0`` if absent)."""
     weight = module.weight.detach().cpu().numpy().astype(np.float64).T.copy()
-    if module.bias is None:
-        bias = np.zeros(weight.shape[1])
-    else:
-        bias = module.bias.detach().cpu().numpy().astype(np.float64).copy()
+    bias = (np.zeros(weight.shape[1]) if module.bias is None
+            else module.bias.detach().cpu().numpy().astype(np.float64))
     weight.setflags(write=False)
     bias.setflags(write=False)
     return weight, bias
@@ -127,25 +119,18 @@ def _checked_actor_critic(model: Any) -> Any:
 
     policy = getattr(model, "policy", model)
     if not isinstance(policy, ActorCriticPolicy):
-        raise UnsupportedPolicyError(
-            "exporting a policy needs an SB3 ActorCriticPolicy (PPO or A2C with "
-            f"MlpPolicy) or a model holding one, got {type(policy).__name__}"
-        )
+        raise UnsupportedPolicyError("exporting a policy needs an SB3 ActorCriticPolicy (PPO or "
+                                     f"A2C with MlpPolicy) or a model holding one, got "
+                                     f"{type(policy).__name__}")
     obs_space, action_space = policy.observation_space, policy.action_space
     if not isinstance(obs_space, spaces.Box) or is_image_space(obs_space):
         raise UnsupportedPolicyError(
-            f"only flat Box observation spaces (not images) are supported, got {obs_space}"
-        )
+            f"only flat Box observation spaces (not images) are supported, got {obs_space}")
     if not isinstance(action_space, spaces.Box):
-        raise UnsupportedPolicyError(
-            f"only Box action spaces are supported, got {action_space}"
-        )
-    extractor = policy.pi_features_extractor
-    if type(extractor) is not FlattenExtractor:
-        raise UnsupportedPolicyError(
-            "only the FlattenExtractor of MlpPolicy is supported, got "
-            f"{type(extractor).__name__}"
-        )
+        raise UnsupportedPolicyError(f"only Box action spaces are supported, got {action_space}")
+    if type(policy.pi_features_extractor) is not FlattenExtractor:
+        raise UnsupportedPolicyError("only the FlattenExtractor of MlpPolicy is supported, got "
+                                     f"{type(policy.pi_features_extractor).__name__}")
     return policy
 
 
@@ -168,14 +153,8 @@ class NumpyPolicy:
         of clipped.
     """
 
-    def __init__(
-        self,
-        layers: list[Layer],
-        observation_space: Any,
-        action_space: Any,
-        *,
-        squash_output: bool = False,
-    ) -> None:
+    def __init__(self, layers: list[Layer], observation_space: Any, action_space: Any, *,
+                 squash_output: bool = False) -> None:
         if not layers:
             raise InvalidParameterError("a NumpyPolicy needs at least one affine layer, got none")
         self.observation_space = observation_space
@@ -188,15 +167,13 @@ class NumpyPolicy:
         self._high = np.asarray(action_space.high, dtype=np.float32).reshape(-1)
         self.layers = tuple(layers)
         if layers[0][0].shape[0] != self._n_inputs:
-            raise InvalidArrayError(
-                f"the first layer takes {layers[0][0].shape[0]} inputs, but observations have "
-                f"{self._n_inputs} entries (shape {self._obs_shape})"
-            )
+            raise InvalidArrayError(f"the first layer takes {layers[0][0].shape[0]} inputs, but "
+                                    f"observations have {self._n_inputs} entries (shape "
+                                    f"{self._obs_shape})")
         if layers[-1][0].shape[1] != self._low.size:
-            raise InvalidArrayError(
-                f"the action net gives {layers[-1][0].shape[1]} outputs, but the action space "
-                f"has {self._low.size} entries (shape {self._action_shape})"
-            )
+            raise InvalidArrayError(f"the action net gives {layers[-1][0].shape[1]} outputs, but "
+                                    f"the action space has {self._low.size} entries (shape "
+                                    f"{self._action_shape})")
 
     def _to_box(self, mean_or_squashed: np.ndarray) -> np.ndarray:
         """SB3's last step on float32 network outputs: clip, or rescale ``tanh`` outputs."""
@@ -210,35 +187,25 @@ class NumpyPolicy:
         try:
             obs = np.asarray(observation, dtype=np.float32)
         except (TypeError, ValueError) as exc:
-            raise InvalidArrayError(
-                f"observation must be numeric, got {type(observation).__name__}"
-            ) from exc
+            raise InvalidArrayError(f"observation must be numeric, got "
+                                    f"{type(observation).__name__}") from exc
         if obs.shape == self._obs_shape:
             batched = False
         elif obs.shape[1:] == self._obs_shape:
             batched = True
         else:
-            raise InvalidArrayError(
-                f"observation must have shape {self._obs_shape} or (batch, "
-                f"{', '.join(map(str, self._obs_shape))}), got {obs.shape}"
-            )
+            raise InvalidArrayError(f"observation must have shape {self._obs_shape} or (batch, "
+                                    f"{', '.join(map(str, self._obs_shape))}), got {obs.shape}")
         rows = obs.reshape(-1, self._n_inputs)
         # Float32 entries cannot overflow a float64 sum: it is finite iff every entry is.
         if not math.isfinite(float(rows.sum(dtype=np.float64))):
             bad = np.argwhere(~np.isfinite(obs))[0]
-            raise InvalidArrayError(
-                f"observation must be finite, got {obs[tuple(bad)]} at index "
-                f"{tuple(int(i) for i in bad)}"
-            )
+            raise InvalidArrayError(f"observation must be finite, got {obs[tuple(bad)]} at "
+                                    f"index {tuple(int(i) for i in bad)}")
         return rows, batched
 
-    def predict(
-        self,
-        observation: object,
-        state: Any = None,
-        episode_start: Any = None,
-        deterministic: bool = True,
-    ) -> tuple[np.ndarray, Any]:
+    def predict(self, observation: object, state: Any = None, episode_start: Any = None,
+                deterministic: bool = True) -> tuple[np.ndarray, Any]:
         """Stable-Baselines3's ``predict``, deterministic only.
 
         Parameters
@@ -265,15 +232,10 @@ class NumpyPolicy:
         """
         if not deterministic:
             raise InvalidParameterError(
-                "NumpyPolicy computes the deterministic action only (the "
-                "Gaussian's mean); got deterministic=False: use the SB3 model for "
-                "stochastic actions"
-            )
+                "NumpyPolicy computes the deterministic action only (the Gaussian's mean); got "
+                "deterministic=False: use the SB3 model for stochastic actions")
         rows, batched = self._inputs(observation)
-        actions = self._actions(rows)
-        if batched:
-            return actions.reshape((-1, *self._action_shape)), state
-        return actions.reshape(self._action_shape), state
+        return self._actions(rows).reshape(((-1,) if batched else ()) + self._action_shape), state
 
     def predict_batch(self, observations: object) -> np.ndarray:
         """Deterministic actions of a batch ``(B, ...)`` of observations, shape ``(B, ...)``.
@@ -287,8 +249,7 @@ class NumpyPolicy:
         if not batched:
             raise InvalidArrayError(
                 f"observations must have shape (batch, {', '.join(map(str, self._obs_shape))}), "
-                f"got a single observation of shape {self._obs_shape}: use predict"
-            )
+                f"got a single observation of shape {self._obs_shape}: use predict")
         return self._actions(rows).reshape((-1, *self._action_shape))
 
     @classmethod
@@ -315,8 +276,7 @@ class NumpyPolicy:
         net = policy.mlp_extractor.policy_net
         if not isinstance(net, nn.Sequential):
             raise UnsupportedPolicyError(
-                f"mlp_extractor.policy_net must be an nn.Sequential, got {type(net).__name__}"
-            )
+                f"mlp_extractor.policy_net must be an nn.Sequential, got {type(net).__name__}")
         layers: list[Layer] = []
         for index, module in enumerate(net):
             if isinstance(module, nn.Linear):
@@ -326,14 +286,12 @@ class NumpyPolicy:
             if activation is None or not layers or layers[-1][2] is not None:
                 raise UnsupportedPolicyError(
                     f"policy_net[{index}] = {module!r} is not supported: expected Linear "
-                    "layers, each followed by at most one Tanh, ReLU, LeakyReLU or ELU"
-                )
+                    "layers, each followed by at most one Tanh, ReLU, LeakyReLU or ELU")
             weight, bias, _ = layers[-1]
             layers[-1] = (weight, bias, activation)
         if not isinstance(policy.action_net, nn.Linear):
             raise UnsupportedPolicyError(
-                f"action_net must be an nn.Linear, got {type(policy.action_net).__name__}"
-            )
+                f"action_net must be an nn.Linear, got {type(policy.action_net).__name__}")
         layers.append((*_linear(policy.action_net), None))
         return cls(layers, policy.observation_space, policy.action_space,
                    squash_output=bool(policy.squash_output))
@@ -346,9 +304,7 @@ class NumpyPolicy:
             z += bias
             if activation is not None:
                 activation(z)
-        if self.squash_output:
-            return self._to_box(np.tanh(z).astype(np.float32))
-        return self._to_box(z.astype(np.float32))
+        return self._to_box((np.tanh(z) if self.squash_output else z).astype(np.float32))
 
 
 def load_numpy_policy(path: str | Path | None = None) -> NumpyPolicy:

@@ -24,114 +24,12 @@ every evaluation.
 
 from __future__ import annotations
 
-from collections import Counter
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
 
-from agents.training.wrappers import report_field
-from filters.mpc.result import FilterStatus
-from filters.report import PASSTHROUGH
-
-FILTER_STATUSES = (*(status.value for status in FilterStatus), PASSTHROUGH)
-"""Filter statuses always logged (share 0 when absent), so the CSV columns are fixed;
-any other status seen is logged too."""
-
-
-@dataclass(frozen=True)
-class EpisodeSafety:
-    """What one finished episode did.
-
-    Attributes
-    ----------
-    collision
-        Some step had ``info["collision"]``.
-    cost
-        Sum of ``info["cost"]`` over the steps.
-    success
-        ``info["is_success"]`` at the last step.
-    steps
-        Episode length in steps.
-    intervention
-        Mean filter intervention over the episode's filtered steps, m/s² (0 without filter).
-    """
-
-    collision: bool
-    cost: float
-    success: bool
-    steps: int
-    intervention: float
-
-
-class SafetyTally:
-    """Per-environment accumulators over steps, closed into :class:`EpisodeSafety` at ``done``.
-
-    Parameters
-    ----------
-    n_envs
-        Number of environments of the vector environment.
-    """
-
-    def __init__(self, n_envs: int) -> None:
-        self.n_envs = int(n_envs)
-        self._cost = np.zeros(self.n_envs)
-        self._collision = np.zeros(self.n_envs, dtype=bool)
-        self._steps = np.zeros(self.n_envs, dtype=int)
-        self._intervention = np.zeros(self.n_envs)
-        self._filtered = np.zeros(self.n_envs, dtype=int)
-        self.episodes: list[EpisodeSafety] = []
-        self.statuses: Counter[str] = Counter()
-        self.intervention_sum = 0.0
-        self.filtered_steps = 0
-
-    def clear_window(self) -> None:
-        """Forget finished episodes and step counts (not the episodes in progress)."""
-        self.episodes = []
-        self.statuses = Counter()
-        self.intervention_sum = 0.0
-        self.filtered_steps = 0
-
-    def step(self, index: int, info: dict[str, Any], done: bool) -> EpisodeSafety | None:
-        """Add one step of environment ``index``; returns the episode if it ended."""
-        self._cost[index] += float(info.get("cost", 0.0))
-        self._collision[index] |= bool(info.get("collision", False))
-        self._steps[index] += 1
-        report = info.get("filter")
-        if report is not None:
-            value = float(report_field(report, "intervention"))
-            self._intervention[index] += value
-            self._filtered[index] += 1
-            self.intervention_sum += value
-            self.filtered_steps += 1
-            self.statuses[str(report_field(report, "status"))] += 1
-        if not done:
-            return None
-        filtered = self._filtered[index]
-        episode = EpisodeSafety(
-            collision=bool(self._collision[index]), cost=float(self._cost[index]),
-            success=bool(info.get("is_success", False)), steps=int(self._steps[index]),
-            intervention=float(self._intervention[index] / filtered) if filtered else 0.0,
-        )
-        self._cost[index], self._collision[index], self._steps[index] = 0.0, False, 0
-        self._intervention[index], self._filtered[index] = 0.0, 0
-        self.episodes.append(episode)
-        return episode
-
-    def metrics(self) -> dict[str, float]:
-        """The numbers of the current window (see the module docstring), keys without prefix."""
-        out: dict[str, float] = {"episodes": float(len(self.episodes))}
-        if self.episodes:
-            out["collision_rate"] = float(np.mean([e.collision for e in self.episodes]))
-            out["episode_cost"] = float(np.mean([e.cost for e in self.episodes]))
-            out["goal_rate"] = float(np.mean([e.success for e in self.episodes]))
-        if self.filtered_steps:
-            out["intervention"] = self.intervention_sum / self.filtered_steps
-            for status in sorted(set(FILTER_STATUSES) | set(self.statuses)):
-                out[f"status_{status}"] = self.statuses[status] / self.filtered_steps
-        return out
+from agents.training.wrappers import FILTER_STATUSES, EpisodeSafety, SafetyTally
 
 
 def record_metrics(logger: Any, prefix: str, metrics: dict[str, float]) -> None:

@@ -73,21 +73,11 @@ def dual_ascent_step(
     InvalidParameterError
         If a value is negative or not finite.
     """
-    multiplier = _non_negative("multiplier", multiplier)
-    episode_cost = _non_negative("episode_cost", episode_cost)
-    cost_limit = _non_negative("cost_limit", cost_limit)
-    lr = _positive("lr", lr)
+    multiplier = scalar_in_range("multiplier", multiplier, low=0.0, high_inclusive=False)
+    episode_cost = scalar_in_range("episode_cost", episode_cost, low=0.0, high_inclusive=False)
+    cost_limit = scalar_in_range("cost_limit", cost_limit, low=0.0, high_inclusive=False)
+    lr = scalar_in_range("lr", lr, low=0.0, low_inclusive=False, high_inclusive=False)
     return max(0.0, multiplier + lr * (episode_cost - cost_limit))
-
-
-def _non_negative(name: str, value: object) -> float:
-    """``value`` as a finite float >= 0, else :class:`InvalidParameterError` naming ``name``."""
-    return scalar_in_range(name, value, low=0.0, high_inclusive=False)
-
-
-def _positive(name: str, value: object) -> float:
-    """``value`` as a finite float > 0, else :class:`InvalidParameterError` naming ``name``."""
-    return scalar_in_range(name, value, low=0.0, low_inclusive=False, high_inclusive=False)
 
 
 class CostPenaltyVecEnv(VecEnvWrapper):
@@ -177,9 +167,11 @@ class PPOLagrangian(PPO):
 
     def __init__(self, policy: Any, env: Any, *, cost_limit: float = 0.0,
                  lambda_lr: float = 0.05, lambda_init: float = 0.0, **kwargs: Any) -> None:
-        self.cost_limit = _non_negative("cost_limit", cost_limit)
-        self.lambda_lr = _positive("lambda_lr", lambda_lr)
-        self.lagrange_multiplier = _non_negative("lambda_init", lambda_init)
+        self.cost_limit = scalar_in_range("cost_limit", cost_limit, low=0.0, high_inclusive=False)
+        self.lambda_lr = scalar_in_range("lambda_lr", lambda_lr, low=0.0, low_inclusive=False,
+                                         high_inclusive=False)
+        self.lagrange_multiplier = scalar_in_range("lambda_init", lambda_init, low=0.0,
+                                                   high_inclusive=False)
         self.multiplier_history: list[tuple[int, float, float]] = []
         super().__init__(policy, _as_penalty_env(env), **kwargs)
 

@@ -1,5 +1,9 @@
 """Wrappers for learners: episode cost for ``Monitor``, and a normalised action view.
 
+:class:`SafetyTally` is the one per-episode tally (collision, cost, success, mean
+intervention, filter statuses): :class:`EpisodeCostInfo` closes each episode with it, and
+the callbacks of :mod:`agents.training.callbacks` count rollouts and evaluations with it.
+
 The stack :func:`agents.training.ppo.make_training_env` builds, inside out::
 
     gym.make(id)                 physical units: accelerations in m/s², box [-10, 10]²
@@ -19,6 +23,8 @@ filter's policy roll-out reference).
 
 from __future__ import annotations
 
+from collections import Counter
+from dataclasses import dataclass
 from typing import Any
 
 import gymnasium as gym
@@ -26,6 +32,8 @@ import numpy as np
 from gymnasium import spaces
 
 from filters.errors import InvalidParameterError, InvalidTypeError
+from filters.mpc.result import FilterStatus
+from filters.report import PASSTHROUGH
 
 EPISODE_INFO_KEYS = ("episode_cost", "episode_collision", "episode_intervention")
 """Keys :class:`EpisodeCostInfo` adds to the last info of an episode (pass them to
@@ -58,14 +66,10 @@ class EpisodeCostInfo(gym.Wrapper):
 
     def __init__(self, env: gym.Env) -> None:
         super().__init__(env)
-        self._cost = 0.0
-        self._collision = False
-        self._intervention = 0.0
-        self._filtered_steps = 0
+        self._tally = SafetyTally(1)
 
     def reset(self, **kwargs: Any):
-        self._cost, self._collision = 0.0, False
-        self._intervention, self._filtered_steps = 0.0, 0
+        self._tally = SafetyTally(1)
         return self.env.reset(**kwargs)
 
     def step(self, action: Any):
@@ -73,18 +77,10 @@ class EpisodeCostInfo(gym.Wrapper):
         cost = float(info.get("cost", 0.0))
         if not np.isfinite(cost):
             raise InvalidParameterError(f"info['cost'] must be finite, got {cost!r}")
-        self._cost += cost
-        self._collision = self._collision or bool(info.get("collision", False))
-        report = info.get("filter")
-        if report is not None:
-            self._intervention += float(report_field(report, "intervention"))
-            self._filtered_steps += 1
-        if terminated or truncated:
-            info["episode_cost"] = self._cost
-            info["episode_collision"] = self._collision
-            info["episode_intervention"] = (
-                self._intervention / self._filtered_steps if self._filtered_steps else 0.0
-            )
+        episode = self._tally.step(0, info, terminated or truncated)
+        if episode is not None:
+            info.update(episode_cost=episode.cost, episode_collision=episode.collision,
+                        episode_intervention=episode.intervention)
         return obs, reward, terminated, truncated, info
 
 
@@ -95,6 +91,104 @@ def report_field(report: Any, name: str) -> Any:
         return getattr(report, name)
     except AttributeError:
         return report[name]
+
+
+FILTER_STATUSES = (*(status.value for status in FilterStatus), PASSTHROUGH)
+"""Filter statuses always logged (share 0 when absent), so the CSV columns are fixed;
+any other status seen is logged too."""
+
+
+@dataclass(frozen=True)
+class EpisodeSafety:
+    """What one finished episode did.
+
+    Attributes
+    ----------
+    collision
+        Some step had ``info["collision"]``.
+    cost
+        Sum of ``info["cost"]`` over the steps.
+    success
+        ``info["is_success"]`` at the last step.
+    steps
+        Episode length in steps.
+    intervention
+        Mean filter intervention over the episode's filtered steps, m/s² (0 without filter).
+    """
+
+    collision: bool
+    cost: float
+    success: bool
+    steps: int
+    intervention: float
+
+
+class SafetyTally:
+    """Per-environment accumulators over steps, closed into :class:`EpisodeSafety` at ``done``.
+
+    Parameters
+    ----------
+    n_envs
+        Number of environments of the vector environment.
+    """
+
+    def __init__(self, n_envs: int) -> None:
+        self.n_envs = int(n_envs)
+        self._cost = np.zeros(self.n_envs)
+        self._collision = np.zeros(self.n_envs, dtype=bool)
+        self._steps = np.zeros(self.n_envs, dtype=int)
+        self._intervention = np.zeros(self.n_envs)
+        self._filtered = np.zeros(self.n_envs, dtype=int)
+        self.episodes: list[EpisodeSafety] = []
+        self.statuses: Counter[str] = Counter()
+        self.intervention_sum = 0.0
+        self.filtered_steps = 0
+
+    def clear_window(self) -> None:
+        """Forget finished episodes and step counts (not the episodes in progress)."""
+        self.episodes = []
+        self.statuses = Counter()
+        self.intervention_sum = 0.0
+        self.filtered_steps = 0
+
+    def step(self, index: int, info: dict[str, Any], done: bool) -> EpisodeSafety | None:
+        """Add one step of environment ``index``; returns the episode if it ended."""
+        self._cost[index] += float(info.get("cost", 0.0))
+        self._collision[index] |= bool(info.get("collision", False))
+        self._steps[index] += 1
+        report = info.get("filter")
+        if report is not None:
+            value = float(report_field(report, "intervention"))
+            self._intervention[index] += value
+            self._filtered[index] += 1
+            self.intervention_sum += value
+            self.filtered_steps += 1
+            self.statuses[str(report_field(report, "status"))] += 1
+        if not done:
+            return None
+        filtered = self._filtered[index]
+        episode = EpisodeSafety(
+            collision=bool(self._collision[index]), cost=float(self._cost[index]),
+            success=bool(info.get("is_success", False)), steps=int(self._steps[index]),
+            intervention=float(self._intervention[index] / filtered) if filtered else 0.0,
+        )
+        self._cost[index], self._collision[index], self._steps[index] = 0.0, False, 0
+        self._intervention[index], self._filtered[index] = 0.0, 0
+        self.episodes.append(episode)
+        return episode
+
+    def metrics(self) -> dict[str, float]:
+        """The numbers of the current window (see the module docstring), keys without prefix."""
+        out: dict[str, float] = {"episodes": float(len(self.episodes))}
+        if self.episodes:
+            out["collision_rate"] = float(np.mean([e.collision for e in self.episodes]))
+            out["episode_cost"] = float(np.mean([e.cost for e in self.episodes]))
+            out["goal_rate"] = float(np.mean([e.success for e in self.episodes]))
+        if self.filtered_steps:
+            out["intervention"] = self.intervention_sum / self.filtered_steps
+            for status in sorted(set(FILTER_STATUSES) | set(self.statuses)):
+                out[f"status_{status}"] = self.statuses[status] / self.filtered_steps
+        return out
 
 
 def _box_map(space: spaces.Space, what: str) -> tuple[np.ndarray, np.ndarray]:
@@ -206,6 +300,6 @@ class PhysicalUnitsPolicy:
 
 
 __all__ = [
-    "EPISODE_INFO_KEYS", "EpisodeCostInfo", "NormalisedActions", "PhysicalUnitsPolicy",
-    "is_normalised_policy", "report_field",
+    "EPISODE_INFO_KEYS", "FILTER_STATUSES", "EpisodeCostInfo", "EpisodeSafety", "NormalisedActions",
+    "PhysicalUnitsPolicy", "SafetyTally", "is_normalised_policy", "report_field",
 ]

@@ -28,8 +28,9 @@ import numpy as np
 from safe_nav_env.constants import EGO_RADIUS
 from safe_nav_env.crowd.humans import HUMAN_POLICIES, make_humans
 from safe_nav_env.crowd.model import CrowdModel
-from safe_nav_env.env import SafeNavEnv, _option
+from safe_nav_env.env import SafeNavEnv
 from safe_nav_env.errors import ConfigError
+from safe_nav_env.options import _option
 from safe_nav_env.scenarios import ObstacleSpec, Scenario
 
 __all__ = ["CIRCLE_RADIUS", "DISCOMFORT_DISTANCE", "HUMAN_RADIUS", "HUMAN_SPEED", "N_HUMANS",
@@ -93,19 +94,11 @@ class CrowdEnv(SafeNavEnv):
         For an unknown human policy or an invalid option.
     """
 
-    def __init__(
-        self,
-        *,
-        human_policy: str = "orca",
-        robot_visible: bool = False,
-        n_humans: int = N_HUMANS,
-        circle_radius: float = CIRCLE_RADIUS,
-        human_radius: float = HUMAN_RADIUS,
-        human_speed: float = HUMAN_SPEED,
-        discomfort_distance: float = DISCOMFORT_DISTANCE,
-        predictor: Any = "environment",
-        **options: Any,
-    ) -> None:
+    def __init__(self, *, human_policy: str = "orca", robot_visible: bool = False,
+                 n_humans: int = N_HUMANS, circle_radius: float = CIRCLE_RADIUS,
+                 human_radius: float = HUMAN_RADIUS, human_speed: float = HUMAN_SPEED,
+                 discomfort_distance: float = DISCOMFORT_DISTANCE, predictor: Any = "environment",
+                 **options: Any) -> None:
         if human_policy not in HUMAN_POLICIES:
             raise ConfigError(f"human_policy must be one of {HUMAN_POLICIES}, got "
                               f"{human_policy!r}")
@@ -139,13 +132,9 @@ class CrowdEnv(SafeNavEnv):
                 angle = rng.random() * 2.0 * math.pi
                 offset = (rng.random(2) - 0.5) * self.human_speed
                 start = np.array([r * math.cos(angle), r * math.sin(angle)]) + offset
-                clear = all(
-                    math.dist(start, other) >= self.human_radius + radius
-                    + self.discomfort_distance
-                    and math.dist(start, goal) >= self.human_radius + radius
-                    + self.discomfort_distance
-                    for other, goal, radius in placed)
-                if clear:
+                if all(min(math.dist(start, other), math.dist(start, goal))
+                       >= self.human_radius + radius + self.discomfort_distance
+                       for other, goal, radius in placed):
                     break
             else:
                 raise ConfigError(f"no free start for human {index} on a circle of radius {r} m "

@@ -70,16 +70,16 @@ class CrowdModel:
         self.radii = np.full(self.n, float(radius))
         self.radii.flags.writeable = False
         self._robot_state = robot_state
-        self.step_count = 0
-        self.positions = self.starts.copy()
-        self.velocities = self.initial_velocities.copy()
-        self.chord_starts = self.positions
+        self._at_start()
 
     def reset(self, rng: np.random.Generator) -> None:
         """Put every human at rest at its start (``rng`` is not used: the start is drawn
         with the scenario)."""
-        self.step_count = 0
         self.humans.reset(self.starts, self.goals)
+        self._at_start()
+
+    def _at_start(self) -> None:
+        self.step_count = 0
         self.positions = self.starts.copy()
         self.velocities = self.initial_velocities.copy()
         self.chord_starts = self.positions

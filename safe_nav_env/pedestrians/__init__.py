@@ -50,21 +50,6 @@ from safe_nav_env.pedestrians.recording import (
 from safe_nav_env.pedestrians.replay import PARK_DISTANCE, ReplayModel
 from safe_nav_env.pedestrians.residuals import ResidualBank, residual_bank
 
-__all__ = [
-    "EGO_SPEED",
-    "FORECASTERS",
-    "MAX_PEDESTRIANS",
-    "PARK_DISTANCE",
-    "PEDESTRIAN_RADIUS",
-    "SCENES",
-    "Forecaster",
-    "PedestrianEnv",
-    "Recording",
-    "RecordingError",
-    "ReplayModel",
-    "ResidualBank",
-    "load_recording",
-    "parse_tracks",
-    "residual_bank",
-    "time_limit",
-]
+__all__ = ["EGO_SPEED", "FORECASTERS", "MAX_PEDESTRIANS", "PARK_DISTANCE", "PEDESTRIAN_RADIUS",
+    "SCENES", "Forecaster", "PedestrianEnv", "Recording", "RecordingError", "ReplayModel",
+    "ResidualBank", "load_recording", "parse_tracks", "residual_bank", "time_limit"]

@@ -8,23 +8,18 @@ from typing import Any
 
 import numpy as np
 
-from safe_nav_env.env import SafeNavEnv, _option, _read_only
+from safe_nav_env.env import SafeNavEnv, _read_only
 from safe_nav_env.errors import ConfigError, ScenarioError
+from safe_nav_env.info import _PADDED
+from safe_nav_env.options import _option
 from safe_nav_env.pedestrians.forecast import Forecaster
 from safe_nav_env.pedestrians.recording import Recording, load_recording
 from safe_nav_env.pedestrians.replay import ReplayModel
 from safe_nav_env.pedestrians.residuals import residual_bank
-from safe_nav_env.scenarios import Scenario
+from safe_nav_env.scenarios import Scenario, _arena
 
-__all__ = [
-    "EGO_SPEED",
-    "MAX_PEDESTRIANS",
-    "MIN_SEPARATION",
-    "PEDESTRIAN_RADIUS",
-    "START_CLEARANCE",
-    "PedestrianEnv",
-    "time_limit",
-]
+__all__ = ["EGO_SPEED", "MAX_PEDESTRIANS", "MIN_SEPARATION", "PEDESTRIAN_RADIUS", "START_CLEARANCE",
+    "PedestrianEnv", "time_limit"]
 
 MAX_PEDESTRIANS = 8
 """Default number of obstacle slots ``K``: the 8 pedestrians nearest the ego. In the
@@ -57,18 +52,6 @@ def time_limit(distance: float, speed: float = EGO_SPEED) -> float:
     people, and 4 s to accelerate, brake and wait.
     """
     return 1.5 * distance / speed + 4.0
-
-
-def _box(arena: Any) -> tuple[tuple[float, float], tuple[float, float]]:
-    try:
-        box = np.asarray(arena, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ConfigError(f"arena must be ((x_min, y_min), (x_max, y_max)), got {arena!r}") from exc
-    if box.shape != (2, 2) or not np.isfinite(box).all() or np.any(box[0] >= box[1]):
-        raise ConfigError(
-            f"arena must be finite ((x_min, y_min), (x_max, y_max)) with min < max, got {arena!r}"
-        )
-    return (float(box[0, 0]), float(box[0, 1])), (float(box[1, 0]), float(box[1, 1]))
 
 
 class PedestrianEnv(SafeNavEnv):
@@ -153,21 +136,12 @@ class PedestrianEnv(SafeNavEnv):
         For an empty or malformed file (the message names the line).
     """
 
-    def __init__(
-        self,
-        scene: str | Path | Recording = "eth",
-        *,
-        predictor: str = "constant_velocity",
-        max_obstacles: int = MAX_PEDESTRIANS,
-        n_samples: int = 100,
-        horizon: int = 10,
-        dt: float = 0.2,
-        history_steps: int = 8,
-        pedestrian_radius: float = PEDESTRIAN_RADIUS,
-        ego_speed: float = EGO_SPEED,
-        arena: tuple[tuple[float, float], tuple[float, float]] | None = None,
-        **options: Any,
-    ) -> None:
+    def __init__(self, scene: str | Path | Recording = "eth", *,
+                 predictor: str = "constant_velocity", max_obstacles: int = MAX_PEDESTRIANS,
+                 n_samples: int = 100, horizon: int = 10, dt: float = 0.2, history_steps: int = 8,
+                 pedestrian_radius: float = PEDESTRIAN_RADIUS, ego_speed: float = EGO_SPEED,
+                 arena: tuple[tuple[float, float], tuple[float, float]] | None = None,
+                 **options: Any) -> None:
         unsupported = sorted({"scenario", "noise", "pad_info", "random_start"} & set(options))
         if unsupported:
             raise ConfigError(
@@ -190,7 +164,7 @@ class PedestrianEnv(SafeNavEnv):
         self.scene: str = recording.name
         self.forecaster = Forecaster(predictor, dt, history_steps)
         self.residuals = residual_bank(self.scene, self.forecaster, horizon)
-        self.arena = recording.walkable_box() if arena is None else _box(arena)
+        self.arena = recording.walkable_box() if arena is None else _arena(arena, error=ConfigError)
         self._replay = ReplayModel(
             recording, self.forecaster, self.residuals, max_obstacles=max_obstacles,
             radius=self.pedestrian_radius, arena=self.arena,
@@ -253,9 +227,8 @@ class PedestrianEnv(SafeNavEnv):
             self._model, self._model_scenario = self._replay, scenario
         super()._load(scenario)
 
-    def reset(
-        self, *, seed: int | None = None, options: dict[str, Any] | None = None
-    ) -> tuple[np.ndarray, dict[str, Any]]:
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
+              ) -> tuple[np.ndarray, dict[str, Any]]:
         """Start an episode (see the class docstring).
 
         Parameters
@@ -277,16 +250,9 @@ class PedestrianEnv(SafeNavEnv):
             raise ConfigError("options['scenario'] does not apply; make a new environment "
                               "with scene=...")
         start_step = options.pop("start_step", None)
-        if start_step is not None and (
-            isinstance(start_step, bool)
-            or not isinstance(start_step, int | np.integer)
-            or not 0 <= start_step < self.recording.n_steps
-        ):
-            raise ConfigError(
-                f"options['start_step'] must be an integer in [0, {self.recording.n_steps - 1}] "
-                f"(a recording step), got {start_step!r}"
-            )
-        self._start_step = None if start_step is None else int(start_step)
+        self._start_step = None if start_step is None else _option(
+            "options['start_step'] (a recording step)", start_step, integer=True,
+            high=self.recording.n_steps - 1)
         return super().reset(seed=seed, options=options or None)
 
     @property
@@ -302,9 +268,8 @@ class PedestrianEnv(SafeNavEnv):
 
     # ---------------------------------------------------- observation and info
 
-    def _observe(
-        self, x: np.ndarray, delta: np.ndarray, velocities: np.ndarray, centre: np.ndarray | None
-    ) -> np.ndarray:
+    def _observe(self, x: np.ndarray, delta: np.ndarray, velocities: np.ndarray,
+                 centre: np.ndarray | None) -> np.ndarray:
         """The base observation without the absent slots (their observation slots stay zero)."""
         model = self._model
         if model is self._replay and delta.shape[0] == model.n:
@@ -314,25 +279,21 @@ class PedestrianEnv(SafeNavEnv):
                 centre = centre[present] if centre is not None and delta.shape[0] > 1 else None
         return super()._observe(x, delta, velocities, centre)
 
-    def _info(
-        self, distances: np.ndarray, swept: np.ndarray, distance_to_goal: float
-    ) -> dict[str, Any]:
+    def _info(self, distances: np.ndarray, swept: np.ndarray,
+              distance_to_goal: float) -> dict[str, Any]:
         model = self._model
         if model is not self._replay:
             return super()._info(distances, swept, distance_to_goal)
         present = model.present
         absent = ~present
-        masked = bool(absent.any())
-        if masked:
+        if absent.any():  # absent rows as padded ones: infinitely far, at rest
             distances = _read_only(np.where(present, distances, np.inf))
             swept = _read_only(np.where(present, swept, np.inf))
         info = super()._info(distances, swept, distance_to_goal)
-        if masked:
-            for key, fill in (("predictions", np.inf), ("obstacle_positions", np.inf),
-                              ("obstacle_velocities", 0.0)):
-                array = info[key].copy()
-                array[absent] = fill
-                info[key] = _read_only(array)
+        for key, fill in _PADDED[:3] if absent.any() else ():
+            array = info[key].copy()
+            array[absent] = fill
+            info[key] = _read_only(array)
         info["obstacle_present"] = _read_only(present.copy())
         info["pedestrian_index"] = _read_only(model.slots.copy())
         info["recording_step"] = model.step_index

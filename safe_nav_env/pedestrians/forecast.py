@@ -30,25 +30,16 @@ in which the residuals of a moving pedestrian are expressed (:func:`headings`).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from safe_nav_env.errors import ConfigError
+from safe_nav_env.options import _option
 from safe_nav_env.predictors import ConstantVelocityKalman
 
-__all__ = [
-    "FORECASTERS",
-    "MOVING",
-    "NEW",
-    "STANDING",
-    "STANDING_SPEED",
-    "STRATA",
-    "Forecaster",
-    "headings",
-    "strata_of",
-]
+__all__ = ["FORECASTERS", "MOVING", "NEW", "STANDING", "STANDING_SPEED", "STRATA", "Forecaster",
+    "headings", "strata_of"]
 
 NEW, STANDING, MOVING = 0, 1, 2
 STRATA = ("new", "standing", "moving")
@@ -94,12 +85,9 @@ class Forecaster:
     def __post_init__(self) -> None:
         if self.name not in FORECASTERS:
             raise ConfigError(f"predictor must be one of {list(FORECASTERS)}, got {self.name!r}")
-        if not (isinstance(self.dt, int | float) and math.isfinite(self.dt) and self.dt > 0):
-            raise ConfigError(f"dt must be a finite number > 0 (s), got {self.dt!r}")
-        h = self.history_steps
-        if isinstance(h, bool) or not isinstance(h, int | np.integer) or h < 2:
-            raise ConfigError(f"history_steps must be an integer >= 2, got {h!r}")
-        object.__setattr__(self, "history_steps", int(h))
+        object.__setattr__(self, "dt", _option("dt (s)", self.dt, strict=True))
+        h = _option("history_steps", self.history_steps, low=2, integer=True)
+        object.__setattr__(self, "history_steps", h)
         tables = [np.zeros((2, 0))]  # index L: the (2, L) weights of a window of L rows
         for length in range(1, int(h) + 1):
             tables.append(self._weights(length))

@@ -34,17 +34,10 @@ from pathlib import Path
 import numpy as np
 
 from safe_nav_env.errors import ConfigError, ScenarioError
+from safe_nav_env.options import _option
 
-__all__ = [
-    "SCENES",
-    "SECONDS_PER_FRAME",
-    "Recording",
-    "RecordingError",
-    "load_recording",
-    "parse_tracks",
-    "resample",
-    "scene_path",
-]
+__all__ = ["SCENES", "SECONDS_PER_FRAME", "Recording", "RecordingError", "load_recording",
+    "parse_tracks", "resample", "scene_path"]
 
 SECONDS_PER_FRAME = 0.04
 """Duration of one frame number in the ETH/UCY files, s (10 frames = 0.4 s)."""
@@ -226,8 +219,7 @@ def resample(
     Recording
         Time 0 is the table's first frame.
     """
-    if not (isinstance(dt, int | float) and math.isfinite(dt) and dt > 0):
-        raise ConfigError(f"dt must be a finite number > 0 (s), got {dt!r}")
+    dt = _option("dt (s)", dt, strict=True)
     times = (table[:, 0] - table[:, 0].min()) * seconds_per_frame
     n_steps = int(math.floor(times.max() / dt + 1e-9)) + 1
     ids, inverse = np.unique(table[:, 1], return_inverse=True)

@@ -73,17 +73,10 @@ class ReplayModel:
         Recording step of the episode's start, steps taken since.
     """
 
-    def __init__(
-        self,
-        recording: Recording,
-        forecaster: Forecaster,
-        bank: ResidualBank,
-        *,
-        max_obstacles: int,
-        radius: float,
-        arena: tuple[tuple[float, float], tuple[float, float]],
-        ego_position: Callable[[], np.ndarray],
-    ) -> None:
+    def __init__(self, recording: Recording, forecaster: Forecaster, bank: ResidualBank, *,
+                 max_obstacles: int, radius: float,
+                 arena: tuple[tuple[float, float], tuple[float, float]],
+                 ego_position: Callable[[], np.ndarray]) -> None:
         self.recording = recording
         self.forecaster = forecaster
         self.bank = bank

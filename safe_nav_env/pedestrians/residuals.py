@@ -113,14 +113,8 @@ class ResidualBank:
             value.flags.writeable = False
             object.__setattr__(self, name, value)
 
-    def sample(
-        self,
-        rng: np.random.Generator,
-        nominal: np.ndarray,
-        strata: np.ndarray,
-        heading: np.ndarray,
-        n_samples: int,
-    ) -> np.ndarray:
+    def sample(self, rng: np.random.Generator, nominal: np.ndarray, strata: np.ndarray,
+               heading: np.ndarray, n_samples: int) -> np.ndarray:
         """Prediction samples ``nominal + R e``, shape ``(n, N_s, T, 2)``, m.
 
         Parameters
@@ -172,12 +166,8 @@ def _merge(scenes: tuple[str, ...], per_scene: list[list[np.ndarray]]) -> Residu
     return ResidualBank(scenes, tuple(residuals), tuple(sources))
 
 
-def residual_bank(
-    scene: str,
-    forecaster: Forecaster,
-    horizon: int,
-    recordings: Mapping[str, Recording] | None = None,
-) -> ResidualBank:
+def residual_bank(scene: str, forecaster: Forecaster, horizon: int,
+                  recordings: Mapping[str, Recording] | None = None) -> ResidualBank:
     """The residual bank for predictions in ``scene``: every scene but ``scene``.
 
     Parameters
