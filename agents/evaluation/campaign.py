@@ -145,15 +145,9 @@ def describe_run(records: Sequence[EpisodeRecord]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def run_campaign(
-    specs: Sequence[EpisodeSpec],
-    config: EvaluationConfig,
-    report: Callable[[EvaluationRecords], Report],
-    *,
-    vary: Sequence[str] = (),
-    name: str = "episodes",
-    summary: str = "summary.md",
-) -> EvaluationOutputs:
+def run_campaign(specs: Sequence[EpisodeSpec], config: EvaluationConfig,
+                 report: Callable[[EvaluationRecords], Report], *, vary: Sequence[str] = (),
+                 name: str = "episodes", summary: str = "summary.md") -> EvaluationOutputs:
     """Run ``specs`` under ``config``; write ``<name>.csv``, its run key, ``summary`` and the
     figures of ``report(records)`` into ``config.output``.
 
@@ -191,16 +185,9 @@ def run_campaign(
                              time.perf_counter() - start, files, reused=records.reused)
 
 
-def run_evaluation(
-    output: str | Path | None = None,
-    scenarios: Sequence[str] = PAPER_SCENARIOS,
-    risks: Sequence[str] = RISKS,
-    *,
-    config: EvaluationConfig | None = None,
-    episodes: int = 300,
-    seed: int = 0,
-    **options: Any,
-) -> EvaluationOutputs:
+def run_evaluation(output: str | Path | None = None, scenarios: Sequence[str] = PAPER_SCENARIOS,
+                   risks: Sequence[str] = RISKS, *, config: EvaluationConfig | None = None,
+                   episodes: int = 300, seed: int = 0, **options: Any) -> EvaluationOutputs:
     """Evaluate every (scenario, risk) on ``episodes`` seeds; write the CSV, the summary and
     the figures into ``output`` (default ``results/evaluate``).
 
@@ -229,15 +216,9 @@ def run_evaluation(
     return run_campaign(specs, config, report)
 
 
-def make_figures(
-    folder: Path,
-    records: Sequence[EpisodeRecord],
-    rows: Sequence[SummaryRow],
-    scenarios: Sequence[str],
-    risks: Sequence[str],
-    *,
-    template: EpisodeSpec,
-) -> dict[str, Path]:
+def make_figures(folder: Path, records: Sequence[EpisodeRecord], rows: Sequence[SummaryRow],
+                 scenarios: Sequence[str], risks: Sequence[str], *,
+                 template: EpisodeSpec) -> dict[str, Path]:
     """Figures of an evaluation, re-running ``template``'s seed of each scenario and risk
     (its other settings too) with trajectories."""
     from agents.evaluation import plots
@@ -273,17 +254,10 @@ def make_figures(
     return files
 
 
-def run_sweep(
-    output: str | Path | None = None,
-    scenarios: Sequence[str] = PAPER_SCENARIOS,
-    *,
-    epsilons: Sequence[float] = (0.0, 0.05, 0.1, 0.2),
-    deltas: Sequence[float] = (0.0, 0.1, 0.2),
-    config: EvaluationConfig | None = None,
-    episodes: int = 50,
-    seed: int = 0,
-    **options: Any,
-) -> EvaluationOutputs:
+def run_sweep(output: str | Path | None = None, scenarios: Sequence[str] = PAPER_SCENARIOS, *,
+              epsilons: Sequence[float] = (0.0, 0.05, 0.1, 0.2),
+              deltas: Sequence[float] = (0.0, 0.1, 0.2), config: EvaluationConfig | None = None,
+              episodes: int = 50, seed: int = 0, **options: Any) -> EvaluationOutputs:
     """DR-CVaR over a grid of (epsilon, delta): collision rate against mean intervention.
 
     The whole grid is one campaign (one worker pool, started once). Writes, into

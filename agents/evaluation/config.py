@@ -88,14 +88,9 @@ class EvaluationConfig:
                                             f"{getattr(self, name)!r}")
 
 
-def split_options(
-    config: EvaluationConfig | None,
-    output: str | Path | None,
-    options: Mapping[str, Any],
-    *,
-    default: str,
-    fixed: Sequence[str] = (),
-) -> tuple[EvaluationConfig, dict[str, Any]]:
+def split_options(config: EvaluationConfig | None, output: str | Path | None,
+                  options: Mapping[str, Any], *, default: str,
+                  fixed: Sequence[str] = ()) -> tuple[EvaluationConfig, dict[str, Any]]:
     """Split a campaign's keywords into its config and its episodes' settings.
 
     Parameters

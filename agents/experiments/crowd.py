@@ -138,16 +138,9 @@ def crowd_table(rows: Sequence[CrowdRow]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def run_crowd(
-    output: str | Path | None = None,
-    settings: Sequence[str] = ("orca_invisible",),
-    risks: Sequence[str] = CROWD_RISKS,
-    *,
-    config: EvaluationConfig | None = None,
-    episodes: int = 500,
-    seed: int = 0,
-    **options: Any,
-) -> EvaluationOutputs:
+def run_crowd(output: str | Path | None = None, settings: Sequence[str] = ("orca_invisible",),
+              risks: Sequence[str] = CROWD_RISKS, *, config: EvaluationConfig | None = None,
+              episodes: int = 500, seed: int = 0, **options: Any) -> EvaluationOutputs:
     """Run the crowd benchmark; write its CSV and summary to ``output``.
 
     Parameters

@@ -136,17 +136,11 @@ def pedestrian_table(rows: Sequence[PedestrianRow]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def run_pedestrians(
-    output: str | Path | None = None,
-    scenes: Sequence[str] = tuple(PEDESTRIAN_SETTINGS),
-    risks: Sequence[str] = PEDESTRIAN_RISKS,
-    *,
-    config: EvaluationConfig | None = None,
-    episodes: int = 100,
-    seed: int = 0,
-    planner: str = "mpc",
-    **options: Any,
-) -> EvaluationOutputs:
+def run_pedestrians(output: str | Path | None = None,
+                    scenes: Sequence[str] = tuple(PEDESTRIAN_SETTINGS),
+                    risks: Sequence[str] = PEDESTRIAN_RISKS, *,
+                    config: EvaluationConfig | None = None, episodes: int = 100, seed: int = 0,
+                    planner: str = "mpc", **options: Any) -> EvaluationOutputs:
     """Run the pedestrian benchmark; write its CSV and summary to ``output``.
 
     Parameters

@@ -212,19 +212,11 @@ def _timing_table(cells: Sequence[StressCell], records: Sequence[EpisodeRecord],
     return "\n".join(lines) + "\n"
 
 
-def run_stress(
-    output: str | Path | None = None,
-    cases: Sequence[str] = DEFAULT_CASES,
-    methods: Sequence[str] = DEFAULT_METHODS,
-    *,
-    planners: Sequence[str] = DEFAULT_PLANNERS,
-    config: EvaluationConfig | None = None,
-    episodes: int = 300,
-    seed: int = 0,
-    reference: str = "rollout",
-    epsilon: float = EPSILON,
-    **options: Any,
-) -> EvaluationOutputs:
+def run_stress(output: str | Path | None = None, cases: Sequence[str] = DEFAULT_CASES,
+               methods: Sequence[str] = DEFAULT_METHODS, *,
+               planners: Sequence[str] = DEFAULT_PLANNERS, config: EvaluationConfig | None = None,
+               episodes: int = 300, seed: int = 0, reference: str = "rollout",
+               epsilon: float = EPSILON, **options: Any) -> EvaluationOutputs:
     """Run the stress benchmark; write its CSVs, summary and Pareto figure to ``output``.
 
     Parameters
