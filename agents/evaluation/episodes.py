@@ -316,7 +316,8 @@ class EpisodeRecord:
     share_brake: float = _column("1", "Share of the steps that braked (last resort)", 0.0)
     share_error: float = _column("1", "Share of the steps that braked on bad data (NaN action or "
                                       "predictions)", 0.0)
-    fallback_steps: int = _column("steps", "Steps on a fallback (status soft, recovery, shifted, brake or error)", 0)
+    fallback_steps: int = _column("steps", "Steps on a fallback (status soft, recovery, "
+                                           "shifted, brake or error)", 0)
     first_error: str = _column("", "The first step's reason for braking on bad data, e.g. step 3: "
                                    "NaN action", "")
     filter_time_median: float = _column("s", "Median time of one filter step (halfspaces + "
