@@ -184,31 +184,19 @@ class MPCReferencePlanner:
         ``R' u_t`` for ``t = 1 .. T-1``. ``M`` is fixed; ``c`` is affine in
         ``(x_0, x_g)``, stored as the two matrices ``c = G x_0 - H x_g``.
         """
-        A, B, _ = self.dynamics
+        from scipy.linalg import block_diag
+
+        from filters.mpc.problem import MPCProblem
+
+        A, B, C = self.dynamics
         Q, Q_terminal, R = self.weights
-        n, m = B.shape
-        T = self.horizon
-        powers = [np.eye(n)]
-        for _ in range(T):
-            powers.append(A @ powers[-1])
-        state_rows, g_rows, h_rows = [], [], []
-        for t in range(1, T + 1):
-            W = (Q_terminal if t == T else Q).T
-            row = np.zeros((n, T * m))
-            for j in range(t):
-                row[:, j * m:(j + 1) * m] = powers[t - 1 - j] @ B
-            state_rows.append(W @ row)
-            g_rows.append(W @ powers[t])
-            h_rows.append(W)
-        input_rows = []
-        for t in range(1, T):
-            row = np.zeros((m, T * m))
-            row[:, t * m:(t + 1) * m] = R.T
-            input_rows.append(row)
+        (n, m), T = B.shape, self.horizon
+        phi, gamma = MPCProblem(A, B, C, T, R=np.eye(m), objective="first_input").rollout
+        W = block_diag(*[Q.T] * (T - 1), Q_terminal.T)  # W_t' on the rows of x_t
         zeros = np.zeros(((T - 1) * m, n))
-        self._M = np.vstack(state_rows + input_rows)
-        self._G = np.vstack(g_rows + [zeros])
-        self._H = np.vstack(h_rows + [zeros])
+        self._M = np.vstack([W @ gamma, np.kron(np.eye(T)[1:], R.T)])  # R' u_t, t = 1..T-1
+        self._G = np.vstack([W @ phi, zeros])
+        self._H = np.vstack([W @ np.tile(np.eye(n), (T, 1)), zeros])
 
     def _plan_least_squares(self, state: np.ndarray, target: np.ndarray) -> np.ndarray:
         c = self._G @ state - self._H @ target

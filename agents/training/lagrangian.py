@@ -179,9 +179,7 @@ class PPOLagrangian(PPO):
         super().set_env(_as_penalty_env(env), force_reset=force_reset)
 
     def collect_rollouts(self, env, callback, rollout_buffer, n_rollout_steps) -> bool:
-        penalty_env = self.env if isinstance(self.env, CostPenaltyVecEnv) else None
-        if penalty_env is None:  # pragma: no cover - __init__ and set_env wrap it
-            raise InvalidTypeError("PPOLagrangian's env must be a CostPenaltyVecEnv")
+        penalty_env: CostPenaltyVecEnv = self.env  # __init__ and set_env wrap it
         penalty_env.multiplier = self.lagrange_multiplier
         keep_going = super().collect_rollouts(env, callback, rollout_buffer, n_rollout_steps)
         costs = penalty_env.pop_episode_costs()

@@ -258,11 +258,9 @@ def is_normalised_policy(policy: Any, physical_space: spaces.Space) -> bool:
             f"{physical_space!r}"
         )
     low, high = np.asarray(space.low, float), np.asarray(space.high, float)
-    if np.array_equal(low, -np.ones_like(low)) and np.array_equal(high, np.ones_like(high)):
-        return not (np.array_equal(physical_space.low, low)
-                    and np.array_equal(physical_space.high, high))
-    if np.array_equal(low, physical_space.low) and np.array_equal(high, physical_space.high):
-        return False
+    physical = np.array_equal(low, physical_space.low) and np.array_equal(high, physical_space.high)
+    if physical or (np.all(low == -1.0) and np.all(high == 1.0)):
+        return not physical
     raise InvalidTypeError(
         f"the policy acts in [{low}, {high}], neither [-1, 1] (normalised) nor the "
         f"environment's box [{physical_space.low}, {physical_space.high}]"
