@@ -191,7 +191,8 @@ class MPCReferencePlanner:
         A, B, C = self.dynamics
         Q, Q_terminal, R = self.weights
         (n, m), T = B.shape, self.horizon
-        phi, gamma = MPCProblem(A, B, C, T, R=np.eye(m), objective="first_input").rollout
+        self._rollout = phi, gamma = MPCProblem(A, B, C, T, R=np.eye(m),
+                                                objective="first_input").rollout
         W = block_diag(*[Q.T] * (T - 1), Q_terminal.T)  # W_t' on the rows of x_t
         zeros = np.zeros(((T - 1) * m, n))
         self._M = np.vstack([W @ gamma, np.kron(np.eye(T)[1:], R.T)])  # R' u_t, t = 1..T-1
@@ -224,14 +225,10 @@ class MPCReferencePlanner:
         state = np.asarray(state, dtype=float)
         goal = np.asarray(goal, dtype=float)
         target = np.concatenate([goal, np.zeros(state.shape[0] - goal.shape[0])])
-        if self._qp is None:
-            A, B, _ = self.dynamics
-            inputs = self._plan_least_squares(state, target).reshape(self.horizon, B.shape[1])
-            states = np.empty((self.horizon + 1, state.shape[0]))
-            states[0] = state
-            for t in range(self.horizon):
-                states[t + 1] = A @ states[t] + B @ inputs[t]
-            return states, inputs
+        if self._qp is None:  # x_1..x_T = Phi x_0 + Gamma u
+            (phi, gamma), u = self._rollout, self._plan_least_squares(state, target)
+            return (np.vstack([state, (phi @ state + gamma @ u).reshape(self.horizon, -1)]),
+                    u.reshape(self.horizon, -1))
         reference = np.tile(target, (self.horizon + 1, 1))
         reference[0] = state
         result = self._qp.solve(state, reference)

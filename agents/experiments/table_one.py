@@ -20,7 +20,7 @@ Part of the paper's reproduction (:func:`agents.experiments.reproduce.reproduce`
 
 from __future__ import annotations
 
-import time
+import timeit
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -125,18 +125,11 @@ def _time_cvxpy(
 def _median_call_us(call: Callable[[], object], budget_s: float = 0.2) -> float:
     """Median wall-clock time of ``call()`` in microseconds, over batches within ``budget_s``."""
     call()  # warm-up
-    start = time.perf_counter()
-    call()
-    once = max(time.perf_counter() - start, 1e-7)
+    timer = timeit.Timer(call)
+    once = max(timer.timeit(1), 1e-7)
     number = max(1, int(0.01 / once))
-    batches = max(5, min(50, int(budget_s / (once * number))))
-    samples = []
-    for _ in range(batches):
-        start = time.perf_counter()
-        for _ in range(number):
-            call()
-        samples.append((time.perf_counter() - start) / number)
-    return float(np.median(samples)) * 1e6
+    samples = timer.repeat(max(5, min(50, int(budget_s / (once * number)))), number)
+    return float(np.median(samples)) / number * 1e6
 
 
 def _time_ours(

@@ -114,9 +114,8 @@ class SafetyEvalCallback(EvalCallback):
 
     def _log_success_callback(self, locals_: dict[str, Any], globals_: dict[str, Any]) -> None:
         super()._log_success_callback(locals_, globals_)
-        tally = self._eval_tally
+        tally = self._eval_tally  # recorded as episodes end: the values stand when it dumps
         if tally.step(int(locals_["i"]), locals_["info"], bool(locals_["done"])) is not None:
-            # Recorded as episodes end, so the values stand when EvalCallback dumps.
             record_metrics(self.logger, "eval", tally.metrics())
 
     def _on_step(self) -> bool:

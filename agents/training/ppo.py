@@ -23,6 +23,7 @@ logger: a stdout table with ``print_metrics``, a CSV next to the model
 
 from __future__ import annotations
 
+import sys
 import time
 from dataclasses import dataclass, field
 from functools import partial
@@ -294,20 +295,6 @@ def _model_file(path: str | Path) -> Path:
     return path
 
 
-def _tensorboard_format(folder: str | Path, name: str):
-    """TensorBoard output into ``folder/<name>_<k>`` (the next free k, as SB3 does)."""
-    try:
-        from stable_baselines3.common.logger import TensorBoardOutputFormat
-        from stable_baselines3.common.utils import get_latest_run_id
-        from torch.utils.tensorboard import SummaryWriter  # noqa: F401
-    except ImportError as exc:
-        raise ImportError(
-            "tensorboard logging needs the tensorboard package: pip install 'safe-nav[train]'"
-        ) from exc
-    run = Path(folder) / f"{name}_{get_latest_run_id(str(folder), name) + 1}"
-    return TensorBoardOutputFormat(str(run))
-
-
 def train_ppo(
     env_id: str = DEFAULT_ENV_ID,
     total_timesteps: int = 400_000,
@@ -454,18 +441,18 @@ def train_ppo(
         save_path = _model_file(save_path)
     if metrics_path is None and save_path is not None:
         metrics_path = metrics_path_for(save_path)
-    formats = []
-    if tensorboard_log is not None:
-        formats.append(_tensorboard_format(tensorboard_log, "PPOLagrangian" if lagrangian
-                                           else "PPO"))
 
     import torch
     from stable_baselines3 import PPO
     from stable_baselines3.common.callbacks import CallbackList
     from stable_baselines3.common.logger import CSVOutputFormat, HumanOutputFormat, Logger
+    from stable_baselines3.common.utils import configure_logger
 
     from agents.training.callbacks import RefreshActor, SafetyEvalCallback, SafetyMetricsCallback
+    from agents.training.lagrangian import CostPenaltyVecEnv, PPOLagrangian
 
+    formats = [] if tensorboard_log is None else configure_logger(  # into <folder>/<name>_<k>
+        0, str(tensorboard_log), "PPOLagrangian" if lagrangian else "PPO").output_formats
     torch.set_num_threads(torch_threads)
     training_policy = None
     if filter_kwargs is not None and filter_reference == "rollout":
@@ -474,22 +461,15 @@ def train_ppo(
     vec_env_instance = make_training_env(
         env_id, n_envs=n_envs, seed=seed, env_kwargs=env_kwargs, filter_kwargs=filter_kwargs,
         normalise_actions=normalise_actions, vec_env=vec_env)
-    kwargs = {**DEFAULT_PPO_KWARGS, **(ppo_kwargs or {})}
-    if lagrangian:
-        from agents.training.lagrangian import PPOLagrangian
-
-        model = PPOLagrangian("MlpPolicy", vec_env_instance, cost_limit=cost_limit,
-                              lambda_lr=lambda_lr, seed=seed, device="cpu", verbose=verbose,
-                              **kwargs)
-    else:
-        model = PPO("MlpPolicy", vec_env_instance, seed=seed, device="cpu", verbose=verbose,
-                    **kwargs)
+    kwargs = {**DEFAULT_PPO_KWARGS, **(ppo_kwargs or {}), "seed": seed, "device": "cpu",
+              "verbose": verbose}
+    model = (PPOLagrangian("MlpPolicy", vec_env_instance, cost_limit=cost_limit,
+                           lambda_lr=lambda_lr, **kwargs) if lagrangian
+             else PPO("MlpPolicy", vec_env_instance, **kwargs))
     if training_policy is not None:  # in-process copies: the physical box of the first
         training_policy.bind(model, vec_env_instance.envs[0].unwrapped.action_space)
 
     if print_metrics:
-        import sys
-
         formats.append(HumanOutputFormat(sys.stdout))
     if metrics_path is not None:
         metrics_path = Path(metrics_path)
@@ -507,9 +487,7 @@ def train_ppo(
             env_id, n_envs=1, seed=seed + EVAL_SEED_OFFSET, env_kwargs=env_kwargs,
             filter_kwargs=filter_kwargs, normalise_actions=normalise_actions, vec_env=vec_env)
         if lagrangian:  # same wrapper type as the training env (EvalCallback checks it);
-            from agents.training.lagrangian import CostPenaltyVecEnv  # multiplier 0: task reward
-
-            eval_env = CostPenaltyVecEnv(eval_env)
+            eval_env = CostPenaltyVecEnv(eval_env)  # multiplier 0: the task reward
         best_dir = None if save_path is None else save_path.with_name(save_path.stem + "_best")
         best_model_path = None if best_dir is None else best_dir / "best_model.zip"
         callbacks.append(SafetyEvalCallback(

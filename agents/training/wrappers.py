@@ -139,14 +139,11 @@ class SafetyTally:
         self._steps = np.zeros(self.n_envs, dtype=int)
         self._intervention = np.zeros(self.n_envs)
         self._filtered = np.zeros(self.n_envs, dtype=int)
-        self.episodes: list[EpisodeSafety] = []
-        self.statuses: Counter[str] = Counter()
-        self.intervention_sum = 0.0
-        self.filtered_steps = 0
+        self.clear_window()
 
     def clear_window(self) -> None:
         """Forget finished episodes and step counts (not the episodes in progress)."""
-        self.episodes = []
+        self.episodes: list[EpisodeSafety] = []
         self.statuses = Counter()
         self.intervention_sum = 0.0
         self.filtered_steps = 0
