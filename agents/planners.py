@@ -138,11 +138,7 @@ class MPCReferencePlanner:
                 "(the authors' planner has neither bound), got "
                 f"position_bounds={position_bounds!r}, max_speed={max_speed!r}")
         self._qp = None
-        low, high = (np.broadcast_to(finite_array("input_bounds", b), (m,)) for b in input_bounds)
-        if not np.all(low <= high):
-            raise InvalidArrayError(f"input_bounds must have low <= high, got {input_bounds!r}")
-        self._u_low, self._u_high = np.tile(low, self.horizon), np.tile(high, self.horizon)
-        self._build_least_squares()
+        self._build_least_squares(input_bounds)
 
     @classmethod
     def from_env(cls, env: Any, **kwargs: Any) -> MPCReferencePlanner:
@@ -176,7 +172,7 @@ class MPCReferencePlanner:
         per_step[0] = 0.0
         return {"Q": Q @ Q.T, "Q_terminal": Q_terminal @ Q_terminal.T, "R": per_step}
 
-    def _build_least_squares(self) -> None:
+    def _build_least_squares(self, input_bounds: tuple[np.ndarray, np.ndarray]) -> None:
         r"""Condense the authors' cost into ``|| M u + c(x_0, x_g) ||²``.
 
         With ``x_t = A^t x_0 + \sum_{j<t} A^{t-1-j} B u_j``, the rows of step t are
@@ -191,8 +187,10 @@ class MPCReferencePlanner:
         A, B, C = self.dynamics
         Q, Q_terminal, R = self.weights
         (n, m), T = B.shape, self.horizon
-        self._rollout = phi, gamma = MPCProblem(A, B, C, T, R=np.eye(m),
-                                                objective="first_input").rollout
+        problem = MPCProblem(A, B, C, T, R=np.eye(m), objective="first_input",
+                             input_bounds=input_bounds)  # checks the bounds too
+        self._u_low, self._u_high = (np.tile(bound, T) for bound in problem.input_bounds)
+        self._rollout = phi, gamma = problem.rollout
         W = block_diag(*[Q.T] * (T - 1), Q_terminal.T)  # W_t' on the rows of x_t
         zeros = np.zeros(((T - 1) * m, n))
         self._M = np.vstack([W @ gamma, np.kron(np.eye(T)[1:], R.T)])  # R' u_t, t = 1..T-1

@@ -36,7 +36,7 @@ from agents.policies.loading import (  # noqa: F401  (re-exported)
     pretrained_policy_path,
     set_torch_threads,
 )
-from filters._validation import integer_at_least, scalar_in_range
+from filters._validation import finite_scalar, integer_at_least
 from filters.config import FilterConfig
 from filters.errors import InvalidParameterError, InvalidTypeError
 
@@ -410,8 +410,8 @@ def train_ppo(
     for name, low in (("total_timesteps", 1), ("n_envs", 1), ("seed", 0), ("eval_freq", 0),
                       ("eval_episodes", 1), ("torch_threads", 1)):
         integer_at_least(name, locals()[name], low=low)
-    scalar_in_range("cost_limit", cost_limit, low=0.0, high_inclusive=False)
-    scalar_in_range("lambda_lr", lambda_lr, low=0.0, low_inclusive=False, high_inclusive=False)
+    finite_scalar("cost_limit", cost_limit, low=0.0)
+    finite_scalar("lambda_lr", lambda_lr, low=0.0, strict=True)
     if vec_env not in VEC_ENVS:
         raise InvalidParameterError(f"vec_env must be one of {VEC_ENVS}, got {vec_env!r}")
     if filter_reference not in FILTER_REFERENCES:

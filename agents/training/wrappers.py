@@ -31,6 +31,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from filters._validation import finite_scalar
 from filters.errors import InvalidParameterError, InvalidTypeError
 from filters.mpc.result import FilterStatus
 from filters.report import PASSTHROUGH
@@ -74,9 +75,7 @@ class EpisodeCostInfo(gym.Wrapper):
 
     def step(self, action: Any):
         obs, reward, terminated, truncated, info = self.env.step(action)
-        cost = float(info.get("cost", 0.0))
-        if not np.isfinite(cost):
-            raise InvalidParameterError(f"info['cost'] must be finite, got {cost!r}")
+        finite_scalar("info['cost']", info.get("cost", 0.0))
         episode = self._tally.step(0, info, terminated or truncated)
         if episode is not None:
             info.update(episode_cost=episode.cost, episode_collision=episode.collision,
