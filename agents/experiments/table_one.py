@@ -190,10 +190,6 @@ def benchmark_table_one(sample_counts: Sequence[int] = (50, 500, 1500), repeats:
     return TableOneResult(tuple(cvxpy_rows), tuple(our_rows), formulation, repeats, seed)
 
 
-def _mean_median(mean: float, median: float) -> str:
-    return f"{mean:.3g} / {median:.3g}".rjust(20)
-
-
 def format_table_one(result: TableOneResult) -> str:
     """Plain-text rendering of :func:`benchmark_table_one`'s result."""
     lines = [
@@ -203,8 +199,8 @@ def format_table_one(result: TableOneResult) -> str:
         f"{'paper solve':>13}{'paper call':>12}",
     ]
     for row in result.cvxpy:
-        cells = "".join(_mean_median(getattr(row, f"{key}_mean"), getattr(row, f"{key}_median"))
-                        for key in ("setup", "solve", "call"))
+        cells = "".join(f"{getattr(row, key + '_mean'):.3g} / {getattr(row, key + '_median'):.3g}"
+                        .rjust(20) for key in ("setup", "solve", "call"))
         lines.append(f"{row.risk:<8}{row.n_samples:>6}{cells}"
                      f"{row.paper_solve:>13.3g}{row.paper_call:>12.3g}")
     lines += [

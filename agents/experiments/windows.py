@@ -94,11 +94,8 @@ def window_minimum(distances: np.ndarray, window: tuple[int, int]) -> np.ndarray
         raise InvalidParameterError(f"window must be (first, last) with 0 <= first <= last, "
                                     f"got {window!r}")
     part = distances[:, first:last + 1]
-    out = np.full(distances.shape[0], np.nan)
-    finite = np.isfinite(part)
-    rows = np.any(finite, axis=1)
-    out[rows] = np.min(np.where(finite, part, np.inf)[rows], axis=1)
-    return out
+    low = np.where(np.isfinite(part), part, np.inf).min(axis=1, initial=np.inf)
+    return np.where(np.isfinite(low), low, np.nan)
 
 
 # ---------------------------------------------------------------------------- statistics
@@ -233,8 +230,7 @@ def _summary_rows(rows: Sequence[WindowRow], *, sampled: bool) -> list[SummaryRo
     """Rows for :func:`agents.evaluation.plots.plot_collision_rates` (whole-episode counts)."""
     out = []
     for row in rows:
-        count = row.sampled_collisions if sampled else row.collisions
-        n = row.ok
+        count, n = (row.sampled_collisions if sampled else row.collisions), row.ok
         low, high = wilson_interval(count, n)
         out.append(SummaryRow(
             scenario=row.scenario, planner="mpc", risk=row.risk, episodes=row.episodes,

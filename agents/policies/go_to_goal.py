@@ -87,7 +87,5 @@ class GoToGoalPolicy:
         ``[2:4]``, goal minus position at ``[4:6]``; everything else is ignored.
         """
         obs = np.asarray(observation, dtype=np.float64)
-        if obs.ndim == 1:
-            return self.action(obs[2:4], obs[4:6]).astype(np.float32), None
-        actions = np.stack([self.action(row[2:4], row[4:6]) for row in obs])
-        return actions.astype(np.float32), None
+        actions = [self.action(row[2:4], row[4:6]) for row in obs.reshape(-1, obs.shape[-1])]
+        return np.asarray(actions, dtype=np.float32).reshape(obs.shape[:-1] + (2,)), None
