@@ -116,10 +116,9 @@ def _time_cvxpy(
                              2 * OBSTACLE_RADIUS, risk, alpha=ALPHA, delta=DELTA,
                              epsilon=EPSILON, formulation=formulation)
         for _ in range(repeats)])
-    mean, median = times.mean(axis=0), np.median(times, axis=0)
-    paper = PAPER_TABLE_ONE.get((risk, n_samples), (np.nan, np.nan))
-    return CvxpyTiming(risk, n_samples, mean[0], median[0], mean[1], median[1], mean[2],
-                       median[2], *paper)
+    cells = np.stack([times.mean(axis=0), np.median(times, axis=0)], axis=1).ravel()  # (mean,
+    return CvxpyTiming(risk, n_samples, *cells,  # median) of setup, solve, call
+                       *PAPER_TABLE_ONE.get((risk, n_samples), (np.nan, np.nan)))
 
 
 def _median_call_us(call: Callable[[], object], budget_s: float = 0.2) -> float:

@@ -65,11 +65,7 @@ class EpisodeCostInfo(gym.Wrapper):
         (From :meth:`step`.) If ``info["cost"]`` is NaN or infinite.
     """
 
-    def __init__(self, env: gym.Env) -> None:
-        super().__init__(env)
-        self._tally = SafetyTally(1)
-
-    def reset(self, **kwargs: Any):
+    def reset(self, **kwargs: Any):  # gymnasium refuses a step before the first reset
         self._tally = SafetyTally(1)
         return self.env.reset(**kwargs)
 
