@@ -439,8 +439,7 @@ def train_ppo(
                     "filter_reference='rollout' conflicts with filter_kwargs policy/reference")
     if save_path is not None:
         save_path = _model_file(save_path)
-    if metrics_path is None and save_path is not None:
-        metrics_path = metrics_path_for(save_path)
+        metrics_path = metrics_path_for(save_path) if metrics_path is None else metrics_path
 
     import torch
     from stable_baselines3 import PPO
