@@ -138,11 +138,7 @@ class MPCReferencePlanner:
                 "(the authors' planner has neither bound), got "
                 f"position_bounds={position_bounds!r}, max_speed={max_speed!r}")
         self._qp = None
-        low, high = (np.broadcast_to(finite_array("input_bounds", b), (m,)) for b in input_bounds)
-        if not np.all(low <= high):
-            raise InvalidArrayError(f"input_bounds must have low <= high, got {input_bounds!r}")
-        self._u_low, self._u_high = np.tile(low, self.horizon), np.tile(high, self.horizon)
-        self._build_least_squares()
+        self._build_least_squares(input_bounds)
 
     @classmethod
     def from_env(cls, env: Any, **kwargs: Any) -> MPCReferencePlanner:
@@ -176,7 +172,7 @@ class MPCReferencePlanner:
         per_step[0] = 0.0
         return {"Q": Q @ Q.T, "Q_terminal": Q_terminal @ Q_terminal.T, "R": per_step}
 
-    def _build_least_squares(self) -> None:
+    def _build_least_squares(self, input_bounds: tuple[np.ndarray, np.ndarray]) -> None:
         r"""Condense the authors' cost into ``|| M u + c(x_0, x_g) ||²``.
 
         With ``x_t = A^t x_0 + \sum_{j<t} A^{t-1-j} B u_j``, the rows of step t are
@@ -184,31 +180,22 @@ class MPCReferencePlanner:
         ``R' u_t`` for ``t = 1 .. T-1``. ``M`` is fixed; ``c`` is affine in
         ``(x_0, x_g)``, stored as the two matrices ``c = G x_0 - H x_g``.
         """
-        A, B, _ = self.dynamics
+        from scipy.linalg import block_diag
+
+        from filters.mpc.problem import MPCProblem
+
+        A, B, C = self.dynamics
         Q, Q_terminal, R = self.weights
-        n, m = B.shape
-        T = self.horizon
-        powers = [np.eye(n)]
-        for _ in range(T):
-            powers.append(A @ powers[-1])
-        state_rows, g_rows, h_rows = [], [], []
-        for t in range(1, T + 1):
-            W = (Q_terminal if t == T else Q).T
-            row = np.zeros((n, T * m))
-            for j in range(t):
-                row[:, j * m:(j + 1) * m] = powers[t - 1 - j] @ B
-            state_rows.append(W @ row)
-            g_rows.append(W @ powers[t])
-            h_rows.append(W)
-        input_rows = []
-        for t in range(1, T):
-            row = np.zeros((m, T * m))
-            row[:, t * m:(t + 1) * m] = R.T
-            input_rows.append(row)
+        (n, m), T = B.shape, self.horizon
+        problem = MPCProblem(A, B, C, T, R=np.eye(m), objective="first_input",
+                             input_bounds=input_bounds)  # checks the bounds too
+        self._u_low, self._u_high = (np.tile(bound, T) for bound in problem.input_bounds)
+        self._rollout = phi, gamma = problem.rollout
+        W = block_diag(*[Q.T] * (T - 1), Q_terminal.T)  # W_t' on the rows of x_t
         zeros = np.zeros(((T - 1) * m, n))
-        self._M = np.vstack(state_rows + input_rows)
-        self._G = np.vstack(g_rows + [zeros])
-        self._H = np.vstack(h_rows + [zeros])
+        self._M = np.vstack([W @ gamma, np.kron(np.eye(T)[1:], R.T)])  # R' u_t, t = 1..T-1
+        self._G = np.vstack([W @ phi, zeros])
+        self._H = np.vstack([W @ np.tile(np.eye(n), (T, 1)), zeros])
 
     def _plan_least_squares(self, state: np.ndarray, target: np.ndarray) -> np.ndarray:
         c = self._G @ state - self._H @ target
@@ -236,14 +223,10 @@ class MPCReferencePlanner:
         state = np.asarray(state, dtype=float)
         goal = np.asarray(goal, dtype=float)
         target = np.concatenate([goal, np.zeros(state.shape[0] - goal.shape[0])])
-        if self._qp is None:
-            A, B, _ = self.dynamics
-            inputs = self._plan_least_squares(state, target).reshape(self.horizon, B.shape[1])
-            states = np.empty((self.horizon + 1, state.shape[0]))
-            states[0] = state
-            for t in range(self.horizon):
-                states[t + 1] = A @ states[t] + B @ inputs[t]
-            return states, inputs
+        if self._qp is None:  # x_1..x_T = Phi x_0 + Gamma u
+            (phi, gamma), u = self._rollout, self._plan_least_squares(state, target)
+            return (np.vstack([state, (phi @ state + gamma @ u).reshape(self.horizon, -1)]),
+                    u.reshape(self.horizon, -1))
         reference = np.tile(target, (self.horizon + 1, 1))
         reference[0] = state
         result = self._qp.solve(state, reference)

@@ -98,9 +98,8 @@ class ReproductionPreset:
 
     def delta_for(self, risk: str) -> float:
         """δ used with ``risk``, in m."""
-        if risk == "mean" and self.mean_delta is not None:
-            return float(self.mean_delta)
-        return float(self.delta)
+        return float(self.mean_delta if risk == "mean" and self.mean_delta is not None
+                     else self.delta)
 
 
 PRESETS: dict[str, ReproductionPreset] = {

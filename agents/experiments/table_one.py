@@ -20,7 +20,7 @@ Part of the paper's reproduction (:func:`agents.experiments.reproduce.reproduce`
 
 from __future__ import annotations
 
-import time
+import timeit
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -116,27 +116,19 @@ def _time_cvxpy(
                              2 * OBSTACLE_RADIUS, risk, alpha=ALPHA, delta=DELTA,
                              epsilon=EPSILON, formulation=formulation)
         for _ in range(repeats)])
-    mean, median = times.mean(axis=0), np.median(times, axis=0)
-    paper = PAPER_TABLE_ONE.get((risk, n_samples), (np.nan, np.nan))
-    return CvxpyTiming(risk, n_samples, mean[0], median[0], mean[1], median[1], mean[2],
-                       median[2], *paper)
+    cells = np.stack([times.mean(axis=0), np.median(times, axis=0)], axis=1).ravel()  # (mean,
+    return CvxpyTiming(risk, n_samples, *cells,  # median) of setup, solve, call
+                       *PAPER_TABLE_ONE.get((risk, n_samples), (np.nan, np.nan)))
 
 
 def _median_call_us(call: Callable[[], object], budget_s: float = 0.2) -> float:
     """Median wall-clock time of ``call()`` in microseconds, over batches within ``budget_s``."""
     call()  # warm-up
-    start = time.perf_counter()
-    call()
-    once = max(time.perf_counter() - start, 1e-7)
+    timer = timeit.Timer(call)
+    once = max(timer.timeit(1), 1e-7)
     number = max(1, int(0.01 / once))
-    batches = max(5, min(50, int(budget_s / (once * number))))
-    samples = []
-    for _ in range(batches):
-        start = time.perf_counter()
-        for _ in range(number):
-            call()
-        samples.append((time.perf_counter() - start) / number)
-    return float(np.median(samples)) * 1e6
+    samples = timer.repeat(max(5, min(50, int(budget_s / (once * number)))), number)
+    return float(np.median(samples)) / number * 1e6
 
 
 def _time_ours(
@@ -197,10 +189,6 @@ def benchmark_table_one(sample_counts: Sequence[int] = (50, 500, 1500), repeats:
     return TableOneResult(tuple(cvxpy_rows), tuple(our_rows), formulation, repeats, seed)
 
 
-def _mean_median(mean: float, median: float) -> str:
-    return f"{mean:.3g} / {median:.3g}".rjust(20)
-
-
 def format_table_one(result: TableOneResult) -> str:
     """Plain-text rendering of :func:`benchmark_table_one`'s result."""
     lines = [
@@ -210,8 +198,8 @@ def format_table_one(result: TableOneResult) -> str:
         f"{'paper solve':>13}{'paper call':>12}",
     ]
     for row in result.cvxpy:
-        cells = "".join(_mean_median(getattr(row, f"{key}_mean"), getattr(row, f"{key}_median"))
-                        for key in ("setup", "solve", "call"))
+        cells = "".join(f"{getattr(row, key + '_mean'):.3g} / {getattr(row, key + '_median'):.3g}"
+                        .rjust(20) for key in ("setup", "solve", "call"))
         lines.append(f"{row.risk:<8}{row.n_samples:>6}{cells}"
                      f"{row.paper_solve:>13.3g}{row.paper_call:>12.3g}")
     lines += [

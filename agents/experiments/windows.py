@@ -94,11 +94,8 @@ def window_minimum(distances: np.ndarray, window: tuple[int, int]) -> np.ndarray
         raise InvalidParameterError(f"window must be (first, last) with 0 <= first <= last, "
                                     f"got {window!r}")
     part = distances[:, first:last + 1]
-    out = np.full(distances.shape[0], np.nan)
-    finite = np.isfinite(part)
-    rows = np.any(finite, axis=1)
-    out[rows] = np.min(np.where(finite, part, np.inf)[rows], axis=1)
-    return out
+    low = np.where(np.isfinite(part), part, np.inf).min(axis=1, initial=np.inf)
+    return np.where(np.isfinite(low), low, np.nan)
 
 
 # ---------------------------------------------------------------------------- statistics
@@ -171,12 +168,10 @@ def resolve_windows(
             continue
         group = [r for r in records if r.scenario == scenario and not r.error]
         reference = [r for r in group if r.risk == "none"] or group
-        source = ("closest approach of the unfiltered run" if reference and
-                  reference[0].risk == "none" else "closest approach, all risks")
-        if not reference:
-            windows[scenario] = ((0, 0), "no finished episode")
-            continue
-        windows[scenario] = (closest_approach_window(_series(reference, "distances")), source)
+        windows[scenario] = ((0, 0), "no finished episode") if not reference else (
+            closest_approach_window(_series(reference, "distances")),
+            "closest approach of the unfiltered run" if reference[0].risk == "none"
+            else "closest approach, all risks")
     return windows
 
 
@@ -199,11 +194,10 @@ def summarise_windows(records: Sequence[EncounterRecord]) -> list[WindowRow]:
         ok = [r for r in group if not r.error]
         window = windows[scenario][0]
         sampled, swept = _series(ok, "distances"), _series(ok, "swept")
-        first, last = window
         in_window = window_minimum(sampled, window) if ok else np.zeros(0)
         encounter = encounters[scenario][0]
         in_encounter = window_minimum(sampled, encounter) if ok else np.zeros(0)
-        swept_window = (window_minimum(swept, (first, max(first, last - 1)))
+        swept_window = (window_minimum(swept, (window[0], max(window[0], window[1] - 1)))
                         if ok and swept.shape[1] else np.full(len(ok), np.nan))
         steps = sum(r.steps for r in ok)
         times = np.concatenate([r.filter_times for r in ok]) if ok else np.zeros(0)
@@ -236,8 +230,7 @@ def _summary_rows(rows: Sequence[WindowRow], *, sampled: bool) -> list[SummaryRo
     """Rows for :func:`agents.evaluation.plots.plot_collision_rates` (whole-episode counts)."""
     out = []
     for row in rows:
-        count = row.sampled_collisions if sampled else row.collisions
-        n = row.ok
+        count, n = (row.sampled_collisions if sampled else row.collisions), row.ok
         low, high = wilson_interval(count, n)
         out.append(SummaryRow(
             scenario=row.scenario, planner="mpc", risk=row.risk, episodes=row.episodes,

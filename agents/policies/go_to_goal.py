@@ -22,12 +22,11 @@ in m/s, ``a_max`` in m/s² (the environment's bound).
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
 
-from filters.errors import InvalidParameterError
+from filters._validation import finite_scalar
 from safe_nav_env.constants import MAX_ACCELERATION
 
 __all__ = ["GoToGoalPolicy"]
@@ -56,13 +55,10 @@ class GoToGoalPolicy:
 
     def __init__(self, *, gain: float = 1.5, damping: float = 3.0, cruise_speed: float = 3.0,
                  max_acceleration: float = MAX_ACCELERATION) -> None:
-        for name, value in (("gain", gain), ("damping", damping), ("cruise_speed", cruise_speed),
-                            ("max_acceleration", max_acceleration)):
-            if isinstance(value, bool) or not isinstance(value, int | float) or not (
-                    math.isfinite(value) and value > 0):
-                raise InvalidParameterError(f"{name} must be a finite number > 0, got {value!r}")
-        self.gain, self.damping = float(gain), float(damping)
-        self.cruise_speed, self.max_acceleration = float(cruise_speed), float(max_acceleration)
+        self.gain, self.damping, self.cruise_speed, self.max_acceleration = (
+            finite_scalar(name, value, low=0.0, strict=True) for name, value in (
+                ("gain", gain), ("damping", damping), ("cruise_speed", cruise_speed),
+                ("max_acceleration", max_acceleration)))
 
     @classmethod
     def from_env(cls, env: Any, **kwargs: Any) -> GoToGoalPolicy:
@@ -91,7 +87,5 @@ class GoToGoalPolicy:
         ``[2:4]``, goal minus position at ``[4:6]``; everything else is ignored.
         """
         obs = np.asarray(observation, dtype=np.float64)
-        if obs.ndim == 1:
-            return self.action(obs[2:4], obs[4:6]).astype(np.float32), None
-        actions = np.stack([self.action(row[2:4], row[4:6]) for row in obs])
-        return actions.astype(np.float32), None
+        actions = [self.action(row[2:4], row[4:6]) for row in obs.reshape(-1, obs.shape[-1])]
+        return np.asarray(actions, dtype=np.float32).reshape(obs.shape[:-1] + (2,)), None

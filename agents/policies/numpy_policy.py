@@ -41,14 +41,15 @@ signature, so it can be passed wherever a policy is expected, e.g.
 
 from __future__ import annotations
 
-import math
 import warnings
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from filters._validation import finite_array
 from filters.errors import InvalidArrayError, InvalidParameterError, InvalidTypeError
 
 __all__ = ["NumpyPolicy", "UnsupportedPolicyError", "load_numpy_policy"]
@@ -58,37 +59,21 @@ class UnsupportedPolicyError(InvalidTypeError):
     """The SB3 policy has a part that :class:`NumpyPolicy` cannot export."""
 
 
-class _Activation:
-    """An in-place numpy activation ``z -> σ(z)``, with its name and parameter (the
-    leaky slope or the ELU alpha, else 0)."""
-
-    __slots__ = ("name", "parameter")
-
-    def __init__(self, name: str, parameter: float = 0.0) -> None:
-        self.name, self.parameter = name, float(parameter)
-
-    def __call__(self, z: np.ndarray) -> None:
-        if self.name == "tanh":
-            np.tanh(z, out=z)
-        elif self.name == "relu":
-            np.maximum(z, 0.0, out=z)
-        elif self.name == "leaky_relu":
-            np.copyto(z, np.where(z >= 0.0, z, self.parameter * z))
-        else:  # elu
-            np.copyto(z, np.where(z > 0.0, z, self.parameter * np.expm1(np.minimum(z, 0.0))))
-
-    def __repr__(self) -> str:
-        return f"_Activation({self.name!r}, {self.parameter})"
+def _leaky_relu(z: np.ndarray, slope: float) -> np.ndarray:
+    return np.where(z >= 0.0, z, slope * z)
 
 
-def _activation(module: Any) -> Callable[[np.ndarray], None] | None:
-    """In-place numpy version of a torch activation module, or ``None`` if unknown."""
+def _elu(z: np.ndarray, alpha: float) -> np.ndarray:
+    return np.where(z > 0.0, z, alpha * np.expm1(np.minimum(z, 0.0)))
+
+
+def _activation(module: Any) -> Callable[[np.ndarray], np.ndarray] | None:
+    """Numpy version ``z -> σ(z)`` of a torch activation module (picklable), or ``None``."""
     from torch import nn
 
-    name = {nn.Tanh: "tanh", nn.ReLU: "relu", nn.LeakyReLU: "leaky_relu", nn.ELU: "elu"}.get(
-        type(module))
-    parameter = getattr(module, "negative_slope", getattr(module, "alpha", 0.0))
-    return None if name is None else _Activation(name, parameter)
+    return {nn.Tanh: np.tanh, nn.ReLU: partial(np.maximum, 0.0),
+            nn.LeakyReLU: partial(_leaky_relu, slope=getattr(module, "negative_slope", 0.0)),
+            nn.ELU: partial(_elu, alpha=getattr(module, "alpha", 0.0))}.get(type(module))
 
 
 def _linear(module: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -101,7 +86,7 @@ def _linear(module: Any) -> tuple[np.ndarray, np.ndarray]:
     return weight, bias
 
 
-Layer = tuple[np.ndarray, np.ndarray, Callable[[np.ndarray], None] | None]
+Layer = tuple[np.ndarray, np.ndarray, Callable[[np.ndarray], np.ndarray] | None]
 
 def _checked_actor_critic(model: Any) -> Any:
     """The ``ActorCriticPolicy`` of ``model`` if its actor can be exported, else raise.
@@ -183,26 +168,18 @@ class NumpyPolicy:
         return np.minimum(np.maximum(mean_or_squashed, self._low), self._high)
 
     def _inputs(self, observation: object) -> tuple[np.ndarray, bool]:
-        """Observation(s) as float32 rows ``(B, n)`` (as SB3 casts them) and whether batched."""
+        """Observation(s) as rows ``(B, n)`` of float32 values (as SB3 casts them) in float64,
+        and whether batched."""
         try:
             obs = np.asarray(observation, dtype=np.float32)
         except (TypeError, ValueError) as exc:
             raise InvalidArrayError(f"observation must be numeric, got "
                                     f"{type(observation).__name__}") from exc
-        if obs.shape == self._obs_shape:
-            batched = False
-        elif obs.shape[1:] == self._obs_shape:
-            batched = True
-        else:
+        batched = obs.shape != self._obs_shape
+        if batched and obs.shape[1:] != self._obs_shape:
             raise InvalidArrayError(f"observation must have shape {self._obs_shape} or (batch, "
                                     f"{', '.join(map(str, self._obs_shape))}), got {obs.shape}")
-        rows = obs.reshape(-1, self._n_inputs)
-        # Float32 entries cannot overflow a float64 sum: it is finite iff every entry is.
-        if not math.isfinite(float(rows.sum(dtype=np.float64))):
-            bad = np.argwhere(~np.isfinite(obs))[0]
-            raise InvalidArrayError(f"observation must be finite, got {obs[tuple(bad)]} at "
-                                    f"index {tuple(int(i) for i in bad)}")
-        return rows, batched
+        return finite_array("observation", obs).reshape(-1, self._n_inputs), batched
 
     def predict(self, observation: object, state: Any = None, episode_start: Any = None,
                 deterministic: bool = True) -> tuple[np.ndarray, Any]:
@@ -296,14 +273,13 @@ class NumpyPolicy:
         return cls(layers, policy.observation_space, policy.action_space,
                    squash_output=bool(policy.squash_output))
 
-    def _actions(self, rows: np.ndarray) -> np.ndarray:
-        """Float32 actions ``(B, m)`` of float32 observation rows ``(B, n)`` (float64 inside)."""
-        z = rows.astype(np.float64)
+    def _actions(self, z: np.ndarray) -> np.ndarray:
+        """Float32 actions ``(B, m)`` of observation rows ``z`` ``(B, n)`` (float64 inside)."""
         for weight, bias, activation in self.layers:
             z = z @ weight
             z += bias
             if activation is not None:
-                activation(z)
+                z = activation(z)
         return self._to_box((np.tanh(z) if self.squash_output else z).astype(np.float32))
 
 

@@ -62,30 +62,23 @@ class SafetyMetricsCallback(BaseCallback):
         super().__init__(verbose)
         self.history: list[EpisodeSafety] = []
         self.rollout_metrics: list[dict[str, float]] = []
-        self._tally: SafetyTally | None = None
+        self._tally = SafetyTally(0)  # sized by _on_training_start
 
     def _on_training_start(self) -> None:
         self._tally = SafetyTally(self.training_env.num_envs)
 
     def _on_rollout_start(self) -> None:
-        if self._tally is not None:
-            self._tally.clear_window()
+        self._tally.clear_window()
 
     def _on_step(self) -> bool:
         infos: Sequence[dict[str, Any]] = self.locals["infos"]
-        dones = self.locals["dones"]
-        tally = self._tally
-        if tally is None:  # pragma: no cover - SB3 always calls _on_training_start first
-            tally = self._tally = SafetyTally(len(infos))
-        for index, (info, done) in enumerate(zip(infos, dones, strict=True)):
-            episode = tally.step(index, info, bool(done))
+        for index, (info, done) in enumerate(zip(infos, self.locals["dones"], strict=True)):
+            episode = self._tally.step(index, info, bool(done))
             if episode is not None:
                 self.history.append(episode)
         return True
 
     def _on_rollout_end(self) -> None:
-        if self._tally is None:  # pragma: no cover
-            return
         metrics = self._tally.metrics()
         self.rollout_metrics.append(metrics)
         record_metrics(self.logger, "safety", metrics)
@@ -117,15 +110,12 @@ class SafetyEvalCallback(EvalCallback):
         super().__init__(eval_env, **kwargs)
         self.eval_seed = int(eval_seed)
         self.evaluations_safety: list[dict[str, float]] = []
-        self._eval_tally: SafetyTally | None = None
+        self._eval_tally = SafetyTally(0)  # a new one per evaluation
 
     def _log_success_callback(self, locals_: dict[str, Any], globals_: dict[str, Any]) -> None:
         super()._log_success_callback(locals_, globals_)
-        tally = self._eval_tally
-        if tally is None:  # pragma: no cover
-            return
+        tally = self._eval_tally  # recorded as episodes end: the values stand when it dumps
         if tally.step(int(locals_["i"]), locals_["info"], bool(locals_["done"])) is not None:
-            # Recorded as episodes end, so the values stand when EvalCallback dumps.
             record_metrics(self.logger, "eval", tally.metrics())
 
     def _on_step(self) -> bool:
@@ -134,7 +124,7 @@ class SafetyEvalCallback(EvalCallback):
             self.eval_env.seed(self.eval_seed)
             self._eval_tally = SafetyTally(self.eval_env.num_envs)
         keep_going = super()._on_step()
-        if evaluating and self._eval_tally is not None:
+        if evaluating:
             self.evaluations_safety.append(self._eval_tally.metrics())
         return keep_going
 

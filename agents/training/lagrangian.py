@@ -46,8 +46,8 @@ from stable_baselines3 import PPO
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper
 
-from filters._validation import scalar_in_range
-from filters.errors import InvalidParameterError, InvalidTypeError
+from filters._validation import finite_array, finite_scalar
+from filters.errors import InvalidTypeError
 
 
 def dual_ascent_step(
@@ -73,10 +73,10 @@ def dual_ascent_step(
     InvalidParameterError
         If a value is negative or not finite.
     """
-    multiplier = scalar_in_range("multiplier", multiplier, low=0.0, high_inclusive=False)
-    episode_cost = scalar_in_range("episode_cost", episode_cost, low=0.0, high_inclusive=False)
-    cost_limit = scalar_in_range("cost_limit", cost_limit, low=0.0, high_inclusive=False)
-    lr = scalar_in_range("lr", lr, low=0.0, low_inclusive=False, high_inclusive=False)
+    multiplier = finite_scalar("multiplier", multiplier, low=0.0)
+    episode_cost = finite_scalar("episode_cost", episode_cost, low=0.0)
+    cost_limit = finite_scalar("cost_limit", cost_limit, low=0.0)
+    lr = finite_scalar("lr", lr, low=0.0, strict=True)
     return max(0.0, multiplier + lr * (episode_cost - cost_limit))
 
 
@@ -106,9 +106,7 @@ class CostPenaltyVecEnv(VecEnvWrapper):
 
     def step_wait(self):
         obs, rewards, dones, infos = self.venv.step_wait()
-        costs = np.array([float(info.get("cost", 0.0)) for info in infos])
-        if not np.all(np.isfinite(costs)):
-            raise InvalidParameterError(f"info['cost'] must be finite, got {costs}")
+        costs = finite_array("info['cost']", [info.get("cost", 0.0) for info in infos])
         self._running += costs
         for index in np.flatnonzero(dones):
             self.finished_costs.append(float(self._running[index]))
@@ -167,11 +165,9 @@ class PPOLagrangian(PPO):
 
     def __init__(self, policy: Any, env: Any, *, cost_limit: float = 0.0,
                  lambda_lr: float = 0.05, lambda_init: float = 0.0, **kwargs: Any) -> None:
-        self.cost_limit = scalar_in_range("cost_limit", cost_limit, low=0.0, high_inclusive=False)
-        self.lambda_lr = scalar_in_range("lambda_lr", lambda_lr, low=0.0, low_inclusive=False,
-                                         high_inclusive=False)
-        self.lagrange_multiplier = scalar_in_range("lambda_init", lambda_init, low=0.0,
-                                                   high_inclusive=False)
+        self.cost_limit = finite_scalar("cost_limit", cost_limit, low=0.0)
+        self.lambda_lr = finite_scalar("lambda_lr", lambda_lr, low=0.0, strict=True)
+        self.lagrange_multiplier = finite_scalar("lambda_init", lambda_init, low=0.0)
         self.multiplier_history: list[tuple[int, float, float]] = []
         super().__init__(policy, _as_penalty_env(env), **kwargs)
 
@@ -179,12 +175,9 @@ class PPOLagrangian(PPO):
         super().set_env(_as_penalty_env(env), force_reset=force_reset)
 
     def collect_rollouts(self, env, callback, rollout_buffer, n_rollout_steps) -> bool:
-        penalty_env = self.env if isinstance(self.env, CostPenaltyVecEnv) else None
-        if penalty_env is None:  # pragma: no cover - __init__ and set_env wrap it
-            raise InvalidTypeError("PPOLagrangian's env must be a CostPenaltyVecEnv")
-        penalty_env.multiplier = self.lagrange_multiplier
+        self.env.multiplier = self.lagrange_multiplier  # a CostPenaltyVecEnv: __init__, set_env
         keep_going = super().collect_rollouts(env, callback, rollout_buffer, n_rollout_steps)
-        costs = penalty_env.pop_episode_costs()
+        costs = self.env.pop_episode_costs()
         if costs:
             mean_cost = float(np.mean(costs))
             self.lagrange_multiplier = dual_ascent_step(

@@ -23,8 +23,10 @@ logger: a stdout table with ``print_metrics``, a CSV next to the model
 
 from __future__ import annotations
 
+import sys
 import time
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -34,7 +36,7 @@ from agents.policies.loading import (  # noqa: F401  (re-exported)
     pretrained_policy_path,
     set_torch_threads,
 )
-from filters._validation import scalar_in_range
+from filters._validation import finite_scalar, integer_at_least
 from filters.config import FilterConfig
 from filters.errors import InvalidParameterError, InvalidTypeError
 
@@ -154,24 +156,19 @@ class TrainingPolicy:
         return self
 
 
-def _make_env_factory(env_id: str, env_kwargs: dict[str, Any],
-                      filter_kwargs: dict[str, Any] | None):
-    """A picklable-by-cloudpickle factory: gym.make -> [filter] -> EpisodeCostInfo."""
+def _make_env(env_id: str, env_kwargs: dict[str, Any], filter_kwargs: dict[str, Any] | None):
+    """One training environment: gym.make -> [filter] -> EpisodeCostInfo."""
+    import gymnasium as gym
 
-    def make(**_: Any):
-        import gymnasium as gym
+    import safe_nav_env  # noqa: F401  (registers the ids)
+    from agents.training.wrappers import EpisodeCostInfo
 
-        import safe_nav_env  # noqa: F401  (registers the ids)
-        from agents.training.wrappers import EpisodeCostInfo
+    env = gym.make(env_id, **env_kwargs)
+    if filter_kwargs is not None:
+        from filters import SafetyFilterWrapper
 
-        env = gym.make(env_id, **env_kwargs)
-        if filter_kwargs is not None:
-            from filters import SafetyFilterWrapper
-
-            env = SafetyFilterWrapper(env, **filter_kwargs)
-        return EpisodeCostInfo(env)
-
-    return make
+        env = SafetyFilterWrapper(env, **filter_kwargs)
+    return EpisodeCostInfo(env)
 
 
 def make_training_env(
@@ -206,8 +203,8 @@ def make_training_env(
     if vec_env not in VEC_ENVS:
         raise InvalidParameterError(f"vec_env must be one of {VEC_ENVS}, got {vec_env!r}")
     return make_vec_env(
-        _make_env_factory(env_id, dict(env_kwargs or {}),
-                          None if filter_kwargs is None else dict(filter_kwargs)),
+        partial(_make_env, env_id, dict(env_kwargs or {}),
+                None if filter_kwargs is None else dict(filter_kwargs)),
         n_envs=n_envs, seed=seed,
         monitor_dir=None if monitor_dir is None else str(monitor_dir),
         monitor_kwargs={"info_keywords": EPISODE_INFO_KEYS},
@@ -216,22 +213,21 @@ def make_training_env(
     )
 
 
-def _check_int(name: str, value: Any, low: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int | float) or value != int(value):
-        raise InvalidParameterError(f"{name} must be an integer >= {low}, got {value!r}")
-    if value < low:
-        raise InvalidParameterError(f"{name} must be an integer >= {low}, got {value!r}")
-    return int(value)
-
-
 def check_filter_kwargs(env_id: str, env_kwargs: dict[str, Any] | None,
-                        filter_kwargs: dict[str, Any]) -> None:
-    """Validate the filter options once, before any training.
+                        filter_kwargs: FilterConfig | dict[str, Any],
+                        **extra: Any) -> dict[str, Any]:
+    """Validate the filter options once, before any training; return them as keywords.
 
     Builds :class:`filters.SafetyFilterWrapper` once on ``gym.make(env_id, **env_kwargs)``
-    with ``filter_kwargs`` (its keywords: ``config``, the fields of
-    :class:`filters.FilterConfig`, ``policy``, ``reference``), so that every setting is
+    with ``filter_kwargs`` (a :class:`filters.FilterConfig`, passed as ``config``, or the
+    wrapper's keywords: ``config``, the fields of :class:`filters.FilterConfig`,
+    ``policy``, ``reference``) and the ``extra`` keywords, so that every setting is
     checked by :class:`filters.FilterConfig` and the wrapper themselves.
+
+    Returns
+    -------
+    dict
+        A new dict of the wrapper's keywords: ``filter_kwargs`` updated with ``extra``.
 
     Raises
     ------
@@ -243,13 +239,18 @@ def check_filter_kwargs(env_id: str, env_kwargs: dict[str, Any] | None,
     import safe_nav_env  # noqa: F401
     from filters import SafetyFilterWrapper
 
+    if isinstance(filter_kwargs, FilterConfig):
+        filter_kwargs = {"config": filter_kwargs}
     if not isinstance(filter_kwargs, dict):
-        raise InvalidTypeError(f"filter_kwargs must be a dict, got {filter_kwargs!r}")
+        raise InvalidTypeError(f"filter_kwargs must be a FilterConfig or a dict, got "
+                               f"{filter_kwargs!r}")
+    filter_kwargs = {**filter_kwargs, **extra}
     env = gym.make(env_id, **(env_kwargs or {}))
     try:
         SafetyFilterWrapper(env, **filter_kwargs)
     finally:
         env.close()
+    return filter_kwargs
 
 
 def check_env_kwargs(env_id: str, env_kwargs: dict[str, Any] | None) -> None:
@@ -292,20 +293,6 @@ def _model_file(path: str | Path) -> Path:
             raise InvalidParameterError(f"the model file {path} cannot be made: {folder} is "
                                         "a file")
     return path
-
-
-def _tensorboard_format(folder: str | Path, name: str):
-    """TensorBoard output into ``folder/<name>_<k>`` (the next free k, as SB3 does)."""
-    try:
-        from stable_baselines3.common.logger import TensorBoardOutputFormat
-        from stable_baselines3.common.utils import get_latest_run_id
-        from torch.utils.tensorboard import SummaryWriter  # noqa: F401
-    except ImportError as exc:
-        raise ImportError(
-            "tensorboard logging needs the tensorboard package: pip install 'safe-nav[train]'"
-        ) from exc
-    run = Path(folder) / f"{name}_{get_latest_run_id(str(folder), name) + 1}"
-    return TensorBoardOutputFormat(str(run))
 
 
 def train_ppo(
@@ -420,15 +407,11 @@ def train_ppo(
     InvalidParameterError, InvalidTypeError
         If an option is out of range, unknown or inconsistent.
     """
-    total_timesteps = _check_int("total_timesteps", total_timesteps, 1)
-    n_envs = _check_int("n_envs", n_envs, 1)
-    seed = _check_int("seed", seed, 0)
-    eval_freq = _check_int("eval_freq", eval_freq, 0)
-    eval_episodes = _check_int("eval_episodes", eval_episodes, 1)
-    torch_threads = _check_int("torch_threads", torch_threads, 1)
-    cost_limit = scalar_in_range("cost_limit", cost_limit, low=0.0, high_inclusive=False)
-    lambda_lr = scalar_in_range("lambda_lr", lambda_lr, low=0.0, low_inclusive=False,
-                                high_inclusive=False)
+    for name, low in (("total_timesteps", 1), ("n_envs", 1), ("seed", 0), ("eval_freq", 0),
+                      ("eval_episodes", 1), ("torch_threads", 1)):
+        integer_at_least(name, locals()[name], low=low)
+    finite_scalar("cost_limit", cost_limit, low=0.0)
+    finite_scalar("lambda_lr", lambda_lr, low=0.0, strict=True)
     if vec_env not in VEC_ENVS:
         raise InvalidParameterError(f"vec_env must be one of {VEC_ENVS}, got {vec_env!r}")
     if filter_reference not in FILTER_REFERENCES:
@@ -444,15 +427,9 @@ def train_ppo(
         if filter_reference != "default":
             raise InvalidParameterError("filter_reference needs the filter: pass filter_kwargs")
     else:
-        filter_kwargs = ({"config": filter_kwargs} if isinstance(filter_kwargs, FilterConfig)
-                         else filter_kwargs)
-        if not isinstance(filter_kwargs, dict):
-            raise InvalidTypeError(f"filter_kwargs must be a FilterConfig or a dict, got "
-                                   f"{filter_kwargs!r}")
-        filter_kwargs = dict(filter_kwargs)
-        if intervention_penalty:
-            filter_kwargs["intervention_penalty"] = intervention_penalty
-        check_filter_kwargs(env_id, env_kwargs, filter_kwargs)
+        filter_kwargs = check_filter_kwargs(
+            env_id, env_kwargs, filter_kwargs,
+            **({"intervention_penalty": intervention_penalty} if intervention_penalty else {}))
         if filter_reference == "rollout":
             if vec_env != "dummy":
                 raise InvalidParameterError(
@@ -462,20 +439,19 @@ def train_ppo(
                     "filter_reference='rollout' conflicts with filter_kwargs policy/reference")
     if save_path is not None:
         save_path = _model_file(save_path)
-    if metrics_path is None and save_path is not None:
-        metrics_path = metrics_path_for(save_path)
-    formats = []
-    if tensorboard_log is not None:
-        formats.append(_tensorboard_format(tensorboard_log, "PPOLagrangian" if lagrangian
-                                           else "PPO"))
+        metrics_path = metrics_path_for(save_path) if metrics_path is None else metrics_path
 
     import torch
     from stable_baselines3 import PPO
     from stable_baselines3.common.callbacks import CallbackList
     from stable_baselines3.common.logger import CSVOutputFormat, HumanOutputFormat, Logger
+    from stable_baselines3.common.utils import configure_logger
 
     from agents.training.callbacks import RefreshActor, SafetyEvalCallback, SafetyMetricsCallback
+    from agents.training.lagrangian import CostPenaltyVecEnv, PPOLagrangian
 
+    formats = [] if tensorboard_log is None else configure_logger(  # into <folder>/<name>_<k>
+        0, str(tensorboard_log), "PPOLagrangian" if lagrangian else "PPO").output_formats
     torch.set_num_threads(torch_threads)
     training_policy = None
     if filter_kwargs is not None and filter_reference == "rollout":
@@ -484,26 +460,15 @@ def train_ppo(
     vec_env_instance = make_training_env(
         env_id, n_envs=n_envs, seed=seed, env_kwargs=env_kwargs, filter_kwargs=filter_kwargs,
         normalise_actions=normalise_actions, vec_env=vec_env)
-    kwargs = {**DEFAULT_PPO_KWARGS, **(ppo_kwargs or {})}
-    if lagrangian:
-        from agents.training.lagrangian import PPOLagrangian
-
-        model = PPOLagrangian("MlpPolicy", vec_env_instance, cost_limit=cost_limit,
-                              lambda_lr=lambda_lr, seed=seed, device="cpu", verbose=verbose,
-                              **kwargs)
-    else:
-        model = PPO("MlpPolicy", vec_env_instance, seed=seed, device="cpu", verbose=verbose,
-                    **kwargs)
-    if training_policy is not None:
-        import gymnasium as gym
-
-        probe = gym.make(env_id, **(env_kwargs or {}))
-        training_policy.bind(model, probe.action_space)
-        probe.close()
+    kwargs = {**DEFAULT_PPO_KWARGS, **(ppo_kwargs or {}), "seed": seed, "device": "cpu",
+              "verbose": verbose}
+    model = (PPOLagrangian("MlpPolicy", vec_env_instance, cost_limit=cost_limit,
+                           lambda_lr=lambda_lr, **kwargs) if lagrangian
+             else PPO("MlpPolicy", vec_env_instance, **kwargs))
+    if training_policy is not None:  # in-process copies: the physical box of the first
+        training_policy.bind(model, vec_env_instance.envs[0].unwrapped.action_space)
 
     if print_metrics:
-        import sys
-
         formats.append(HumanOutputFormat(sys.stdout))
     if metrics_path is not None:
         metrics_path = Path(metrics_path)
@@ -521,18 +486,14 @@ def train_ppo(
             env_id, n_envs=1, seed=seed + EVAL_SEED_OFFSET, env_kwargs=env_kwargs,
             filter_kwargs=filter_kwargs, normalise_actions=normalise_actions, vec_env=vec_env)
         if lagrangian:  # same wrapper type as the training env (EvalCallback checks it);
-            from agents.training.lagrangian import CostPenaltyVecEnv  # multiplier 0: task reward
-
-            eval_env = CostPenaltyVecEnv(eval_env)
-        best_dir = None
-        if save_path is not None:
-            best_dir = save_path.with_name(save_path.stem + "_best")
-            best_model_path = best_dir / "best_model.zip"
+            eval_env = CostPenaltyVecEnv(eval_env)  # multiplier 0: the task reward
+        best_dir = None if save_path is None else save_path.with_name(save_path.stem + "_best")
+        best_model_path = None if best_dir is None else best_dir / "best_model.zip"
         callbacks.append(SafetyEvalCallback(
             eval_env, eval_seed=seed + EVAL_SEED_OFFSET, n_eval_episodes=eval_episodes,
             eval_freq=max(1, eval_freq // n_envs), deterministic=True,
-            best_model_save_path=None if best_dir is None else str(best_dir),
-            log_path=None if best_dir is None else str(best_dir), verbose=verbose))
+            best_model_save_path=best_dir and str(best_dir), log_path=best_dir and str(best_dir),
+            verbose=verbose))
     start = time.perf_counter()
     try:
         model.learn(total_timesteps=total_timesteps, callback=CallbackList(callbacks),

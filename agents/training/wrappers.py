@@ -31,6 +31,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from filters._validation import finite_scalar
 from filters.errors import InvalidParameterError, InvalidTypeError
 from filters.mpc.result import FilterStatus
 from filters.report import PASSTHROUGH
@@ -64,19 +65,13 @@ class EpisodeCostInfo(gym.Wrapper):
         (From :meth:`step`.) If ``info["cost"]`` is NaN or infinite.
     """
 
-    def __init__(self, env: gym.Env) -> None:
-        super().__init__(env)
-        self._tally = SafetyTally(1)
-
-    def reset(self, **kwargs: Any):
+    def reset(self, **kwargs: Any):  # gymnasium refuses a step before the first reset
         self._tally = SafetyTally(1)
         return self.env.reset(**kwargs)
 
     def step(self, action: Any):
         obs, reward, terminated, truncated, info = self.env.step(action)
-        cost = float(info.get("cost", 0.0))
-        if not np.isfinite(cost):
-            raise InvalidParameterError(f"info['cost'] must be finite, got {cost!r}")
+        finite_scalar("info['cost']", info.get("cost", 0.0))
         episode = self._tally.step(0, info, terminated or truncated)
         if episode is not None:
             info.update(episode_cost=episode.cost, episode_collision=episode.collision,
@@ -139,14 +134,11 @@ class SafetyTally:
         self._steps = np.zeros(self.n_envs, dtype=int)
         self._intervention = np.zeros(self.n_envs)
         self._filtered = np.zeros(self.n_envs, dtype=int)
-        self.episodes: list[EpisodeSafety] = []
-        self.statuses: Counter[str] = Counter()
-        self.intervention_sum = 0.0
-        self.filtered_steps = 0
+        self.clear_window()
 
     def clear_window(self) -> None:
         """Forget finished episodes and step counts (not the episodes in progress)."""
-        self.episodes = []
+        self.episodes: list[EpisodeSafety] = []
         self.statuses = Counter()
         self.intervention_sum = 0.0
         self.filtered_steps = 0
@@ -258,11 +250,9 @@ def is_normalised_policy(policy: Any, physical_space: spaces.Space) -> bool:
             f"{physical_space!r}"
         )
     low, high = np.asarray(space.low, float), np.asarray(space.high, float)
-    if np.array_equal(low, -np.ones_like(low)) and np.array_equal(high, np.ones_like(high)):
-        return not (np.array_equal(physical_space.low, low)
-                    and np.array_equal(physical_space.high, high))
-    if np.array_equal(low, physical_space.low) and np.array_equal(high, physical_space.high):
-        return False
+    physical = np.array_equal(low, physical_space.low) and np.array_equal(high, physical_space.high)
+    if physical or (np.all(low == -1.0) and np.all(high == 1.0)):
+        return not physical
     raise InvalidTypeError(
         f"the policy acts in [{low}, {high}], neither [-1, 1] (normalised) nor the "
         f"environment's box [{physical_space.low}, {physical_space.high}]"
