@@ -437,6 +437,10 @@ def train_ppo(
             if "policy" in filter_kwargs or "reference" in filter_kwargs:
                 raise InvalidParameterError(
                     "filter_reference='rollout' conflicts with filter_kwargs policy/reference")
+    clash = sorted({"seed", "device", "verbose"} & set(ppo_kwargs or {}))
+    if clash:  # they would be silently replaced by this function's own
+        raise InvalidParameterError(f"ppo_kwargs must not set {clash}: pass seed= and "
+                                    f"verbose= to train_ppo (device is cpu), got {ppo_kwargs}")
     if save_path is not None:
         save_path = _model_file(save_path)
         metrics_path = metrics_path_for(save_path) if metrics_path is None else metrics_path

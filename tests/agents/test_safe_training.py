@@ -347,6 +347,7 @@ def test_ppo_lagrangian_validates_and_round_trips(tmp_path):
      "in-process"),
     ({"env_kwargs": {"random_start": 1.5}}, "random_start.probability"),
     ({"env_kwargs": {"time_penalty": -1.0}}, "time_penalty"),
+    ({"ppo_kwargs": {"seed": 3}}, "ppo_kwargs must not set"),
 ])
 def test_train_ppo_validates_before_training(kwargs, match, monkeypatch):
     import agents.training.ppo as training
