@@ -42,7 +42,9 @@ signature, so it can be passed wherever a policy is expected, e.g.
 from __future__ import annotations
 
 import math
+import os
 import warnings
+import zipfile
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -52,6 +54,13 @@ import numpy as np
 from filters.errors import InvalidArrayError, InvalidParameterError, InvalidTypeError
 
 __all__ = ["NumpyPolicy", "UnsupportedPolicyError", "load_numpy_policy"]
+
+
+EXPORT_FORMAT = 1
+"""Version of the file layout of :meth:`NumpyPolicy.save` (files of another are refused)."""
+
+_ACTIVATIONS = ("tanh", "relu", "leaky_relu", "elu")
+"""Activations :class:`NumpyPolicy` evaluates (names of :class:`_Activation`)."""
 
 
 class UnsupportedPolicyError(InvalidTypeError):
@@ -337,6 +346,70 @@ class NumpyPolicy:
         layers.append((*_linear(policy.action_net), None))
         return cls(layers, policy.observation_space, policy.action_space,
                    squash_output=bool(policy.squash_output))
+
+    def save(self, path: str | Path) -> None:
+        """Write the weights and spaces to ``path`` (``.npz``, no pickled objects), atomically.
+
+        :meth:`load` reads the file back without torch or Stable-Baselines3 (the
+        evaluation's cache of exports, :func:`agents.evaluation.policy_files.load_policy`).
+        """
+        arrays: dict[str, np.ndarray] = {
+            "format": np.array(EXPORT_FORMAT),
+            "squash_output": np.array(self.squash_output),
+            "activations": np.array([a.name if a is not None else "" for _, _, a in self.layers]),
+            "activation_parameters": np.array(
+                [a.parameter if a is not None else 0.0 for _, _, a in self.layers]),
+        }
+        for name, space in (("observation", self.observation_space),
+                            ("action", self.action_space)):
+            arrays[f"{name}_low"] = np.asarray(space.low)
+            arrays[f"{name}_high"] = np.asarray(space.high)
+        for index, (weight, bias, _) in enumerate(self.layers):
+            arrays[f"weight_{index}"], arrays[f"bias_{index}"] = weight, bias
+        path = Path(path)
+        partial = path.with_name(f".{path.name}.{os.getpid()}.partial")
+        with open(partial, "wb") as handle:
+            np.savez(handle, **arrays)
+        os.replace(partial, path)  # readers see the whole file or none
+
+    @classmethod
+    def load(cls, path: str | Path) -> NumpyPolicy:
+        """A policy written by :meth:`save`.
+
+        Raises
+        ------
+        OSError
+            If the file cannot be read.
+        UnsupportedPolicyError
+            If it is not a :meth:`save` file of this export format.
+        """
+        from gymnasium import spaces
+
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                arrays = {key: data[key] for key in data.files}
+            if int(arrays["format"]) != EXPORT_FORMAT:
+                raise ValueError(f"export format {int(arrays['format'])}")
+            box = {name: spaces.Box(arrays[f"{name}_low"], arrays[f"{name}_high"],
+                                    dtype=arrays[f"{name}_low"].dtype)
+                   for name in ("observation", "action")}
+            layers: list[Layer] = []
+            for index, (name, parameter) in enumerate(zip(
+                    arrays["activations"].tolist(), arrays["activation_parameters"].tolist(),
+                    strict=True)):
+                if name not in ("", *_ACTIVATIONS):
+                    raise ValueError(f"activation {name!r}")
+                weight = np.asarray(arrays[f"weight_{index}"], dtype=np.float64)
+                bias = np.asarray(arrays[f"bias_{index}"], dtype=np.float64)
+                weight.setflags(write=False)
+                bias.setflags(write=False)
+                layers.append((weight, bias, _Activation(name, parameter) if name else None))
+        except (KeyError, ValueError, TypeError, zipfile.BadZipFile) as exc:
+            raise UnsupportedPolicyError(
+                f"{path} is not a NumpyPolicy file of export format {EXPORT_FORMAT} "
+                f"({type(exc).__name__}: {exc})") from None
+        return cls(layers, box["observation"], box["action"],
+                   squash_output=bool(arrays["squash_output"]))
 
     def _actions(self, rows: np.ndarray) -> np.ndarray:
         """Float32 actions ``(B, m)`` of float32 observation rows ``(B, n)`` (float64 inside)."""
