@@ -31,7 +31,7 @@ from agents.evaluation.runner import run_spec
 from filters.errors import InvalidParameterError
 
 __all__ = ["EXECUTORS", "Executor", "ProcessExecutor", "RayExecutor", "SerialExecutor",
-           "make_executor", "run_on_ray", "worker_init"]
+           "make_executor", "run_on_ray", "stop_fork_server", "worker_init"]
 
 EXECUTORS = ("process", "ray")
 """Executor kinds of :func:`make_executor` (``"process"`` with one worker runs serially)."""
@@ -240,6 +240,18 @@ def _worker_context() -> Any:
     context = multiprocessing.get_context("forkserver")
     context.set_forkserver_preload([__name__])  # this module imports the runner
     return context
+
+
+def stop_fork_server() -> None:
+    """Stop the fork server of :func:`_worker_context` (if it runs) and wait for it.
+
+    Its workers are its children, not this process's: their CPU time reaches this
+    process's ``RUSAGE_CHILDREN`` only once the server has exited (the evaluation
+    benchmark calls this before reading it). A later pool starts a new server.
+    """
+    import multiprocessing.forkserver
+
+    multiprocessing.forkserver._forkserver._stop()
 
 
 def run_specs_chunk(specs: Sequence[EpisodeSpec],
