@@ -123,6 +123,7 @@ class ProcessExecutor(Executor):
         self.workers = workers
         self.max_restarts = max_restarts
         self._pool: Any = None
+        self._starter: Any = None  # the thread of start(), while it starts the workers
         self.starts = 0
         """How many times a pool was started (1 for a whole sweep without faults)."""
         self.restarts = 0
@@ -142,14 +143,28 @@ class ProcessExecutor(Executor):
         return self
 
     def start(self) -> None:
-        """Start every worker process now (the first start imports the project in the fork
-        server, about a second, while the parent goes on)."""
+        """Start every worker process, in a thread: the first start waits for the fork
+        server to import the project (about a second) while the caller goes on."""
+        if self._starter is not None:
+            return
         pool = self._ensure_pool()
-        for _ in range(self.workers - len(pool._processes or {})):
-            pool.submit(_ready)  # the pool spawns a process per task while none is idle
+        missing = self.workers - len(pool._processes or {})
+        if missing > 0:
+            import threading
+
+            self._starter = threading.Thread(target=_start_workers, args=(pool, missing),
+                                             name="safe-nav-workers-start", daemon=True)
+            self._starter.start()
+
+    def _started(self) -> None:
+        """Wait until the workers :meth:`start` is starting have started."""
+        if self._starter is not None:
+            self._starter.join()
+            self._starter = None
 
     def worker_pids(self) -> list[int]:
-        """Process ids of the pool's live workers (none before the first run)."""
+        """Process ids of the pool's live workers (none before the first run or start)."""
+        self._started()
         if self._pool is None:
             return []
         return [p.pid for p in list((self._pool._processes or {}).values()) if p.is_alive()]
@@ -158,6 +173,7 @@ class ProcessExecutor(Executor):
         from concurrent.futures import FIRST_COMPLETED, wait
         from concurrent.futures.process import BrokenProcessPool
 
+        self._started()
         pending = list(specs)[::-1]  # a stack: episodes are submitted in their order
         # Episodes go to the workers in chunks (a few ms of work each: one round trip per
         # chunk, not per episode) of at most 16 episodes and at most an eighth of a
@@ -211,12 +227,14 @@ class ProcessExecutor(Executor):
         self.restarts += 1
 
     def close(self) -> None:
+        self._started()
         if self._pool is not None:
             self._pool.shutdown(wait=True)
             self._pool = None
 
     def terminate(self) -> None:
         """Kill the workers now; episodes running are lost."""
+        self._started()
         if self._pool is not None:
             for process in list((self._pool._processes or {}).values()):
                 if process.is_alive():
@@ -266,6 +284,16 @@ def run_specs_chunk(specs: Sequence[EpisodeSpec],
 
         preload_policies(policies)
     return [run_spec(spec) for spec in specs]
+
+
+def _start_workers(pool: Any, count: int) -> None:
+    """Have ``pool`` start ``count`` more worker processes (it starts one per task submitted
+    while none is idle)."""
+    for _ in range(count):
+        try:
+            pool.submit(_ready)
+        except RuntimeError:  # pragma: no cover - the pool broke or was shut down meanwhile
+            return
 
 
 def _ready() -> None:
