@@ -41,6 +41,8 @@ _RUNNER = """\
 import json, resource, sys
 from agents.cli import main
 code = main(json.loads(sys.argv[1]))
+from agents.evaluation.executors import stop_fork_server
+stop_fork_server()  # its workers' CPU time counts once it has exited
 own = resource.getrusage(resource.RUSAGE_SELF)
 children = resource.getrusage(resource.RUSAGE_CHILDREN)
 print("BENCH-EVALUATION " + json.dumps([code, own.ru_utime + own.ru_stime,

@@ -19,9 +19,10 @@ The parts live in :mod:`agents.evaluation.records` (specs, records, CSV, run key
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Sequence
 from contextlib import AbstractContextManager, nullcontext
-from dataclasses import fields, replace
+from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +31,7 @@ from agents.evaluation.executors import Executor, make_executor
 from agents.evaluation.records import (
     PAPER_SCENARIOS,
     RISKS,
+    KEY_FIELDS,
     EpisodeRecord,
     EpisodeSpec,
     RecordWriter,
@@ -131,16 +133,24 @@ def check_specs(specs: Sequence[EpisodeSpec]) -> list[EpisodeSpec]:
     hashes: dict[str, str] = {}
     checked = []
     built: set[tuple] = set()
+    seed = KEY_FIELDS.index("seed")
     for spec in specs:
         if spec.planner == "ppo":
             if spec.policy_path not in hashes:
                 _, hashes[spec.policy_path] = load_policy(spec.policy_path)
-            if spec.policy_sha256 and spec.policy_sha256 != hashes[spec.policy_path]:
+            sha = hashes[spec.policy_path]
+            if spec.policy_sha256 and spec.policy_sha256 != sha:
                 raise InvalidParameterError(
                     f"policy_sha256 {spec.policy_sha256[:12]}... does not match the file "
-                    f"{spec.policy_path or 'shipped'} ({hashes[spec.policy_path][:12]}...)")
-            spec = replace(spec, policy_sha256=hashes[spec.policy_path])
-        setting = replace(spec, seed=0).key()
+                    f"{spec.policy_path or 'shipped'} ({sha[:12]}...)")
+            if spec.policy_sha256 != sha:
+                # The spec was checked when it was made and the hash is a checked string:
+                # a copy with the hash, without replace's second check of every field
+                # (thousands of specs, in the parent, before the workers get any).
+                spec = copy.copy(spec)
+                object.__setattr__(spec, "policy_sha256", sha)
+        key = spec.key()
+        setting = key[:seed] + key[seed + 1:]  # one environment per setting, any seed
         if setting not in built:
             env, _ = make_env(spec)
             env.close()

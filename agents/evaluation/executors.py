@@ -3,7 +3,7 @@
 An executor runs :func:`agents.evaluation.runner.run_spec` over episode specs and yields the
 records as they finish (order of completion; :func:`agents.evaluation.evaluate.evaluate`
 sorts them). Executors keep their workers between calls to :meth:`Executor.run`
-until closed, so a sweep pays the start-up (spawn, imports, policy load) once.
+until closed, so a sweep pays the start-up (processes, imports, policy load) once.
 
 Episodes are seeded individually, so every executor gives the same records, and an
 episode run again (its worker died) gives the same record too: a worker process killed
@@ -31,7 +31,7 @@ from agents.evaluation.runner import run_spec
 from filters.errors import InvalidParameterError
 
 __all__ = ["EXECUTORS", "Executor", "ProcessExecutor", "RayExecutor", "SerialExecutor",
-           "make_executor", "run_on_ray", "worker_init"]
+           "make_executor", "run_on_ray", "stop_fork_server", "worker_init"]
 
 EXECUTORS = ("process", "ray")
 """Executor kinds of :func:`make_executor` (``"process"`` with one worker runs serially)."""
@@ -95,7 +95,9 @@ class SerialExecutor(Executor):
 
 
 class ProcessExecutor(Executor):
-    """A pool of ``workers`` spawned processes, started at the first run and kept.
+    """A pool of ``workers`` processes, started on entering the context (or at the first
+    run) and kept; they fork from a server that imported the episode code once
+    (:func:`_worker_context`).
 
     A worker that dies mid-run (killed, out of memory) breaks the pool: the episodes
     not yet returned are run again on a fresh pool (they are seeded, so they give
@@ -121,6 +123,7 @@ class ProcessExecutor(Executor):
         self.workers = workers
         self.max_restarts = max_restarts
         self._pool: Any = None
+        self._starter: Any = None  # the thread of start(), while it starts the workers
         self.starts = 0
         """How many times a pool was started (1 for a whole sweep without faults)."""
         self.restarts = 0
@@ -128,24 +131,40 @@ class ProcessExecutor(Executor):
 
     def _ensure_pool(self) -> Any:
         if self._pool is None:
-            import multiprocessing
             from concurrent.futures import ProcessPoolExecutor
 
-            context = multiprocessing.get_context("spawn")
-            self._pool = ProcessPoolExecutor(self.workers, mp_context=context,
+            self._pool = ProcessPoolExecutor(self.workers, mp_context=_worker_context(),
                                              initializer=worker_init)
             self.starts += 1
         return self._pool
 
+    def __enter__(self) -> ProcessExecutor:
+        self.start()  # the workers start while the caller imports and checks
+        return self
+
     def start(self) -> None:
-        """Start every worker process now (a spawned worker imports the project, about a
-        second, while the parent goes on)."""
+        """Start every worker process, in a thread: the first start waits for the fork
+        server to import the project (about a second) while the caller goes on."""
+        if self._starter is not None:
+            return
         pool = self._ensure_pool()
-        for _ in range(self.workers - len(pool._processes or {})):
-            pool.submit(_ready)  # the pool spawns a process per task while none is idle
+        missing = self.workers - len(pool._processes or {})
+        if missing > 0:
+            import threading
+
+            self._starter = threading.Thread(target=_start_workers, args=(pool, missing),
+                                             name="safe-nav-workers-start", daemon=True)
+            self._starter.start()
+
+    def _started(self) -> None:
+        """Wait until the workers :meth:`start` is starting have started."""
+        if self._starter is not None:
+            self._starter.join()
+            self._starter = None
 
     def worker_pids(self) -> list[int]:
-        """Process ids of the pool's live workers (none before the first run)."""
+        """Process ids of the pool's live workers (none before the first run or start)."""
+        self._started()
         if self._pool is None:
             return []
         return [p.pid for p in list((self._pool._processes or {}).values()) if p.is_alive()]
@@ -154,13 +173,15 @@ class ProcessExecutor(Executor):
         from concurrent.futures import FIRST_COMPLETED, wait
         from concurrent.futures.process import BrokenProcessPool
 
+        self._started()
         pending = list(specs)[::-1]  # a stack: episodes are submitted in their order
         # Episodes go to the workers in chunks (a few ms of work each: one round trip per
-        # chunk, not per episode), at most 16 and at least 8 chunks per worker per run,
-        # two chunks per worker in flight so workers never wait for the parent. A broken
+        # chunk, not per episode) of at most 16 episodes and at most an eighth of a
+        # worker's share of those left (the chunks shrink towards the end, so that the
+        # workers finish together instead of one running the last chunk alone), two
+        # chunks per worker in flight so workers never wait for the parent. A broken
         # pool loses at most those chunks: their episodes run again, none is yielded twice
         # (a chunk's records are yielded together when it returns).
-        size = max(1, min(CHUNK_EPISODES, len(pending) // (8 * self.workers)))
         # The policies the parent loaded (evaluate's check_specs does) travel with every
         # chunk as numpy arrays (tens of kB): workers skip torch, SB3 and the file's load.
         from agents.evaluation.policy_files import exported_policies
@@ -172,7 +193,8 @@ class ProcessExecutor(Executor):
             while pending or in_flight:
                 pool = self._ensure_pool()
                 while pending and len(in_flight) < 2 * self.workers:
-                    chunk = [pending.pop() for _ in range(min(size, len(pending)))]
+                    size = max(1, min(CHUNK_EPISODES, len(pending) // (8 * self.workers)))
+                    chunk = [pending.pop() for _ in range(size)]
                     in_flight[pool.submit(run_specs_chunk, chunk, policies)] = chunk
                 done, _ = wait(in_flight, return_when=FIRST_COMPLETED)
                 if any(isinstance(f.exception(), BrokenProcessPool) for f in done):
@@ -205,12 +227,14 @@ class ProcessExecutor(Executor):
         self.restarts += 1
 
     def close(self) -> None:
+        self._started()
         if self._pool is not None:
             self._pool.shutdown(wait=True)
             self._pool = None
 
     def terminate(self) -> None:
         """Kill the workers now; episodes running are lost."""
+        self._started()
         if self._pool is not None:
             for process in list((self._pool._processes or {}).values()):
                 if process.is_alive():
@@ -221,6 +245,31 @@ class ProcessExecutor(Executor):
 
 CHUNK_EPISODES = 16
 """Most episodes a local worker runs per task (:class:`ProcessExecutor`)."""
+
+
+def _worker_context() -> Any:
+    """How the pool starts its processes: from a fork server that imported the episode
+    code once (each worker forks from it, ready at once, instead of importing it again),
+    else (no ``fork`` on this platform) spawned."""
+    import multiprocessing
+
+    if "forkserver" not in multiprocessing.get_all_start_methods():
+        return multiprocessing.get_context("spawn")  # pragma: no cover - Windows
+    context = multiprocessing.get_context("forkserver")
+    context.set_forkserver_preload([__name__])  # this module imports the runner
+    return context
+
+
+def stop_fork_server() -> None:
+    """Stop the fork server of :func:`_worker_context` (if it runs) and wait for it.
+
+    Its workers are its children, not this process's: their CPU time reaches this
+    process's ``RUSAGE_CHILDREN`` only once the server has exited (the evaluation
+    benchmark calls this before reading it). A later pool starts a new server.
+    """
+    import multiprocessing.forkserver
+
+    multiprocessing.forkserver._forkserver._stop()
 
 
 def run_specs_chunk(specs: Sequence[EpisodeSpec],
@@ -235,6 +284,16 @@ def run_specs_chunk(specs: Sequence[EpisodeSpec],
 
         preload_policies(policies)
     return [run_spec(spec) for spec in specs]
+
+
+def _start_workers(pool: Any, count: int) -> None:
+    """Have ``pool`` start ``count`` more worker processes (it starts one per task submitted
+    while none is idle)."""
+    for _ in range(count):
+        try:
+            pool.submit(_ready)
+        except RuntimeError:  # pragma: no cover - the pool broke or was shut down meanwhile
+            return
 
 
 def _ready() -> None:

@@ -4,12 +4,15 @@
 anything runs; :func:`load_policy` keeps each policy (its numpy export,
 :class:`agents.policies.numpy_policy.NumpyPolicy`, where possible) for the process, and
 local workers take the parent's exports (:func:`exported_policies`,
-:func:`preload_policies`) instead of loading the file again.
+:func:`preload_policies`) instead of loading the file again. The export is also kept on
+disk (:func:`cache_folder`, one ``.npz`` per SHA-256 of a policy file's content), so that
+later processes load it without importing torch and Stable-Baselines3 (about a second).
 """
 
 from __future__ import annotations
 
 import functools
+import os
 import zipfile
 from pathlib import Path
 from typing import Any
@@ -17,7 +20,7 @@ from typing import Any
 from agents.errors import PolicyFileError
 from agents.evaluation.records import file_sha256
 
-__all__ = ["check_policy", "exported_policies", "load_policy", "policy_file",
+__all__ = ["cache_folder", "check_policy", "exported_policies", "load_policy", "policy_file",
            "preload_policies"]
 
 
@@ -68,6 +71,10 @@ _POLICY_CACHE: dict[tuple[str, str], Any] = {}
 def load_policy(policy_path: str | Path = "", *, sha256: str = "") -> tuple[Any, str]:
     """Load a PPO policy (cached per process); return it and the SHA-256 of its file.
 
+    The numpy export of a file whose content was exported before is read from the cache
+    folder (:func:`cache_folder`; keyed by the content's SHA-256, so an edited file is
+    exported again); otherwise torch and SB3 load the file, and the export is saved there.
+
     Parameters
     ----------
     policy_path
@@ -86,25 +93,61 @@ def load_policy(policy_path: str | Path = "", *, sha256: str = "") -> tuple[Any,
                               f"run (SHA-256 {sha[:12]}..., expected {sha256[:12]}...)")
     key = (str(policy_file(policy_path).resolve()), sha)
     if key not in _POLICY_CACHE:
-        from agents.policies.numpy_policy import NumpyPolicy, UnsupportedPolicyError
-        from agents.training.ppo import load_ppo, set_torch_threads
-
-        set_torch_threads(1)
-        path = policy_file(policy_path)
-        try:  # SB3's deterministic actions to float32 rounding, without its overhead
-            _POLICY_CACHE[key] = NumpyPolicy.from_sb3(_inference_policy(path))
-        except Exception:  # noqa: BLE001 - anything unusual: SB3's whole loader decides
-            try:
-                model = load_ppo(path)
-            except Exception as exc:  # noqa: BLE001 - SB3/torch/zip raise many kinds
-                raise PolicyFileError(
-                    f"cannot load the PPO policy {path} ({type(exc).__name__}: "
-                    f"{exc})".replace("\n", " ")) from exc
-            try:
-                _POLICY_CACHE[key] = NumpyPolicy.from_sb3(model)
-            except UnsupportedPolicyError:
-                _POLICY_CACHE[key] = model
+        cached = _cached_export(sha)
+        _POLICY_CACHE[key] = cached if cached is not None else _export(policy_file(policy_path),
+                                                                       sha)
     return _POLICY_CACHE[key], sha
+
+
+def _export(path: Path, sha: str) -> Any:
+    """Load ``path`` with torch and SB3 and export it to numpy (kept in the cache folder),
+    or return the SB3 model if it cannot be exported."""
+    from agents.policies.numpy_policy import NumpyPolicy, UnsupportedPolicyError
+    from agents.training.ppo import load_ppo, set_torch_threads
+
+    set_torch_threads(1)
+    try:  # SB3's deterministic actions to float32 rounding, without its overhead
+        policy = NumpyPolicy.from_sb3(_inference_policy(path))
+    except Exception:  # noqa: BLE001 - anything unusual: SB3's whole loader decides
+        try:
+            model = load_ppo(path)
+        except Exception as exc:  # noqa: BLE001 - SB3/torch/zip raise many kinds
+            raise PolicyFileError(
+                f"cannot load the PPO policy {path} ({type(exc).__name__}: "
+                f"{exc})".replace("\n", " ")) from exc
+        try:
+            policy = NumpyPolicy.from_sb3(model)
+        except UnsupportedPolicyError:
+            return model
+    try:
+        folder = cache_folder() / "policies"
+        folder.mkdir(parents=True, exist_ok=True)
+        policy.save(folder / f"{sha}.npz")
+    except OSError:  # a read-only or full disk: the next process exports again
+        pass
+    return policy
+
+
+def cache_folder() -> Path:
+    """Where safe-nav keeps what it can rebuild (numpy exports of policies): the folder
+    ``SAFE_NAV_CACHE_DIR`` names, else ``$XDG_CACHE_HOME/safe-nav``, else
+    ``~/.cache/safe-nav``. Deleting it costs one export (a torch import, about a second)."""
+    folder = os.environ.get("SAFE_NAV_CACHE_DIR")
+    if folder:
+        return Path(folder)
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "safe-nav"
+
+
+def _cached_export(sha: str) -> Any:
+    """The numpy export of the policy file with content hash ``sha`` kept by an earlier
+    :func:`load_policy`, or ``None`` (none, unreadable, or of another export format)."""
+    from agents.policies.numpy_policy import NumpyPolicy, UnsupportedPolicyError
+
+    path = cache_folder() / "policies" / f"{sha}.npz"
+    try:
+        return NumpyPolicy.load(path)
+    except (OSError, UnsupportedPolicyError):
+        return None
 
 
 class _NoOptimizer:

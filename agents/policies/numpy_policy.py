@@ -41,7 +41,9 @@ signature, so it can be passed wherever a policy is expected, e.g.
 
 from __future__ import annotations
 
+import os
 import warnings
+import zipfile
 from collections.abc import Callable
 from functools import partial
 from pathlib import Path
@@ -67,13 +69,36 @@ def _elu(z: np.ndarray, alpha: float) -> np.ndarray:
     return np.where(z > 0.0, z, alpha * np.expm1(np.minimum(z, 0.0)))
 
 
+EXPORT_FORMAT = 1
+"""Version of the file layout of :meth:`NumpyPolicy.save` (files of another are refused)."""
+
+
+def _named_activation(name: str, parameter: float = 0.0) -> Callable[[np.ndarray], np.ndarray]:
+    """The numpy activation ``z -> σ(z)`` called ``name`` (picklable); ``parameter`` is the
+    leaky slope or the ELU alpha."""
+    return {"tanh": lambda: np.tanh, "relu": lambda: partial(np.maximum, 0.0),
+            "leaky_relu": lambda: partial(_leaky_relu, slope=float(parameter)),
+            "elu": lambda: partial(_elu, alpha=float(parameter))}[name]()
+
+
+def _activation_name(activation: Callable[[np.ndarray], np.ndarray]) -> tuple[str, float]:
+    """``(name, parameter)`` of an activation made by :func:`_named_activation`."""
+    if activation is np.tanh:
+        return "tanh", 0.0
+    func, keywords = activation.func, activation.keywords  # type: ignore[attr-defined]
+    if func is np.maximum:
+        return "relu", 0.0
+    return ("leaky_relu", keywords["slope"]) if func is _leaky_relu else ("elu", keywords["alpha"])
+
+
 def _activation(module: Any) -> Callable[[np.ndarray], np.ndarray] | None:
     """Numpy version ``z -> σ(z)`` of a torch activation module (picklable), or ``None``."""
     from torch import nn
 
-    return {nn.Tanh: np.tanh, nn.ReLU: partial(np.maximum, 0.0),
-            nn.LeakyReLU: partial(_leaky_relu, slope=getattr(module, "negative_slope", 0.0)),
-            nn.ELU: partial(_elu, alpha=getattr(module, "alpha", 0.0))}.get(type(module))
+    kind = {nn.Tanh: ("tanh", 0.0), nn.ReLU: ("relu", 0.0),
+            nn.LeakyReLU: ("leaky_relu", getattr(module, "negative_slope", 0.0)),
+            nn.ELU: ("elu", getattr(module, "alpha", 0.0))}.get(type(module))
+    return None if kind is None else _named_activation(*kind)
 
 
 def _linear(module: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -272,6 +297,65 @@ class NumpyPolicy:
         layers.append((*_linear(policy.action_net), None))
         return cls(layers, policy.observation_space, policy.action_space,
                    squash_output=bool(policy.squash_output))
+
+    def save(self, path: str | Path) -> None:
+        """Write the weights and spaces to ``path`` (``.npz``, no pickled objects), atomically.
+
+        :meth:`load` reads the file back without torch or Stable-Baselines3 (the
+        evaluation's cache of exports, :func:`agents.evaluation.policy_files.load_policy`).
+        """
+        names = [("", 0.0) if a is None else _activation_name(a) for _, _, a in self.layers]
+        arrays: dict[str, np.ndarray] = {
+            "format": np.array(EXPORT_FORMAT), "squash_output": np.array(self.squash_output),
+            "activations": np.array([name for name, _ in names]),
+            "activation_parameters": np.array([parameter for _, parameter in names])}
+        for name, space in (("observation", self.observation_space),
+                            ("action", self.action_space)):
+            arrays[f"{name}_low"], arrays[f"{name}_high"] = space.low, space.high
+        for index, (weight, bias, _) in enumerate(self.layers):
+            arrays[f"weight_{index}"], arrays[f"bias_{index}"] = weight, bias
+        path = Path(path)
+        partial_path = path.with_name(f".{path.name}.{os.getpid()}.partial")
+        with open(partial_path, "wb") as handle:
+            np.savez(handle, **arrays)
+        os.replace(partial_path, path)  # readers see the whole file or none
+
+    @classmethod
+    def load(cls, path: str | Path) -> NumpyPolicy:
+        """A policy written by :meth:`save`.
+
+        Raises
+        ------
+        OSError
+            If the file cannot be read.
+        UnsupportedPolicyError
+            If it is not a :meth:`save` file of this export format.
+        """
+        from gymnasium import spaces
+
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                arrays = {key: data[key] for key in data.files}
+            if int(arrays["format"]) != EXPORT_FORMAT:
+                raise ValueError(f"export format {int(arrays['format'])}")
+            box = {name: spaces.Box(arrays[f"{name}_low"], arrays[f"{name}_high"],
+                                    dtype=arrays[f"{name}_low"].dtype)
+                   for name in ("observation", "action")}
+            layers: list[Layer] = []
+            for index, (name, parameter) in enumerate(zip(
+                    arrays["activations"].tolist(), arrays["activation_parameters"].tolist(),
+                    strict=True)):
+                weight = np.asarray(arrays[f"weight_{index}"], dtype=np.float64)
+                bias = np.asarray(arrays[f"bias_{index}"], dtype=np.float64)
+                weight.setflags(write=False)
+                bias.setflags(write=False)
+                layers.append((weight, bias, _named_activation(name, parameter) if name else None))
+        except (KeyError, ValueError, TypeError, zipfile.BadZipFile) as exc:
+            raise UnsupportedPolicyError(
+                f"{path} is not a NumpyPolicy file of export format {EXPORT_FORMAT} "
+                f"({type(exc).__name__}: {exc})") from None
+        return cls(layers, box["observation"], box["action"],
+                   squash_output=bool(arrays["squash_output"]))
 
     def _actions(self, z: np.ndarray) -> np.ndarray:
         """Float32 actions ``(B, m)`` of observation rows ``z`` ``(B, n)`` (float64 inside)."""

@@ -368,6 +368,46 @@ def test_a_zip_that_holds_no_policy_is_a_policy_file_error(tmp_path):
         load_policy(str(path))
 
 
+def test_the_policy_export_is_cached_on_disk_by_the_files_hash(tmp_path, monkeypatch):
+    """The first load saves the numpy export; later processes read it (no torch); an
+    unreadable cache file is exported again."""
+    import os
+    import subprocess
+    import sys
+
+    from agents.evaluation import policy_files
+
+    monkeypatch.setenv("SAFE_NAV_CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(policy_files, "_POLICY_CACHE", {})
+    exported, sha = policy_files.load_policy("")
+    saved = tmp_path / "policies" / f"{sha}.npz"
+    assert saved.is_file()
+
+    def no_export(path, sha):
+        raise AssertionError("exported again instead of reading the cache")
+
+    monkeypatch.setattr(policy_files, "_POLICY_CACHE", {})
+    with monkeypatch.context() as patch:
+        patch.setattr(policy_files, "_export", no_export)
+        cached, _ = policy_files.load_policy("")
+    observations = np.random.default_rng(5).standard_normal((50, 26)).astype(np.float32)
+    expected = exported.predict_batch(observations)
+    np.testing.assert_allclose(cached.predict_batch(observations), expected, rtol=0,
+                               atol=1e-6 * max(1.0, float(np.max(np.abs(expected)))))
+    code = ("import sys; from agents.evaluation.policy_files import load_policy; "
+            "print(type(load_policy('')[0]).__name__, 'torch' in sys.modules)")
+    fresh = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                           env={**os.environ, "SAFE_NAV_CACHE_DIR": str(tmp_path)}, check=True)
+    assert fresh.stdout.split() == ["NumpyPolicy", "False"]
+    saved.write_bytes(b"truncated")
+    monkeypatch.setattr(policy_files, "_POLICY_CACHE", {})
+    again, _ = policy_files.load_policy("")
+    np.testing.assert_allclose(again.predict_batch(observations), expected, rtol=0,
+                               atol=1e-6 * max(1.0, float(np.max(np.abs(expected)))))
+    assert type(again).__name__ == "NumpyPolicy"
+    np.load(saved).close()  # rewritten: a valid file again
+
+
 def _imported_torch(_: object = None) -> bool:
     import sys
 

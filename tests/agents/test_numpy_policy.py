@@ -254,3 +254,46 @@ def test_numpy_rollout_is_within_1e_6_m_of_the_plain_sb3_rollout(shipped):
         np.testing.assert_allclose(sb3_states, expected_states, rtol=0, atol=1e-12)
         count += 1
     assert count > 30
+
+
+@pytest.mark.parametrize(
+    "policy_kwargs",
+    [
+        {"net_arch": [16, 8]},
+        {"net_arch": [12], "activation_fn": "LeakyReLU"},
+        {"net_arch": [12], "activation_fn": "ELU"},
+        {"net_arch": [8], "use_sde": True, "squash_output": True},
+    ],
+    ids=["tanh", "leaky-relu", "elu", "gsde-squashed"],
+)
+def test_a_saved_policy_loads_with_the_same_actions_and_spaces(tmp_path, policy_kwargs):
+    import torch
+
+    if "activation_fn" in policy_kwargs:
+        policy_kwargs = {**policy_kwargs,
+                         "activation_fn": getattr(torch.nn, policy_kwargs["activation_fn"])}
+    policy = NumpyPolicy.from_sb3(_model(**policy_kwargs))
+    policy.save(tmp_path / "policy.npz")
+    loaded = NumpyPolicy.load(tmp_path / "policy.npz")
+    assert loaded.observation_space == policy.observation_space
+    assert loaded.action_space == policy.action_space
+    assert loaded.squash_output == policy.squash_output
+    assert [(a and (a.name, a.parameter)) for _, _, a in loaded.layers] == \
+        [(a and (a.name, a.parameter)) for _, _, a in policy.layers]
+    observations = np.random.default_rng(3).standard_normal((200, 26)).astype(np.float32)
+    expected = policy.predict_batch(observations)
+    np.testing.assert_allclose(loaded.predict_batch(observations), expected, rtol=0,
+                               atol=1e-6 * max(1.0, float(np.max(np.abs(expected)))))
+
+
+def test_a_file_that_is_no_saved_policy_is_refused(tmp_path, shipped):
+    _, policy = shipped
+    (tmp_path / "junk.npz").write_bytes(b"not an npz file")
+    with pytest.raises(UnsupportedPolicyError, match="not a NumpyPolicy file"):
+        NumpyPolicy.load(tmp_path / "junk.npz")
+    policy.save(tmp_path / "policy.npz")
+    with np.load(tmp_path / "policy.npz") as data:
+        arrays = {key: data[key] for key in data.files}
+    np.savez(tmp_path / "future.npz", **{**arrays, "format": np.array(99)})
+    with pytest.raises(UnsupportedPolicyError, match="export format 99"):
+        NumpyPolicy.load(tmp_path / "future.npz")
