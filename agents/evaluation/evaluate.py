@@ -29,9 +29,9 @@ from typing import Any
 from agents.errors import OutputPathError, RecordsFileError
 from agents.evaluation.executors import Executor, make_executor
 from agents.evaluation.records import (
+    KEY_FIELDS,
     PAPER_SCENARIOS,
     RISKS,
-    KEY_FIELDS,
     EpisodeRecord,
     EpisodeSpec,
     RecordWriter,
