@@ -151,8 +151,8 @@ class Renderer:
 
         Obstacle by obstacle, in order (as a scatter plot would draw them): a pixel
         under ``k`` dots of colour ``c`` goes from ``d`` to ``c + (d - c)(1 - a)^k``.
-        The dots are counted per pixel with ``bincount`` over the box the obstacle's
-        samples cover (clipped to the axes).
+        The dots are counted per pixel with ``bincount`` over the box that the
+        obstacle's dots touching the axes cover; pixels outside the axes are dropped.
         """
         (m00, m01, m02), (m10, m11, m12) = self._affine[0], self._affine[1]
         c0, c1, r0, r1 = self._clip
@@ -161,39 +161,28 @@ class Renderer:
         rgb = buffer.reshape(-1, 4)  # a view: the buffer is contiguous
         for i in range(predictions.shape[0]):
             points = predictions[i].reshape(-1, 2)
-            if not np.isfinite(points).all():
-                points = points[np.isfinite(points).all(axis=1)]
-            if points.shape[0] == 0:
-                continue
+            points = points[np.isfinite(points).all(axis=1)]
             x = points[:, 0] * m00 + points[:, 1] * m01 + m02  # display pixels
             y = points[:, 0] * m10 + points[:, 1] * m11 + m12
             cols = np.floor(x - 0.5).astype(np.int64)  # dot's left column
             rows = np.floor(height - y - 0.5).astype(np.int64)  # dot's top row
-            cmin, cmax, rmin, rmax = int(cols.min()), int(cols.max()), int(rows.min()), \
-                int(rows.max())
-            left, right = max(cmin, c0), min(cmax + 2, c1)
-            top, bottom = max(rmin, r0), min(rmax + 2, r1)
-            if left >= right or top >= bottom:
+            # The dots with a pixel inside the axes; their box is then small.
+            touch = (cols >= c0 - 1) & (cols < c1) & (rows >= r0 - 1) & (rows < r1)
+            cols, rows = cols[touch], rows[touch]
+            if cols.size == 0:
                 continue
-            width, box_height = right - left, bottom - top
-            cols -= left
-            rows -= top
-            base = rows * width + cols
-            if left == cmin and right == cmax + 2 and top == rmin and bottom == rmax + 2:
-                index = np.concatenate((base, base + 1, base + width, base + width + 1))
-            else:  # some dots leave the axes: keep the pixels inside
-                parts = []
-                for dr, dc in ((0, 0), (0, 1), (1, 0), (1, 1)):
-                    r, c = rows + dr, cols + dc
-                    inside = (r >= 0) & (r < box_height) & (c >= 0) & (c < width)
-                    parts.append((base + dr * width + dc)[inside])
-                index = np.concatenate(parts)
-            counts = np.bincount(index, minlength=width * box_height)
+            left, top = int(cols.min()), int(rows.min())
+            width = int(cols.max()) + 2 - left
+            base = (rows - top) * width + (cols - left)
+            index = np.concatenate((base, base + 1, base + width, base + width + 1))
+            counts = np.bincount(index)
             hit = np.flatnonzero(counts)
-            if hit.size == 0:
-                continue
             row_of, col_of = np.divmod(hit, width)
-            pixels = (row_of + top) * self._width + (col_of + left)
+            row_of += top
+            col_of += left
+            inside = (row_of >= r0) & (row_of < r1) & (col_of >= c0) & (col_of < c1)
+            hit, row_of, col_of = hit[inside], row_of[inside], col_of[inside]
+            pixels = row_of * self._width + col_of
             colour = self._sample_rgb[i]
             old = rgb[pixels, :3].astype(np.float64)
             new = colour + (old - colour) * (keep ** counts[hit])[:, None]
