@@ -62,16 +62,29 @@ def save_figure(fig, path: str | Path) -> Path:
     return path
 
 
-def _arena(ax, bounds=((-5.0, -5.0), (5.0, 5.0))) -> None:
+def arena_axes(ax, bounds=((-5.0, -5.0), (5.0, 5.0))) -> None:
+    """Equal-aspect axes over ``bounds`` ``((x_min, y_min), (x_max, y_max))`` in m, a grid."""
     (x0, y0), (x1, y1) = bounds
     ax.set(xlim=(x0, x1), ylim=(y0, y1), aspect="equal", xlabel="x (m)", ylabel="y (m)")
     ax.grid(alpha=0.3)
 
 
-def _discs(ax, path: np.ndarray, radius: float, instants: Any, **style: Any) -> None:
-    """Discs of ``radius`` (m) at the ``path`` positions of the given ``instants``, to scale."""
+def _path(ax, path: Any, radius: float, instants: Any, color: Any, label: str | None,
+          **line: Any) -> None:
+    """A path (samples, 2) in m as a line, with discs of ``radius`` (m) at ``instants``."""
+    path = np.asarray(path)
+    ax.plot(path[:, 0], path[:, 1], color=color, label=label, **line)
     for t in instants:
-        ax.add_patch(pyplot().Circle(path[t], radius, **style))
+        ax.add_patch(pyplot().Circle(path[t], radius, facecolor=color, edgecolor=color,
+                                     alpha=0.12, lw=0.6))
+
+
+def _obstacles_and_goal(ax, traj: Any, instants: Any, colors: Any, label: Any) -> None:
+    """Every obstacle's realised path and discs (colour ``colors[i]``, ``label(i)``), the goal."""
+    for i in range(traj.obstacles.shape[1]):
+        _path(ax, traj.obstacles[:, i], traj.obstacle_radii[i], instants, colors[i], label(i),
+              lw=1)
+    ax.plot(*traj.goal, "k*", ms=12, label="goal")
 
 
 # ---------------------------------------------------------------------------- figures
@@ -97,7 +110,7 @@ def plot_trajectories(
     (x0, y0), (x1, y1) = bounds
     width = 7.0
     fig, ax = plt.subplots(figsize=(width, max(3.0, min(8.0, width * (y1 - y0) / (x1 - x0)))))
-    _arena(ax, bounds)
+    arena_axes(ax, bounds)
     drawn_obstacles = False
     collision_label = None
     for risk in sorted(trajectories, key=lambda r: RISK_ORDER.get(r, 9)):
@@ -105,18 +118,11 @@ def plot_trajectories(
         color = RISK_COLORS.get(risk, "k")
         ego = np.asarray(traj.ego)
         instants = sorted(set(range(0, len(ego), every)) | {len(ego) - 1})
-        ax.plot(ego[:, 0], ego[:, 1], "-o", ms=2, color=color,
-                label=f"ego, {RISK_LABELS.get(risk, risk)}")
-        _discs(ax, ego, traj.ego_radius, instants, facecolor=color, alpha=0.12,
-               edgecolor=color, lw=0.6)
+        _path(ax, ego, traj.ego_radius, instants, color, f"ego, {RISK_LABELS.get(risk, risk)}",
+              marker="o", ms=2)
         if not drawn_obstacles and traj.obstacles.size:
-            for i in range(traj.obstacles.shape[1]):
-                path_i = traj.obstacles[:, i]
-                ax.plot(path_i[:, 0], path_i[:, 1], "-", color="k", lw=1,
-                        label="obstacles (realised paths)" if i == 0 else None)
-                _discs(ax, path_i, traj.obstacle_radii[i], instants, facecolor="k",
-                       alpha=0.12, edgecolor="k", lw=0.6)
-            ax.plot(*traj.goal, "k*", ms=12, label="goal")
+            _obstacles_and_goal(ax, traj, instants, ["k"] * traj.obstacles.shape[1],
+                                lambda i: None if i else "obstacles (realised paths)")
             drawn_obstacles = True
         for mark in find_collisions(traj):
             collision_label = ("collision (continuous time)" if mark.exact
@@ -161,9 +167,8 @@ def plot_distance_boxplots(records: Sequence[EpisodeRecord], path: str | Path) -
 
     The paper's Fig. 4, right column.
     """
-    plt = pyplot()
     scenarios = sorted({r.scenario for r in records})
-    fig, axes = plt.subplots(1, len(scenarios), figsize=(3.2 * len(scenarios), 3.6),
+    fig, axes = pyplot().subplots(1, len(scenarios), figsize=(3.2 * len(scenarios), 3.6),
                              squeeze=False, sharey=True)
     for ax, scenario in zip(axes[0], scenarios, strict=True):
         risks = sorted({r.risk for r in records if r.scenario == scenario},
@@ -171,14 +176,11 @@ def plot_distance_boxplots(records: Sequence[EpisodeRecord], path: str | Path) -
         data = [[r.min_distance for r in records
                  if r.scenario == scenario and r.risk == risk and not r.error
                  and np.isfinite(r.min_distance)] for risk in risks]
-        boxes = ax.boxplot(data, patch_artist=True, whis=(0, 100))
-        for patch, risk in zip(boxes["boxes"], risks, strict=True):
-            patch.set(facecolor=RISK_COLORS.get(risk, "w"), alpha=0.6)
+        for j, (values, risk) in enumerate(zip(data, risks, strict=True)):
+            _risk_boxes(ax, [values], risk, positions=[j + 1])
         ax.set_xticks(range(1, len(risks) + 1), [RISK_LABELS.get(r, r) for r in risks],
                       rotation=30)
-        ax.axhline(0.0, color="k", lw=1, ls="--")
         ax.set_title(short_name(scenario))
-        ax.grid(alpha=0.3, axis="y")
     axes[0][0].set_ylabel("smallest clearance of the episode (m)\n(sampled; < 0: collision)")
     n = max((len([r for r in records if r.scenario == s and not r.error]) for s in scenarios),
             default=0)
@@ -186,6 +188,15 @@ def plot_distance_boxplots(records: Sequence[EpisodeRecord], path: str | Path) -
                  f"(up to {n // max(1, len({r.risk for r in records}))} episodes per box; "
                  "whiskers: min and max)", fontsize=10)
     return save_figure(fig, path)
+
+
+def _risk_boxes(ax, data: Any, risk: str, **where: Any) -> None:
+    """Box plots of ``data`` in the risk's colour (whiskers: min and max), a dashed line at
+    0 m (collision) and a horizontal grid."""
+    boxes = ax.boxplot(data, patch_artist=True, whis=(0, 100), manage_ticks=False, **where)
+    pyplot().setp(boxes["boxes"], facecolor=RISK_COLORS.get(risk, "w"), alpha=0.6)
+    ax.axhline(0.0, color="k", lw=1, ls="--")
+    ax.grid(alpha=0.3, axis="y")
 
 
 def plot_window_boxplots(distances: Mapping[str, Mapping[str, np.ndarray]],
@@ -204,9 +215,8 @@ def plot_window_boxplots(distances: Mapping[str, Mapping[str, np.ndarray]],
     windows
         ``windows[scenario] = (first, last)``: sample indices, both included.
     """
-    plt = pyplot()
     scenarios = list(distances)
-    fig, axes = plt.subplots(1, len(scenarios), figsize=(3.6 * len(scenarios), 3.6),
+    fig, axes = pyplot().subplots(1, len(scenarios), figsize=(3.6 * len(scenarios), 3.6),
                              squeeze=False)
     for ax, scenario in zip(axes[0], scenarios, strict=True):
         first, last = windows[scenario]
@@ -218,15 +228,11 @@ def plot_window_boxplots(distances: Mapping[str, Mapping[str, np.ndarray]],
             data = [values[np.isfinite(values[:, k]), k] if k < values.shape[1] else []
                     for k in steps]
             positions = np.arange(len(steps)) + (j - (len(risks) - 1) / 2) * width
-            boxes = ax.boxplot(data, positions=positions, widths=width * 0.9,
-                               patch_artist=True, whis=(0, 100), manage_ticks=False)
-            plt.setp(boxes["boxes"], facecolor=RISK_COLORS.get(risk, "w"), alpha=0.6)
+            _risk_boxes(ax, data, risk, positions=positions, widths=width * 0.9)
             ax.plot([], [], "s", color=RISK_COLORS.get(risk, "w"),
                     label=RISK_LABELS.get(risk, risk))
         ax.set_xticks(range(len(steps)), [f"{k}\n{k * dt:.1f} s" for k in steps])
-        ax.axhline(0.0, color="k", lw=1, ls="--")
         ax.set(title=f"{short_name(scenario)}: samples {first}-{last}", xlabel="sample (time)")
-        ax.grid(alpha=0.3, axis="y")
     axes[0][0].set_ylabel("sampled distance to collision (m)")
     axes[0][-1].legend(fontsize=7)
     if title:
@@ -246,11 +252,10 @@ def plot_collision_rates(
     is drawn as a thick line at 0 (gid ``"zero-bar"``) so it cannot be mistaken for
     a missing one.
     """
-    plt = pyplot()
     scenarios = sorted({r.scenario for r in rows})
     risks = sorted({r.risk for r in rows}, key=lambda r: RISK_ORDER.get(r, 9))
     width = 0.8 / max(1, len(risks))
-    fig, ax = plt.subplots(figsize=(2.2 * len(scenarios) + 2, 3.8))
+    fig, ax = pyplot().subplots(figsize=(2.2 * len(scenarios) + 2, 3.8))
     for j, risk in enumerate(risks):
         color = RISK_COLORS.get(risk, "k")
         xs, rates, low, high, labels = [], [], [], [], []
@@ -296,34 +301,27 @@ def plot_safe_polytopes(trajectory: Trajectory | Any, path: str | Path, *, every
 
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(8.5, 5))
-    _arena(ax, bounds)
-    low, high = np.asarray(bounds[0]), np.asarray(bounds[1])
+    arena_axes(ax, bounds)
     drawn = 0
     for t in range(0, len(trajectory.halfspaces), every):
         normals, offsets = trajectory.halfspaces[t]
-        polygon = safe_polygon(normals[:, 0], offsets[:, 0], (low, high))
+        polygon = safe_polygon(normals[:, 0], offsets[:, 0], bounds)
         if len(polygon) >= 3:
             ax.fill(polygon[:, 0], polygon[:, 1], color="tab:green", alpha=0.08)
             ax.plot(*np.vstack([polygon, polygon[:1]]).T, color="tab:green", lw=0.6, alpha=0.6,
                     label=(f"safe polytope of the next position, every {every} steps"
                            if drawn == 0 else None))
             drawn += 1
-    ego = trajectory.ego
-    ax.plot(ego[:, 0], ego[:, 1], "-o", color="tab:blue", ms=3,
-            label="ego path (disc to scale)")
-    _discs(ax, ego, trajectory.ego_radius, range(0, len(ego), every), color="tab:blue",
-           alpha=0.15)
+    ego = np.asarray(trajectory.ego)
+    instants = range(0, len(ego), every)
+    _path(ax, ego, trajectory.ego_radius, instants, "tab:blue", "ego path (disc to scale)",
+          marker="o", ms=3)
     colors = plt.cm.autumn(np.linspace(0, 0.8, max(1, trajectory.obstacles.shape[1])))
-    for i in range(trajectory.obstacles.shape[1]):
-        path_i = trajectory.obstacles[:, i]
-        ax.plot(path_i[:, 0], path_i[:, 1], "-", color=colors[i],
-                label=f"obstacle {i + 1} (realised path)")
-        _discs(ax, path_i, trajectory.obstacle_radii[i], range(0, len(path_i), every),
-               color=colors[i], alpha=0.15)
+    _obstacles_and_goal(ax, trajectory, instants, colors,
+                        lambda i: f"obstacle {i + 1} (realised path)")
     fallback = [t + 1 for t, s in enumerate(trajectory.statuses) if s in FALLBACK_STATUSES]
     if fallback:
         ax.plot(ego[fallback, 0], ego[fallback, 1], "kx", ms=8, label="fallback step")
-    ax.plot(*trajectory.goal, "k*", ms=12, label="goal")
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     ax.set_title(title or "Safe polytopes along a filtered episode")
     return save_figure(fig, path)
@@ -395,33 +393,22 @@ def save_gif(frames: Sequence[np.ndarray], path: str | Path, fps: int = 5, *, la
 
 
 def _gif_banner(width, line, label, legend, font, Image, ImageDraw):
-    """The white strip under each GIF frame: the label, then the legend entries."""
+    """The white strip under each GIF frame: the label, then the legend entries (wrapped)."""
     swatch = line // 2
-    rows: list[list[tuple[str, tuple[int, int, int]]]] = [[]]
-    x = 8
-    for text, color in legend:
-        size = swatch + 6 + int(font.getlength(text)) + 16
-        if x + size > width and rows[-1]:
-            rows.append([])
-            x = 8
-        rows[-1].append((text, color))
-        x += size
-    height = line * (len(rows) + (1 if label else 0)) + 8
-    banner = Image.new("RGB", (width, height), "white")
+    banner = Image.new("RGB", (width, line * (len(legend) + 2) + 8), "white")  # cropped below
     draw = ImageDraw.Draw(banner)
-    y = 4
+    x, y = 8, 4
     if label:
         draw.text((8, y), label, fill=(0, 0, 0), font=font)
         y += line
-    for row in rows:
-        x = 8
-        for text, color in row:
-            draw.ellipse((x, y + 2, x + swatch, y + 2 + swatch), fill=tuple(color))
-            x += swatch + 6
-            draw.text((x, y), text, fill=(0, 0, 0), font=font)
-            x += int(font.getlength(text)) + 16
-        y += line
-    return banner
+    for text, color in legend:
+        size = swatch + 6 + int(font.getlength(text)) + 16
+        if x + size > width and x > 8:  # the next row
+            x, y = 8, y + line
+        draw.ellipse((x, y + 2, x + swatch, y + 2 + swatch), fill=tuple(color))
+        draw.text((x + swatch + 6, y), text, fill=(0, 0, 0), font=font)
+        x += size
+    return banner.crop((0, 0, width, y + line + 4))
 
 
 def plot_sweep(points: Sequence[dict], path: str | Path) -> Path:
@@ -430,8 +417,7 @@ def plot_sweep(points: Sequence[dict], path: str | Path) -> Path:
     ``points`` are dicts with ``epsilon``, ``delta``, ``collision_rate``,
     ``mean_intervention`` (and optionally ``goal_rate``).
     """
-    plt = pyplot()
-    fig, ax = plt.subplots(figsize=(6.5, 4.5))
+    fig, ax = pyplot().subplots(figsize=(6.5, 4.5))
     deltas = sorted({p["delta"] for p in points})
     for delta in deltas:
         pts = sorted((p for p in points if p["delta"] == delta), key=lambda p: p["epsilon"])
