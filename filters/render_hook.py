@@ -22,11 +22,9 @@ class RenderHookMixin:
     def _draw_halfspaces(self, ax: Any) -> None:
         """Draw the first-step halfspace boundary of every obstacle (one line collection)."""
         halfspaces = self._last_halfspaces
-        if halfspaces is None or halfspaces.normals.shape[0] == 0:
-            return
-        from filters.plotting import draw_halfspaces
+        if halfspaces is not None:  # (no collection when every row is off: keep the last)
+            from filters.plotting import draw_halfspaces
 
-        drawn = draw_halfspaces(ax, halfspaces.normals[:, 0], halfspaces.offsets[:, 0],
-                                reuse=self._halfspace_lines)
-        if drawn is not None:
-            self._halfspace_lines = drawn
+            self._halfspace_lines = draw_halfspaces(
+                ax, halfspaces.normals[:, 0], halfspaces.offsets[:, 0],
+                reuse=self._halfspace_lines) or self._halfspace_lines

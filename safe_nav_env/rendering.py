@@ -301,31 +301,21 @@ class _Caption:
         self._text = fig.text(left / fig.bbox.width, (height - self._rows.stop + 6) / height,
                               "", fontproperties=self._prop, animated=True)
         self._glyphs: dict[str, np.ndarray] = {}
-        self._last = ""
-
-    def _glyph(self, buffer: np.ndarray, char: str) -> np.ndarray:
-        cell = self._glyphs.get(char)
-        if cell is None:
-            renderer = self._renderer
-            columns = slice(self._left, self._left + self._cell)
-            saved = buffer[self._rows, columns, :3].copy()
-            buffer[self._rows, columns, :3] = 255
-            self._text.set_text(char)
-            renderer.ax.draw_artist(self._text)
-            cell = buffer[self._rows, columns, :3].copy()
-            buffer[self._rows, columns, :3] = saved
-            self._glyphs[char] = cell
-        return cell
 
     def draw(self, buffer: np.ndarray, caption: str) -> None:
         """Write ``caption`` into the strip of ``buffer`` (H, W, 4), over white."""
         strip = buffer[self._rows, :, :3]
+        for char in set(caption) - self._glyphs.keys() - {" "}:  # drawn once, then kept
+            strip[...] = 255
+            self._text.set_text(char)
+            self._renderer.ax.draw_artist(self._text)
+            self._glyphs[char] = strip[:, self._left : self._left + self._cell].copy()
         strip[...] = 255
         width = strip.shape[1]
         for i, char in enumerate(caption):
             if char == " ":
                 continue
-            cell = self._glyph(buffer, char)
+            cell = self._glyphs[char]
             x = self._left + int(round(i * self.advance))
             if x + cell.shape[1] > width:
                 break

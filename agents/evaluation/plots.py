@@ -148,16 +148,15 @@ def plot_trajectories(
 
 
 def _fit_bounds(trajectories: Any, margin: float = 0.5) -> tuple[tuple[float, float], ...]:
-    points = []
-    for traj in trajectories:
-        reach = max([float(traj.ego_radius)] + list(np.asarray(traj.obstacle_radii, float)))
-        points += [np.asarray(getattr(traj, key), float).reshape(-1, 2)
-                   for key in ("ego", "obstacles", "goal")]
-    if not points:
+    """The box around every path, disc and goal, ``margin`` (m) wider; ±5 m if none."""
+    trajectories = list(trajectories)
+    if not trajectories:
         return ((-5.0, -5.0), (5.0, 5.0))
-    cloud = np.concatenate(points)
+    cloud = np.concatenate([np.asarray(getattr(traj, key), float).reshape(-1, 2)
+                            for traj in trajectories for key in ("ego", "obstacles", "goal")])
     cloud = cloud[np.all(np.isfinite(cloud), axis=1)]
-    pad = margin + reach
+    pad = margin + max(max([float(t.ego_radius), *np.asarray(t.obstacle_radii, float)])
+                       for t in trajectories)
     low, high = cloud.min(axis=0) - pad, cloud.max(axis=0) + pad
     return (tuple(low.tolist()), tuple(high.tolist()))
 
@@ -256,14 +255,14 @@ def plot_collision_rates(
     risks = sorted({r.risk for r in rows}, key=lambda r: RISK_ORDER.get(r, 9))
     width = 0.8 / max(1, len(risks))
     fig, ax = pyplot().subplots(figsize=(2.2 * len(scenarios) + 2, 3.8))
+    table = {(r.scenario, r.risk): r for r in reversed(rows)}  # the first row of each
     for j, risk in enumerate(risks):
         color = RISK_COLORS.get(risk, "k")
         xs, rates, low, high, labels = [], [], [], [], []
         for i, scenario in enumerate(scenarios):
-            match = [r for r in rows if r.scenario == scenario and r.risk == risk]
-            if not match:
+            row = table.get((scenario, risk))
+            if row is None:
                 continue
-            row = match[0]
             n = row.episodes - row.failed
             rate = row.collision_rate if n else 0.0
             xs.append(i + (j - (len(risks) - 1) / 2) * width)

@@ -15,7 +15,9 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from filters._validation import integer_at_least
+from agents.evaluation.plots import pyplot, save_figure
+from agents.evaluation.summary import wilson_interval
+from filters._validation import finite_scalar, integer_at_least
 from filters.errors import InvalidParameterError
 
 __all__ = ["TIME_LABEL", "ParetoPoint", "dominated", "plot_pareto", "point_from_summary"]
@@ -50,11 +52,8 @@ class ParetoPoint:
         if integer_at_least("n", self.n, low=0) < max(1, collisions):
             raise InvalidParameterError(f"need n >= 1 and 0 <= collisions <= n, got collisions "
                                         f"{self.collisions}, n {self.n} ({self.label!r})")
-        time = self.time_to_goal
-        if (isinstance(time, bool) or not isinstance(time, int | float) or time < 0
-                or time == math.inf):
-            raise InvalidParameterError(f"time_to_goal must be a number >= 0 (s) or NaN, got "
-                                        f"{time!r} ({self.label!r})")
+        if not (isinstance(self.time_to_goal, float) and math.isnan(self.time_to_goal)):
+            finite_scalar(f"time_to_goal of {self.label!r} (s, or NaN)", self.time_to_goal, low=0)
 
     @property
     def rate(self) -> float:
@@ -116,21 +115,14 @@ def plot_pareto(panels: Mapping[str, Sequence[ParetoPoint]], path: str | Path, *
     InvalidParameterError
         If there are no panels, a panel has no points or ``columns < 1``.
     """
-    from agents.evaluation.summary import wilson_interval
-
     if not panels:
         raise InvalidParameterError("plot_pareto needs at least one panel")
     for name, points in panels.items():
         if not points:
             raise InvalidParameterError(f"panel {name!r} has no points")
     integer_at_least("columns", columns)
-    from agents.evaluation.plots import pyplot, save_figure
-
     plt = pyplot()
-
-    labels: list[str] = []
-    for points in panels.values():
-        labels += [p.label for p in points if p.label not in labels]
+    labels = list(dict.fromkeys(p.label for points in panels.values() for p in points))
     colours = plt.get_cmap("tab10")
     markers = "osD^vP*Xhp<>"
     style = {label: (colours(i % 10), markers[i % len(markers)])
