@@ -377,7 +377,22 @@ def save_gif(frames: Sequence[np.ndarray], path: str | Path, fps: int = 5, *, la
     except TypeError:  # Pillow < 10.1: the fixed bitmap font
         font = ImageFont.load_default()
     line = int(1.4 * max(size if hasattr(font, "size") else 0, font.getbbox("Ag")[3]))
-    banner = _gif_banner(width, line, label, legend, font, Image, ImageDraw)
+    # The white banner: the label, then the legend entries (wrapped); cropped to its rows.
+    swatch = line // 2
+    banner = Image.new("RGB", (width, line * (len(legend) + 2) + 8), "white")
+    draw = ImageDraw.Draw(banner)
+    x, y = 8, 4
+    if label:
+        draw.text((8, y), label, fill=(0, 0, 0), font=font)
+        y += line
+    for text, color in legend:
+        entry = swatch + 6 + int(font.getlength(text)) + 16
+        if x + entry > width and x > 8:  # the next row
+            x, y = 8, y + line
+        draw.ellipse((x, y + 2, x + swatch, y + 2 + swatch), fill=tuple(color))
+        draw.text((x + swatch + 6, y), text, fill=(0, 0, 0), font=font)
+        x += entry
+    banner = banner.crop((0, 0, width, y + line + 4))
     images = []
     for array in arrays:
         image = Image.new("RGB", (width, height + banner.height), "white")
@@ -389,25 +404,6 @@ def save_gif(frames: Sequence[np.ndarray], path: str | Path, fps: int = 5, *, la
     images[0].save(path, save_all=True, append_images=images[1:], duration=int(1000 / fps),
                    loop=0)
     return path
-
-
-def _gif_banner(width, line, label, legend, font, Image, ImageDraw):
-    """The white strip under each GIF frame: the label, then the legend entries (wrapped)."""
-    swatch = line // 2
-    banner = Image.new("RGB", (width, line * (len(legend) + 2) + 8), "white")  # cropped below
-    draw = ImageDraw.Draw(banner)
-    x, y = 8, 4
-    if label:
-        draw.text((8, y), label, fill=(0, 0, 0), font=font)
-        y += line
-    for text, color in legend:
-        size = swatch + 6 + int(font.getlength(text)) + 16
-        if x + size > width and x > 8:  # the next row
-            x, y = 8, y + line
-        draw.ellipse((x, y + 2, x + swatch, y + 2 + swatch), fill=tuple(color))
-        draw.text((x + swatch + 6, y), text, fill=(0, 0, 0), font=font)
-        x += size
-    return banner.crop((0, 0, width, y + line + 4))
 
 
 def plot_sweep(points: Sequence[dict], path: str | Path) -> Path:
