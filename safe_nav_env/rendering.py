@@ -23,7 +23,7 @@ redraw, because nothing static is drawn twice:
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import matplotlib
 import numpy as np
@@ -69,59 +69,53 @@ class Renderer:
         self.fig = Figure(figsize=(size, size), dpi=dpi)
         self.canvas = FigureCanvasAgg(self.fig)
         self.ax = self.fig.add_axes((0.09, 0.07, 0.88, 0.88))
-        self._layout: tuple | None = None
-        self._background: Any = None
-        self._arena: tuple | None = None
+        self._layout: tuple | None = None  # (arena, goal, radii, goal tolerance) drawn
+        self._moving: list = []
         self._plt = self._window = self._image = None  # the pyplot window of human mode
 
     # -------------------------------------------------------------- set-up
 
-    def _setup_background(self, env: SafeNavEnv) -> None:
-        """Draw and cache the static scene of an arena: axes, ticks, labels, arena box."""
-        ax = self.ax
-        ax.clear()
-        low, high = env.position_bounds
-        margin = 0.5
-        self._limits = ((low[0] - margin, high[0] + margin), (low[1] - margin, high[1] + margin))
-        ax.set(xlim=self._limits[0], ylim=self._limits[1], aspect="equal", xlabel="x [m]",
-               ylabel="y [m]")
-        ax.add_patch(Rectangle(tuple(low), *(high - low), fill=False, edgecolor="0.6", lw=1.5))
-        self.canvas.draw()
-        self._background = self.canvas.copy_from_bbox(self.fig.bbox)
-        self._transform = ax.transData.frozen()
-        self._affine = self._transform.get_matrix()  # data -> display pixels (affine here)
-        self._height = int(round(self.fig.bbox.height))
-        self._width = int(round(self.fig.bbox.width))
-        x0, y0, x1, y1 = ax.bbox.extents  # display pixels, origin bottom left
-        # Buffer rows/columns inside the axes (samples are clipped to them).
-        self._clip = (int(np.ceil(x0)), int(np.floor(x1)),
-                      int(np.ceil(self._height - y1)), int(np.floor(self._height - y0)))
-        self._caption = _Caption(self, top_row=int(np.floor(self._height - y1)) - 1,
-                                 left=int(round(x0)))
-        self._arena = (tuple(low), tuple(high))
-        self._layout = None
+    def _setup(self, env: SafeNavEnv, layout: tuple) -> None:
+        """Cache the static scene of ``layout`` and create the moving artists.
 
-    def _setup_artists(self, env: SafeNavEnv, layout: tuple) -> None:
-        """Cache the layout's background (arena + goal) and create the moving artists.
-
+        A new arena is drawn in full (axes, ticks, labels, arena box) and cached as
+        ``_background``; the goal is drawn on it and cached as the layout's background.
         The obstacles are one ``EllipseCollection`` and their trails one
         ``LineCollection``: a few artists to draw per frame, whatever the obstacle count.
         """
         ax = self.ax
-        for artist in getattr(self, "_moving", []):
+        for artist in self._moving:
             artist.remove()
+        if self._layout is None or self._layout[0] != layout[0]:  # a new arena: full draw
+            ax.clear()
+            low, high = env.position_bounds
+            self._limits = ((low[0] - 0.5, high[0] + 0.5), (low[1] - 0.5, high[1] + 0.5))
+            ax.set(xlim=self._limits[0], ylim=self._limits[1], aspect="equal", xlabel="x [m]",
+                   ylabel="y [m]")
+            ax.add_patch(Rectangle(tuple(low), *(high - low), fill=False, edgecolor="0.6",
+                                   lw=1.5))
+            self.canvas.draw()
+            self._background = self.canvas.copy_from_bbox(self.fig.bbox)
+            self._transform = ax.transData.frozen()
+            self._affine = self._transform.get_matrix()  # data -> display pixels (affine)
+            self._height = int(round(self.fig.bbox.height))
+            self._width = int(round(self.fig.bbox.width))
+            x0, y0, x1, y1 = ax.bbox.extents  # display pixels, origin bottom left
+            # Buffer rows/columns inside the axes (samples are clipped to them).
+            self._clip = (int(np.ceil(x0)), int(np.floor(x1)),
+                          int(np.ceil(self._height - y1)), int(np.floor(self._height - y0)))
+            self._caption = _Caption(self, top_row=int(np.floor(self._height - y1)) - 1,
+                                     left=int(round(x0)))
         moving = dict(animated=True)  # never part of the arena's cached background
-        goal = env.goal
-        goal_ring = ax.add_patch(Circle(tuple(goal), env.goal_tolerance, fill=False, ls="--",
+        goal_ring = ax.add_patch(Circle(tuple(env.goal), env.goal_tolerance, fill=False, ls="--",
                                         edgecolor="tab:green", **moving))
-        goal_star = ax.plot(*goal, marker="*", ms=14, color="tab:green", ls="none", zorder=5,
-                            **moving)[0]
+        goal_star = ax.plot(*env.goal, marker="*", ms=14, color="tab:green", ls="none",
+                            zorder=5, **moving)[0]
         self.canvas.restore_region(self._background)
-        ax.draw_artist(goal_ring)
-        ax.draw_artist(goal_star)
+        for artist in (goal_ring, goal_star):  # drawn once, into the layout's background
+            ax.draw_artist(artist)
+            artist.remove()
         self._layout_background = self.canvas.copy_from_bbox(self.fig.bbox)
-        goal_ring.remove()
-        goal_star.remove()
 
         n = env.n_obstacles
         colors = [OBSTACLE_COLORS[i % len(OBSTACLE_COLORS)] for i in range(n)]
@@ -205,13 +199,10 @@ class Renderer:
         numpy.ndarray or None
             The frame, uint8 of shape ``(H, W, 3)``; ``None`` in human mode.
         """
-        low, high = env.position_bounds
-        if self._background is None or self._arena != (tuple(low), tuple(high)):
-            self._setup_background(env)
-        layout = (tuple(env.goal), env.ego_radius, tuple(env.obstacle_radii),
-                  env.goal_tolerance)
+        layout = (tuple(map(tuple, env.position_bounds)), tuple(env.goal), env.ego_radius,
+                  tuple(env.obstacle_radii), env.goal_tolerance)
         if layout != self._layout:
-            self._setup_artists(env, layout)
+            self._setup(env, layout)
         ax, canvas = self.ax, self.canvas
 
         self._ego.set_center(tuple(env.ego_state[:2]))
@@ -272,7 +263,7 @@ class Renderer:
         if self._plt is not None and self._window is not None:
             self._plt.close(self._window)
         self._plt = self._window = self._image = None
-        self._layout = self._background = self._arena = None
+        self._layout = None
 
 
 class _Caption:

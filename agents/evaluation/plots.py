@@ -168,7 +168,7 @@ def plot_distance_boxplots(records: Sequence[EpisodeRecord], path: str | Path) -
     """
     scenarios = sorted({r.scenario for r in records})
     fig, axes = pyplot().subplots(1, len(scenarios), figsize=(3.2 * len(scenarios), 3.6),
-                             squeeze=False, sharey=True)
+                                  squeeze=False, sharey=True)
     for ax, scenario in zip(axes[0], scenarios, strict=True):
         risks = sorted({r.risk for r in records if r.scenario == scenario},
                        key=lambda r: RISK_ORDER.get(r, 9))
@@ -216,7 +216,7 @@ def plot_window_boxplots(distances: Mapping[str, Mapping[str, np.ndarray]],
     """
     scenarios = list(distances)
     fig, axes = pyplot().subplots(1, len(scenarios), figsize=(3.6 * len(scenarios), 3.6),
-                             squeeze=False)
+                                  squeeze=False)
     for ax, scenario in zip(axes[0], scenarios, strict=True):
         first, last = windows[scenario]
         risks = sorted(distances[scenario], key=lambda r: RISK_ORDER.get(r, 9))
