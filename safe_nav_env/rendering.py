@@ -55,18 +55,12 @@ class Renderer:
         Also show the frames in a window (pyplot) and return ``None`` from :meth:`draw`.
     fps
         Frames per second of the window in human mode.
-    size
-        Figure size in inches; frames are ``size * dpi`` pixels (600 x 600 by default).
-    dpi
-        Resolution in dots per inch.
     """
 
-    def __init__(
-        self, *, human: bool = False, fps: float = 5.0, size: float = 6.0, dpi: int = 100
-    ) -> None:
+    def __init__(self, *, human: bool = False, fps: float = 5.0) -> None:
         self.human = human
         self.fps = fps
-        self.fig = Figure(figsize=(size, size), dpi=dpi)
+        self.fig = Figure(figsize=(6.0, 6.0), dpi=100)  # 600 x 600 px frames
         self.canvas = FigureCanvasAgg(self.fig)
         self.ax = self.fig.add_axes((0.09, 0.07, 0.88, 0.88))
         self._layout: tuple | None = None  # (arena, goal, radii, goal tolerance) drawn
@@ -209,11 +203,9 @@ class Renderer:
         if trail:
             ego_path = np.array([t[0] for t in trail])
             self._ego_trail.set_data(ego_path[:, 0], ego_path[:, 1])
-            if env.n_obstacles:
-                paths = np.array([t[1] for t in trail])  # (steps, n, 2)
-                self._obstacle_trails.set_segments(list(paths.transpose(1, 0, 2)))
-        if env.n_obstacles:
-            self._obstacles.set_offsets(np.asarray(env.obstacle_positions, dtype=float))
+            paths = np.array([t[1] for t in trail]).reshape(len(trail), -1, 2)  # (steps, n, 2)
+            self._obstacle_trails.set_segments(list(paths.transpose(1, 0, 2)))
+        self._obstacles.set_offsets(np.asarray(env.obstacle_positions, float).reshape(-1, 2))
 
         canvas.restore_region(self._layout_background)
         buffer = np.asarray(canvas.buffer_rgba())  # a view of the Agg buffer
@@ -282,15 +274,15 @@ class _Caption:
         self._renderer = renderer
         self._rows = slice(max(0, top_row - 22), max(1, top_row))  # 22 px tall strip
         self._left = left
-        fig = renderer.fig
-        self._prop = FontProperties(**CAPTION_FONT)
-        agg = renderer.canvas.get_renderer()
-        width = agg.get_text_width_height_descent("0" * 20, self._prop, ismath=False)[0]
+        prop = FontProperties(**CAPTION_FONT)
+        width = renderer.canvas.get_renderer().get_text_width_height_descent(
+            "0" * 20, prop, ismath=False)[0]
         self.advance = width / 20.0
         self._cell = int(np.ceil(self.advance)) + 2
-        height = renderer.fig.bbox.height
+        fig = renderer.fig
+        height = fig.bbox.height
         self._text = fig.text(left / fig.bbox.width, (height - self._rows.stop + 6) / height,
-                              "", fontproperties=self._prop, animated=True)
+                              "", fontproperties=prop, animated=True)
         self._glyphs: dict[str, np.ndarray] = {}
 
     def draw(self, buffer: np.ndarray, caption: str) -> None:
