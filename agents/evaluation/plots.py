@@ -169,23 +169,21 @@ def plot_distance_boxplots(records: Sequence[EpisodeRecord], path: str | Path) -
     scenarios = sorted({r.scenario for r in records})
     fig, axes = pyplot().subplots(1, len(scenarios), figsize=(3.2 * len(scenarios), 3.6),
                                   squeeze=False, sharey=True)
+    most = 0
     for ax, scenario in zip(axes[0], scenarios, strict=True):
         risks = sorted({r.risk for r in records if r.scenario == scenario},
                        key=lambda r: RISK_ORDER.get(r, 9))
-        data = [[r.min_distance for r in records
-                 if r.scenario == scenario and r.risk == risk and not r.error
-                 and np.isfinite(r.min_distance)] for risk in risks]
-        for j, (values, risk) in enumerate(zip(data, risks, strict=True)):
+        for j, risk in enumerate(risks):
+            values = [r.min_distance for r in records if r.scenario == scenario
+                      and r.risk == risk and not r.error and np.isfinite(r.min_distance)]
             _risk_boxes(ax, [values], risk, positions=[j + 1])
+            most = max(most, len(values))
         ax.set_xticks(range(1, len(risks) + 1), [RISK_LABELS.get(r, r) for r in risks],
                       rotation=30)
         ax.set_title(short_name(scenario))
     axes[0][0].set_ylabel("smallest clearance of the episode (m)\n(sampled; < 0: collision)")
-    n = max((len([r for r in records if r.scenario == s and not r.error]) for s in scenarios),
-            default=0)
     fig.suptitle("Smallest distance to collision per episode, by filter risk "
-                 f"(up to {n // max(1, len({r.risk for r in records}))} episodes per box; "
-                 "whiskers: min and max)", fontsize=10)
+                 f"(up to {most} episodes per box; whiskers: min and max)", fontsize=10)
     return save_figure(fig, path)
 
 
@@ -257,23 +255,20 @@ def plot_collision_rates(
     fig, ax = pyplot().subplots(figsize=(2.2 * len(scenarios) + 2, 3.8))
     table = {(r.scenario, r.risk): r for r in reversed(rows)}  # the first row of each
     for j, risk in enumerate(risks):
-        color = RISK_COLORS.get(risk, "k")
-        xs, rates, low, high, labels = [], [], [], [], []
+        color, label = RISK_COLORS.get(risk, "k"), RISK_LABELS.get(risk, risk)
         for i, scenario in enumerate(scenarios):
             row = table.get((scenario, risk))
             if row is None:
                 continue
-            n = row.episodes - row.failed
+            x, n = i + (j - (len(risks) - 1) / 2) * width, row.episodes - row.failed
             rate = row.collision_rate if n else 0.0
-            xs.append(i + (j - (len(risks) - 1) / 2) * width)
-            rates.append(rate)
             # Clipped at 0: the interval's ends carry rounding error at rates 0 and 1.
-            low.append(max(0.0, rate - row.collision_low) if n else 0.0)
-            high.append(max(0.0, row.collision_high - rate) if n else 0.0)
-            labels.append(f"{int(round(rate * n))}/{n}")
-        ax.bar(xs, rates, width, yerr=[low, high], capsize=3, color=color, alpha=0.8,
-               edgecolor=color, linewidth=1.2, label=RISK_LABELS.get(risk, risk))
-        for x, rate, text, top in zip(xs, rates, labels, high, strict=True):
+            low = max(0.0, rate - row.collision_low) if n else 0.0
+            top = max(0.0, row.collision_high - rate) if n else 0.0
+            text = f"{int(round(rate * n))}/{n}"
+            ax.bar(x, rate, width, yerr=[[low], [top]], capsize=3, color=color, alpha=0.8,
+                   edgecolor=color, linewidth=1.2, label=label)
+            label = None  # one legend entry per risk
             if rate == 0.0:
                 ax.plot([x - 0.45 * width, x + 0.45 * width], [0.0, 0.0], color=color, lw=4,
                         solid_capstyle="butt", clip_on=False, zorder=5, gid="zero-bar",
