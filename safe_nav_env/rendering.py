@@ -65,7 +65,7 @@ class Renderer:
         self.ax = self.fig.add_axes((0.09, 0.07, 0.88, 0.88))
         self._layout: tuple | None = None  # (arena, goal, radii, goal tolerance) drawn
         self._moving: list = []
-        self._plt = self._window = self._image = None  # the pyplot window of human mode
+        self._window = self._image = None  # the pyplot window of human mode
 
     # -------------------------------------------------------------- set-up
 
@@ -236,10 +236,9 @@ class Renderer:
         return frame
 
     def _show(self, frame: np.ndarray) -> None:
-        if self._plt is None:
-            import matplotlib.pyplot as plt
+        import matplotlib.pyplot as plt  # human mode only
 
-            self._plt = plt
+        if self._window is None:
             self._window = plt.figure(figsize=self.fig.get_size_inches(), dpi=self.fig.dpi)
             axes = self._window.add_axes((0, 0, 1, 1))
             axes.set_axis_off()
@@ -248,14 +247,15 @@ class Renderer:
         else:
             self._image.set_data(frame)
         self._window.canvas.draw_idle()
-        self._plt.pause(1.0 / self.fps)
+        plt.pause(1.0 / self.fps)
 
     def close(self) -> None:
         """Release the window, if any, and forget the cached background."""
-        if self._plt is not None and self._window is not None:
-            self._plt.close(self._window)
-        self._plt = self._window = self._image = None
-        self._layout = None
+        if self._window is not None:
+            import matplotlib.pyplot as plt
+
+            plt.close(self._window)
+        self._window = self._image = self._layout = None
 
 
 class _Caption:
