@@ -12,12 +12,10 @@ class RenderHookMixin:
 
     def _install_render_hook(self) -> None:
         hooks = self._base.render_hooks
-        if self._hook is not None and self._hook in hooks:
-            hooks.remove(self._hook)
-        self._hook = None
+        if self._draw_halfspaces in hooks:  # bound methods of this wrapper compare equal
+            hooks.remove(self._draw_halfspaces)
         if self.draw_halfspaces and self.risk != "none":
-            self._hook = self._draw_halfspaces
-            hooks.append(self._hook)
+            hooks.append(self._draw_halfspaces)
 
     def _draw_halfspaces(self, ax: Any) -> None:
         """Draw the first-step halfspace boundary of every obstacle (one line collection)."""
