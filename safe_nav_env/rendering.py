@@ -142,7 +142,7 @@ class Renderer:
         The dots are counted per pixel with ``bincount`` over the box that the
         obstacle's dots touching the axes cover; pixels outside the axes are dropped.
         """
-        (m00, m01, m02), (m10, m11, m12) = self._affine[0], self._affine[1]
+        linear, shift = self._affine[:2, :2].T, self._affine[:2, 2]  # data -> display pixels
         c0, c1, r0, r1 = self._clip
         height = self._height
         keep = 1.0 - SAMPLE_ALPHA
@@ -150,8 +150,7 @@ class Renderer:
         for i in range(predictions.shape[0]):
             points = predictions[i].reshape(-1, 2)
             points = points[np.isfinite(points).all(axis=1)]
-            x = points[:, 0] * m00 + points[:, 1] * m01 + m02  # display pixels
-            y = points[:, 0] * m10 + points[:, 1] * m11 + m12
+            x, y = (points @ linear + shift).T
             cols = np.floor(x - 0.5).astype(np.int64)  # dot's left column
             rows = np.floor(height - y - 0.5).astype(np.int64)  # dot's top row
             # The dots with a pixel inside the axes; their box is then small.
