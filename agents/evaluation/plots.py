@@ -88,15 +88,13 @@ def _obstacles_and_goal(ax, traj: Any, instants: Any, colors: Any, label: Any) -
 
 
 # ---------------------------------------------------------------------------- figures
-def plot_trajectories(
-    trajectories: Mapping[str, Any], path: str | Path, *, title: str = "", every: int = 5,
-    bounds: tuple[tuple[float, float], tuple[float, float]] | None = None,
-) -> Path:
+def plot_trajectories(trajectories: Mapping[str, Any], path: str | Path, *, title: str = "",
+                      every: int = 5) -> Path:
     """Ego paths of one seed under each risk setting, obstacles in black (Fig. 4, left).
 
-    ``bounds`` ``((x_min, y_min), (x_max, y_max))`` in m; default: the paths, the
-    discs and the goal with a 0.5 m margin. The discs (ego in the risk's colour,
-    obstacles in black) are drawn to scale at every ``every``-th sample and at the end.
+    The view is the box around the paths, the discs and the goal, 0.5 m wider. The
+    discs (ego in the risk's colour, obstacles in black) are drawn to scale at every
+    ``every``-th sample and at the end.
     Each first contact with an obstacle
     (:func:`agents.evaluation.contacts.find_collisions`) is marked with an ``x`` at the
     ego's centre, both discs drawn at that instant with a thick outline,
@@ -105,8 +103,7 @@ def plot_trajectories(
     if every < 1:
         raise InvalidParameterError(f"every must be >= 1, got {every!r}")
     plt = pyplot()
-    if bounds is None:
-        bounds = _fit_bounds(trajectories.values())
+    bounds = _fit_bounds(trajectories.values())
     (x0, y0), (x1, y1) = bounds
     width = 7.0
     fig, ax = plt.subplots(figsize=(width, max(3.0, min(8.0, width * (y1 - y0) / (x1 - x0)))))
