@@ -149,15 +149,17 @@ class Renderer:
         rgb = buffer.reshape(-1, 4)  # a view: the buffer is contiguous
         for i in range(predictions.shape[0]):
             points = predictions[i].reshape(-1, 2)
-            points = points[np.isfinite(points).all(axis=1)]
+            if not np.isfinite(points).all():
+                points = points[np.isfinite(points).all(axis=1)]
             x, y = (points @ linear + shift).T
             cols = np.floor(x - 0.5).astype(np.int64)  # dot's left column
             rows = np.floor(height - y - 0.5).astype(np.int64)  # dot's top row
             # The dots with a pixel inside the axes; their box is then small.
             touch = (cols >= c0 - 1) & (cols < c1) & (rows >= r0 - 1) & (rows < r1)
-            cols, rows = cols[touch], rows[touch]
-            if cols.size == 0:
-                continue
+            if not touch.all():
+                cols, rows = cols[touch], rows[touch]
+                if cols.size == 0:
+                    continue
             left, top = int(cols.min()), int(rows.min())
             width = int(cols.max()) + 2 - left
             base = (rows - top) * width + (cols - left)
