@@ -362,7 +362,7 @@ def save_gif(frames: Sequence[np.ndarray], path: str | Path, fps: int = 5, *, la
     if len(shape) != 3 or shape[2] != 3 or any(a.shape != shape for a in arrays):
         raise InvalidArrayError(f"frames must all have shape (H, W, 3), got {shape} and "
                                 f"{sorted({a.shape for a in arrays})}")
-    height, width = shape[:2]
+    width = shape[1]
     size = max(10, width // 45)
     try:
         font = ImageFont.load_default(size=size)
@@ -385,12 +385,8 @@ def save_gif(frames: Sequence[np.ndarray], path: str | Path, fps: int = 5, *, la
         draw.text((x + swatch + 6, y), text, fill=(0, 0, 0), font=font)
         x += entry
     banner = banner.crop((0, 0, width, y + line + 4))
-    images = []
-    for array in arrays:
-        image = Image.new("RGB", (width, height + banner.height), "white")
-        image.paste(Image.fromarray(array.astype(np.uint8)), (0, 0))
-        image.paste(banner, (0, height))
-        images.append(image)
+    strip = np.asarray(banner.convert("RGB"), dtype=np.uint8)
+    images = [Image.fromarray(np.concatenate([a.astype(np.uint8), strip])) for a in arrays]
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     images[0].save(path, save_all=True, append_images=images[1:], duration=int(1000 / fps),

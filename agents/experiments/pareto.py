@@ -78,14 +78,10 @@ def dominated(points: Sequence[ParetoPoint]) -> list[bool]:
 
     Points without a time to goal (NaN) are never dominated and dominate nothing.
     """
-    flags = []
-    for p in points:
-        flags.append(not math.isnan(p.time_to_goal) and any(
-            not math.isnan(q.time_to_goal) and q.rate <= p.rate
-            and q.time_to_goal <= p.time_to_goal
-            and (q.rate < p.rate or q.time_to_goal < p.time_to_goal)
-            for q in points if q is not p))
-    return flags
+    return [not math.isnan(p.time_to_goal) and any(
+        not math.isnan(q.time_to_goal) and q.rate <= p.rate and q.time_to_goal <= p.time_to_goal
+        and (q.rate < p.rate or q.time_to_goal < p.time_to_goal) for q in points if q is not p)
+        for p in points]
 
 
 def plot_pareto(panels: Mapping[str, Sequence[ParetoPoint]], path: str | Path, *,
