@@ -29,12 +29,10 @@ def clip_polygon(polygon: np.ndarray, normal: np.ndarray, offset: float) -> np.n
     numpy.ndarray
         Vertices of the intersection, shape (k', 2); empty (0, 2) if it is empty.
     """
-    if len(polygon) == 0:
-        return polygon
     values = polygon @ normal - offset
     result = []
-    for k, (current, v_current) in enumerate(zip(polygon, values, strict=True)):
-        following, v_following = polygon[(k + 1) % len(polygon)], values[(k + 1) % len(polygon)]
+    for current, following, v_current, v_following in zip(  # each edge, the last closing
+            polygon, np.roll(polygon, -1, axis=0), values, np.roll(values, -1), strict=True):
         if v_current <= 0:
             result.append(current)
         if (v_current < 0 < v_following) or (v_following < 0 < v_current):
@@ -108,9 +106,8 @@ def draw_halfspaces(
     if not len(segments):
         return None
     if reuse is None:
-        reuse = LineCollection(segments, colors=color, alpha=alpha, linewidths=1.2, label=label)
-    else:
-        reuse.set_segments(segments)
+        reuse = LineCollection([], colors=color, alpha=alpha, linewidths=1.2, label=label)
+    reuse.set_segments(segments)
     ax.add_collection(reuse, autolim=False)
     return reuse
 

@@ -289,7 +289,7 @@ class _Caption:
     def draw(self, buffer: np.ndarray, caption: str) -> None:
         """Write ``caption`` into the strip of ``buffer`` (H, W, 4), over white."""
         strip = buffer[self._rows, :, :3]
-        for char in set(caption) - self._glyphs.keys() - {" "}:  # drawn once, then kept
+        for char in set(caption) - self._glyphs.keys():  # drawn once, then kept
             strip[...] = 255
             self._text.set_text(char)
             self._renderer.ax.draw_artist(self._text)
@@ -297,8 +297,6 @@ class _Caption:
         strip[...] = 255
         width = strip.shape[1]
         for i, char in enumerate(caption):
-            if char == " ":
-                continue
             cell = self._glyphs[char]
             x = self._left + int(round(i * self.advance))
             if x + cell.shape[1] > width:
