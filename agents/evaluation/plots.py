@@ -288,21 +288,21 @@ def plot_safe_polytopes(trajectory: Trajectory | Any, path: str | Path, *, every
     The polytope at step t is the intersection of the first-step halfspaces of all
     obstacles computed at t, clipped to the arena.
     """
+    from matplotlib.colors import to_rgba
+
     from filters.plotting import safe_polygon
 
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(8.5, 5))
     arena_axes(ax, bounds)
-    drawn = 0
+    label = f"safe polytope of the next position, every {every} steps"
     for t in range(0, len(trajectory.halfspaces), every):
         normals, offsets = trajectory.halfspaces[t]
         polygon = safe_polygon(normals[:, 0], offsets[:, 0], bounds)
         if len(polygon) >= 3:
-            ax.fill(polygon[:, 0], polygon[:, 1], color="tab:green", alpha=0.08)
-            ax.plot(*np.vstack([polygon, polygon[:1]]).T, color="tab:green", lw=0.6, alpha=0.6,
-                    label=(f"safe polytope of the next position, every {every} steps"
-                           if drawn == 0 else None))
-            drawn += 1
+            ax.fill(*polygon.T, facecolor=to_rgba("tab:green", 0.08),
+                    edgecolor=to_rgba("tab:green", 0.6), lw=0.6, label=label)
+            label = None  # one legend entry
     ego = np.asarray(trajectory.ego)
     instants = range(0, len(ego), every)
     _path(ax, ego, trajectory.ego_radius, instants, "tab:blue", "ego path (disc to scale)",
