@@ -384,8 +384,7 @@ def save_gif(frames: Sequence[np.ndarray], path: str | Path, fps: int = 5, *, la
         draw.ellipse((x, y + 2, x + swatch, y + 2 + swatch), fill=tuple(color))
         draw.text((x + swatch + 6, y), text, fill=(0, 0, 0), font=font)
         x += entry
-    banner = banner.crop((0, 0, width, y + line + 4))
-    strip = np.asarray(banner.convert("RGB"), dtype=np.uint8)
+    strip = np.asarray(banner.crop((0, 0, width, y + line + 4)))  # (rows, W, 3) uint8
     images = [Image.fromarray(np.concatenate([a.astype(np.uint8), strip])) for a in arrays]
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
