@@ -209,10 +209,9 @@ def plot_window_boxplots(distances: Mapping[str, Mapping[str, np.ndarray]],
     windows
         ``windows[scenario] = (first, last)``: sample indices, both included.
     """
-    scenarios = list(distances)
-    fig, axes = pyplot().subplots(1, len(scenarios), figsize=(3.6 * len(scenarios), 3.6),
+    fig, axes = pyplot().subplots(1, len(distances), figsize=(3.6 * len(distances), 3.6),
                                   squeeze=False)
-    for ax, scenario in zip(axes[0], scenarios, strict=True):
+    for ax, scenario in zip(axes[0], distances, strict=True):
         first, last = windows[scenario]
         risks = sorted(distances[scenario], key=lambda r: RISK_ORDER.get(r, 9))
         width = 0.8 / max(1, len(risks))
@@ -400,8 +399,7 @@ def plot_sweep(points: Sequence[dict], path: str | Path) -> Path:
     ``mean_intervention`` (and optionally ``goal_rate``).
     """
     fig, ax = pyplot().subplots(figsize=(6.5, 4.5))
-    deltas = sorted({p["delta"] for p in points})
-    for delta in deltas:
+    for delta in sorted({p["delta"] for p in points}):
         pts = sorted((p for p in points if p["delta"] == delta), key=lambda p: p["epsilon"])
         ax.plot([p["mean_intervention"] for p in pts], [p["collision_rate"] for p in pts],
                 "-o", label=f"δ = {delta:g} m")
