@@ -29,12 +29,10 @@ def clip_polygon(polygon: np.ndarray, normal: np.ndarray, offset: float) -> np.n
     numpy.ndarray
         Vertices of the intersection, shape (k', 2); empty (0, 2) if it is empty.
     """
-    if len(polygon) == 0:
-        return polygon
     values = polygon @ normal - offset
     result = []
-    for k, (current, v_current) in enumerate(zip(polygon, values, strict=True)):
-        following, v_following = polygon[(k + 1) % len(polygon)], values[(k + 1) % len(polygon)]
+    for current, following, v_current, v_following in zip(  # each edge, the last closing
+            polygon, np.roll(polygon, -1, axis=0), values, np.roll(values, -1), strict=True):
         if v_current <= 0:
             result.append(current)
         if (v_current < 0 < v_following) or (v_following < 0 < v_current):
@@ -86,14 +84,16 @@ def halfspace_segments(
 
 def draw_halfspaces(
     ax: Any, normals: np.ndarray, offsets: np.ndarray, *, color: str = "tab:green",
-    alpha: float = 0.6, reuse: Any = None,
+    alpha: float = 0.6, reuse: Any = None, label: str | None = None,
 ) -> Any:
     """Draw the boundaries ``normals[i] @ y = offsets[i]`` as one line collection.
 
-    The vectorised :func:`draw_halfspace`, for the render hook: one artist for all
-    obstacles. Pass the collection returned by the previous call as ``reuse`` to update
-    it instead of building a new one (building it is most of the hook's cost per
-    frame). The view's limits are kept.
+    The safe side of each is where ``normals[i] @ y <= offsets[i]``, away from the
+    obstacle; one boundary (``normals`` shape (2,), a scalar offset) is the case k = 1.
+    The segments cross the current view, whose limits are kept (the collection does not
+    update the data limits). Pass the collection returned by the previous call as
+    ``reuse`` to update it instead of building a new one (building it is most of the
+    render hook's cost per frame).
 
     Returns
     -------
@@ -102,38 +102,15 @@ def draw_halfspaces(
     """
     from matplotlib.collections import LineCollection
 
-    xlim, ylim = ax.get_xlim(), ax.get_ylim()
-    segments = halfspace_segments(normals, offsets, xlim, ylim)
+    segments = halfspace_segments(normals, offsets, ax.get_xlim(), ax.get_ylim())
     if not len(segments):
         return None
     if reuse is None:
-        reuse = LineCollection(segments, colors=color, alpha=alpha, linewidths=1.2)
-    else:
-        reuse.set_segments(segments)
+        reuse = LineCollection([], colors=color, alpha=alpha, linewidths=1.2, label=label)
+    reuse.set_segments(segments)
     ax.add_collection(reuse, autolim=False)
     return reuse
 
 
-def draw_halfspace(
-    ax: Any, normal: np.ndarray, offset: float, *, color: str = "tab:green",
-    alpha: float = 0.6, label: str | None = None,
-) -> None:
-    """Draw the boundary ``normal @ y = offset`` across the current axes limits.
-
-    The safe side is where ``normal @ y <= offset``, away from the obstacle.
-    """
-    (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
-    segments = halfspace_segments(normal, offset, (x0, x1), (y0, y1))
-    if not len(segments):  # a zero normal: no boundary
-        return
-    ends = segments[0]
-    from matplotlib.lines import Line2D
-
-    # add_artist, not plot: a third of the cost per frame in the blitted renderer (no
-    # data-limit update: the line spans the view, it should not widen it); the limits
-    # are pinned only if autoscaling could move them (fixed limits stay as they are).
-    ax.add_artist(Line2D(ends[:, 0], ends[:, 1], color=color, alpha=alpha, lw=1.2, label=label))
-    if ax.get_autoscalex_on():
-        ax.set_xlim(x0, x1)
-    if ax.get_autoscaley_on():
-        ax.set_ylim(y0, y1)
+draw_halfspace = draw_halfspaces
+"""One boundary ``normal @ y = offset`` (the same function: ``k = 1``)."""

@@ -12,21 +12,17 @@ class RenderHookMixin:
 
     def _install_render_hook(self) -> None:
         hooks = self._base.render_hooks
-        if self._hook is not None and self._hook in hooks:
-            hooks.remove(self._hook)
-        self._hook = None
+        if self._draw_halfspaces in hooks:  # bound methods of this wrapper compare equal
+            hooks.remove(self._draw_halfspaces)
         if self.draw_halfspaces and self.risk != "none":
-            self._hook = self._draw_halfspaces
-            hooks.append(self._hook)
+            hooks.append(self._draw_halfspaces)
 
     def _draw_halfspaces(self, ax: Any) -> None:
         """Draw the first-step halfspace boundary of every obstacle (one line collection)."""
         halfspaces = self._last_halfspaces
-        if halfspaces is None or halfspaces.normals.shape[0] == 0:
-            return
-        from filters.plotting import draw_halfspaces
+        if halfspaces is not None:  # (no collection when every row is off: keep the last)
+            from filters.plotting import draw_halfspaces
 
-        drawn = draw_halfspaces(ax, halfspaces.normals[:, 0], halfspaces.offsets[:, 0],
-                                reuse=self._halfspace_lines)
-        if drawn is not None:
-            self._halfspace_lines = drawn
+            self._halfspace_lines = draw_halfspaces(
+                ax, halfspaces.normals[:, 0], halfspaces.offsets[:, 0],
+                reuse=self._halfspace_lines) or self._halfspace_lines

@@ -23,7 +23,7 @@ redraw, because nothing static is drawn twice:
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import matplotlib
 import numpy as np
@@ -55,73 +55,61 @@ class Renderer:
         Also show the frames in a window (pyplot) and return ``None`` from :meth:`draw`.
     fps
         Frames per second of the window in human mode.
-    size
-        Figure size in inches; frames are ``size * dpi`` pixels (600 x 600 by default).
-    dpi
-        Resolution in dots per inch.
     """
 
-    def __init__(
-        self, *, human: bool = False, fps: float = 5.0, size: float = 6.0, dpi: int = 100
-    ) -> None:
+    def __init__(self, *, human: bool = False, fps: float = 5.0) -> None:
         self.human = human
         self.fps = fps
-        self.fig = Figure(figsize=(size, size), dpi=dpi)
+        self.fig = Figure(figsize=(6.0, 6.0), dpi=100)  # 600 x 600 px frames
         self.canvas = FigureCanvasAgg(self.fig)
         self.ax = self.fig.add_axes((0.09, 0.07, 0.88, 0.88))
-        self._layout: tuple | None = None
-        self._background: Any = None
-        self._arena: tuple | None = None
-        self._plt = self._window = self._image = None  # the pyplot window of human mode
+        self._layout: tuple | None = None  # (arena, goal, radii, goal tolerance) drawn
+        self._moving: list = []
+        self._window = self._image = None  # the pyplot window of human mode
 
     # -------------------------------------------------------------- set-up
 
-    def _setup_background(self, env: SafeNavEnv) -> None:
-        """Draw and cache the static scene of an arena: axes, ticks, labels, arena box."""
-        ax = self.ax
-        ax.clear()
-        low, high = env.position_bounds
-        margin = 0.5
-        self._limits = ((low[0] - margin, high[0] + margin), (low[1] - margin, high[1] + margin))
-        ax.set(xlim=self._limits[0], ylim=self._limits[1], aspect="equal", xlabel="x [m]",
-               ylabel="y [m]")
-        ax.add_patch(Rectangle(tuple(low), *(high - low), fill=False, edgecolor="0.6", lw=1.5))
-        self.canvas.draw()
-        self._background = self.canvas.copy_from_bbox(self.fig.bbox)
-        self._transform = ax.transData.frozen()
-        self._affine = self._transform.get_matrix()  # data -> display pixels (affine here)
-        self._height = int(round(self.fig.bbox.height))
-        self._width = int(round(self.fig.bbox.width))
-        x0, y0, x1, y1 = ax.bbox.extents  # display pixels, origin bottom left
-        # Buffer rows/columns inside the axes (samples are clipped to them).
-        self._clip = (int(np.ceil(x0)), int(np.floor(x1)),
-                      int(np.ceil(self._height - y1)), int(np.floor(self._height - y0)))
-        self._caption = _Caption(self, top_row=int(np.floor(self._height - y1)) - 1,
-                                 left=int(round(x0)))
-        self._arena = (tuple(low), tuple(high))
-        self._layout = None
+    def _setup(self, env: SafeNavEnv, layout: tuple) -> None:
+        """Cache the static scene of ``layout`` and create the moving artists.
 
-    def _setup_artists(self, env: SafeNavEnv, layout: tuple) -> None:
-        """Cache the layout's background (arena + goal) and create the moving artists.
-
+        A new arena is drawn in full (axes, ticks, labels, arena box) and cached as
+        ``_background``; the goal is drawn on it and cached as the layout's background.
         The obstacles are one ``EllipseCollection`` and their trails one
         ``LineCollection``: a few artists to draw per frame, whatever the obstacle count.
         """
         ax = self.ax
-        for artist in getattr(self, "_moving", []):
+        for artist in self._moving:
             artist.remove()
+        if self._layout is None or self._layout[0] != layout[0]:  # a new arena: full draw
+            ax.clear()
+            low, high = env.position_bounds
+            self._limits = ((low[0] - 0.5, high[0] + 0.5), (low[1] - 0.5, high[1] + 0.5))
+            ax.set(xlim=self._limits[0], ylim=self._limits[1], aspect="equal", xlabel="x [m]",
+                   ylabel="y [m]")
+            ax.add_patch(Rectangle(tuple(low), *(high - low), fill=False, edgecolor="0.6",
+                                   lw=1.5))
+            self.canvas.draw()
+            self._background = self.canvas.copy_from_bbox(self.fig.bbox)
+            self._transform = ax.transData.frozen()
+            self._affine = self._transform.get_matrix()  # data -> display pixels (affine)
+            self._height = int(round(self.fig.bbox.height))
+            self._width = int(round(self.fig.bbox.width))
+            x0, y0, x1, y1 = ax.bbox.extents  # display pixels, origin bottom left
+            # Buffer rows/columns inside the axes (samples are clipped to them).
+            self._clip = (int(np.ceil(x0)), int(np.floor(x1)),
+                          int(np.ceil(self._height - y1)), int(np.floor(self._height - y0)))
+            self._caption = _Caption(self, top_row=int(np.floor(self._height - y1)) - 1,
+                                     left=int(round(x0)))
         moving = dict(animated=True)  # never part of the arena's cached background
-        goal = env.goal
-        goal_ring = ax.add_patch(Circle(tuple(goal), env.goal_tolerance, fill=False, ls="--",
+        goal_ring = ax.add_patch(Circle(tuple(env.goal), env.goal_tolerance, fill=False, ls="--",
                                         edgecolor="tab:green", **moving))
-        goal_star = ax.plot(*goal, marker="*", ms=14, color="tab:green", ls="none", zorder=5,
-                            **moving)[0]
+        goal_star = ax.plot(*env.goal, marker="*", ms=14, color="tab:green", ls="none",
+                            zorder=5, **moving)[0]
         self.canvas.restore_region(self._background)
-        ax.draw_artist(goal_ring)
-        ax.draw_artist(goal_star)
+        for artist in (goal_ring, goal_star):  # drawn once, into the layout's background
+            ax.draw_artist(artist)
+            artist.remove()
         self._layout_background = self.canvas.copy_from_bbox(self.fig.bbox)
-        goal_ring.remove()
-        goal_star.remove()
 
         n = env.n_obstacles
         colors = [OBSTACLE_COLORS[i % len(OBSTACLE_COLORS)] for i in range(n)]
@@ -151,10 +139,10 @@ class Renderer:
 
         Obstacle by obstacle, in order (as a scatter plot would draw them): a pixel
         under ``k`` dots of colour ``c`` goes from ``d`` to ``c + (d - c)(1 - a)^k``.
-        The dots are counted per pixel with ``bincount`` over the box the obstacle's
-        samples cover (clipped to the axes).
+        The dots are counted per pixel with ``bincount`` over the box that the
+        obstacle's dots touching the axes cover; pixels outside the axes are dropped.
         """
-        (m00, m01, m02), (m10, m11, m12) = self._affine[0], self._affine[1]
+        linear, shift = self._affine[:2, :2].T, self._affine[:2, 2]  # data -> display pixels
         c0, c1, r0, r1 = self._clip
         height = self._height
         keep = 1.0 - SAMPLE_ALPHA
@@ -163,37 +151,27 @@ class Renderer:
             points = predictions[i].reshape(-1, 2)
             if not np.isfinite(points).all():
                 points = points[np.isfinite(points).all(axis=1)]
-            if points.shape[0] == 0:
-                continue
-            x = points[:, 0] * m00 + points[:, 1] * m01 + m02  # display pixels
-            y = points[:, 0] * m10 + points[:, 1] * m11 + m12
+            x, y = (points @ linear + shift).T
             cols = np.floor(x - 0.5).astype(np.int64)  # dot's left column
             rows = np.floor(height - y - 0.5).astype(np.int64)  # dot's top row
-            cmin, cmax, rmin, rmax = int(cols.min()), int(cols.max()), int(rows.min()), \
-                int(rows.max())
-            left, right = max(cmin, c0), min(cmax + 2, c1)
-            top, bottom = max(rmin, r0), min(rmax + 2, r1)
-            if left >= right or top >= bottom:
-                continue
-            width, box_height = right - left, bottom - top
-            cols -= left
-            rows -= top
-            base = rows * width + cols
-            if left == cmin and right == cmax + 2 and top == rmin and bottom == rmax + 2:
-                index = np.concatenate((base, base + 1, base + width, base + width + 1))
-            else:  # some dots leave the axes: keep the pixels inside
-                parts = []
-                for dr, dc in ((0, 0), (0, 1), (1, 0), (1, 1)):
-                    r, c = rows + dr, cols + dc
-                    inside = (r >= 0) & (r < box_height) & (c >= 0) & (c < width)
-                    parts.append((base + dr * width + dc)[inside])
-                index = np.concatenate(parts)
-            counts = np.bincount(index, minlength=width * box_height)
+            # The dots with a pixel inside the axes; their box is then small.
+            touch = (cols >= c0 - 1) & (cols < c1) & (rows >= r0 - 1) & (rows < r1)
+            if not touch.all():
+                cols, rows = cols[touch], rows[touch]
+                if cols.size == 0:
+                    continue
+            left, top = int(cols.min()), int(rows.min())
+            width = int(cols.max()) + 2 - left
+            base = (rows - top) * width + (cols - left)
+            index = np.concatenate((base, base + 1, base + width, base + width + 1))
+            counts = np.bincount(index)
             hit = np.flatnonzero(counts)
-            if hit.size == 0:
-                continue
             row_of, col_of = np.divmod(hit, width)
-            pixels = (row_of + top) * self._width + (col_of + left)
+            row_of += top
+            col_of += left
+            inside = (row_of >= r0) & (row_of < r1) & (col_of >= c0) & (col_of < c1)
+            hit, row_of, col_of = hit[inside], row_of[inside], col_of[inside]
+            pixels = row_of * self._width + col_of
             colour = self._sample_rgb[i]
             old = rgb[pixels, :3].astype(np.float64)
             new = colour + (old - colour) * (keep ** counts[hit])[:, None]
@@ -216,24 +194,19 @@ class Renderer:
         numpy.ndarray or None
             The frame, uint8 of shape ``(H, W, 3)``; ``None`` in human mode.
         """
-        low, high = env.position_bounds
-        if self._background is None or self._arena != (tuple(low), tuple(high)):
-            self._setup_background(env)
-        layout = (tuple(env.goal), env.ego_radius, tuple(env.obstacle_radii),
-                  env.goal_tolerance)
+        layout = (tuple(map(tuple, env.position_bounds)), tuple(env.goal), env.ego_radius,
+                  tuple(env.obstacle_radii), env.goal_tolerance)
         if layout != self._layout:
-            self._setup_artists(env, layout)
+            self._setup(env, layout)
         ax, canvas = self.ax, self.canvas
 
         self._ego.set_center(tuple(env.ego_state[:2]))
         if trail:
             ego_path = np.array([t[0] for t in trail])
             self._ego_trail.set_data(ego_path[:, 0], ego_path[:, 1])
-            if env.n_obstacles:
-                paths = np.array([t[1] for t in trail])  # (steps, n, 2)
-                self._obstacle_trails.set_segments(list(paths.transpose(1, 0, 2)))
-        if env.n_obstacles:
-            self._obstacles.set_offsets(np.asarray(env.obstacle_positions, dtype=float))
+            paths = np.array([t[1] for t in trail]).reshape(len(trail), -1, 2)  # (steps, n, 2)
+            self._obstacle_trails.set_segments(list(paths.transpose(1, 0, 2)))
+        self._obstacles.set_offsets(np.asarray(env.obstacle_positions, float).reshape(-1, 2))
 
         canvas.restore_region(self._layout_background)
         buffer = np.asarray(canvas.buffer_rgba())  # a view of the Agg buffer
@@ -264,10 +237,9 @@ class Renderer:
         return frame
 
     def _show(self, frame: np.ndarray) -> None:
-        if self._plt is None:
-            import matplotlib.pyplot as plt
+        import matplotlib.pyplot as plt  # human mode only
 
-            self._plt = plt
+        if self._window is None:
             self._window = plt.figure(figsize=self.fig.get_size_inches(), dpi=self.fig.dpi)
             axes = self._window.add_axes((0, 0, 1, 1))
             axes.set_axis_off()
@@ -276,14 +248,15 @@ class Renderer:
         else:
             self._image.set_data(frame)
         self._window.canvas.draw_idle()
-        self._plt.pause(1.0 / self.fps)
+        plt.pause(1.0 / self.fps)
 
     def close(self) -> None:
         """Release the window, if any, and forget the cached background."""
-        if self._plt is not None and self._window is not None:
-            self._plt.close(self._window)
-        self._plt = self._window = self._image = None
-        self._layout = self._background = self._arena = None
+        if self._window is not None:
+            import matplotlib.pyplot as plt
+
+            plt.close(self._window)
+        self._window = self._image = self._layout = None
 
 
 class _Caption:
@@ -302,41 +275,29 @@ class _Caption:
         self._renderer = renderer
         self._rows = slice(max(0, top_row - 22), max(1, top_row))  # 22 px tall strip
         self._left = left
-        fig = renderer.fig
-        self._prop = FontProperties(**CAPTION_FONT)
-        agg = renderer.canvas.get_renderer()
-        width = agg.get_text_width_height_descent("0" * 20, self._prop, ismath=False)[0]
+        prop = FontProperties(**CAPTION_FONT)
+        width = renderer.canvas.get_renderer().get_text_width_height_descent(
+            "0" * 20, prop, ismath=False)[0]
         self.advance = width / 20.0
         self._cell = int(np.ceil(self.advance)) + 2
-        height = renderer.fig.bbox.height
+        fig = renderer.fig
+        height = fig.bbox.height
         self._text = fig.text(left / fig.bbox.width, (height - self._rows.stop + 6) / height,
-                              "", fontproperties=self._prop, animated=True)
+                              "", fontproperties=prop, animated=True)
         self._glyphs: dict[str, np.ndarray] = {}
-        self._last = ""
-
-    def _glyph(self, buffer: np.ndarray, char: str) -> np.ndarray:
-        cell = self._glyphs.get(char)
-        if cell is None:
-            renderer = self._renderer
-            columns = slice(self._left, self._left + self._cell)
-            saved = buffer[self._rows, columns, :3].copy()
-            buffer[self._rows, columns, :3] = 255
-            self._text.set_text(char)
-            renderer.ax.draw_artist(self._text)
-            cell = buffer[self._rows, columns, :3].copy()
-            buffer[self._rows, columns, :3] = saved
-            self._glyphs[char] = cell
-        return cell
 
     def draw(self, buffer: np.ndarray, caption: str) -> None:
         """Write ``caption`` into the strip of ``buffer`` (H, W, 4), over white."""
         strip = buffer[self._rows, :, :3]
+        for char in set(caption) - self._glyphs.keys():  # drawn once, then kept
+            strip[...] = 255
+            self._text.set_text(char)
+            self._renderer.ax.draw_artist(self._text)
+            self._glyphs[char] = strip[:, self._left : self._left + self._cell].copy()
         strip[...] = 255
         width = strip.shape[1]
         for i, char in enumerate(caption):
-            if char == " ":
-                continue
-            cell = self._glyph(buffer, char)
+            cell = self._glyphs[char]
             x = self._left + int(round(i * self.advance))
             if x + cell.shape[1] > width:
                 break

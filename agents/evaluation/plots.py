@@ -63,28 +63,39 @@ def save_figure(fig, path: str | Path) -> Path:
     return path
 
 
-def _arena(ax, bounds=((-5.0, -5.0), (5.0, 5.0))) -> None:
+def arena_axes(ax, bounds=((-5.0, -5.0), (5.0, 5.0))) -> None:
+    """Equal-aspect axes over ``bounds`` ``((x_min, y_min), (x_max, y_max))`` in m, a grid."""
     (x0, y0), (x1, y1) = bounds
     ax.set(xlim=(x0, x1), ylim=(y0, y1), aspect="equal", xlabel="x (m)", ylabel="y (m)")
     ax.grid(alpha=0.3)
 
 
-def _discs(ax, path: np.ndarray, radius: float, instants: Any, **style: Any) -> None:
-    """Discs of ``radius`` (m) at the ``path`` positions of the given ``instants``, to scale."""
+def _path(ax, path: Any, radius: float, instants: Any, color: Any, label: str | None,
+          **line: Any) -> None:
+    """A path (samples, 2) in m as a line, with discs of ``radius`` (m) at ``instants``."""
+    path = np.asarray(path)
+    ax.plot(path[:, 0], path[:, 1], color=color, label=label, **line)
     for t in instants:
-        ax.add_patch(pyplot().Circle(path[t], radius, **style))
+        ax.add_patch(pyplot().Circle(path[t], radius, facecolor=color, edgecolor=color,
+                                     alpha=0.12, lw=0.6))
+
+
+def _obstacles_and_goal(ax, traj: Any, instants: Any, colors: Any, label: Any) -> None:
+    """Every obstacle's realised path and discs (colour ``colors[i]``, ``label(i)``), the goal."""
+    for i in range(traj.obstacles.shape[1]):
+        _path(ax, traj.obstacles[:, i], traj.obstacle_radii[i], instants, colors[i], label(i),
+              lw=1)
+    ax.plot(*traj.goal, "k*", ms=12, label="goal")
 
 
 # ---------------------------------------------------------------------------- figures
-def plot_trajectories(
-    trajectories: Mapping[str, Any], path: str | Path, *, title: str = "", every: int = 5,
-    bounds: tuple[tuple[float, float], tuple[float, float]] | None = None,
-) -> Path:
+def plot_trajectories(trajectories: Mapping[str, Any], path: str | Path, *, title: str = "",
+                      every: int = 5) -> Path:
     """Ego paths of one seed under each risk setting, obstacles in black (Fig. 4, left).
 
-    ``bounds`` ``((x_min, y_min), (x_max, y_max))`` in m; default: the paths, the
-    discs and the goal with a 0.5 m margin. The discs (ego in the risk's colour,
-    obstacles in black) are drawn to scale at every ``every``-th sample and at the end.
+    The view is the box around the paths, the discs and the goal, 0.5 m wider. The
+    discs (ego in the risk's colour, obstacles in black) are drawn to scale at every
+    ``every``-th sample and at the end.
     Each first contact with an obstacle
     (:func:`agents.evaluation.contacts.find_collisions`) is marked with an ``x`` at the
     ego's centre, both discs drawn at that instant with a thick outline,
@@ -93,12 +104,11 @@ def plot_trajectories(
     if every < 1:
         raise InvalidParameterError(f"every must be >= 1, got {every!r}")
     plt = pyplot()
-    if bounds is None:
-        bounds = _fit_bounds(trajectories.values())
+    bounds = _fit_bounds(trajectories.values())
     (x0, y0), (x1, y1) = bounds
     width = 7.0
     fig, ax = plt.subplots(figsize=(width, max(3.0, min(8.0, width * (y1 - y0) / (x1 - x0)))))
-    _arena(ax, bounds)
+    arena_axes(ax, bounds)
     drawn_obstacles = False
     collision_label = None
     for risk in sorted(trajectories, key=lambda r: RISK_ORDER.get(r, 9)):
@@ -106,18 +116,11 @@ def plot_trajectories(
         color = RISK_COLORS.get(risk, "k")
         ego = np.asarray(traj.ego)
         instants = sorted(set(range(0, len(ego), every)) | {len(ego) - 1})
-        ax.plot(ego[:, 0], ego[:, 1], "-o", ms=2, color=color,
-                label=f"ego, {RISK_LABELS.get(risk, risk)}")
-        _discs(ax, ego, traj.ego_radius, instants, facecolor=color, alpha=0.12,
-               edgecolor=color, lw=0.6)
+        _path(ax, ego, traj.ego_radius, instants, color, f"ego, {RISK_LABELS.get(risk, risk)}",
+              marker="o", ms=2)
         if not drawn_obstacles and traj.obstacles.size:
-            for i in range(traj.obstacles.shape[1]):
-                path_i = traj.obstacles[:, i]
-                ax.plot(path_i[:, 0], path_i[:, 1], "-", color="k", lw=1,
-                        label="obstacles (realised paths)" if i == 0 else None)
-                _discs(ax, path_i, traj.obstacle_radii[i], instants, facecolor="k",
-                       alpha=0.12, edgecolor="k", lw=0.6)
-            ax.plot(*traj.goal, "k*", ms=12, label="goal")
+            _obstacles_and_goal(ax, traj, instants, ["k"] * traj.obstacles.shape[1],
+                                lambda i: None if i else "obstacles (realised paths)")
             drawn_obstacles = True
         for mark in find_collisions(traj):
             collision_label = ("collision (continuous time)" if mark.exact
@@ -143,16 +146,15 @@ def plot_trajectories(
 
 
 def _fit_bounds(trajectories: Any, margin: float = 0.5) -> tuple[tuple[float, float], ...]:
-    points = []
-    for traj in trajectories:
-        reach = max([float(traj.ego_radius)] + list(np.asarray(traj.obstacle_radii, float)))
-        points += [np.asarray(getattr(traj, key), float).reshape(-1, 2)
-                   for key in ("ego", "obstacles", "goal")]
-    if not points:
+    """The box around every path, disc and goal, ``margin`` (m) wider; ±5 m if none."""
+    trajectories = list(trajectories)
+    if not trajectories:
         return ((-5.0, -5.0), (5.0, 5.0))
-    cloud = np.concatenate(points)
+    cloud = np.concatenate([np.asarray(getattr(traj, key), float).reshape(-1, 2)
+                            for traj in trajectories for key in ("ego", "obstacles", "goal")])
     cloud = cloud[np.all(np.isfinite(cloud), axis=1)]
-    pad = margin + reach
+    pad = margin + max(max([float(t.ego_radius), *np.asarray(t.obstacle_radii, float)])
+                       for t in trajectories)
     low, high = cloud.min(axis=0) - pad, cloud.max(axis=0) + pad
     return (tuple(low.tolist()), tuple(high.tolist()))
 
@@ -162,31 +164,34 @@ def plot_distance_boxplots(records: Sequence[EpisodeRecord], path: str | Path) -
 
     The paper's Fig. 4, right column.
     """
-    plt = pyplot()
     scenarios = sorted({r.scenario for r in records})
-    fig, axes = plt.subplots(1, len(scenarios), figsize=(3.2 * len(scenarios), 3.6),
-                             squeeze=False, sharey=True)
+    fig, axes = pyplot().subplots(1, len(scenarios), figsize=(3.2 * len(scenarios), 3.6),
+                                  squeeze=False, sharey=True)
+    most = 0
     for ax, scenario in zip(axes[0], scenarios, strict=True):
         risks = sorted({r.risk for r in records if r.scenario == scenario},
                        key=lambda r: RISK_ORDER.get(r, 9))
-        data = [[r.min_distance for r in records
-                 if r.scenario == scenario and r.risk == risk and not r.error
-                 and np.isfinite(r.min_distance)] for risk in risks]
-        boxes = ax.boxplot(data, patch_artist=True, whis=(0, 100))
-        for patch, risk in zip(boxes["boxes"], risks, strict=True):
-            patch.set(facecolor=RISK_COLORS.get(risk, "w"), alpha=0.6)
+        for j, risk in enumerate(risks):
+            values = [r.min_distance for r in records if r.scenario == scenario
+                      and r.risk == risk and not r.error and np.isfinite(r.min_distance)]
+            _risk_boxes(ax, [values], risk, positions=[j + 1])
+            most = max(most, len(values))
         ax.set_xticks(range(1, len(risks) + 1), [RISK_LABELS.get(r, r) for r in risks],
                       rotation=30)
-        ax.axhline(0.0, color="k", lw=1, ls="--")
         ax.set_title(short_name(scenario))
-        ax.grid(alpha=0.3, axis="y")
     axes[0][0].set_ylabel("smallest clearance of the episode (m)\n(sampled; < 0: collision)")
-    n = max((len([r for r in records if r.scenario == s and not r.error]) for s in scenarios),
-            default=0)
     fig.suptitle("Smallest distance to collision per episode, by filter risk "
-                 f"(up to {n // max(1, len({r.risk for r in records}))} episodes per box; "
-                 "whiskers: min and max)", fontsize=10)
+                 f"(up to {most} episodes per box; whiskers: min and max)", fontsize=10)
     return save_figure(fig, path)
+
+
+def _risk_boxes(ax, data: Any, risk: str, **where: Any) -> None:
+    """Box plots of ``data`` in the risk's colour (whiskers: min and max), a dashed line at
+    0 m (collision) and a horizontal grid."""
+    boxes = ax.boxplot(data, patch_artist=True, whis=(0, 100), manage_ticks=False, **where)
+    pyplot().setp(boxes["boxes"], facecolor=RISK_COLORS.get(risk, "w"), alpha=0.6)
+    ax.axhline(0.0, color="k", lw=1, ls="--")
+    ax.grid(alpha=0.3, axis="y")
 
 
 def plot_window_boxplots(distances: Mapping[str, Mapping[str, np.ndarray]],
@@ -205,11 +210,9 @@ def plot_window_boxplots(distances: Mapping[str, Mapping[str, np.ndarray]],
     windows
         ``windows[scenario] = (first, last)``: sample indices, both included.
     """
-    plt = pyplot()
-    scenarios = list(distances)
-    fig, axes = plt.subplots(1, len(scenarios), figsize=(3.6 * len(scenarios), 3.6),
-                             squeeze=False)
-    for ax, scenario in zip(axes[0], scenarios, strict=True):
+    fig, axes = pyplot().subplots(1, len(distances), figsize=(3.6 * len(distances), 3.6),
+                                  squeeze=False)
+    for ax, scenario in zip(axes[0], distances, strict=True):
         first, last = windows[scenario]
         risks = sorted(distances[scenario], key=lambda r: RISK_ORDER.get(r, 9))
         width = 0.8 / max(1, len(risks))
@@ -219,15 +222,11 @@ def plot_window_boxplots(distances: Mapping[str, Mapping[str, np.ndarray]],
             data = [values[np.isfinite(values[:, k]), k] if k < values.shape[1] else []
                     for k in steps]
             positions = np.arange(len(steps)) + (j - (len(risks) - 1) / 2) * width
-            boxes = ax.boxplot(data, positions=positions, widths=width * 0.9,
-                               patch_artist=True, whis=(0, 100), manage_ticks=False)
-            plt.setp(boxes["boxes"], facecolor=RISK_COLORS.get(risk, "w"), alpha=0.6)
+            _risk_boxes(ax, data, risk, positions=positions, widths=width * 0.9)
             ax.plot([], [], "s", color=RISK_COLORS.get(risk, "w"),
                     label=RISK_LABELS.get(risk, risk))
         ax.set_xticks(range(len(steps)), [f"{k}\n{k * dt:.1f} s" for k in steps])
-        ax.axhline(0.0, color="k", lw=1, ls="--")
         ax.set(title=f"{short_name(scenario)}: samples {first}-{last}", xlabel="sample (time)")
-        ax.grid(alpha=0.3, axis="y")
     axes[0][0].set_ylabel("sampled distance to collision (m)")
     axes[0][-1].legend(fontsize=7)
     if title:
@@ -247,30 +246,26 @@ def plot_collision_rates(
     is drawn as a thick line at 0 (gid ``"zero-bar"``) so it cannot be mistaken for
     a missing one.
     """
-    plt = pyplot()
     scenarios = sorted({r.scenario for r in rows})
     risks = sorted({r.risk for r in rows}, key=lambda r: RISK_ORDER.get(r, 9))
     width = 0.8 / max(1, len(risks))
-    fig, ax = plt.subplots(figsize=(2.2 * len(scenarios) + 2, 3.8))
+    fig, ax = pyplot().subplots(figsize=(2.2 * len(scenarios) + 2, 3.8))
+    table = {(r.scenario, r.risk): r for r in reversed(rows)}  # the first row of each
     for j, risk in enumerate(risks):
-        color = RISK_COLORS.get(risk, "k")
-        xs, rates, low, high, labels = [], [], [], [], []
+        color, label = RISK_COLORS.get(risk, "k"), RISK_LABELS.get(risk, risk)
         for i, scenario in enumerate(scenarios):
-            match = [r for r in rows if r.scenario == scenario and r.risk == risk]
-            if not match:
+            row = table.get((scenario, risk))
+            if row is None:
                 continue
-            row = match[0]
-            n = row.episodes - row.failed
+            x, n = i + (j - (len(risks) - 1) / 2) * width, row.episodes - row.failed
             rate = row.collision_rate if n else 0.0
-            xs.append(i + (j - (len(risks) - 1) / 2) * width)
-            rates.append(rate)
             # Clipped at 0: the interval's ends carry rounding error at rates 0 and 1.
-            low.append(max(0.0, rate - row.collision_low) if n else 0.0)
-            high.append(max(0.0, row.collision_high - rate) if n else 0.0)
-            labels.append(f"{int(round(rate * n))}/{n}")
-        ax.bar(xs, rates, width, yerr=[low, high], capsize=3, color=color, alpha=0.8,
-               edgecolor=color, linewidth=1.2, label=RISK_LABELS.get(risk, risk))
-        for x, rate, text, top in zip(xs, rates, labels, high, strict=True):
+            low = max(0.0, rate - row.collision_low) if n else 0.0
+            top = max(0.0, row.collision_high - rate) if n else 0.0
+            text = f"{int(round(rate * n))}/{n}"
+            ax.bar(x, rate, width, yerr=[[low], [top]], capsize=3, color=color, alpha=0.8,
+                   edgecolor=color, linewidth=1.2, label=label)
+            label = None  # one legend entry per risk
             if rate == 0.0:
                 ax.plot([x - 0.45 * width, x + 0.45 * width], [0.0, 0.0], color=color, lw=4,
                         solid_capstyle="butt", clip_on=False, zorder=5, gid="zero-bar",
@@ -293,38 +288,31 @@ def plot_safe_polytopes(trajectory: Trajectory | Any, path: str | Path, *, every
     The polytope at step t is the intersection of the first-step halfspaces of all
     obstacles computed at t, clipped to the arena.
     """
+    from matplotlib.colors import to_rgba
+
     from filters.plotting import safe_polygon
 
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(8.5, 5))
-    _arena(ax, bounds)
-    low, high = np.asarray(bounds[0]), np.asarray(bounds[1])
-    drawn = 0
+    arena_axes(ax, bounds)
+    label = f"safe polytope of the next position, every {every} steps"
     for t in range(0, len(trajectory.halfspaces), every):
         normals, offsets = trajectory.halfspaces[t]
-        polygon = safe_polygon(normals[:, 0], offsets[:, 0], (low, high))
+        polygon = safe_polygon(normals[:, 0], offsets[:, 0], bounds)
         if len(polygon) >= 3:
-            ax.fill(polygon[:, 0], polygon[:, 1], color="tab:green", alpha=0.08)
-            ax.plot(*np.vstack([polygon, polygon[:1]]).T, color="tab:green", lw=0.6, alpha=0.6,
-                    label=(f"safe polytope of the next position, every {every} steps"
-                           if drawn == 0 else None))
-            drawn += 1
-    ego = trajectory.ego
-    ax.plot(ego[:, 0], ego[:, 1], "-o", color="tab:blue", ms=3,
-            label="ego path (disc to scale)")
-    _discs(ax, ego, trajectory.ego_radius, range(0, len(ego), every), color="tab:blue",
-           alpha=0.15)
+            ax.fill(*polygon.T, facecolor=to_rgba("tab:green", 0.08),
+                    edgecolor=to_rgba("tab:green", 0.6), lw=0.6, label=label)
+            label = None  # one legend entry
+    ego = np.asarray(trajectory.ego)
+    instants = range(0, len(ego), every)
+    _path(ax, ego, trajectory.ego_radius, instants, "tab:blue", "ego path (disc to scale)",
+          marker="o", ms=3)
     colors = plt.cm.autumn(np.linspace(0, 0.8, max(1, trajectory.obstacles.shape[1])))
-    for i in range(trajectory.obstacles.shape[1]):
-        path_i = trajectory.obstacles[:, i]
-        ax.plot(path_i[:, 0], path_i[:, 1], "-", color=colors[i],
-                label=f"obstacle {i + 1} (realised path)")
-        _discs(ax, path_i, trajectory.obstacle_radii[i], range(0, len(path_i), every),
-               color=colors[i], alpha=0.15)
+    _obstacles_and_goal(ax, trajectory, instants, colors,
+                        lambda i: f"obstacle {i + 1} (realised path)")
     fallback = [t + 1 for t, s in enumerate(trajectory.statuses) if s in FALLBACK_STATUSES]
     if fallback:
         ax.plot(ego[fallback, 0], ego[fallback, 1], "kx", ms=8, label="fallback step")
-    ax.plot(*trajectory.goal, "k*", ms=12, label="goal")
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     ax.set_title(title or "Safe polytopes along a filtered episode")
     return save_figure(fig, path)
@@ -374,55 +362,35 @@ def save_gif(frames: Sequence[np.ndarray], path: str | Path, fps: int = 5, *, la
     if len(shape) != 3 or shape[2] != 3 or any(a.shape != shape for a in arrays):
         raise InvalidArrayError(f"frames must all have shape (H, W, 3), got {shape} and "
                                 f"{sorted({a.shape for a in arrays})}")
-    height, width = shape[:2]
+    width = shape[1]
     size = max(10, width // 45)
     try:
         font = ImageFont.load_default(size=size)
     except TypeError:  # Pillow < 10.1: the fixed bitmap font
         font = ImageFont.load_default()
     line = int(1.4 * max(size if hasattr(font, "size") else 0, font.getbbox("Ag")[3]))
-    banner = _gif_banner(width, line, label, legend, font, Image, ImageDraw)
-    images = []
-    for array in arrays:
-        image = Image.new("RGB", (width, height + banner.height), "white")
-        image.paste(Image.fromarray(array.astype(np.uint8)), (0, 0))
-        image.paste(banner, (0, height))
-        images.append(image)
+    # The white banner: the label, then the legend entries (wrapped); cropped to its rows.
+    swatch = line // 2
+    banner = Image.new("RGB", (width, line * (len(legend) + 2) + 8), "white")
+    draw = ImageDraw.Draw(banner)
+    x, y = 8, 4
+    if label:
+        draw.text((8, y), label, fill=(0, 0, 0), font=font)
+        y += line
+    for text, color in legend:
+        entry = swatch + 6 + int(font.getlength(text)) + 16
+        if x + entry > width and x > 8:  # the next row
+            x, y = 8, y + line
+        draw.ellipse((x, y + 2, x + swatch, y + 2 + swatch), fill=tuple(color))
+        draw.text((x + swatch + 6, y), text, fill=(0, 0, 0), font=font)
+        x += entry
+    strip = np.asarray(banner.crop((0, 0, width, y + line + 4)))  # (rows, W, 3) uint8
+    images = [Image.fromarray(np.concatenate([a.astype(np.uint8), strip])) for a in arrays]
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     images[0].save(path, save_all=True, append_images=images[1:], duration=int(1000 / fps),
                    loop=0)
     return path
-
-
-def _gif_banner(width, line, label, legend, font, Image, ImageDraw):
-    """The white strip under each GIF frame: the label, then the legend entries."""
-    swatch = line // 2
-    rows: list[list[tuple[str, tuple[int, int, int]]]] = [[]]
-    x = 8
-    for text, color in legend:
-        size = swatch + 6 + int(font.getlength(text)) + 16
-        if x + size > width and rows[-1]:
-            rows.append([])
-            x = 8
-        rows[-1].append((text, color))
-        x += size
-    height = line * (len(rows) + (1 if label else 0)) + 8
-    banner = Image.new("RGB", (width, height), "white")
-    draw = ImageDraw.Draw(banner)
-    y = 4
-    if label:
-        draw.text((8, y), label, fill=(0, 0, 0), font=font)
-        y += line
-    for row in rows:
-        x = 8
-        for text, color in row:
-            draw.ellipse((x, y + 2, x + swatch, y + 2 + swatch), fill=tuple(color))
-            x += swatch + 6
-            draw.text((x, y), text, fill=(0, 0, 0), font=font)
-            x += int(font.getlength(text)) + 16
-        y += line
-    return banner
 
 
 def plot_sweep(points: Sequence[dict], path: str | Path) -> Path:
@@ -431,10 +399,8 @@ def plot_sweep(points: Sequence[dict], path: str | Path) -> Path:
     ``points`` are dicts with ``epsilon``, ``delta``, ``collision_rate``,
     ``mean_intervention`` (and optionally ``goal_rate``).
     """
-    plt = pyplot()
-    fig, ax = plt.subplots(figsize=(6.5, 4.5))
-    deltas = sorted({p["delta"] for p in points})
-    for delta in deltas:
+    fig, ax = pyplot().subplots(figsize=(6.5, 4.5))
+    for delta in sorted({p["delta"] for p in points}):
         pts = sorted((p for p in points if p["delta"] == delta), key=lambda p: p["epsilon"])
         ax.plot([p["mean_intervention"] for p in pts], [p["collision_rate"] for p in pts],
                 "-o", label=f"δ = {delta:g} m")

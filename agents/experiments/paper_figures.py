@@ -11,7 +11,9 @@ from pathlib import Path
 
 import numpy as np
 
+from agents.evaluation.plots import arena_axes, pyplot, save_figure
 from agents.experiments.table_one import EXAMPLE_ONE
+from filters.plotting import draw_halfspace
 
 
 def example_one(seed: int = 0) -> dict:
@@ -43,14 +45,9 @@ def example_one(seed: int = 0) -> dict:
 
 def plot_example_one(example: dict, path: Path) -> Path:
     """Fig. 2: the samples, the reference and every halfspace boundary."""
-    from agents.evaluation.plots import pyplot, save_figure
-
     plt = pyplot()
-
-    from filters.plotting import draw_halfspace
-
     fig, ax = plt.subplots(figsize=(8, 5))
-    ax.set(xlim=(-2, 1.5), ylim=(-1.8, 1.2), aspect="equal", xlabel="x (m)", ylabel="y (m)")
+    arena_axes(ax, ((-2.0, -1.8), (1.5, 1.2)))
     samples = example["samples"]
     ax.scatter(samples[:, 0], samples[:, 1], s=4, color="k", alpha=0.5,
                label="predicted obstacle positions (samples)")
@@ -68,7 +65,6 @@ def plot_example_one(example: dict, path: Path) -> Path:
     for label, data in example["halfspaces"].items():
         draw_halfspace(ax, example["normal"], data["offset"],
                        color=colors.get(label) or next(greens), alpha=0.9, label=label)
-    ax.grid(alpha=0.3)
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0),
               title="boundary h·y = b of each risk\n(safe side: below-left)", title_fontsize=7)
     ax.set_title("Example 1 (Fig. 2): safe halfspaces of mean, CVaR and DR-CVaR\n"
@@ -80,11 +76,7 @@ def plot_example_one(example: dict, path: Path) -> Path:
 
 def plot_halfspace_times(table: dict, path: Path) -> Path:
     """Fig. 3: CVXPY setup/solve/call and our time per halfspace against N_s (log scale)."""
-    from agents.evaluation.plots import pyplot, save_figure
-
-    plt = pyplot()
-
-    fig, ax = plt.subplots(figsize=(6, 4))
+    fig, ax = pyplot().subplots(figsize=(6, 4))
     counts = sorted(table["cvxpy"]["dr_cvar"])
     for key, style in (("setup", ":"), ("solve", "--"), ("call", "-")):
         ax.plot(counts, [table["cvxpy"]["dr_cvar"][n][key] for n in counts], style + "o",

@@ -15,7 +15,9 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from filters._validation import integer_at_least
+from agents.evaluation.plots import pyplot, save_figure
+from agents.evaluation.summary import wilson_interval
+from filters._validation import finite_scalar, integer_at_least
 from filters.errors import InvalidParameterError
 
 __all__ = ["TIME_LABEL", "ParetoPoint", "dominated", "plot_pareto", "point_from_summary"]
@@ -50,11 +52,8 @@ class ParetoPoint:
         if integer_at_least("n", self.n, low=0) < max(1, collisions):
             raise InvalidParameterError(f"need n >= 1 and 0 <= collisions <= n, got collisions "
                                         f"{self.collisions}, n {self.n} ({self.label!r})")
-        time = self.time_to_goal
-        if (isinstance(time, bool) or not isinstance(time, int | float) or time < 0
-                or time == math.inf):
-            raise InvalidParameterError(f"time_to_goal must be a number >= 0 (s) or NaN, got "
-                                        f"{time!r} ({self.label!r})")
+        if not (isinstance(self.time_to_goal, float) and math.isnan(self.time_to_goal)):
+            finite_scalar(f"time_to_goal of {self.label!r} (s, or NaN)", self.time_to_goal, low=0)
 
     @property
     def rate(self) -> float:
@@ -79,20 +78,14 @@ def dominated(points: Sequence[ParetoPoint]) -> list[bool]:
 
     Points without a time to goal (NaN) are never dominated and dominate nothing.
     """
-    flags = []
-    for p in points:
-        flags.append(not math.isnan(p.time_to_goal) and any(
-            not math.isnan(q.time_to_goal) and q.rate <= p.rate
-            and q.time_to_goal <= p.time_to_goal
-            and (q.rate < p.rate or q.time_to_goal < p.time_to_goal)
-            for q in points if q is not p))
-    return flags
+    return [not math.isnan(p.time_to_goal) and any(
+        not math.isnan(q.time_to_goal) and q.rate <= p.rate and q.time_to_goal <= p.time_to_goal
+        and (q.rate < p.rate or q.time_to_goal < p.time_to_goal) for q in points if q is not p)
+        for p in points]
 
 
 def plot_pareto(panels: Mapping[str, Sequence[ParetoPoint]], path: str | Path, *,
-                title: str | None = None, xlabel: str = TIME_LABEL,
-                ylabel: str = "collision rate (continuous time), Wilson 95 % CI",
-                columns: int = 2) -> Path:
+                title: str | None = None, columns: int = 2) -> Path:
     """One figure, one panel per case: collision rate against time to goal for every method.
 
     Parameters
@@ -101,8 +94,8 @@ def plot_pareto(panels: Mapping[str, Sequence[ParetoPoint]], path: str | Path, *
         ``{case name: points}``; the same label keeps its colour and marker across panels.
     path
         Where the PNG goes (folders are created).
-    title, xlabel, ylabel
-        Figure title and axis labels.
+    title
+        Figure title (the axes: :data:`TIME_LABEL` and the collision rate).
     columns
         Panels per row (>= 1).
 
@@ -116,24 +109,16 @@ def plot_pareto(panels: Mapping[str, Sequence[ParetoPoint]], path: str | Path, *
     InvalidParameterError
         If there are no panels, a panel has no points or ``columns < 1``.
     """
-    from agents.evaluation.summary import wilson_interval
-
-    if not panels:
-        raise InvalidParameterError("plot_pareto needs at least one panel")
-    for name, points in panels.items():
-        if not points:
-            raise InvalidParameterError(f"panel {name!r} has no points")
+    empty = [name for name, points in panels.items() if not points]
+    if not panels or empty:
+        raise InvalidParameterError(f"plot_pareto needs at least one panel, each with points; "
+                                    f"got {len(panels)} panels, with no points: {empty}")
     integer_at_least("columns", columns)
-    from agents.evaluation.plots import pyplot, save_figure
-
     plt = pyplot()
-
-    labels: list[str] = []
-    for points in panels.values():
-        labels += [p.label for p in points if p.label not in labels]
+    labels = list(dict.fromkeys(p.label for points in panels.values() for p in points))
     colours = plt.get_cmap("tab10")
     markers = "osD^vP*Xhp<>"
-    style = {label: (colours(i % 10), markers[i % len(markers)])
+    style = {label: (colours(i % 10), markers[i % len(markers)], None)  # colour, marker, face
              for i, label in enumerate(labels)}
     count = len(panels)
     cols = min(columns, count)
@@ -149,7 +134,7 @@ def plot_pareto(panels: Mapping[str, Sequence[ParetoPoint]], path: str | Path, *
                 missing.append(point.label)
                 continue
             low, high = wilson_interval(point.collisions, point.n)
-            colour, marker = style[point.label]
+            colour, marker, _ = style[point.label]
             ax.errorbar(point.time_to_goal, point.rate,
                         yerr=[[max(0.0, point.rate - low)], [max(0.0, high - point.rate)]],
                         fmt=marker,
@@ -160,8 +145,8 @@ def plot_pareto(panels: Mapping[str, Sequence[ParetoPoint]], path: str | Path, *
                     transform=ax.transAxes, va="top", fontsize=7)
         n = sorted({p.n for p in points})
         ax.set_title(f"{name} ({'/'.join(map(str, n))} episodes per method)", fontsize=10)
-        ax.set_xlabel(xlabel, fontsize=8)
-        ax.set_ylabel(ylabel, fontsize=8)
+        ax.set_xlabel(TIME_LABEL, fontsize=8)
+        ax.set_ylabel("collision rate (continuous time), Wilson 95 % CI", fontsize=8)
         # Zoom on the rates that occur (small rates stay readable), never past [0, 1].
         highs = [wilson_interval(p.collisions, p.n)[1] for p in points]
         ax.set_ylim(-0.02, min(1.02, 1.25 * max(highs) + 0.03))
@@ -171,12 +156,10 @@ def plot_pareto(panels: Mapping[str, Sequence[ParetoPoint]], path: str | Path, *
             middle = 0.5 * (max(times) + min(times))
             ax.set_xlim(middle - 0.15, middle + 0.15)
         ax.grid(alpha=0.3)
-    handles = [plt.Line2D([], [], color=style[label][0], marker=style[label][1], ls="")
-               for label in labels]
-    handles += [plt.Line2D([], [], color="0.3", marker="o", ls=""),
-                plt.Line2D([], [], color="0.3", marker="o", mfc="white", ls="")]
-    labels = [*labels, "filled: Pareto-optimal (no other method safer and faster)",
-              "hollow: dominated"]
+    style["filled: Pareto-optimal (no other method safer and faster)"] = ("0.3", "o", None)
+    style["hollow: dominated"] = ("0.3", "o", "white")
+    labels = list(style)
+    handles = [plt.Line2D([], [], color=c, marker=m, mfc=f, ls="") for c, m, f in style.values()]
     fig.legend(handles, labels, loc="lower center", ncol=min(4, len(labels)), fontsize=8,
                frameon=False, bbox_to_anchor=(0.5, -0.02 - 0.03 * math.ceil(len(labels) / 4)))
     fig.suptitle(title or "Collision rate against time to goal, per method", fontsize=11)
