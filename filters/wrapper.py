@@ -25,7 +25,6 @@ from __future__ import annotations
 import math
 import time
 import warnings
-from collections.abc import Callable
 from typing import Any
 
 import gymnasium as gym
@@ -219,7 +218,6 @@ class SafetyFilterWrapper(CalibrationMixin, HalfspaceRowsMixin, RenderHookMixin,
         self._halfspaces_made: Halfspaces | None = None  # the last step's halfspaces
         self._last_plan: np.ndarray | None = None
         self._plan_optimal = False  # whether _last_plan met every row (status "optimal")
-        self._hook: Callable[[Any], None] | None = None
         self._halfspace_lines: Any = None  # the hook's line collection, reused per frame
         self._shape_cache: tuple[tuple, Disc, list[Disc]] | None = None
         if self.risk != "none":  # builds (and so validates) the weights and bounds now

@@ -159,27 +159,6 @@ def test_filter_halfspaces_are_drawn_through_the_hook():
     env.close()
 
 
-def test_blitted_frames_are_much_cheaper_than_a_full_redraw():
-    """A ratio in one run (the machine is shared); ``safe-nav bench`` (c) gives ms."""
-    import time
-
-    env = gym.make("SafeNav/MultiObstacle-v0", render_mode="rgb_array")
-    env.reset(seed=0)
-    env.render()
-    canvas = env.unwrapped._renderer.canvas
-    blitted, full = [], []
-    for _ in range(15):
-        env.step(np.zeros(2, np.float32))
-        start = time.perf_counter()
-        env.render()
-        blitted.append(time.perf_counter() - start)
-        start = time.perf_counter()
-        canvas.draw()  # what every frame cost before: a full redraw (here without movers)
-        full.append(time.perf_counter() - start)
-    assert np.median(blitted) < 0.5 * np.median(full)
-    env.close()
-
-
 def test_halfspace_segments_lie_on_the_boundaries_and_cross_the_view():
     from filters.plotting import halfspace_segments
 
