@@ -145,7 +145,6 @@ def filter_config(args: argparse.Namespace, risk: str, names: Sequence[str]) -> 
 
 _TRAIN_FILTER_FLAGS = ("alpha", "delta", "epsilon", "objective", "fallback",
                        "intervention_penalty")
-_EVALUATE_FILTER_FLAGS = ("alpha", "delta", "epsilon")
 
 
 def _add_options(parser: argparse.ArgumentParser, kind: str, help: str) -> None:
@@ -259,8 +258,8 @@ def build_parser() -> argparse.ArgumentParser:
                           help="--executor ray: the cluster to run on, HOST:PORT of its head "
                           "(ray start --head --port=PORT) or auto (the one started on this "
                           "machine); default: RAY_ADDRESS if set, else a local Ray")
-    add_filter_flags(evaluate, _EVALUATE_FILTER_FLAGS, defaults=True)
-    evaluate.add_argument("--noise", choices=["", *NOISE_PRESETS], default="",
+    add_filter_flags(evaluate, ("alpha", "delta", "epsilon"), defaults=True)
+    evaluate.add_argument("--noise", choices=["", *NOISE_PRESETS], default="", metavar="NOISE",
                           help="noise preset of the environment, e.g. authors_code (default: "
                           "the scenario's own, as in the paper's text)%(default).0s")
     _add_options(evaluate, "filter", "further SafetyFilterWrapper keyword, e.g. soft=true")
