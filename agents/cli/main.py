@@ -25,7 +25,7 @@ import json
 import math
 import re
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -43,14 +43,44 @@ EXIT_BAD_INPUT = 2
 EXIT_INTERRUPTED = 130
 
 
+def _argument_type(check: Callable[[str], Any]) -> Callable[[str], Any]:
+    """An argparse type calling ``check``: its error (the project's errors are ValueErrors
+    or TypeErrors, naming the value) becomes argparse's one-line error."""
+
+    def parse(text: str) -> Any:
+        try:
+            return check(text)
+        except (ValueError, TypeError) as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+
+    return parse
+
+
+def _at_least(convert: Callable[[str], float], low: int, what: str) -> Callable[[str], Any]:
+    """An argparse type: a finite ``convert(text) >= low`` (``what`` names it in the error)."""
+
+    def parse(text: str) -> Any:
+        try:
+            value = convert(text)
+        except ValueError:
+            value = math.nan
+        if not low <= value < math.inf:  # nan too
+            raise argparse.ArgumentTypeError(f"expected {what} >= {low}, got {text!r}")
+        return value
+
+    return parse
+
+
+_positive_int, _seed = _at_least(int, 1, "an integer"), _at_least(int, 0, "an integer")
+_metres = _at_least(float, 0, "a distance in m")
+
+
 def _canonical_scenario(name: str, *, gym_id_ok: bool = False) -> str:
-    from safe_nav_env.errors import ScenarioError
+    """The canonical name (``HeadOn``) of a scenario in any of its spellings, with a note
+    on stderr for another spelling (the gym id too, unless ``gym_id_ok``)."""
     from safe_nav_env.scenarios import env_id, scenario_name
 
-    try:
-        canonical = scenario_name(name, warn=False)
-    except ScenarioError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
+    canonical = scenario_name(name, warn=False)
     if canonical != name and not (gym_id_ok and name == env_id(canonical)):
         print(f"safe-nav: note: scenario {name!r} is called {canonical!r}; use {canonical!r}",
               file=sys.stderr)
@@ -64,82 +94,11 @@ def scenario_id(name: str) -> str:
     return env_id(_canonical_scenario(name, gym_id_ok=True))
 
 
-def scenario(name: str) -> str:
-    """The canonical name (``HeadOn``) of a scenario in any of its spellings."""
-    return _canonical_scenario(name)
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
-    return value
-
-
-def _non_negative_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        value = -1
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
-    return value
-
-
-_seed = _non_negative_int
-
-
-def _number(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
-    return value
-
-
-def _metres(text: str) -> float:
-    value = _number(text)
-    if value < 0.0:
-        raise argparse.ArgumentTypeError(f"expected a distance >= 0 (in m), got {text!r}")
-    return value
-
-
-def _noise(text: str) -> str:
-    from safe_nav_env import NOISE_PRESETS
-
-    if text and text not in NOISE_PRESETS:
-        raise argparse.ArgumentTypeError(
-            f"unknown noise preset {text!r}; choose one of {sorted(NOISE_PRESETS)} (or '' for "
-            "the scenario's own)")
-    return text
-
-
 def _policy(text: str) -> str:
-    from agents.errors import PolicyFileError
-    from agents.evaluation.runner import check_policy
+    """A ``--policy`` file, checked; ``""`` (the shipped one) is checked when the PPO runs."""
+    from agents.evaluation.policy_files import check_policy
 
-    if not text:  # the shipped policy: checked (and loaded) before the run, if the PPO runs
-        return text
-    try:
-        check_policy(text)
-    except PolicyFileError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
-    return text
-
-
-def _output(text: str) -> Path:
-    from agents.errors import OutputPathError
-    from agents.evaluation.evaluate import output_folder
-
-    try:
-        return output_folder(text)
-    except OutputPathError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text and check_policy(text) and text
 
 
 def _json(text: str) -> Any:
@@ -149,17 +108,11 @@ def _json(text: str) -> Any:
         return text
 
 
-def _filter_setting(name: str) -> Any:
-    """An argparse type: the value of :class:`filters.FilterConfig`'s ``name``, checked there."""
-    from filters.errors import SafeNavError
-
-    def parse(text: str) -> Any:
-        try:
-            return getattr(FilterConfig(**{name: _json(text)}), name)
-        except SafeNavError as exc:
-            raise argparse.ArgumentTypeError(str(exc)) from None
-
-    return parse
+def _option(text: str) -> tuple[str, Any]:
+    key, sep, raw = text.partition("=")
+    if not sep or not key:
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
+    return key, _json(raw)
 
 
 def _setting_help(name: str) -> str:
@@ -175,10 +128,11 @@ def add_filter_flags(parser: argparse.ArgumentParser, names: Sequence[str], *,
     """``--name`` for the given fields of :class:`filters.FilterConfig`: its help, choices
     and checks; the config's defaults (``defaults``) or ``None`` ("not given")."""
     for name in names:
-        field = FIELDS[name]
         parser.add_argument(
-            f"--{name.replace('_', '-')}", type=_filter_setting(name),
-            choices=field.metadata.get("choices"), default=field.default if defaults else None,
+            f"--{name.replace('_', '-')}", choices=FIELDS[name].metadata.get("choices"),
+            type=_argument_type(lambda text, name=name: getattr(
+                FilterConfig(**{name: _json(text)}), name)),
+            default=FIELDS[name].default if defaults else None,
             help=_setting_help(name) + ("" if defaults else " (default: the wrapper's)"))
 
 
@@ -191,14 +145,28 @@ def filter_config(args: argparse.Namespace, risk: str, names: Sequence[str]) -> 
 
 _TRAIN_FILTER_FLAGS = ("alpha", "delta", "epsilon", "objective", "fallback",
                        "intervention_penalty")
-_EVALUATE_FILTER_FLAGS = ("alpha", "delta", "epsilon")
 
 
-def _option(text: str) -> tuple[str, Any]:
-    key, sep, raw = text.partition("=")
-    if not sep or not key:
-        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
-    return key, _json(raw)
+def _add_options(parser: argparse.ArgumentParser, kind: str, help: str) -> None:
+    """The repeatable ``--{kind}-option KEY=VALUE`` (VALUE as JSON, else a string)."""
+    parser.add_argument(f"--{kind}-option", type=_option, action="append", default=[],
+                        metavar="KEY=VALUE", dest=f"{kind}_options",
+                        help=f"{help} (VALUE as JSON, else a string); repeatable")
+
+
+def _add_run_flags(parser: argparse.ArgumentParser, *, episodes: int, output: str) -> None:
+    """The flags of ``evaluate`` and ``reproduce``: how many episodes, where they run and go."""
+    from agents.evaluation.evaluate import output_folder
+
+    parser.add_argument("--episodes", type=_positive_int, default=episodes,
+                        help="Monte Carlo episodes per scenario and risk (>= 1)")
+    parser.add_argument("--workers", type=_positive_int, default=2,
+                        help="local worker processes (>= 1; 1 runs in this process)")
+    parser.add_argument("--seed", type=_seed, default=0,
+                        help="seed of the first episode (episode i uses seed + i)")
+    parser.add_argument("--output", type=_argument_type(output_folder), default=Path(output),
+                        help="output folder (CSV, run key, summary, figures)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -208,26 +176,29 @@ class _Parser(argparse.ArgumentParser):
         self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
-_FORMAT = dict(formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-
-
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(
-        prog="safe-nav",
-        description="DR-CVaR safety filtering of learned motion planners.",
-    )
+    from agents.experiments import crowd, pedestrians, stress
+    from benchmarks.command import add_arguments, run
+    from safe_nav_env import NOISE_PRESETS
+    from safe_nav_env.stress import STRESS_SUITE
+
+    parser = _Parser(prog="safe-nav",
+                     description="DR-CVaR safety filtering of learned motion planners.")
     parser.add_argument("--version", action="version", version=f"safe-nav {package_version()}",
                         help="print the installed package's version and exit")
     sub = parser.add_subparsers(dest="command", required=True)
+    formatted = dict(formatter_class=argparse.ArgumentDefaultsHelpFormatter)
 
     train = sub.add_parser(
         "train", help="train a PPO reference planner (plain, filter in the loop, or Lagrangian)",
         description="Train PPO on a SafeNav scenario and print its safety metrics (episode "
         "collision rate in continuous time, episode cost, goal rate, filter intervention and "
         "statuses) after every rollout; they are also written to <output>.metrics.csv.")
-    train.add_argument("--env-id", type=scenario_id, default="SafeNav/RandomCrossing-v0")
+    train.set_defaults(run=_train)
+    train.add_argument("--env-id", type=_argument_type(scenario_id),
+                       default="SafeNav/RandomCrossing-v0")
     train.add_argument("--timesteps", type=_positive_int, default=400_000)
-    train.add_argument("--seed", type=_non_negative_int, default=0)
+    train.add_argument("--seed", type=_seed, default=0)
     train.add_argument("--n-envs", type=_positive_int, default=8)
     train.add_argument("--vec-env", choices=("dummy", "subproc"), default="dummy",
                        help="in-process environments (default) or one process each")
@@ -238,26 +209,21 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--reference", choices=("default", "rollout"), default="default",
                        help="filter reference: the wrapper's, or the policy being trained "
                        "rolled out over the horizon")
-    train.add_argument("--filter-option", type=_option, action="append", default=[],
-                       metavar="KEY=VALUE", dest="filter_options",
-                       help="any other field of filters.FilterConfig; VALUE is read as JSON "
-                       "(numbers, true/false, lists), else as a string; repeatable")
+    _add_options(train, "filter", "any other field of filters.FilterConfig")
     train.add_argument("--lagrangian", action="store_true",
                        help="train PPO-Lagrangian (cost: the continuous-time collision indicator)")
     train.add_argument("--cost-limit", type=float, default=0.0,
                        help="PPO-Lagrangian: allowed mean episode cost (default 0)")
     train.add_argument("--lambda-lr", type=float, default=0.05,
                        help="PPO-Lagrangian: dual step size of the multiplier")
-    train.add_argument("--eval-freq", type=_non_negative_int, default=0,
+    train.add_argument("--eval-freq", type=_seed, default=0,
                        help="evaluate every N steps on held-out seeds (0: off); saves the best "
                        "model to <output>_best/")
     train.add_argument("--eval-episodes", type=_positive_int, default=20)
     train.add_argument("--tensorboard", type=str, default=None, metavar="DIR",
                        help="write TensorBoard event files to DIR (pip install 'safe-nav[train]')")
-    train.add_argument("--env-option", type=_option, action="append", default=[],
-                       metavar="KEY=VALUE", dest="env_options",
-                       help="gym.make keyword of the training environments (VALUE as JSON, else "
-                       "a string), e.g. random_start=0.5 or time_penalty=0.05; repeatable")
+    _add_options(train, "env", "gym.make keyword of the training environments, e.g. "
+                 "random_start=0.5 or time_penalty=0.05")
     train.add_argument("--physical-actions", action="store_true",
                        help="let the learner act on the ±10 m/s² box instead of [-1, 1] (as the "
                        "shipped policy was trained)")
@@ -265,8 +231,42 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--no-progress", action="store_true")
 
     evaluate = sub.add_parser("evaluate", help="Monte Carlo: filtered vs unfiltered policies",
-                              **_FORMAT)
-    _add_evaluation_arguments(evaluate, episodes=300)
+                              **formatted)
+    evaluate.set_defaults(run=_evaluate)
+    evaluate.add_argument("--scenarios", type=_argument_type(_canonical_scenario), nargs="+",
+                          default=list(PAPER_SCENARIOS),
+                          help="scenario names (HeadOn, Overtaking, Intersection, "
+                          "MultiObstacle, RandomCrossing; Custom with --env-option "
+                          "scenario=JSON, a safe_nav_env.Scenario's fields, e.g. "
+                          f"scenario='{_CUSTOM_EXAMPLE}')")
+    evaluate.add_argument("--risks", choices=RISKS, nargs="+", default=["none", *PAPER_RISKS],
+                          help="risk settings; none is the unfiltered planner (the default is "
+                          "the paper's comparison; gaussian_cc, moment_dr and conformal on "
+                          "request)")
+    evaluate.add_argument("--planner", choices=PLANNERS, default="ppo",
+                          help="reference planner: the PPO policy, the paper's "
+                          "obstacle-agnostic MPC or the obstacle-blind go-to-goal controller")
+    evaluate.add_argument("--reference", choices=REFERENCES, default="rollout",
+                          help="PPO reference trajectory: roll the policy out on the predicted "
+                          "obstacle motion, or hold its action")
+    evaluate.add_argument("--policy", type=_argument_type(_policy), default="",
+                          help="PPO policy .zip (default: the shipped one)%(default).0s")
+    _add_run_flags(evaluate, episodes=300, output="results/evaluate")
+    evaluate.add_argument("--executor", choices=("process", "ray"), default="process",
+                          help="where episodes run: local processes or a Ray cluster")
+    evaluate.add_argument("--address", default=None, metavar="HOST:PORT",
+                          help="--executor ray: the cluster to run on, HOST:PORT of its head "
+                          "(ray start --head --port=PORT) or auto (the one started on this "
+                          "machine); default: RAY_ADDRESS if set, else a local Ray")
+    add_filter_flags(evaluate, ("alpha", "delta", "epsilon"), defaults=True)
+    evaluate.add_argument("--noise", choices=["", *NOISE_PRESETS], default="", metavar="NOISE",
+                          help="noise preset of the environment, e.g. authors_code (default: "
+                          "the scenario's own, as in the paper's text)%(default).0s")
+    _add_options(evaluate, "filter", "further SafetyFilterWrapper keyword, e.g. soft=true")
+    _add_options(evaluate, "env", "further gym.make keyword, e.g. n_samples=50")
+    evaluate.add_argument("--overwrite", action="store_true",
+                          help="discard the results already in --output instead of resuming")
+    evaluate.add_argument("--no-plots", action="store_true", help="no figures")
     evaluate.add_argument("--sweep", action="store_true",
                           help="sweep epsilon and delta (DR-CVaR) and plot collisions vs "
                           "deviation (writes sweep.csv, sweep.md, figures/sweep.png)")
@@ -274,142 +274,67 @@ def build_parser() -> argparse.ArgumentParser:
                           help="--sweep: Wasserstein radii, in m (>= 0)")
     evaluate.add_argument("--deltas", type=_metres, nargs="+", default=[0.0, 0.1, 0.2],
                           help="--sweep: risk bounds, in m (>= 0)")
-    from agents.experiments.crowd import CROWD_SETTINGS
-    from agents.experiments.pedestrians import PEDESTRIAN_SETTINGS
-    from agents.experiments.stress import (
-        DEFAULT_CASES,
-        DEFAULT_METHODS,
-        DEFAULT_PLANNERS,
-        STRESS_METHODS,
-    )
-    from safe_nav_env.stress import STRESS_SUITE
-
     evaluate.add_argument("--suite", choices=("scenarios", "stress", "crowd", "pedestrians"),
                           default="scenarios",
                           help="scenarios: --scenarios x --risks; stress: the stress table by "
-                          "failure class (--cases x --planners x --methods, output default "
-                          "results/stress); crowd: "
-                          "CrowdNav's circle crossing (--crowd-settings x --risks, "
-                          "--episodes test cases, output default results/crowd); "
-                          "pedestrians: the ETH/UCY scenes (--scenes x --risks, output "
-                          "default results/pedestrians)")
-    evaluate.add_argument("--scenes", choices=list(PEDESTRIAN_SETTINGS), nargs="+",
-                          default=list(PEDESTRIAN_SETTINGS),
-                          help="--suite pedestrians: the recorded scenes")
-    evaluate.add_argument("--crowd-settings", choices=list(CROWD_SETTINGS), nargs="+",
-                          default=["orca_invisible"],
-                          help="--suite crowd: human model and robot visibility")
-    evaluate.add_argument("--cases", choices=list(STRESS_SUITE), nargs="+",
-                          default=list(DEFAULT_CASES), help="--suite stress: the failure classes")
-    evaluate.add_argument("--methods", choices=list(STRESS_METHODS), nargs="+",
-                          default=list(DEFAULT_METHODS),
-                          help="--suite stress: the filter settings (default: the wrapper's "
-                          "defaults, action held; dr_cvar: fixed --epsilon; dr_cvar_auto: "
-                          "epsilon='auto'; all but default track --reference)")
-    evaluate.add_argument("--planners", choices=list(PLANNERS), nargs="+",
-                          default=list(DEFAULT_PLANNERS),
-                          help="--suite stress: the reference planners (goal: the "
-                          "obstacle-blind go-to-goal controller; --planner mpc or goal "
-                          "alone replaces them)")
+                          "failure class (--cases x --planners x --methods); crowd: CrowdNav's "
+                          "circle crossing (--crowd-settings x --risks, --episodes test "
+                          "cases); pedestrians: the ETH/UCY scenes (--scenes x --risks); "
+                          "a suite's output default is results/<suite>")
+    for flag, choices, default, help in (
+            ("--scenes", pedestrians.PEDESTRIAN_SETTINGS, pedestrians.PEDESTRIAN_SETTINGS,
+             "--suite pedestrians: the recorded scenes"),
+            ("--crowd-settings", crowd.CROWD_SETTINGS, ["orca_invisible"],
+             "--suite crowd: human model and robot visibility"),
+            ("--cases", STRESS_SUITE, stress.DEFAULT_CASES, "--suite stress: the failure classes"),
+            ("--methods", stress.STRESS_METHODS, stress.DEFAULT_METHODS,
+             "--suite stress: the filter settings (default: the wrapper's defaults, action "
+             "held; dr_cvar: fixed --epsilon; dr_cvar_auto: epsilon='auto'; all but default "
+             "track --reference)"),
+            ("--planners", PLANNERS, stress.DEFAULT_PLANNERS,
+             "--suite stress: the reference planners (goal: the obstacle-blind go-to-goal "
+             "controller; --planner mpc or goal alone replaces them)")):
+        evaluate.add_argument(flag, choices=list(choices), nargs="+", default=list(default),
+                              help=help)
 
     reproduce = sub.add_parser("reproduce", help="reproduce the paper's figures and tables",
-                               **_FORMAT)
-    reproduce.add_argument("--episodes", type=_positive_int, default=300,
-                           help="Monte Carlo episodes per scenario and risk (>= 1)")
-    reproduce.add_argument("--workers", type=_positive_int, default=2,
-                           help="local worker processes (>= 1)")
-    reproduce.add_argument("--seed", type=_seed, default=0,
-                           help="seed of the first episode (episode i uses seed + i)")
-    reproduce.add_argument("--output", type=_output, default=Path("results/reproduce"),
-                           help="output folder")
+                               **formatted)
+    reproduce.set_defaults(run=_reproduce)
+    _add_run_flags(reproduce, episodes=300, output="results/reproduce")
     reproduce.add_argument("--timing-repeats", type=_positive_int, default=100,
                            help="repeats of each Table I timing (>= 1)")
-    reproduce.add_argument("--no-progress", action="store_true", help="no progress bar")
 
-    bench = sub.add_parser("bench", help="speed benchmarks (ratios in one run)", **_FORMAT)
-    from benchmarks.command import add_arguments
-
+    bench = sub.add_parser("bench", help="speed benchmarks (ratios in one run)", **formatted)
+    bench.set_defaults(run=run)
     add_arguments(bench, positive_int=_positive_int, seed=_seed)
     return parser
 
 
-def _add_evaluation_arguments(parser: argparse.ArgumentParser, *, episodes: int) -> None:
-    parser.add_argument("--scenarios", type=scenario, nargs="+", default=list(PAPER_SCENARIOS),
-                        help="scenario names (HeadOn, Overtaking, Intersection, MultiObstacle, "
-                        "RandomCrossing; Custom with --env-option scenario=JSON, a "
-                        "safe_nav_env.Scenario's fields, e.g. "
-                        f"scenario='{_CUSTOM_EXAMPLE}')")
-    parser.add_argument("--risks", choices=RISKS, nargs="+",
-                        default=["none", *PAPER_RISKS],
-                        help="risk settings; none is the unfiltered planner (the default is "
-                        "the paper's comparison; gaussian_cc, moment_dr and conformal on "
-                        "request)")
-    parser.add_argument("--planner", choices=PLANNERS, default="ppo",
-                        help="reference planner: the PPO policy, the paper's "
-                        "obstacle-agnostic MPC or the obstacle-blind go-to-goal controller")
-    parser.add_argument("--reference", choices=REFERENCES, default="rollout",
-                        help="PPO reference trajectory: roll the policy out on the predicted "
-                        "obstacle motion, or hold its action")
-    parser.add_argument("--policy", type=_policy, default="",
-                        help="PPO policy .zip (default: the shipped one)%(default).0s")
-    parser.add_argument("--episodes", type=_positive_int, default=episodes,
-                        help="episodes per scenario and risk (>= 1)")
-    parser.add_argument("--workers", type=_positive_int, default=2,
-                        help="local worker processes (>= 1; 1 runs in this process)")
-    parser.add_argument("--executor", choices=("process", "ray"), default="process",
-                        help="where episodes run: local processes or a Ray cluster")
-    parser.add_argument("--address", default=None, metavar="HOST:PORT",
-                        help="--executor ray: the cluster to run on, HOST:PORT of its head "
-                        "(ray start --head --port=PORT) or auto (the one started on this "
-                        "machine); default: RAY_ADDRESS if set, else a local Ray")
-    parser.add_argument("--seed", type=_seed, default=0,
-                        help="seed of the first episode (episode i uses seed + i)")
-    add_filter_flags(parser, _EVALUATE_FILTER_FLAGS, defaults=True)
-    parser.add_argument("--noise", type=_noise, default="",
-                        help="noise preset of the environment, e.g. authors_code (default: the "
-                        "scenario's own, as in the paper's text)%(default).0s")
-    parser.add_argument("--filter-option", type=_option, action="append", default=[],
-                        metavar="KEY=VALUE", dest="filter_options",
-                        help="further SafetyFilterWrapper keyword (VALUE as JSON, else a "
-                        "string), e.g. soft=true; repeatable (default: none)%(default).0s")
-    parser.add_argument("--env-option", type=_option, action="append", default=[],
-                        metavar="KEY=VALUE", dest="env_options",
-                        help="further gym.make keyword, e.g. n_samples=50; repeatable "
-                        "(default: none)%(default).0s")
-    parser.add_argument("--output", type=_output, default=Path("results/evaluate"),
-                        help="output folder (CSV, run key, summary, figures)")
-    parser.add_argument("--overwrite", action="store_true",
-                        help="discard the results already in --output instead of resuming")
-    parser.add_argument("--no-plots", action="store_true", help="no figures")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``safe-nav``; returns the exit code (see the module docstring)."""
+    from agents.errors import AgentsError, WorkersLostError
+    from filters.errors import SafeNavError
+    from safe_nav_env.errors import SafeNavEnvError
+
     try:
         args = build_parser().parse_args(argv)
     except SystemExit as exc:  # --help (0) or a bad option (2, one line already printed)
         return exc.code if isinstance(exc.code, int) else EXIT_BAD_INPUT
-    prog = f"safe-nav {args.command}"
     try:
-        return _dispatch(args)
+        return args.run(args)
     except KeyboardInterrupt as exc:
-        print(_interrupted_message(prog, exc, args), file=sys.stderr)
+        print(_interrupted_message(f"safe-nav {args.command}", exc, args), file=sys.stderr)
         return EXIT_INTERRUPTED
-    except _bad_input_errors() as exc:
-        from agents.errors import WorkersLostError
-
-        print(f"{prog}: error: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}",
-              file=sys.stderr)
-        return EXIT_FAILED_EPISODES if isinstance(exc, WorkersLostError) else EXIT_BAD_INPUT
+    except (AgentsError, SafeNavError, SafeNavEnvError) as exc:
+        return _error(args, str(exc).splitlines()[0] if str(exc) else type(exc).__name__,
+                      EXIT_FAILED_EPISODES if isinstance(exc, WorkersLostError) else
+                      EXIT_BAD_INPUT)
 
 
-def _bad_input_errors() -> tuple[type[BaseException], ...]:
-    from agents.errors import AgentsError
-    from filters.errors import SafeNavError
-    from safe_nav_env.errors import SafeNavEnvError
-
-    return (AgentsError, SafeNavError, SafeNavEnvError)
+def _error(args: argparse.Namespace, message: str, code: int = EXIT_BAD_INPUT) -> int:
+    """Print ``safe-nav <command>: error: message`` on stderr; return the exit ``code``."""
+    print(f"safe-nav {args.command}: error: {message}", file=sys.stderr)
+    return code
 
 
 def _interrupted_message(prog: str, exc: KeyboardInterrupt, args: argparse.Namespace) -> str:
@@ -424,101 +349,72 @@ def _interrupted_message(prog: str, exc: KeyboardInterrupt, args: argparse.Names
             "again to resume")
 
 
-def _dispatch(args: argparse.Namespace) -> int:
-    if args.command == "train":
-        return _train(args)
-    if args.command == "evaluate":
-        return _evaluate(args)
-    if args.command == "reproduce":
-        from agents.experiments.reproduce import reproduce
+def _reproduce(args: argparse.Namespace) -> int:
+    from agents.experiments.reproduce import reproduce
 
-        print(reproduce(output=args.output, episodes=args.episodes, workers=args.workers,
-                        seed=args.seed, timing_repeats=args.timing_repeats,
-                        progress=not args.no_progress))
-        return 0
-    if args.command == "bench":
-        from benchmarks.command import run  # the one import of benchmarks: on demand
-
-        return run(args)
-    return EXIT_BAD_INPUT  # pragma: no cover - argparse rejects unknown commands
+    print(reproduce(output=args.output, episodes=args.episodes, workers=args.workers,
+                    seed=args.seed, timing_repeats=args.timing_repeats,
+                    progress=not args.no_progress))
+    return 0
 
 
-def _evaluation_config(args: argparse.Namespace):
-    """The command's :class:`~agents.evaluation.config.EvaluationConfig` (a suite's output
-    folder is ``results/<suite>`` unless ``--output`` is given)."""
-    from agents.evaluation.config import EvaluationConfig
-
-    output = args.output
-    if args.suite != "scenarios" and output == Path("results/evaluate"):
-        output = Path(f"results/{args.suite}")
-    return EvaluationConfig(output=output, workers=args.workers, executor=args.executor,
-                            address=args.address, overwrite=args.overwrite,
-                            plots=not args.no_plots, progress=not args.no_progress)
+def _suite_clash(args: argparse.Namespace) -> str:
+    """The error of flags that ``--suite`` (other than scenarios) sets itself, or ``""``."""
+    clash = [flag for flag, given in (
+        ("--sweep", args.sweep), ("--noise", args.noise),
+        ("--scenarios", args.scenarios != list(PAPER_SCENARIOS)),
+        ("--risks", args.suite == "stress" and args.risks != ["none", *PAPER_RISKS])) if given]
+    sets, use = {"stress": ("the cases, methods and noise", "--cases/--methods"),
+                 "crowd": ("the scene", "--crowd-settings")}.get(args.suite,
+                                                                  ("the scene", "--scenes"))
+    return clash and (f"--suite {args.suite} sets {sets} itself; drop {', '.join(clash)} "
+                      f"(use {use})")
 
 
 def _evaluate(args: argparse.Namespace) -> int:
     from agents.evaluation.campaign import run_evaluation, run_sweep
+    from agents.evaluation.config import EvaluationConfig
+    from agents.experiments import crowd, pedestrians, stress
     from safe_nav_env.scenarios import CUSTOM
 
     if (args.suite == "scenarios" and CUSTOM in args.scenarios
             and "scenario" not in dict(args.env_options)):
-        print(f"safe-nav evaluate: error: --scenarios {CUSTOM} needs its scenario: add "
-              f"--env-option scenario='{_CUSTOM_EXAMPLE}' (the fields of "
-              "safe_nav_env.Scenario as JSON) or --env-option scenario=HeadOn (a scenario "
-              "name)", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    if args.suite != "scenarios":
-        clash = [flag for flag, given in (
-            ("--sweep", args.sweep), ("--noise", args.noise),
-            ("--scenarios", args.scenarios != list(PAPER_SCENARIOS)),
-            ("--risks", args.suite == "stress" and args.risks != ["none", *PAPER_RISKS]))
-            if given]
-        if clash:
-            sets, use = (("the cases, methods and noise", "--cases/--methods")
-                         if args.suite == "stress" else
-                         ("the scene", "--crowd-settings" if args.suite == "crowd"
-                          else "--scenes"))
-            print(f"safe-nav evaluate: error: --suite {args.suite} sets {sets} itself; drop "
-                  f"{', '.join(clash)} (use {use})", file=sys.stderr)
-            return EXIT_BAD_INPUT
-
-    common = dict(config=_evaluation_config(args), episodes=args.episodes,
-                  seed=args.seed, reference=args.reference, policy_path=args.policy,
-                  alpha=args.alpha, filter_options=dict(args.filter_options),
-                  env_options=dict(args.env_options))
-    if args.suite == "stress":
-        from agents.experiments.stress import run_stress
-
-        # One --planner other than ppo replaces --planners.
-        planners = args.planners if args.planner == "ppo" else [args.planner]
-        outputs = run_stress(None, args.cases, args.methods, planners=planners,
-                             delta=args.delta, epsilon=args.epsilon, **common)
-    elif args.suite in ("crowd", "pedestrians"):
-        from agents.experiments.crowd import run_crowd
-        from agents.experiments.pedestrians import run_pedestrians
-
-        run, settings = ((run_crowd, args.crowd_settings) if args.suite == "crowd"
-                         else (run_pedestrians, args.scenes))
-        outputs = run(None, settings, args.risks, planner=args.planner, delta=args.delta,
-                      epsilon=args.epsilon, **common)
+        return _error(args, f"--scenarios {CUSTOM} needs its scenario: add --env-option "
+                      f"scenario='{_CUSTOM_EXAMPLE}' (the fields of safe_nav_env.Scenario as "
+                      "JSON) or --env-option scenario=HeadOn (a scenario name)")
+    if args.suite != "scenarios" and _suite_clash(args):
+        return _error(args, _suite_clash(args))
+    suite_output = args.suite != "scenarios" and args.output == Path("results/evaluate")
+    config = EvaluationConfig(  # a suite's output folder is results/<suite> unless given
+        output=Path(f"results/{args.suite}") if suite_output else args.output,
+        workers=args.workers, executor=args.executor, address=args.address,
+        overwrite=args.overwrite, plots=not args.no_plots, progress=not args.no_progress)
+    common = dict(config=config, episodes=args.episodes, seed=args.seed,
+                  reference=args.reference, policy_path=args.policy, alpha=args.alpha,
+                  filter_options=dict(args.filter_options), env_options=dict(args.env_options))
+    radii = dict(delta=args.delta, epsilon=args.epsilon)
+    if args.suite == "stress":  # one --planner other than ppo replaces --planners
+        outputs = stress.run_stress(None, args.cases, args.methods, **radii, **common,
+                             planners=args.planners if args.planner == "ppo" else [args.planner])
+    elif args.suite != "scenarios":
+        run, settings = ((crowd.run_crowd, args.crowd_settings) if args.suite == "crowd"
+                         else (pedestrians.run_pedestrians, args.scenes))
+        outputs = run(None, settings, args.risks, planner=args.planner, **radii, **common)
     elif args.sweep:
         outputs = run_sweep(None, args.scenarios, epsilons=args.epsilons, deltas=args.deltas,
                             planner=args.planner, noise=args.noise, **common)
     else:
         outputs = run_evaluation(None, args.scenarios, args.risks, planner=args.planner,
-                                 delta=args.delta, epsilon=args.epsilon, noise=args.noise,
-                                 **common)
+                                 noise=args.noise, **radii, **common)
     print(outputs)
-    failed = outputs.failed
-    if failed:
-        first = failed[0]
-        print(f"safe-nav evaluate: error: {len(failed)} of {len(outputs.records)} episodes "
-              f"failed (first: {first.case or first.scenario} {first.risk} seed {first.seed}: "
-              f"{first.error.split(' | ')[0][:200]}); see the error column of "
-              f"{outputs.files['episodes']}; run the same command again to re-run them",
-              file=sys.stderr)
-        return EXIT_FAILED_EPISODES
-    return 0
+    if not outputs.failed:
+        return 0
+    first = outputs.failed[0]
+    return _error(args, f"{len(outputs.failed)} of {len(outputs.records)} episodes failed "
+                  f"(first: {first.case or first.scenario} {first.risk} seed {first.seed}: "
+                  f"{first.error.split(' | ')[0][:200]}); see the error column of "
+                  f"{outputs.files['episodes']}; run the same command again to re-run them",
+                  EXIT_FAILED_EPISODES)
 
 
 def _train(args: argparse.Namespace) -> int:
@@ -529,30 +425,18 @@ def _train(args: argparse.Namespace) -> int:
     given += ["--filter-option"] * bool(args.filter_options) + ["--reference"] * (
         args.reference != "default")
     if args.filter is None and given:
-        print(f"safe-nav train: error: {', '.join(given)} need --filter", file=sys.stderr)
-        return 2
+        return _error(args, f"{', '.join(given)} need --filter")
     if not args.lagrangian and (args.cost_limit != 0.0 or args.lambda_lr != 0.05):
-        print("safe-nav train: error: --cost-limit/--lambda-lr need --lagrangian",
-              file=sys.stderr)
-        return 2
-    from filters.errors import SafeNavError
-
-    try:
-        config = filter_config(args, args.filter, _TRAIN_FILTER_FLAGS) if args.filter else None
-        _, report = train_ppo(
-            args.env_id, args.timesteps, args.seed, n_envs=args.n_envs,
-            env_kwargs=dict(args.env_options), filter_kwargs=config,
-            filter_reference=args.reference,
-            lagrangian=args.lagrangian,
-            cost_limit=args.cost_limit, lambda_lr=args.lambda_lr, eval_freq=args.eval_freq,
-            eval_episodes=args.eval_episodes, vec_env=args.vec_env,
-            tensorboard_log=args.tensorboard, print_metrics=not args.quiet,
-            normalise_actions=not args.physical_actions,
-            progress_bar=not args.no_progress, save_path=args.output,
-        )
-    except SafeNavError as exc:  # bad options, found before any training
-        print(f"safe-nav train: error: {exc}", file=sys.stderr)
-        return 2
+        return _error(args, "--cost-limit/--lambda-lr need --lagrangian")
+    _, report = train_ppo(  # bad options raise before any training (main prints them)
+        args.env_id, args.timesteps, args.seed, n_envs=args.n_envs,
+        env_kwargs=dict(args.env_options), lagrangian=args.lagrangian,
+        filter_kwargs=filter_config(args, args.filter, _TRAIN_FILTER_FLAGS) if args.filter
+        else None, filter_reference=args.reference, cost_limit=args.cost_limit,
+        lambda_lr=args.lambda_lr, eval_freq=args.eval_freq, eval_episodes=args.eval_episodes,
+        vec_env=args.vec_env, tensorboard_log=args.tensorboard, print_metrics=not args.quiet,
+        normalise_actions=not args.physical_actions, progress_bar=not args.no_progress,
+        save_path=args.output)
     print(f"trained {report.total_timesteps} steps in {report.wall_time:.1f} s "
           f"({report.steps_per_second:.0f} steps/s); saved to {report.save_path}; "
           f"metrics in {report.metrics_path}")
