@@ -90,13 +90,6 @@ def _load_planner(spec: EpisodeSpec, env: Any) -> tuple[Any, str]:
 
 
 # ---------------------------------------------------------------------------- environment
-def _unknown_keyword(exc: TypeError, what: str) -> InvalidParameterError | None:
-    message = str(exc)
-    if "unexpected keyword argument" in message:
-        return InvalidParameterError(f"{what}: {message}")
-    return None
-
-
 def make_env(spec: EpisodeSpec, *, render_mode: str | None = None, policy: Any = None,
              env_kwargs: dict[str, Any] | None = None) -> tuple[Any, Any]:
     """The filtered (or pass-through) environment of an episode and its planner.
@@ -128,7 +121,9 @@ def make_env(spec: EpisodeSpec, *, render_mode: str | None = None, policy: Any =
     try:
         env = gym.make(env_id(spec.scenario), render_mode=render_mode, **kwargs)
     except TypeError as exc:
-        raise (_unknown_keyword(exc, "env_options") or exc) from exc
+        if "unexpected keyword argument" in str(exc):
+            raise InvalidParameterError(f"env_options: {exc}") from exc
+        raise
     try:
         if policy is not None:
             planner = policy if hasattr(policy, "predict") else policy(env)
@@ -222,9 +217,7 @@ def clear_env_cache() -> None:
         _ENV_CACHE.popitem()[1][0].close()
 
 
-@functools.cache
-def _package_version() -> str:
-    return package_version()  # reads the package metadata: once per process
+_package_version = functools.cache(package_version)  # reads the metadata once per process
 
 
 # ---------------------------------------------------------------------------- one episode
@@ -341,33 +334,30 @@ class EpisodeStats:
 
     def __init__(self) -> None:
         self.steps = 0
+        self.discomfort_steps = 0
         self.min_distance = math.inf
         self.min_swept_distance = math.inf
-        self.swept_reported = False
-        self.discomfort_steps = 0
         self.goal_time = math.nan
         self.path_length = 0.0
+        self.episode_return = 0.0
+        self.standing_collision = False
+        self.first_error = ""
+        self.dt = DT
+        self.intersample = False
         self.interventions: list[float] = []
         self.filter_times: list[float] = []
         self.status_list: list[str] = []
         self.collisions: list[bool] = []
         self.sampled_collisions: list[bool] = []
-        self.standing_collision = False
-        self._speed = 0.0
-        self._ids: np.ndarray | None = None
-        self.first_error = ""
-        self.episode_return = 0.0
-        self.dt = DT
-        self._position = np.zeros(2)
-        self.intersample = False
         self.audit: list[float] = []
         self.audit_all: list[float] = []
+        self._ego = np.zeros(4)
+        self._ids: np.ndarray | None = None
 
     def start(self, base: Any, info: dict[str, Any], *, intersample: bool = False) -> None:
         self.dt = float(base.dt)
         self.intersample = intersample
-        self._position = np.asarray(base.ego_state[:2], dtype=float).copy()
-        self._speed = float(np.linalg.norm(np.asarray(base.ego_state, dtype=float)[2:4]))
+        self._ego = np.asarray(base.ego_state, dtype=float).copy()
         self._ids = _obstacle_ids(base)
         self._distance(info)
 
@@ -375,30 +365,27 @@ class EpisodeStats:
         distances = np.asarray(info.get("distance_to_collision", []), dtype=float)
         if distances.size:
             self.min_distance = min(self.min_distance, float(distances.min()))
-        if "min_swept_distance_to_collision" in info:
-            self.swept_reported = True
-            swept = float(info["min_swept_distance_to_collision"])
-            if not math.isnan(swept):
-                self.min_swept_distance = min(self.min_swept_distance, swept)
+        swept = float(info.get("min_swept_distance_to_collision", math.nan))
+        if not math.isnan(swept):
+            self.min_swept_distance = min(self.min_swept_distance, swept)
 
     def step(self, base: Any, reward: float, info: dict[str, Any]) -> None:
         self.steps += 1
         self.episode_return += float(reward)
         self._distance(info)
         collision = bool(info.get("collision", False))
+        ego = np.asarray(base.ego_state, dtype=float).copy()
         # The ego's velocity is linear in time over a step (constant input), so its speed
         # stays below the larger of the two ends: standing throughout when both are.
-        speed = float(np.linalg.norm(np.asarray(base.ego_state, dtype=float)[2:4]))
         if collision and not any(self.collisions):
-            self.standing_collision = max(self._speed, speed) < STANDING_SPEED
-        self._speed = speed
+            self.standing_collision = max(float(np.linalg.norm(self._ego[2:4])),
+                                          float(np.linalg.norm(ego[2:4]))) < STANDING_SPEED
+        self.path_length += float(np.linalg.norm(ego[:2] - self._ego[:2]))
+        self._ego = ego
         self.collisions.append(collision)
         # Before the continuous-time environment, "collision" was the sampled flag.
         self.sampled_collisions.append(bool(info.get("sampled_collision", collision)))
         self.discomfort_steps += bool(info.get("discomfort", False))
-        position = np.asarray(base.ego_state[:2], dtype=float)
-        self.path_length += float(np.linalg.norm(position - self._position))
-        self._position = position.copy()
         if info.get("is_success", False) and math.isnan(self.goal_time):
             self.goal_time = self.steps * self.dt
         report = info["filter"]
@@ -426,9 +413,8 @@ class EpisodeStats:
         that passed to another pedestrian).
         """
         names = report.keys()
-        if not all(name in names for name in ("normals", "offsets", "planned_states")):
-            return
-        normals, offsets, plan = report["normals"], report["offsets"], report["planned_states"]
+        normals, offsets, plan = (report[name] if name in names else None
+                                  for name in ("normals", "offsets", "planned_states"))
         if normals is None or offsets is None or plan is None or len(normals) == 0:
             return
         from agents.evaluation.audit import first_step_losses
@@ -438,57 +424,39 @@ class EpisodeStats:
         b = np.asarray(offsets, dtype=float)[:, 0]
         realised = np.asarray(base.obstacle_positions, dtype=float)[: len(h)]
         radii = float(base.ego_radius) + np.asarray(base.obstacle_radii, dtype=float)[: len(h)]
-        C = np.asarray(base.dynamics[2], dtype=float)
-        y1 = C @ np.asarray(plan, dtype=float)[1]
-        if not (np.all(np.isfinite(realised)) and np.all(np.isfinite(y1))
-                and np.all(np.isfinite(h)) and np.all(np.isfinite(b))):
+        y1 = np.asarray(base.dynamics[2], dtype=float) @ np.asarray(plan, dtype=float)[1]
+        if not all(np.all(np.isfinite(x)) for x in (realised, y1, h, b)):
             return
         margins = arc_margin(h, base.input_bounds, float(base.dt)) if self.intersample else 0.0
         active, losses = first_step_losses(h, b, y1, realised, radii, margins=margins)
-        now = _obstacle_ids(base)
-        if ids is not None and now is not None:
-            same = (ids[: len(h)] >= 0) & (ids[: len(h)] == now[: len(h)])
+        if ids is not None and self._ids is not None:
+            same = (ids[: len(h)] >= 0) & (ids[: len(h)] == self._ids[: len(h)])
             active, losses = active[same], losses[same]
         self.audit.extend(float(v) for v in losses[active])
         self.audit_all.extend(float(v) for v in losses)
 
-    def collision_cause(self) -> str:
-        """Why the first continuous-time collision happened (see :class:`EpisodeRecord`)."""
-        return collision_cause(self.collisions, self.sampled_collisions, self.status_list)
-
-    def infeasibility(self) -> dict[str, Any]:
-        """First infeasible step and the statuses around the first collision (see
-        :class:`EpisodeRecord`)."""
-        first = next((i + 1 for i, status in enumerate(self.status_list)
-                      if status in FALLBACK_STATUSES), 0)
-        before = at = ""
-        if any(self.collisions):
-            k = self.collisions.index(True)  # 0-based index of the first colliding step
-            at = self.status_list[k] if k < len(self.status_list) else ""
-            before = self.status_list[k - 1] if 0 < k <= len(self.status_list) else ""
-        return dict(first_infeasible_step=first, status_before_collision=before,
-                    status_at_collision=at)
-
     def summary(self) -> dict[str, Any]:
-        """The record's columns that describe what happened."""
-        counts = Counter(self.status_list)
-        fallback = sum(counts[status] for status in FALLBACK_STATUSES)
+        """The record's columns that describe what happened (see :class:`EpisodeRecord`)."""
+        statuses, counts = self.status_list, Counter(self.status_list)
         interventions = np.asarray(self.interventions or [0.0])
         times = np.asarray(self.filter_times or [0.0])
-        steps = max(1, self.steps)
-        swept = self.min_swept_distance if self.swept_reported else math.nan
+        first = self.collisions.index(True) if any(self.collisions) else -1  # 0-based
         return dict(
             steps=self.steps,
-            collision=any(self.collisions),
+            collision=first >= 0,
             collision_steps=sum(self.collisions),
-            first_collision_step=self.collisions.index(True) + 1 if any(self.collisions) else 0,
-            collision_cause=self.collision_cause(),
-            **self.infeasibility(),
+            first_collision_step=first + 1,
+            collision_cause=collision_cause(self.collisions, self.sampled_collisions, statuses),
+            first_infeasible_step=next((i + 1 for i, status in enumerate(statuses)
+                                        if status in FALLBACK_STATUSES), 0),
+            status_before_collision=statuses[first - 1] if 0 < first <= len(statuses) else "",
+            status_at_collision=statuses[first] if 0 <= first < len(statuses) else "",
             standing_collision=self.standing_collision,
             sampled_collision=any(self.sampled_collisions),
             sampled_collision_steps=sum(self.sampled_collisions),
             min_distance=self.min_distance if math.isfinite(self.min_distance) else math.nan,
-            min_swept_distance=swept if math.isfinite(swept) else math.nan,
+            min_swept_distance=(self.min_swept_distance
+                                if math.isfinite(self.min_swept_distance) else math.nan),
             discomfort_steps=self.discomfort_steps,
             goal_reached=not math.isnan(self.goal_time),
             time_to_goal=self.goal_time,
@@ -496,8 +464,9 @@ class EpisodeStats:
             mean_intervention=float(interventions.mean()),
             max_intervention=float(interventions.max()),
             statuses=";".join(f"{s}:{c}" for s, c in sorted(counts.items())),
-            **{f"share_{status}": counts[status] / steps for status in FILTER_STATUSES},
-            fallback_steps=int(fallback),
+            **{f"share_{status}": counts[status] / max(1, self.steps)
+               for status in FILTER_STATUSES},
+            fallback_steps=int(sum(counts[status] for status in FALLBACK_STATUSES)),
             first_error=self.first_error,
             filter_time_median=float(np.median(times)),
             filter_time_max=float(times.max()),
