@@ -71,18 +71,34 @@ def method_label(risk: str, epsilon: float | str) -> str:
     return f"{risk} (eps=auto)" if epsilon == AUTO else risk
 
 
-def _group(record: EpisodeRecord) -> tuple[str, str, str, bool]:
-    """(scenario or stress case, planner, risk, online radius?) of a record."""
-    return (record.case or record.scenario, record.planner, record.risk, record.epsilon == AUTO)
+def _groups(records: Iterable[EpisodeRecord]) -> list[tuple[tuple[str, str, str, bool],
+                                                             list[EpisodeRecord]]]:
+    """The records by (scenario or stress case, planner, risk, online radius?), in table
+    order: scenario, planner, risk (:data:`RISK_ORDER`), auto."""
+    groups: dict[tuple[str, str, str, bool], list[EpisodeRecord]] = defaultdict(list)
+    for r in records:
+        groups[(r.case or r.scenario, r.planner, r.risk, r.epsilon == AUTO)].append(r)
+    return sorted(groups.items(), key=lambda item: (
+        item[0][0], item[0][1], RISK_ORDER.get(item[0][2], len(RISK_ORDER)), item[0][3]))
 
 
-def _sorted_groups(groups: dict[tuple[str, str, str, bool], list[EpisodeRecord]]) -> list:
-    """``groups.items()`` in table order: scenario, planner, risk (:data:`RISK_ORDER`), auto."""
-    def order(key: tuple[str, str, str, bool]) -> tuple:
-        scenario, planner, risk, auto = key
-        return scenario, planner, RISK_ORDER.get(risk, len(RISK_ORDER)), auto
+def outcomes(group: Sequence[EpisodeRecord]) -> dict[str, Any]:
+    """The outcome columns of a group of episodes (fields of :class:`SummaryRow`).
 
-    return sorted(groups.items(), key=lambda item: order(item[0]))
+    ``episodes`` and ``failed`` (an exception; left out of the rates), the collision
+    rate in continuous time with its Wilson 95 % interval (``collision_low``,
+    ``collision_high``), the goal rate, the mean time to goal in s over the ``arrivals``
+    (NaN if none); rates are NaN when no episode ran.
+    """
+    ok = [r for r in group if not r.error]
+    n = len(ok)
+    collisions = sum(r.collision for r in ok)
+    times = [r.time_to_goal for r in ok if r.goal_reached]
+    low, high = wilson_interval(collisions, n)
+    return dict(episodes=len(group), failed=len(group) - n,
+                collision_rate=collisions / n if n else math.nan, collision_low=low,
+                collision_high=high, goal_rate=len(times) / n if n else math.nan,
+                time_to_goal=float(np.mean(times)) if times else math.nan, arrivals=len(times))
 
 
 def summarise(records: Iterable[EpisodeRecord]) -> list[SummaryRow]:
@@ -91,35 +107,22 @@ def summarise(records: Iterable[EpisodeRecord]) -> list[SummaryRow]:
     A stress-suite record counts under its case (``record.case``) as the scenario, and
     ``epsilon="auto"`` is a method of its own (``method`` ``"dr_cvar (eps=auto)"``).
     """
-    groups: dict[tuple[str, str, str, bool], list[EpisodeRecord]] = defaultdict(list)
-    for record in records:
-        groups[_group(record)].append(record)
     rows = []
-    for (scenario, planner, risk, auto), group in _sorted_groups(groups):
+    for (scenario, planner, risk, auto), group in _groups(records):
         ok = [r for r in group if not r.error]
         n = len(ok)
-        collisions = sum(r.collision for r in ok)
-        low, high = wilson_interval(collisions, n)
         distances = np.array([r.min_distance for r in ok], dtype=float)
-        times = [r.time_to_goal for r in ok if r.goal_reached]
         steps = sum(r.steps for r in ok)
         swept = np.array([r.min_swept_distance for r in ok], dtype=float)
         shares = tuple(
             (status, sum(getattr(r, f"share_{status}") * r.steps for r in ok) / steps)
             for status in FILTER_STATUSES) if steps else ()
-        causes = tuple((cause, sum(r.collision_cause == cause for r in ok))
-                       for cause in COLLISION_CAUSES)
         errors = [f"seed {r.seed}, {r.first_error}" for r in ok if r.first_error]
         failures = [f"seed {r.seed}: {r.error}" for r in group if r.error]
         rows.append(SummaryRow(
-            scenario=scenario, planner=planner, risk=risk, episodes=len(group),
-            failed=len(group) - n,
-            collision_rate=collisions / n if n else math.nan,
-            collision_low=low, collision_high=high,
+            scenario=scenario, planner=planner, risk=risk, **outcomes(group),
             worst_distance=float(np.nanmin(distances)) if n else math.nan,
             cvar_distance=lower_tail_mean(distances),
-            goal_rate=sum(r.goal_reached for r in ok) / n if n else math.nan,
-            time_to_goal=float(np.mean(times)) if times else math.nan,
             mean_intervention=float(np.mean([r.mean_intervention for r in ok])) if n else math.nan,
             fallback_share=sum(r.fallback_steps for r in ok) / steps if steps else math.nan,
             filter_time_ms=1e3 * float(np.median([r.filter_time_median for r in ok]))
@@ -127,10 +130,11 @@ def summarise(records: Iterable[EpisodeRecord]) -> list[SummaryRow]:
             sampled_collision_rate=sum(r.sampled_collision for r in ok) / n if n else math.nan,
             worst_swept_distance=(float(np.nanmin(swept)) if n and np.isfinite(swept).any()
                                   else math.nan),
-            status_shares=shares, collision_causes=causes,
+            status_shares=shares, collision_causes=tuple(
+                (cause, sum(r.collision_cause == cause for r in ok)) for cause in COLLISION_CAUSES),
             first_error=errors[0] if errors else "",
             first_failure=failures[0][:200] if failures else "",
-            method=method_label(risk, AUTO if auto else 0.0), arrivals=len(times),
+            method=method_label(risk, AUTO if auto else 0.0),
         ))
     return rows
 
@@ -227,12 +231,9 @@ def audit_rows(records: Iterable[EpisodeRecord]) -> list[AuditRow]:
     from agents.evaluation.audit import PROMISES, audit_losses, decode_losses
     from filters.errors import InvalidParameterError
 
-    groups: dict[tuple[str, str, str, bool], list[EpisodeRecord]] = defaultdict(list)
-    for record in records:
-        if record.risk != "none" and not record.error:
-            groups[_group(record)].append(record)
     rows = []
-    for (scenario, planner, risk, auto), group in _sorted_groups(groups):
+    for (scenario, planner, risk, auto), group in _groups(
+            r for r in records if r.risk != "none" and not r.error):
         settings = {(r.alpha, r.delta) for r in group}
         if len(settings) > 1:
             raise InvalidParameterError(
