@@ -254,6 +254,11 @@ def make_figures(folder: Path, records: Sequence[EpisodeRecord], rows: Sequence[
     return files
 
 
+SWEEP_MEANS = {"collision_rate": "collision", "sampled_collision_rate": "sampled_collision",
+               "goal_rate": "goal_reached", "mean_intervention": "mean_intervention"}
+"""A sweep point's columns: the mean of these record fields over its episodes."""
+
+
 def run_sweep(output: str | Path | None = None, scenarios: Sequence[str] = PAPER_SCENARIOS, *,
               epsilons: Sequence[float] = (0.0, 0.05, 0.1, 0.2),
               deltas: Sequence[float] = (0.0, 0.1, 0.2), config: EvaluationConfig | None = None,
@@ -280,14 +285,9 @@ def run_sweep(output: str | Path | None = None, scenarios: Sequence[str] = PAPER
             for epsilon in epsilons:
                 ok = [r for r in records if not r.error and r.delta == float(delta)
                       and r.epsilon == float(epsilon)]
-                n = max(1, len(ok))
-                points.append(dict(
-                    epsilon=epsilon, delta=delta, episodes=len(ok),
-                    collision_rate=sum(r.collision for r in ok) / n,
-                    sampled_collision_rate=sum(r.sampled_collision for r in ok) / n,
-                    goal_rate=sum(r.goal_reached for r in ok) / n,
-                    mean_intervention=sum(r.mean_intervention for r in ok) / n,
-                ))
+                points.append(dict(epsilon=epsilon, delta=delta, episodes=len(ok), **{
+                    column: sum(getattr(r, name) for r in ok) / max(1, len(ok))
+                    for column, name in SWEEP_MEANS.items()}))
         lines = ["| delta (m) | epsilon (m) | episodes | collision rate | sampled collision "
                  "rate | goal rate | mean intervention (m/s²) |", "|---|---|---|---|---|---|---|"]
         lines += [f"| {p['delta']:g} | {p['epsilon']:g} | {p['episodes']} | "

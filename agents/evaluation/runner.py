@@ -14,7 +14,7 @@ import math
 import time
 import traceback
 from collections import Counter, OrderedDict
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from typing import Any
 
 import numpy as np
@@ -77,18 +77,6 @@ def collision_cause(collisions: Sequence[bool], sampled_collisions: Sequence[boo
     return "noise"
 
 
-def _load_planner(spec: EpisodeSpec, env: Any) -> tuple[Any, str]:
-    if spec.planner == "mpc":
-        from agents.planners import MPCReferencePlanner
-
-        return MPCReferencePlanner.from_env(env), ""
-    if spec.planner == "goal":
-        from agents.policies.go_to_goal import GoToGoalPolicy
-
-        return GoToGoalPolicy.from_env(env), ""
-    return load_policy(spec.policy_path, sha256=spec.policy_sha256)
-
-
 # ---------------------------------------------------------------------------- environment
 def make_env(spec: EpisodeSpec, *, render_mode: str | None = None, policy: Any = None,
              env_kwargs: dict[str, Any] | None = None) -> tuple[Any, Any]:
@@ -127,8 +115,16 @@ def make_env(spec: EpisodeSpec, *, render_mode: str | None = None, policy: Any =
     try:
         if policy is not None:
             planner = policy if hasattr(policy, "predict") else policy(env)
+        elif spec.planner == "mpc":
+            from agents.planners import MPCReferencePlanner
+
+            planner = MPCReferencePlanner.from_env(env)
+        elif spec.planner == "goal":
+            from agents.policies.go_to_goal import GoToGoalPolicy
+
+            planner = GoToGoalPolicy.from_env(env)
         else:
-            planner, _ = _load_planner(spec, env)
+            planner, _ = load_policy(spec.policy_path, sha256=spec.policy_sha256)
         filter_kwargs = spec.filter_kwargs()
         # A PPO policy trained on the normalised view acts in [-1, 1]: it steps through
         # NormalisedActions (outside the filter) and the roll-out reference gets m/s².
@@ -182,8 +178,7 @@ def _reusable_env(spec: EpisodeSpec, sha: str) -> tuple[EpisodeSpec | None, Any,
     key = dataclasses.replace(spec, seed=0, policy_sha256=sha)
     if key in _ENV_CACHE:
         _ENV_CACHE.move_to_end(key)
-        env, planner = _ENV_CACHE[key]
-        return key, env, planner
+        return (key, *_ENV_CACHE[key])
     env, planner = make_env(spec)
     if not _resets_fully(env):
         return None, env, planner  # used once and closed, like a fresh environment
@@ -202,13 +197,16 @@ def _resets_fully(env: Any) -> bool:
     before it in the process. With ``"episode"`` (the default) ``reset`` restores the
     held-out calibrated state, as a fresh wrapper starts from.
     """
-    layer = env
-    while layer is not None and layer is not getattr(layer, "unwrapped", None):
-        if (getattr(layer, "_calibration", None) is not None
-                and getattr(layer, "calibration_memory", "persistent") != "episode"):
-            return False
-        layer = getattr(layer, "env", None)
-    return True
+    return not any(getattr(layer, "_calibration", None) is not None
+                   and getattr(layer, "calibration_memory", "persistent") != "episode"
+                   for layer in _wrappers(env))
+
+
+def _wrappers(env: Any) -> Iterator[Any]:
+    """The wrapper layers of ``env``, outermost first (not the base environment)."""
+    while env is not None and env is not getattr(env, "unwrapped", None):
+        yield env
+        env = getattr(env, "env", None)
 
 
 def clear_env_cache() -> None:
@@ -247,7 +245,6 @@ def run_episode(
     """
     start = time.perf_counter()
     stats = EpisodeStats()
-    trajectory = None
     recorder = None
     sha = ""
     reuse = (reuse_env and policy is None and env_kwargs is None and not render
@@ -289,8 +286,8 @@ def run_episode(
         error = f"{type(exc).__name__}: {exc}".replace("\n", " ")[:500]
         if not isinstance(exc, FloatingPointError | InvalidParameterError | PolicyFileError):
             error += " | " + traceback.format_exc(limit=3).replace("\n", " ")[-300:]
-    if recorder is not None:  # also after a failure: the partial data are kept
-        trajectory = recorder.trajectory()
+    # also after a failure: the partial data are kept
+    trajectory = recorder.trajectory() if recorder is not None else None
     record = EpisodeRecord(
         **{**{name: getattr(spec, name) for name in KEY_FIELDS},
            "policy_sha256": spec.policy_sha256 or sha},
@@ -303,10 +300,8 @@ def _intersample(env: Any) -> bool:
     """Whether the safety filter in ``env``'s wrapper stack adds inter-sample rows."""
     from filters.wrapper import SafetyFilterWrapper
 
-    layer = env
-    while layer is not None and not isinstance(layer, SafetyFilterWrapper):
-        layer = getattr(layer, "env", None)
-    return bool(layer is not None and layer.intersample)
+    return any(isinstance(layer, SafetyFilterWrapper) and layer.intersample
+               for layer in _wrappers(env))
 
 
 def _policy_name(spec: EpisodeSpec, policy: Any) -> str:
