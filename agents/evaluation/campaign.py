@@ -44,6 +44,7 @@ from agents.evaluation.summary import (
     short_name,
     status_table,
     summarise,
+    table,
 )
 from filters.errors import InvalidParameterError
 from filters.wrapper import RISKS
@@ -225,7 +226,6 @@ def make_figures(folder: Path, records: Sequence[EpisodeRecord], rows: Sequence[
 
     files: dict[str, Path] = {}
     seed = template.seed
-    scenarios = [scenario_name(s) for s in scenarios]
     # One rendered run (MultiObstacle if evaluated, DR-CVaR if evaluated) also gives the
     # safe-polytope figure and the animation; every other run only its trajectory.
     featured = plots.featured_run(scenarios, risks)
@@ -288,12 +288,12 @@ def run_sweep(output: str | Path | None = None, scenarios: Sequence[str] = PAPER
                 points.append(dict(epsilon=epsilon, delta=delta, episodes=len(ok), **{
                     column: sum(getattr(r, name) for r in ok) / max(1, len(ok))
                     for column, name in SWEEP_MEANS.items()}))
-        lines = ["| delta (m) | epsilon (m) | episodes | collision rate | sampled collision "
-                 "rate | goal rate | mean intervention (m/s²) |", "|---|---|---|---|---|---|---|"]
-        lines += [f"| {p['delta']:g} | {p['epsilon']:g} | {p['episodes']} | "
-                  f"{p['collision_rate']:.1%} | {p['sampled_collision_rate']:.1%} | "
-                  f"{p['goal_rate']:.1%} | {p['mean_intervention']:.3f} |" for p in points]
-        markdown = "\n".join(lines) + "\n"
+        markdown = table(
+            ("delta (m)", "epsilon (m)", "episodes", "collision rate", "sampled collision rate",
+             "goal rate", "mean intervention (m/s²)"),
+            ([f"{p['delta']:g}", f"{p['epsilon']:g}", f"{p['episodes']}",
+              f"{p['collision_rate']:.1%}", f"{p['sampled_collision_rate']:.1%}",
+              f"{p['goal_rate']:.1%}", f"{p['mean_intervention']:.3f}"] for p in points))
         return Report("DR-CVaR epsilon/delta sweep", f"\n{markdown}", summarise(records),
                       markdown, figures=lambda folder: {
                           "sweep": plots.plot_sweep(points, folder / "sweep.png")})

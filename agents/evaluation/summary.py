@@ -152,43 +152,38 @@ def time_to_goal_cell(row: SummaryRow) -> str:
     return f"- ({row.arrivals} arrived)"
 
 
+def table(columns: Sequence[str], rows: Iterable[Sequence[str]]) -> str:
+    """A Markdown table of text cells: the header, its rule, one line per row."""
+    return "\n".join(["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns),
+                      *("| " + " | ".join(row) + " |" for row in rows)]) + "\n"
+
+
 def markdown_table(rows: Sequence[SummaryRow]) -> str:
     """The summary as a Markdown table (collisions in continuous time unless "sampled")."""
-    header = ("| scenario | planner | risk | episodes | collision rate [95 % CI] | "
-              "sampled collision rate | worst distance (m) | worst swept distance (m) | "
-              "CVaR10 distance (m) | goal rate | time to goal (s) | "
-              "mean intervention (m/s²) | fallback steps | filter time (ms) |")
-    lines = [header, "|" + "---|" * 14]
-    for r in rows:
-        failed = f" ({r.failed} failed)" if r.failed else ""
-        lines.append(
-            f"| {short_name(r.scenario)} | {r.planner} | {r.method or r.risk} | "
-            f"{r.episodes}{failed} | "
-            f"{r.collision_rate:.1%} [{r.collision_low:.1%}, {r.collision_high:.1%}] | "
-            f"{r.sampled_collision_rate:.1%} | "
-            f"{r.worst_distance:.3f} | {r.worst_swept_distance:.3f} | {r.cvar_distance:.3f} | "
-            f"{r.goal_rate:.1%} | "
-            f"{time_to_goal_cell(r)} | {r.mean_intervention:.3f} | {r.fallback_share:.1%} | "
-            f"{r.filter_time_ms:.2f} |"
-        )
-    return "\n".join(lines) + "\n"
+    columns = ("scenario", "planner", "risk", "episodes", "collision rate [95 % CI]",
+               "sampled collision rate", "worst distance (m)", "worst swept distance (m)",
+               "CVaR10 distance (m)", "goal rate", "time to goal (s)",
+               "mean intervention (m/s²)", "fallback steps", "filter time (ms)")
+    return table(columns, ([
+        short_name(r.scenario), r.planner, r.method or r.risk,
+        f"{r.episodes}" + (f" ({r.failed} failed)" if r.failed else ""),
+        f"{r.collision_rate:.1%} [{r.collision_low:.1%}, {r.collision_high:.1%}]",
+        f"{r.sampled_collision_rate:.1%}", f"{r.worst_distance:.3f}",
+        f"{r.worst_swept_distance:.3f}", f"{r.cvar_distance:.3f}", f"{r.goal_rate:.1%}",
+        time_to_goal_cell(r), f"{r.mean_intervention:.3f}", f"{r.fallback_share:.1%}",
+        f"{r.filter_time_ms:.2f}"] for r in rows))
 
 
 def status_table(rows: Sequence[SummaryRow]) -> str:
     """Share of steps per filter status, collisions by cause, first bad-data reason."""
-    header = ("| scenario | planner | risk | " + " | ".join(FILTER_STATUSES) + " | "
-              "collisions by cause (" + " / ".join(COLLISION_CAUSES) + ") | first error |")
-    lines = [header, "|" + "---|" * (len(FILTER_STATUSES) + 5)]
-    for r in rows:
-        shares = dict(r.status_shares)
-        causes = dict(r.collision_causes)
-        cells = " | ".join(f"{shares[s]:.1%}" if s in shares and r.risk != "none" else "-"
-                           for s in FILTER_STATUSES)  # "none": every step is a passthrough
-        cause_cell = " / ".join(str(causes.get(c, 0)) for c in COLLISION_CAUSES)
-        reason = (r.first_error or r.first_failure or "").replace("|", "/")
-        lines.append(f"| {short_name(r.scenario)} | {r.planner} | {r.method or r.risk} | {cells} | "
-                     f"{cause_cell} | {reason} |")
-    return "\n".join(lines) + "\n"
+    columns = ("scenario", "planner", "risk", *FILTER_STATUSES,
+               "collisions by cause (" + " / ".join(COLLISION_CAUSES) + ")", "first error")
+    return table(columns, ([
+        short_name(r.scenario), r.planner, r.method or r.risk,
+        *(f"{dict(r.status_shares)[s]:.1%}" if s in dict(r.status_shares) and r.risk != "none"
+          else "-" for s in FILTER_STATUSES),  # "none": every step is a passthrough
+        " / ".join(str(dict(r.collision_causes).get(c, 0)) for c in COLLISION_CAUSES),
+        (r.first_error or r.first_failure or "").replace("|", "/")] for r in rows))
 
 
 # ---------------------------------------------------------------------------- guarantee audit
@@ -281,16 +276,12 @@ def audit_table(rows: Sequence[AuditRow]) -> str:
     :meth:`agents.evaluation.audit.AuditResult.verdict`.
     """
     pool = ["n", "mean ℓ (m)", "CVaR_α ℓ (m)", "P(ℓ > δ) [95 % CI]", "verdict"]
-    header = ("| scenario | planner | method | promise | α | δ (m) | "
-              + " | ".join(f"active: {c}" for c in pool) + " | "
-              + " | ".join(f"all: {c}" for c in pool) + " |")
-    lines = [header, "|" + "---|" * (6 + 2 * len(pool))]
-    for r in rows:
-        cells = [short_name(r.scenario), r.planner, r.method, _PROMISE_TEXT[r.promise],
-                 f"{r.active.alpha:g}", f"{r.active.delta:g}",
-                 *_audit_cells(r.active, r.promise), *_audit_cells(r.all, r.promise)]
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines) + "\n"
+    columns = ["scenario", "planner", "method", "promise", "α", "δ (m)",
+               *(f"active: {c}" for c in pool), *(f"all: {c}" for c in pool)]
+    return table(columns, ([short_name(r.scenario), r.planner, r.method,
+                            _PROMISE_TEXT[r.promise], f"{r.active.alpha:g}",
+                            f"{r.active.delta:g}", *_audit_cells(r.active, r.promise),
+                            *_audit_cells(r.all, r.promise)] for r in rows))
 
 
 AUDIT_NOTE = (
