@@ -16,6 +16,7 @@ from typing import Any
 
 from agents.evaluation.evaluate import SPEC_OPTIONS, output_folder
 from agents.evaluation.executors import EXECUTORS, Executor
+from filters._validation import integer_at_least
 from filters.errors import InvalidParameterError
 
 __all__ = ["EvaluationConfig", "split_options"]
@@ -67,10 +68,7 @@ class EvaluationConfig:
             if not isinstance(self.output, (str, Path)):
                 raise InvalidParameterError(f"output must be a folder path, got {self.output!r}")
             object.__setattr__(self, "output", output_folder(self.output))
-        if isinstance(self.workers, bool) or not isinstance(self.workers, int) \
-                or self.workers < 1:
-            raise InvalidParameterError(f"workers must be an integer >= 1, got "
-                                        f"{self.workers!r}")
+        object.__setattr__(self, "workers", integer_at_least("workers", self.workers, low=1))
         if not isinstance(self.executor, Executor) and self.executor not in EXECUTORS:
             raise InvalidParameterError(f"executor must be one of {EXECUTORS} or an Executor, "
                                         f"got {self.executor!r}")

@@ -339,11 +339,8 @@ class EpisodeStats:
         self.first_error = ""
         self.dt = DT
         self.intersample = False
-        self.interventions: list[float] = []
-        self.filter_times: list[float] = []
-        self.status_list: list[str] = []
-        self.collisions: list[bool] = []
-        self.sampled_collisions: list[bool] = []
+        self.per_step: list[tuple[bool, bool, str, float, float]] = []
+        """(collision, sampled collision, filter status, intervention, filter time) per step."""
         self.audit: list[float] = []
         self.audit_all: list[float] = []
         self._ego = np.zeros(4)
@@ -372,24 +369,22 @@ class EpisodeStats:
         ego = np.asarray(base.ego_state, dtype=float).copy()
         # The ego's velocity is linear in time over a step (constant input), so its speed
         # stays below the larger of the two ends: standing throughout when both are.
-        if collision and not any(self.collisions):
+        if collision and not any(step[0] for step in self.per_step):
             self.standing_collision = max(float(np.linalg.norm(self._ego[2:4])),
                                           float(np.linalg.norm(ego[2:4]))) < STANDING_SPEED
         self.path_length += float(np.linalg.norm(ego[:2] - self._ego[:2]))
         self._ego = ego
-        self.collisions.append(collision)
-        # Before the continuous-time environment, "collision" was the sampled flag.
-        self.sampled_collisions.append(bool(info.get("sampled_collision", collision)))
         self.discomfort_steps += bool(info.get("discomfort", False))
         if info.get("is_success", False) and math.isnan(self.goal_time):
             self.goal_time = self.steps * self.dt
         report = info["filter"]
-        self.status_list.append(str(report["status"]))
+        # Before the continuous-time environment, "collision" was the sampled flag.
+        self.per_step.append((collision, bool(info.get("sampled_collision", collision)),
+                              str(report["status"]), float(report["intervention"]),
+                              float(report["filter_time"])))
         reason = str(report["error"]) if "error" in report.keys() else ""
         if reason and not self.first_error:
             self.first_error = f"step {self.steps}: {reason}".replace("\n", " ")[:300]
-        self.interventions.append(float(report["intervention"]))
-        self.filter_times.append(float(report["filter_time"]))
         ids, self._ids = self._ids, _obstacle_ids(base)
         self._audit(base, report, ids)
 
@@ -432,40 +427,38 @@ class EpisodeStats:
 
     def summary(self) -> dict[str, Any]:
         """The record's columns that describe what happened (see :class:`EpisodeRecord`)."""
-        statuses, counts = self.status_list, Counter(self.status_list)
-        interventions = np.asarray(self.interventions or [0.0])
-        times = np.asarray(self.filter_times or [0.0])
-        first = self.collisions.index(True) if any(self.collisions) else -1  # 0-based
+        collisions, sampled, statuses, interventions, times = (
+            [list(column) for column in zip(*self.per_step, strict=True)] or [[]] * 5)
+        counts = Counter(statuses)
+        interventions = np.asarray(interventions or [0.0])
+        times = np.asarray(times or [0.0])
+        first = collisions.index(True) if any(collisions) else -1  # 0-based
         return dict(
-            steps=self.steps,
+            **{name: getattr(self, name) for name in (
+                "steps", "standing_collision", "discomfort_steps", "path_length", "first_error",
+                "episode_return")},
+            **{name: value if math.isfinite(value := getattr(self, name)) else math.nan
+               for name in ("min_distance", "min_swept_distance")},
             collision=first >= 0,
-            collision_steps=sum(self.collisions),
+            collision_steps=sum(collisions),
             first_collision_step=first + 1,
-            collision_cause=collision_cause(self.collisions, self.sampled_collisions, statuses),
+            collision_cause=collision_cause(collisions, sampled, statuses),
             first_infeasible_step=next((i + 1 for i, status in enumerate(statuses)
                                         if status in FALLBACK_STATUSES), 0),
             status_before_collision=statuses[first - 1] if 0 < first <= len(statuses) else "",
             status_at_collision=statuses[first] if 0 <= first < len(statuses) else "",
-            standing_collision=self.standing_collision,
-            sampled_collision=any(self.sampled_collisions),
-            sampled_collision_steps=sum(self.sampled_collisions),
-            min_distance=self.min_distance if math.isfinite(self.min_distance) else math.nan,
-            min_swept_distance=(self.min_swept_distance
-                                if math.isfinite(self.min_swept_distance) else math.nan),
-            discomfort_steps=self.discomfort_steps,
+            sampled_collision=any(sampled),
+            sampled_collision_steps=sum(sampled),
             goal_reached=not math.isnan(self.goal_time),
             time_to_goal=self.goal_time,
-            path_length=self.path_length,
             mean_intervention=float(interventions.mean()),
             max_intervention=float(interventions.max()),
             statuses=";".join(f"{s}:{c}" for s, c in sorted(counts.items())),
             **{f"share_{status}": counts[status] / max(1, self.steps)
                for status in FILTER_STATUSES},
             fallback_steps=int(sum(counts[status] for status in FALLBACK_STATUSES)),
-            first_error=self.first_error,
             filter_time_median=float(np.median(times)),
             filter_time_max=float(times.max()),
-            episode_return=self.episode_return,
             audit_steps=len(self.audit),
             audit_losses=encode_losses(self.audit),
             audit_all_steps=len(self.audit_all),
