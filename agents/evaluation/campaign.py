@@ -114,31 +114,27 @@ def _values(records: Sequence[EpisodeRecord], name: str) -> str:
                      for v in values)
 
 
+_PLANNER_NAMES = {"goal": "obstacle-blind go-to-goal controller", "mpc": "obstacle-agnostic MPC"}
+
+
 def describe_run(records: Sequence[EpisodeRecord]) -> str:
     """The Markdown lines that name the policies (path and hash), the settings shared by the
     records (each value they take) and the code."""
     planners = [p for p in PLANNERS if any(r.planner == p for r in records)]
-    lines = []
-    for planner in planners:
-        if planner == "ppo":
-            for path, sha in sorted({(r.policy, r.policy_sha256) for r in records
-                                     if r.planner == "ppo"}):
-                lines.append(f"- policy: `{policy_file(path)}` (SHA-256 `{sha or 'unknown'}`)")
-        else:
-            blind = ("obstacle-blind go-to-goal controller" if planner == "goal"
-                     else "obstacle-agnostic MPC")
-            lines.append(f"- planner `{planner}`: the {blind} (no policy file)")
+    lines = [f"- policy: `{policy_file(path)}` (SHA-256 `{sha or 'unknown'}`)" for path, sha
+             in sorted({(r.policy, r.policy_sha256) for r in records if r.planner == "ppo"})]
+    lines += [f"- planner `{planner}`: the {_PLANNER_NAMES[planner]} (no policy file)"
+              for planner in planners if planner != "ppo"]
     seeds = sorted({r.seed for r in records}) or [0]
     lines.append(f"- planner {', '.join(planners)}, reference {_values(records, 'reference')}, "
                  f"alpha {_values(records, 'alpha')}, delta {_values(records, 'delta')} m, "
                  f"epsilon {_values(records, 'epsilon')} m, noise "
                  f"`{_values(records, 'noise')}`, {len(seeds)} episodes per cell, seeds "
                  f"{seeds[0]}..{seeds[-1]} in every cell")
-    for filter_options, env_options in sorted({(r.filter_options, r.env_options)
-                                               for r in records}):
-        if filter_options or env_options:
-            lines.append(f"- filter options `{filter_options or '{}'}`, environment options "
-                         f"`{env_options or '{}'}`")
+    lines += [f"- filter options `{filter_options or '{}'}`, environment options "
+              f"`{env_options or '{}'}`" for filter_options, env_options
+              in sorted({(r.filter_options, r.env_options) for r in records})
+              if filter_options or env_options]
     versions = sorted({r.version for r in records if r.version}) or [package_version()]
     lines.append(f"- safe-nav {', '.join(versions)}")
     lines.append("- collisions in continuous time (the exact clearance over each step) unless "

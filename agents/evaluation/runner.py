@@ -31,7 +31,7 @@ from agents.evaluation.records import (
 )
 from agents.evaluation.trajectory import Trajectory, TrajectoryRecorder
 from filters.errors import InvalidParameterError, InvalidTypeError
-from filters.wrapper import FALLBACK_STATUSES, NOMINAL_STATUSES
+from filters.wrapper import FALLBACK_STATUSES, NOMINAL_STATUSES, SafetyFilterWrapper
 from safe_nav_env.constants import DT
 
 __all__ = ["EpisodeStats", "Trajectory", "TrajectoryRecorder", "check_policy",
@@ -102,7 +102,6 @@ def make_env(spec: EpisodeSpec, *, render_mode: str | None = None, policy: Any =
     """
     import gymnasium as gym
 
-    from filters import SafetyFilterWrapper
     from safe_nav_env import env_id
 
     kwargs = {**spec.env_kwargs(), **(env_kwargs or {})}
@@ -262,7 +261,9 @@ def run_episode(
         try:
             obs, info = env.reset(seed=int(spec.seed))
             base = env.unwrapped
-            stats.start(base, info, intersample=_intersample(env))
+            stats.start(base, info, intersample=any(  # the filter adds inter-sample rows
+                isinstance(layer, SafetyFilterWrapper) and layer.intersample
+                for layer in _wrappers(env)))
             recorder = TrajectoryRecorder(env, render, info) if record_trajectory else None
             done = False
             while not done:
@@ -291,26 +292,12 @@ def run_episode(
     record = EpisodeRecord(
         **{**{name: getattr(spec, name) for name in KEY_FIELDS},
            "policy_sha256": spec.policy_sha256 or sha},
-        policy=_policy_name(spec, policy), version=_package_version(), **stats.summary(),
+        # The policy column: the file that ran (the shipped one resolved), else "".
+        policy=("" if spec.planner != "ppo" else f"<{type(policy).__name__} object>"
+                if policy is not None else str(policy_file(spec.policy_path))),
+        version=_package_version(), **stats.summary(),
         wall_time=time.perf_counter() - start, error=error)
     return record, trajectory
-
-
-def _intersample(env: Any) -> bool:
-    """Whether the safety filter in ``env``'s wrapper stack adds inter-sample rows."""
-    from filters.wrapper import SafetyFilterWrapper
-
-    return any(isinstance(layer, SafetyFilterWrapper) and layer.intersample
-               for layer in _wrappers(env))
-
-
-def _policy_name(spec: EpisodeSpec, policy: Any) -> str:
-    """The policy column: the file that ran (the shipped one resolved), else ""."""
-    if spec.planner != "ppo":
-        return ""
-    if policy is not None:
-        return f"<{type(policy).__name__} object>"
-    return str(policy_file(spec.policy_path))
 
 
 def _obstacle_ids(base: Any) -> np.ndarray | None:
