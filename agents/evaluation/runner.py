@@ -342,11 +342,9 @@ class EpisodeStats:
 
     def _distance(self, info: dict[str, Any]) -> None:
         distances = np.asarray(info.get("distance_to_collision", []), dtype=float)
-        if distances.size:
-            self.min_distance = min(self.min_distance, float(distances.min()))
-        swept = float(info.get("min_swept_distance_to_collision", math.nan))
-        if not math.isnan(swept):
-            self.min_swept_distance = min(self.min_swept_distance, swept)
+        self.min_distance = min(self.min_distance, float(distances.min(initial=math.inf)))
+        self.min_swept_distance = float(np.fmin(  # fmin: a NaN (not reported) is skipped
+            self.min_swept_distance, info.get("min_swept_distance_to_collision", math.nan)))
 
     def step(self, base: Any, reward: float, info: dict[str, Any]) -> None:
         self.steps += 1
