@@ -127,23 +127,18 @@ def make_env(spec: EpisodeSpec, *, render_mode: str | None = None, policy: Any =
         filter_kwargs = spec.filter_kwargs()
         # A PPO policy trained on the normalised view acts in [-1, 1]: it steps through
         # NormalisedActions (outside the filter) and the roll-out reference gets m/s².
-        from agents.training.wrappers import (
-            NormalisedActions,
-            PhysicalUnitsPolicy,
-            is_normalised_policy,
-        )
+        from agents.training.wrappers import NormalisedActions, in_physical_units
 
-        normalised = spec.planner == "ppo" and is_normalised_policy(planner, env.action_space)
+        actor = in_physical_units(planner, env.action_space) if spec.planner == "ppo" else planner
         if spec.planner == "mpc":
             filter_kwargs["reference"] = planner
         elif spec.reference == "rollout":
-            filter_kwargs["policy"] = (PhysicalUnitsPolicy(planner, env.action_space)
-                                       if normalised else planner)
+            filter_kwargs["policy"] = actor
         try:
             wrapped = SafetyFilterWrapper(env, **filter_kwargs)
         except InvalidTypeError as exc:  # e.g. an unknown key: a bad value of filter_options
             raise InvalidParameterError(f"filter_options: {exc}") from exc
-        if normalised:
+        if actor is not planner:  # a normalised policy
             wrapped = NormalisedActions(wrapped)
     except BaseException:
         env.close()
