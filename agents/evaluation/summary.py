@@ -144,14 +144,6 @@ def short_name(scenario: str) -> str:
     return scenario.split("/")[-1].rsplit("-v", 1)[0]
 
 
-def time_to_goal_cell(row: SummaryRow) -> str:
-    """The time to goal in s (mean over the episodes that arrived), or a dash and the
-    count of arrivals when none did (the mean of nothing is not a number to print)."""
-    if row.arrivals and math.isfinite(row.time_to_goal):
-        return f"{row.time_to_goal:.2f}"
-    return f"- ({row.arrivals} arrived)"
-
-
 def table(columns: Sequence[str], rows: Iterable[Sequence[str]]) -> str:
     """A Markdown table of text cells: the header, its rule, one line per row."""
     return "\n".join(["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns),
@@ -170,7 +162,9 @@ def markdown_table(rows: Sequence[SummaryRow]) -> str:
         f"{r.collision_rate:.1%} [{r.collision_low:.1%}, {r.collision_high:.1%}]",
         f"{r.sampled_collision_rate:.1%}", f"{r.worst_distance:.3f}",
         f"{r.worst_swept_distance:.3f}", f"{r.cvar_distance:.3f}", f"{r.goal_rate:.1%}",
-        time_to_goal_cell(r), f"{r.mean_intervention:.3f}", f"{r.fallback_share:.1%}",
+        # the mean time to goal, or a dash and the count (the mean of nothing is no number)
+        f"{r.time_to_goal:.2f}" if r.arrivals and math.isfinite(r.time_to_goal)
+        else f"- ({r.arrivals} arrived)", f"{r.mean_intervention:.3f}", f"{r.fallback_share:.1%}",
         f"{r.filter_time_ms:.2f}"] for r in rows))
 
 
@@ -235,14 +229,11 @@ def audit_rows(records: Iterable[EpisodeRecord]) -> list[AuditRow]:
                 f"the audit pools one (alpha, delta) per method; {scenario} {risk} has "
                 f"{sorted(settings)}")
         alpha, delta = settings.pop()
-        pooled = {column: audit_losses([], groups=[decode_losses(getattr(r, column))
+        active, pooled = (audit_losses([], groups=[decode_losses(getattr(r, column))
                                                    for r in group], alpha=alpha, delta=delta)
-                  for column in ("audit_losses", "audit_all_losses")}
-        rows.append(AuditRow(
-            scenario=scenario, planner=planner, risk=risk,
-            method=method_label(risk, AUTO if auto else 0.0), promise=PROMISES[risk],
-            active=pooled["audit_losses"], all=pooled["audit_all_losses"],
-        ))
+                          for column in ("audit_losses", "audit_all_losses"))
+        rows.append(AuditRow(scenario, planner, risk, method_label(risk, AUTO if auto else 0.0),
+                             PROMISES[risk], active, pooled))
     return rows
 
 
@@ -254,18 +245,14 @@ def _audit_cells(result: Any, promise: str) -> list[str]:
     if result.n == 0:
         return ["0", "-", "-", "-", "-"]
 
-    def bold(text: str, kind: str) -> str:
-        return f"**{text}**" if kind == promise else text
-
-    def interval(value: float, low: float, high: float) -> str:
-        return f"{value:.3f}" + ("" if math.isnan(low) else f" [{low:.3f}, {high:.3f}]")
-
-    rate = (f"{result.violation_rate:.1%} [{result.violation_low:.1%}, "
-            f"{result.violation_high:.1%}]")
-    return [str(result.n),
-            bold(interval(result.mean_loss, result.mean_low, result.mean_high), "mean"),
-            bold(interval(result.cvar_loss, result.cvar_low, result.cvar_high), "cvar"),
-            bold(rate, "chance"), result.verdict(promise)]
+    cells = {kind: f"{value:.3f}" + ("" if math.isnan(low) else f" [{low:.3f}, {high:.3f}]")
+             for kind, value, low, high in (
+                 ("mean", result.mean_loss, result.mean_low, result.mean_high),
+                 ("cvar", result.cvar_loss, result.cvar_low, result.cvar_high))}
+    cells["chance"] = (f"{result.violation_rate:.1%} [{result.violation_low:.1%}, "
+                       f"{result.violation_high:.1%}]")
+    return [str(result.n), *(f"**{text}**" if kind == promise else text
+                             for kind, text in cells.items()), result.verdict(promise)]
 
 
 def audit_table(rows: Sequence[AuditRow]) -> str:
