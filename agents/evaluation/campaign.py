@@ -70,9 +70,8 @@ class EvaluationOutputs:
         listing = "\n".join(f"  {name}: {path}" for name, path in self.files.items())
         count = f"{len(self.records)} episodes"
         if self.reused:
-            where = self.files.get("episodes", "the results CSV")
-            count += (f" ({self.reused} reused from {where}, {len(self.records) - self.reused} "
-                      "run now)")
+            count += (f" ({self.reused} reused from {self.files.get('episodes', 'the results CSV')}"
+                      f", {len(self.records) - self.reused} run now)")
         return f"{self.markdown}\n{count} in {self.wall_time:.1f} s\n{listing}"
 
     @property

@@ -72,9 +72,7 @@ def collision_cause(collisions: Sequence[bool], sampled_collisions: Sequence[boo
     window = statuses[max(0, first - FALLBACK_WINDOW):first + 1]
     if any(status not in NOMINAL_STATUSES for status in window):
         return "fallback"
-    if not sampled_collisions[first]:
-        return "inter_sample"
-    return "noise"
+    return "noise" if sampled_collisions[first] else "inter_sample"
 
 
 # ---------------------------------------------------------------------------- environment
@@ -241,18 +239,16 @@ def run_episode(
     stats = EpisodeStats()
     recorder = None
     sha = ""
-    reuse = (reuse_env and policy is None and env_kwargs is None and not render
-             and spec.planner in ("ppo", "goal"))  # stateless planners
     cache_key = None
     try:
         if policy is None and spec.planner == "ppo":
             sha = check_policy(spec.policy_path)
-        if reuse:
+        if (reuse_env and policy is None and env_kwargs is None and not render
+                and spec.planner in ("ppo", "goal")):  # stateless planners: reuse the env
             cache_key, env, planner = _reusable_env(spec, sha)
         else:
             env, planner = make_env(spec, policy=policy, env_kwargs=env_kwargs,
                                     render_mode="rgb_array" if render else None)
-        failed = True
         try:
             obs, info = env.reset(seed=int(spec.seed))
             base = env.unwrapped
@@ -270,12 +266,11 @@ def run_episode(
                 if recorder is not None:
                     recorder.record(info)
                 done = terminated or truncated
-            failed = False
+        except BaseException:
+            _ENV_CACHE.pop(cache_key, None)  # a half-run episode: do not reuse that environment
+            raise
         finally:
-            if cache_key is None:
-                env.close()
-            elif failed:  # a half-run episode: do not reuse that environment
-                _ENV_CACHE.pop(cache_key, None)
+            if cache_key not in _ENV_CACHE:  # not cached, or dropped after a failure
                 env.close()
         error = ""
     except Exception as exc:  # noqa: BLE001 — a Monte Carlo run records failures
@@ -382,8 +377,7 @@ class EpisodeStats:
         only if it held the same obstacle before and after (not an empty slot, not one
         that passed to another pedestrian).
         """
-        names = report.keys()
-        normals, offsets, plan = (report[name] if name in names else None
+        normals, offsets, plan = (report[name] if name in report.keys() else None
                                   for name in ("normals", "offsets", "planned_states"))
         if normals is None or offsets is None or plan is None or len(normals) == 0:
             return

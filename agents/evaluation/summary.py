@@ -117,8 +117,6 @@ def summarise(records: Iterable[EpisodeRecord]) -> list[SummaryRow]:
         shares = tuple(
             (status, sum(getattr(r, f"share_{status}") * r.steps for r in ok) / steps)
             for status in FILTER_STATUSES) if steps else ()
-        errors = [f"seed {r.seed}, {r.first_error}" for r in ok if r.first_error]
-        failures = [f"seed {r.seed}: {r.error}" for r in group if r.error]
         rows.append(SummaryRow(
             scenario=scenario, planner=planner, risk=risk, **outcomes(group),
             worst_distance=float(np.nanmin(distances)) if n else math.nan,
@@ -132,8 +130,8 @@ def summarise(records: Iterable[EpisodeRecord]) -> list[SummaryRow]:
                                   else math.nan),
             status_shares=shares, collision_causes=tuple(
                 (cause, sum(r.collision_cause == cause for r in ok)) for cause in COLLISION_CAUSES),
-            first_error=errors[0] if errors else "",
-            first_failure=failures[0][:200] if failures else "",
+            first_error=next((f"seed {r.seed}, {r.first_error}" for r in ok if r.first_error), ""),
+            first_failure=next((f"seed {r.seed}: {r.error}" for r in group if r.error), "")[:200],
             method=method_label(risk, AUTO if auto else 0.0),
         ))
     return rows
