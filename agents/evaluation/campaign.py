@@ -44,6 +44,7 @@ from agents.evaluation.summary import (
     short_name,
     status_table,
     summarise,
+    table,
 )
 from filters.errors import InvalidParameterError
 from filters.wrapper import RISKS
@@ -69,9 +70,8 @@ class EvaluationOutputs:
         listing = "\n".join(f"  {name}: {path}" for name, path in self.files.items())
         count = f"{len(self.records)} episodes"
         if self.reused:
-            where = self.files.get("episodes", "the results CSV")
-            count += (f" ({self.reused} reused from {where}, {len(self.records) - self.reused} "
-                      "run now)")
+            count += (f" ({self.reused} reused from {self.files.get('episodes', 'the results CSV')}"
+                      f", {len(self.records) - self.reused} run now)")
         return f"{self.markdown}\n{count} in {self.wall_time:.1f} s\n{listing}"
 
     @property
@@ -113,31 +113,27 @@ def _values(records: Sequence[EpisodeRecord], name: str) -> str:
                      for v in values)
 
 
+_PLANNER_NAMES = {"goal": "obstacle-blind go-to-goal controller", "mpc": "obstacle-agnostic MPC"}
+
+
 def describe_run(records: Sequence[EpisodeRecord]) -> str:
     """The Markdown lines that name the policies (path and hash), the settings shared by the
     records (each value they take) and the code."""
     planners = [p for p in PLANNERS if any(r.planner == p for r in records)]
-    lines = []
-    for planner in planners:
-        if planner == "ppo":
-            for path, sha in sorted({(r.policy, r.policy_sha256) for r in records
-                                     if r.planner == "ppo"}):
-                lines.append(f"- policy: `{policy_file(path)}` (SHA-256 `{sha or 'unknown'}`)")
-        else:
-            blind = ("obstacle-blind go-to-goal controller" if planner == "goal"
-                     else "obstacle-agnostic MPC")
-            lines.append(f"- planner `{planner}`: the {blind} (no policy file)")
+    lines = [f"- policy: `{policy_file(path)}` (SHA-256 `{sha or 'unknown'}`)" for path, sha
+             in sorted({(r.policy, r.policy_sha256) for r in records if r.planner == "ppo"})]
+    lines += [f"- planner `{planner}`: the {_PLANNER_NAMES[planner]} (no policy file)"
+              for planner in planners if planner != "ppo"]
     seeds = sorted({r.seed for r in records}) or [0]
     lines.append(f"- planner {', '.join(planners)}, reference {_values(records, 'reference')}, "
                  f"alpha {_values(records, 'alpha')}, delta {_values(records, 'delta')} m, "
                  f"epsilon {_values(records, 'epsilon')} m, noise "
                  f"`{_values(records, 'noise')}`, {len(seeds)} episodes per cell, seeds "
                  f"{seeds[0]}..{seeds[-1]} in every cell")
-    for filter_options, env_options in sorted({(r.filter_options, r.env_options)
-                                               for r in records}):
-        if filter_options or env_options:
-            lines.append(f"- filter options `{filter_options or '{}'}`, environment options "
-                         f"`{env_options or '{}'}`")
+    lines += [f"- filter options `{filter_options or '{}'}`, environment options "
+              f"`{env_options or '{}'}`" for filter_options, env_options
+              in sorted({(r.filter_options, r.env_options) for r in records})
+              if filter_options or env_options]
     versions = sorted({r.version for r in records if r.version}) or [package_version()]
     lines.append(f"- safe-nav {', '.join(versions)}")
     lines.append("- collisions in continuous time (the exact clearance over each step) unless "
@@ -225,7 +221,6 @@ def make_figures(folder: Path, records: Sequence[EpisodeRecord], rows: Sequence[
 
     files: dict[str, Path] = {}
     seed = template.seed
-    scenarios = [scenario_name(s) for s in scenarios]
     # One rendered run (MultiObstacle if evaluated, DR-CVaR if evaluated) also gives the
     # safe-polytope figure and the animation; every other run only its trajectory.
     featured = plots.featured_run(scenarios, risks)
@@ -254,6 +249,11 @@ def make_figures(folder: Path, records: Sequence[EpisodeRecord], rows: Sequence[
     return files
 
 
+SWEEP_MEANS = {"collision_rate": "collision", "sampled_collision_rate": "sampled_collision",
+               "goal_rate": "goal_reached", "mean_intervention": "mean_intervention"}
+"""A sweep point's columns: the mean of these record fields over its episodes."""
+
+
 def run_sweep(output: str | Path | None = None, scenarios: Sequence[str] = PAPER_SCENARIOS, *,
               epsilons: Sequence[float] = (0.0, 0.05, 0.1, 0.2),
               deltas: Sequence[float] = (0.0, 0.1, 0.2), config: EvaluationConfig | None = None,
@@ -280,20 +280,15 @@ def run_sweep(output: str | Path | None = None, scenarios: Sequence[str] = PAPER
             for epsilon in epsilons:
                 ok = [r for r in records if not r.error and r.delta == float(delta)
                       and r.epsilon == float(epsilon)]
-                n = max(1, len(ok))
-                points.append(dict(
-                    epsilon=epsilon, delta=delta, episodes=len(ok),
-                    collision_rate=sum(r.collision for r in ok) / n,
-                    sampled_collision_rate=sum(r.sampled_collision for r in ok) / n,
-                    goal_rate=sum(r.goal_reached for r in ok) / n,
-                    mean_intervention=sum(r.mean_intervention for r in ok) / n,
-                ))
-        lines = ["| delta (m) | epsilon (m) | episodes | collision rate | sampled collision "
-                 "rate | goal rate | mean intervention (m/s²) |", "|---|---|---|---|---|---|---|"]
-        lines += [f"| {p['delta']:g} | {p['epsilon']:g} | {p['episodes']} | "
-                  f"{p['collision_rate']:.1%} | {p['sampled_collision_rate']:.1%} | "
-                  f"{p['goal_rate']:.1%} | {p['mean_intervention']:.3f} |" for p in points]
-        markdown = "\n".join(lines) + "\n"
+                points.append(dict(epsilon=epsilon, delta=delta, episodes=len(ok), **{
+                    column: sum(getattr(r, name) for r in ok) / max(1, len(ok))
+                    for column, name in SWEEP_MEANS.items()}))
+        markdown = table(
+            ("delta (m)", "epsilon (m)", "episodes", "collision rate", "sampled collision rate",
+             "goal rate", "mean intervention (m/s²)"),
+            ([f"{p['delta']:g}", f"{p['epsilon']:g}", f"{p['episodes']}",
+              f"{p['collision_rate']:.1%}", f"{p['sampled_collision_rate']:.1%}",
+              f"{p['goal_rate']:.1%}", f"{p['mean_intervention']:.3f}"] for p in points))
         return Report("DR-CVaR epsilon/delta sweep", f"\n{markdown}", summarise(records),
                       markdown, figures=lambda folder: {
                           "sweep": plots.plot_sweep(points, folder / "sweep.png")})

@@ -16,6 +16,7 @@ from typing import Any
 
 from agents.evaluation.evaluate import SPEC_OPTIONS, output_folder
 from agents.evaluation.executors import EXECUTORS, Executor
+from filters._validation import integer_at_least
 from filters.errors import InvalidParameterError
 
 __all__ = ["EvaluationConfig", "split_options"]
@@ -67,10 +68,7 @@ class EvaluationConfig:
             if not isinstance(self.output, (str, Path)):
                 raise InvalidParameterError(f"output must be a folder path, got {self.output!r}")
             object.__setattr__(self, "output", output_folder(self.output))
-        if isinstance(self.workers, bool) or not isinstance(self.workers, int) \
-                or self.workers < 1:
-            raise InvalidParameterError(f"workers must be an integer >= 1, got "
-                                        f"{self.workers!r}")
+        object.__setattr__(self, "workers", integer_at_least("workers", self.workers, low=1))
         if not isinstance(self.executor, Executor) and self.executor not in EXECUTORS:
             raise InvalidParameterError(f"executor must be one of {EXECUTORS} or an Executor, "
                                         f"got {self.executor!r}")
@@ -120,20 +118,17 @@ def split_options(config: EvaluationConfig | None, output: str | Path | None,
     """
     run = {name: value for name, value in options.items() if name in CONFIG_FIELDS}
     settings = {name: value for name, value in options.items() if name not in run}
-    unknown = sorted(set(settings) - set(SPEC_OPTIONS))
-    if unknown:
+    if unknown := sorted(set(settings) - set(SPEC_OPTIONS)):
         raise InvalidParameterError(f"unknown option(s) {unknown}; expected some of "
                                     f"{sorted(CONFIG_FIELDS)} or {list(SPEC_OPTIONS)}")
-    given = [name for name in fixed if name in settings]
-    if given:
+    if given := [name for name in fixed if name in settings]:
         raise InvalidParameterError(f"this campaign sets {given} itself; drop them")
     for name in ("filter_options", "env_options"):
         if name in settings and settings[name] is None:
             settings[name] = ""
     config = replace(config or EvaluationConfig(), **run)
-    if output is not None:
-        config = replace(config, output=output)
-    return (config if config.output is not None else replace(config, output=default)), settings
+    output = output if output is not None else config.output or default
+    return replace(config, output=output), settings
 
 
 CONFIG_FIELDS = frozenset(f.name for f in fields(EvaluationConfig))

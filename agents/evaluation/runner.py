@@ -14,7 +14,7 @@ import math
 import time
 import traceback
 from collections import Counter, OrderedDict
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from typing import Any
 
 import numpy as np
@@ -31,7 +31,7 @@ from agents.evaluation.records import (
 )
 from agents.evaluation.trajectory import Trajectory, TrajectoryRecorder
 from filters.errors import InvalidParameterError, InvalidTypeError
-from filters.wrapper import FALLBACK_STATUSES, NOMINAL_STATUSES
+from filters.wrapper import FALLBACK_STATUSES, NOMINAL_STATUSES, SafetyFilterWrapper
 from safe_nav_env.constants import DT
 
 __all__ = ["EpisodeStats", "Trajectory", "TrajectoryRecorder", "check_policy",
@@ -72,31 +72,10 @@ def collision_cause(collisions: Sequence[bool], sampled_collisions: Sequence[boo
     window = statuses[max(0, first - FALLBACK_WINDOW):first + 1]
     if any(status not in NOMINAL_STATUSES for status in window):
         return "fallback"
-    if not sampled_collisions[first]:
-        return "inter_sample"
-    return "noise"
-
-
-def _load_planner(spec: EpisodeSpec, env: Any) -> tuple[Any, str]:
-    if spec.planner == "mpc":
-        from agents.planners import MPCReferencePlanner
-
-        return MPCReferencePlanner.from_env(env), ""
-    if spec.planner == "goal":
-        from agents.policies.go_to_goal import GoToGoalPolicy
-
-        return GoToGoalPolicy.from_env(env), ""
-    return load_policy(spec.policy_path, sha256=spec.policy_sha256)
+    return "noise" if sampled_collisions[first] else "inter_sample"
 
 
 # ---------------------------------------------------------------------------- environment
-def _unknown_keyword(exc: TypeError, what: str) -> InvalidParameterError | None:
-    message = str(exc)
-    if "unexpected keyword argument" in message:
-        return InvalidParameterError(f"{what}: {message}")
-    return None
-
-
 def make_env(spec: EpisodeSpec, *, render_mode: str | None = None, policy: Any = None,
              env_kwargs: dict[str, Any] | None = None) -> tuple[Any, Any]:
     """The filtered (or pass-through) environment of an episode and its planner.
@@ -121,39 +100,43 @@ def make_env(spec: EpisodeSpec, *, render_mode: str | None = None, policy: Any =
     """
     import gymnasium as gym
 
-    from filters import SafetyFilterWrapper
     from safe_nav_env import env_id
 
     kwargs = {**spec.env_kwargs(), **(env_kwargs or {})}
     try:
         env = gym.make(env_id(spec.scenario), render_mode=render_mode, **kwargs)
     except TypeError as exc:
-        raise (_unknown_keyword(exc, "env_options") or exc) from exc
+        if "unexpected keyword argument" in str(exc):
+            raise InvalidParameterError(f"env_options: {exc}") from exc
+        raise
     try:
         if policy is not None:
             planner = policy if hasattr(policy, "predict") else policy(env)
+        elif spec.planner == "mpc":
+            from agents.planners import MPCReferencePlanner
+
+            planner = MPCReferencePlanner.from_env(env)
+        elif spec.planner == "goal":
+            from agents.policies.go_to_goal import GoToGoalPolicy
+
+            planner = GoToGoalPolicy.from_env(env)
         else:
-            planner, _ = _load_planner(spec, env)
+            planner, _ = load_policy(spec.policy_path, sha256=spec.policy_sha256)
         filter_kwargs = spec.filter_kwargs()
         # A PPO policy trained on the normalised view acts in [-1, 1]: it steps through
         # NormalisedActions (outside the filter) and the roll-out reference gets m/s².
-        from agents.training.wrappers import (
-            NormalisedActions,
-            PhysicalUnitsPolicy,
-            is_normalised_policy,
-        )
+        from agents.training.wrappers import NormalisedActions, in_physical_units
 
-        normalised = spec.planner == "ppo" and is_normalised_policy(planner, env.action_space)
+        actor = in_physical_units(planner, env.action_space) if spec.planner == "ppo" else planner
         if spec.planner == "mpc":
             filter_kwargs["reference"] = planner
         elif spec.reference == "rollout":
-            filter_kwargs["policy"] = (PhysicalUnitsPolicy(planner, env.action_space)
-                                       if normalised else planner)
+            filter_kwargs["policy"] = actor
         try:
             wrapped = SafetyFilterWrapper(env, **filter_kwargs)
         except InvalidTypeError as exc:  # e.g. an unknown key: a bad value of filter_options
             raise InvalidParameterError(f"filter_options: {exc}") from exc
-        if normalised:
+        if actor is not planner:  # a normalised policy
             wrapped = NormalisedActions(wrapped)
     except BaseException:
         env.close()
@@ -187,8 +170,7 @@ def _reusable_env(spec: EpisodeSpec, sha: str) -> tuple[EpisodeSpec | None, Any,
     key = dataclasses.replace(spec, seed=0, policy_sha256=sha)
     if key in _ENV_CACHE:
         _ENV_CACHE.move_to_end(key)
-        env, planner = _ENV_CACHE[key]
-        return key, env, planner
+        return (key, *_ENV_CACHE[key])
     env, planner = make_env(spec)
     if not _resets_fully(env):
         return None, env, planner  # used once and closed, like a fresh environment
@@ -207,13 +189,16 @@ def _resets_fully(env: Any) -> bool:
     before it in the process. With ``"episode"`` (the default) ``reset`` restores the
     held-out calibrated state, as a fresh wrapper starts from.
     """
-    layer = env
-    while layer is not None and layer is not getattr(layer, "unwrapped", None):
-        if (getattr(layer, "_calibration", None) is not None
-                and getattr(layer, "calibration_memory", "persistent") != "episode"):
-            return False
-        layer = getattr(layer, "env", None)
-    return True
+    return not any(getattr(layer, "_calibration", None) is not None
+                   and getattr(layer, "calibration_memory", "persistent") != "episode"
+                   for layer in _wrappers(env))
+
+
+def _wrappers(env: Any) -> Iterator[Any]:
+    """The wrapper layers of ``env``, outermost first (not the base environment)."""
+    while env is not None and env is not getattr(env, "unwrapped", None):
+        yield env
+        env = getattr(env, "env", None)
 
 
 def clear_env_cache() -> None:
@@ -222,9 +207,7 @@ def clear_env_cache() -> None:
         _ENV_CACHE.popitem()[1][0].close()
 
 
-@functools.cache
-def _package_version() -> str:
-    return package_version()  # reads the package metadata: once per process
+_package_version = functools.cache(package_version)  # reads the metadata once per process
 
 
 # ---------------------------------------------------------------------------- one episode
@@ -254,25 +237,24 @@ def run_episode(
     """
     start = time.perf_counter()
     stats = EpisodeStats()
-    trajectory = None
     recorder = None
     sha = ""
-    reuse = (reuse_env and policy is None and env_kwargs is None and not render
-             and spec.planner in ("ppo", "goal"))  # stateless planners
     cache_key = None
     try:
         if policy is None and spec.planner == "ppo":
             sha = check_policy(spec.policy_path)
-        if reuse:
+        if (reuse_env and policy is None and env_kwargs is None and not render
+                and spec.planner in ("ppo", "goal")):  # stateless planners: reuse the env
             cache_key, env, planner = _reusable_env(spec, sha)
         else:
             env, planner = make_env(spec, policy=policy, env_kwargs=env_kwargs,
                                     render_mode="rgb_array" if render else None)
-        failed = True
         try:
             obs, info = env.reset(seed=int(spec.seed))
             base = env.unwrapped
-            stats.start(base, info, intersample=_intersample(env))
+            stats.start(base, info, intersample=any(  # the filter adds inter-sample rows
+                isinstance(layer, SafetyFilterWrapper) and layer.intersample
+                for layer in _wrappers(env)))
             recorder = TrajectoryRecorder(env, render, info) if record_trajectory else None
             done = False
             while not done:
@@ -284,45 +266,28 @@ def run_episode(
                 if recorder is not None:
                     recorder.record(info)
                 done = terminated or truncated
-            failed = False
+        except BaseException:
+            _ENV_CACHE.pop(cache_key, None)  # a half-run episode: do not reuse that environment
+            raise
         finally:
-            if cache_key is None:
-                env.close()
-            elif failed:  # a half-run episode: do not reuse that environment
-                _ENV_CACHE.pop(cache_key, None)
+            if cache_key not in _ENV_CACHE:  # not cached, or dropped after a failure
                 env.close()
         error = ""
     except Exception as exc:  # noqa: BLE001 — a Monte Carlo run records failures
         error = f"{type(exc).__name__}: {exc}".replace("\n", " ")[:500]
         if not isinstance(exc, FloatingPointError | InvalidParameterError | PolicyFileError):
             error += " | " + traceback.format_exc(limit=3).replace("\n", " ")[-300:]
-    if recorder is not None:  # also after a failure: the partial data are kept
-        trajectory = recorder.trajectory()
+    # also after a failure: the partial data are kept
+    trajectory = recorder.trajectory() if recorder is not None else None
     record = EpisodeRecord(
         **{**{name: getattr(spec, name) for name in KEY_FIELDS},
            "policy_sha256": spec.policy_sha256 or sha},
-        policy=_policy_name(spec, policy), version=_package_version(), **stats.summary(),
+        # The policy column: the file that ran (the shipped one resolved), else "".
+        policy=("" if spec.planner != "ppo" else f"<{type(policy).__name__} object>"
+                if policy is not None else str(policy_file(spec.policy_path))),
+        version=_package_version(), **stats.summary(),
         wall_time=time.perf_counter() - start, error=error)
     return record, trajectory
-
-
-def _intersample(env: Any) -> bool:
-    """Whether the safety filter in ``env``'s wrapper stack adds inter-sample rows."""
-    from filters.wrapper import SafetyFilterWrapper
-
-    layer = env
-    while layer is not None and not isinstance(layer, SafetyFilterWrapper):
-        layer = getattr(layer, "env", None)
-    return bool(layer is not None and layer.intersample)
-
-
-def _policy_name(spec: EpisodeSpec, policy: Any) -> str:
-    """The policy column: the file that ran (the shipped one resolved), else ""."""
-    if spec.planner != "ppo":
-        return ""
-    if policy is not None:
-        return f"<{type(policy).__name__} object>"
-    return str(policy_file(spec.policy_path))
 
 
 def _obstacle_ids(base: Any) -> np.ndarray | None:
@@ -341,73 +306,60 @@ class EpisodeStats:
 
     def __init__(self) -> None:
         self.steps = 0
+        self.discomfort_steps = 0
         self.min_distance = math.inf
         self.min_swept_distance = math.inf
-        self.swept_reported = False
-        self.discomfort_steps = 0
         self.goal_time = math.nan
         self.path_length = 0.0
-        self.interventions: list[float] = []
-        self.filter_times: list[float] = []
-        self.status_list: list[str] = []
-        self.collisions: list[bool] = []
-        self.sampled_collisions: list[bool] = []
-        self.standing_collision = False
-        self._speed = 0.0
-        self._ids: np.ndarray | None = None
-        self.first_error = ""
         self.episode_return = 0.0
+        self.standing_collision = False
+        self.first_error = ""
         self.dt = DT
-        self._position = np.zeros(2)
         self.intersample = False
+        self.per_step: list[tuple[bool, bool, str, float, float]] = []
+        """(collision, sampled collision, filter status, intervention, filter time) per step."""
         self.audit: list[float] = []
         self.audit_all: list[float] = []
+        self._ego = np.zeros(4)
+        self._ids: np.ndarray | None = None
 
     def start(self, base: Any, info: dict[str, Any], *, intersample: bool = False) -> None:
         self.dt = float(base.dt)
         self.intersample = intersample
-        self._position = np.asarray(base.ego_state[:2], dtype=float).copy()
-        self._speed = float(np.linalg.norm(np.asarray(base.ego_state, dtype=float)[2:4]))
+        self._ego = np.asarray(base.ego_state, dtype=float).copy()
         self._ids = _obstacle_ids(base)
         self._distance(info)
 
     def _distance(self, info: dict[str, Any]) -> None:
         distances = np.asarray(info.get("distance_to_collision", []), dtype=float)
-        if distances.size:
-            self.min_distance = min(self.min_distance, float(distances.min()))
-        if "min_swept_distance_to_collision" in info:
-            self.swept_reported = True
-            swept = float(info["min_swept_distance_to_collision"])
-            if not math.isnan(swept):
-                self.min_swept_distance = min(self.min_swept_distance, swept)
+        self.min_distance = min(self.min_distance, float(distances.min(initial=math.inf)))
+        self.min_swept_distance = float(np.fmin(  # fmin: a NaN (not reported) is skipped
+            self.min_swept_distance, info.get("min_swept_distance_to_collision", math.nan)))
 
     def step(self, base: Any, reward: float, info: dict[str, Any]) -> None:
         self.steps += 1
         self.episode_return += float(reward)
         self._distance(info)
         collision = bool(info.get("collision", False))
+        ego = np.asarray(base.ego_state, dtype=float).copy()
         # The ego's velocity is linear in time over a step (constant input), so its speed
         # stays below the larger of the two ends: standing throughout when both are.
-        speed = float(np.linalg.norm(np.asarray(base.ego_state, dtype=float)[2:4]))
-        if collision and not any(self.collisions):
-            self.standing_collision = max(self._speed, speed) < STANDING_SPEED
-        self._speed = speed
-        self.collisions.append(collision)
-        # Before the continuous-time environment, "collision" was the sampled flag.
-        self.sampled_collisions.append(bool(info.get("sampled_collision", collision)))
+        if collision and not any(step[0] for step in self.per_step):
+            self.standing_collision = max(float(np.linalg.norm(self._ego[2:4])),
+                                          float(np.linalg.norm(ego[2:4]))) < STANDING_SPEED
+        self.path_length += float(np.linalg.norm(ego[:2] - self._ego[:2]))
+        self._ego = ego
         self.discomfort_steps += bool(info.get("discomfort", False))
-        position = np.asarray(base.ego_state[:2], dtype=float)
-        self.path_length += float(np.linalg.norm(position - self._position))
-        self._position = position.copy()
         if info.get("is_success", False) and math.isnan(self.goal_time):
             self.goal_time = self.steps * self.dt
         report = info["filter"]
-        self.status_list.append(str(report["status"]))
+        # Before the continuous-time environment, "collision" was the sampled flag.
+        self.per_step.append((collision, bool(info.get("sampled_collision", collision)),
+                              str(report["status"]), float(report["intervention"]),
+                              float(report["filter_time"])))
         reason = str(report["error"]) if "error" in report.keys() else ""
         if reason and not self.first_error:
             self.first_error = f"step {self.steps}: {reason}".replace("\n", " ")[:300]
-        self.interventions.append(float(report["intervention"]))
-        self.filter_times.append(float(report["filter_time"]))
         ids, self._ids = self._ids, _obstacle_ids(base)
         self._audit(base, report, ids)
 
@@ -425,10 +377,8 @@ class EpisodeStats:
         only if it held the same obstacle before and after (not an empty slot, not one
         that passed to another pedestrian).
         """
-        names = report.keys()
-        if not all(name in names for name in ("normals", "offsets", "planned_states")):
-            return
-        normals, offsets, plan = report["normals"], report["offsets"], report["planned_states"]
+        normals, offsets, plan = (report[name] if name in report.keys() else None
+                                  for name in ("normals", "offsets", "planned_states"))
         if normals is None or offsets is None or plan is None or len(normals) == 0:
             return
         from agents.evaluation.audit import first_step_losses
@@ -438,70 +388,51 @@ class EpisodeStats:
         b = np.asarray(offsets, dtype=float)[:, 0]
         realised = np.asarray(base.obstacle_positions, dtype=float)[: len(h)]
         radii = float(base.ego_radius) + np.asarray(base.obstacle_radii, dtype=float)[: len(h)]
-        C = np.asarray(base.dynamics[2], dtype=float)
-        y1 = C @ np.asarray(plan, dtype=float)[1]
-        if not (np.all(np.isfinite(realised)) and np.all(np.isfinite(y1))
-                and np.all(np.isfinite(h)) and np.all(np.isfinite(b))):
+        y1 = np.asarray(base.dynamics[2], dtype=float) @ np.asarray(plan, dtype=float)[1]
+        if not all(np.all(np.isfinite(x)) for x in (realised, y1, h, b)):
             return
         margins = arc_margin(h, base.input_bounds, float(base.dt)) if self.intersample else 0.0
         active, losses = first_step_losses(h, b, y1, realised, radii, margins=margins)
-        now = _obstacle_ids(base)
-        if ids is not None and now is not None:
-            same = (ids[: len(h)] >= 0) & (ids[: len(h)] == now[: len(h)])
+        if ids is not None and self._ids is not None:
+            same = (ids[: len(h)] >= 0) & (ids[: len(h)] == self._ids[: len(h)])
             active, losses = active[same], losses[same]
         self.audit.extend(float(v) for v in losses[active])
         self.audit_all.extend(float(v) for v in losses)
 
-    def collision_cause(self) -> str:
-        """Why the first continuous-time collision happened (see :class:`EpisodeRecord`)."""
-        return collision_cause(self.collisions, self.sampled_collisions, self.status_list)
-
-    def infeasibility(self) -> dict[str, Any]:
-        """First infeasible step and the statuses around the first collision (see
-        :class:`EpisodeRecord`)."""
-        first = next((i + 1 for i, status in enumerate(self.status_list)
-                      if status in FALLBACK_STATUSES), 0)
-        before = at = ""
-        if any(self.collisions):
-            k = self.collisions.index(True)  # 0-based index of the first colliding step
-            at = self.status_list[k] if k < len(self.status_list) else ""
-            before = self.status_list[k - 1] if 0 < k <= len(self.status_list) else ""
-        return dict(first_infeasible_step=first, status_before_collision=before,
-                    status_at_collision=at)
-
     def summary(self) -> dict[str, Any]:
-        """The record's columns that describe what happened."""
-        counts = Counter(self.status_list)
-        fallback = sum(counts[status] for status in FALLBACK_STATUSES)
-        interventions = np.asarray(self.interventions or [0.0])
-        times = np.asarray(self.filter_times or [0.0])
-        steps = max(1, self.steps)
-        swept = self.min_swept_distance if self.swept_reported else math.nan
+        """The record's columns that describe what happened (see :class:`EpisodeRecord`)."""
+        collisions, sampled, statuses, interventions, times = (
+            [list(column) for column in zip(*self.per_step, strict=True)] or [[]] * 5)
+        counts = Counter(statuses)
+        interventions = np.asarray(interventions or [0.0])
+        times = np.asarray(times or [0.0])
+        first = collisions.index(True) if any(collisions) else -1  # 0-based
         return dict(
-            steps=self.steps,
-            collision=any(self.collisions),
-            collision_steps=sum(self.collisions),
-            first_collision_step=self.collisions.index(True) + 1 if any(self.collisions) else 0,
-            collision_cause=self.collision_cause(),
-            **self.infeasibility(),
-            standing_collision=self.standing_collision,
-            sampled_collision=any(self.sampled_collisions),
-            sampled_collision_steps=sum(self.sampled_collisions),
-            min_distance=self.min_distance if math.isfinite(self.min_distance) else math.nan,
-            min_swept_distance=swept if math.isfinite(swept) else math.nan,
-            discomfort_steps=self.discomfort_steps,
+            **{name: getattr(self, name) for name in (
+                "steps", "standing_collision", "discomfort_steps", "path_length", "first_error",
+                "episode_return")},
+            **{name: value if math.isfinite(value := getattr(self, name)) else math.nan
+               for name in ("min_distance", "min_swept_distance")},
+            collision=first >= 0,
+            collision_steps=sum(collisions),
+            first_collision_step=first + 1,
+            collision_cause=collision_cause(collisions, sampled, statuses),
+            first_infeasible_step=next((i + 1 for i, status in enumerate(statuses)
+                                        if status in FALLBACK_STATUSES), 0),
+            status_before_collision=statuses[first - 1] if 0 < first <= len(statuses) else "",
+            status_at_collision=statuses[first] if 0 <= first < len(statuses) else "",
+            sampled_collision=any(sampled),
+            sampled_collision_steps=sum(sampled),
             goal_reached=not math.isnan(self.goal_time),
             time_to_goal=self.goal_time,
-            path_length=self.path_length,
             mean_intervention=float(interventions.mean()),
             max_intervention=float(interventions.max()),
             statuses=";".join(f"{s}:{c}" for s, c in sorted(counts.items())),
-            **{f"share_{status}": counts[status] / steps for status in FILTER_STATUSES},
-            fallback_steps=int(fallback),
-            first_error=self.first_error,
+            **{f"share_{status}": counts[status] / max(1, self.steps)
+               for status in FILTER_STATUSES},
+            fallback_steps=int(sum(counts[status] for status in FALLBACK_STATUSES)),
             filter_time_median=float(np.median(times)),
             filter_time_max=float(times.max()),
-            episode_return=self.episode_return,
             audit_steps=len(self.audit),
             audit_losses=encode_losses(self.audit),
             audit_all_steps=len(self.audit_all),

@@ -71,18 +71,34 @@ def method_label(risk: str, epsilon: float | str) -> str:
     return f"{risk} (eps=auto)" if epsilon == AUTO else risk
 
 
-def _group(record: EpisodeRecord) -> tuple[str, str, str, bool]:
-    """(scenario or stress case, planner, risk, online radius?) of a record."""
-    return (record.case or record.scenario, record.planner, record.risk, record.epsilon == AUTO)
+def _groups(records: Iterable[EpisodeRecord]) -> list[tuple[tuple[str, str, str, bool],
+                                                             list[EpisodeRecord]]]:
+    """The records by (scenario or stress case, planner, risk, online radius?), in table
+    order: scenario, planner, risk (:data:`RISK_ORDER`), auto."""
+    groups: dict[tuple[str, str, str, bool], list[EpisodeRecord]] = defaultdict(list)
+    for r in records:
+        groups[(r.case or r.scenario, r.planner, r.risk, r.epsilon == AUTO)].append(r)
+    return sorted(groups.items(), key=lambda item: (
+        item[0][0], item[0][1], RISK_ORDER.get(item[0][2], len(RISK_ORDER)), item[0][3]))
 
 
-def _sorted_groups(groups: dict[tuple[str, str, str, bool], list[EpisodeRecord]]) -> list:
-    """``groups.items()`` in table order: scenario, planner, risk (:data:`RISK_ORDER`), auto."""
-    def order(key: tuple[str, str, str, bool]) -> tuple:
-        scenario, planner, risk, auto = key
-        return scenario, planner, RISK_ORDER.get(risk, len(RISK_ORDER)), auto
+def outcomes(group: Sequence[EpisodeRecord]) -> dict[str, Any]:
+    """The outcome columns of a group of episodes (fields of :class:`SummaryRow`).
 
-    return sorted(groups.items(), key=lambda item: order(item[0]))
+    ``episodes`` and ``failed`` (an exception; left out of the rates), the collision
+    rate in continuous time with its Wilson 95 % interval (``collision_low``,
+    ``collision_high``), the goal rate, the mean time to goal in s over the ``arrivals``
+    (NaN if none); rates are NaN when no episode ran.
+    """
+    ok = [r for r in group if not r.error]
+    n = len(ok)
+    collisions = sum(r.collision for r in ok)
+    times = [r.time_to_goal for r in ok if r.goal_reached]
+    low, high = wilson_interval(collisions, n)
+    return dict(episodes=len(group), failed=len(group) - n,
+                collision_rate=collisions / n if n else math.nan, collision_low=low,
+                collision_high=high, goal_rate=len(times) / n if n else math.nan,
+                time_to_goal=float(np.mean(times)) if times else math.nan, arrivals=len(times))
 
 
 def summarise(records: Iterable[EpisodeRecord]) -> list[SummaryRow]:
@@ -91,35 +107,20 @@ def summarise(records: Iterable[EpisodeRecord]) -> list[SummaryRow]:
     A stress-suite record counts under its case (``record.case``) as the scenario, and
     ``epsilon="auto"`` is a method of its own (``method`` ``"dr_cvar (eps=auto)"``).
     """
-    groups: dict[tuple[str, str, str, bool], list[EpisodeRecord]] = defaultdict(list)
-    for record in records:
-        groups[_group(record)].append(record)
     rows = []
-    for (scenario, planner, risk, auto), group in _sorted_groups(groups):
+    for (scenario, planner, risk, auto), group in _groups(records):
         ok = [r for r in group if not r.error]
         n = len(ok)
-        collisions = sum(r.collision for r in ok)
-        low, high = wilson_interval(collisions, n)
         distances = np.array([r.min_distance for r in ok], dtype=float)
-        times = [r.time_to_goal for r in ok if r.goal_reached]
         steps = sum(r.steps for r in ok)
         swept = np.array([r.min_swept_distance for r in ok], dtype=float)
         shares = tuple(
             (status, sum(getattr(r, f"share_{status}") * r.steps for r in ok) / steps)
             for status in FILTER_STATUSES) if steps else ()
-        causes = tuple((cause, sum(r.collision_cause == cause for r in ok))
-                       for cause in COLLISION_CAUSES)
-        errors = [f"seed {r.seed}, {r.first_error}" for r in ok if r.first_error]
-        failures = [f"seed {r.seed}: {r.error}" for r in group if r.error]
         rows.append(SummaryRow(
-            scenario=scenario, planner=planner, risk=risk, episodes=len(group),
-            failed=len(group) - n,
-            collision_rate=collisions / n if n else math.nan,
-            collision_low=low, collision_high=high,
+            scenario=scenario, planner=planner, risk=risk, **outcomes(group),
             worst_distance=float(np.nanmin(distances)) if n else math.nan,
             cvar_distance=lower_tail_mean(distances),
-            goal_rate=sum(r.goal_reached for r in ok) / n if n else math.nan,
-            time_to_goal=float(np.mean(times)) if times else math.nan,
             mean_intervention=float(np.mean([r.mean_intervention for r in ok])) if n else math.nan,
             fallback_share=sum(r.fallback_steps for r in ok) / steps if steps else math.nan,
             filter_time_ms=1e3 * float(np.median([r.filter_time_median for r in ok]))
@@ -127,10 +128,11 @@ def summarise(records: Iterable[EpisodeRecord]) -> list[SummaryRow]:
             sampled_collision_rate=sum(r.sampled_collision for r in ok) / n if n else math.nan,
             worst_swept_distance=(float(np.nanmin(swept)) if n and np.isfinite(swept).any()
                                   else math.nan),
-            status_shares=shares, collision_causes=causes,
-            first_error=errors[0] if errors else "",
-            first_failure=failures[0][:200] if failures else "",
-            method=method_label(risk, AUTO if auto else 0.0), arrivals=len(times),
+            status_shares=shares, collision_causes=tuple(
+                (cause, sum(r.collision_cause == cause for r in ok)) for cause in COLLISION_CAUSES),
+            first_error=next((f"seed {r.seed}, {r.first_error}" for r in ok if r.first_error), ""),
+            first_failure=next((f"seed {r.seed}: {r.error}" for r in group if r.error), "")[:200],
+            method=method_label(risk, AUTO if auto else 0.0),
         ))
     return rows
 
@@ -140,51 +142,40 @@ def short_name(scenario: str) -> str:
     return scenario.split("/")[-1].rsplit("-v", 1)[0]
 
 
-def time_to_goal_cell(row: SummaryRow) -> str:
-    """The time to goal in s (mean over the episodes that arrived), or a dash and the
-    count of arrivals when none did (the mean of nothing is not a number to print)."""
-    if row.arrivals and math.isfinite(row.time_to_goal):
-        return f"{row.time_to_goal:.2f}"
-    return f"- ({row.arrivals} arrived)"
+def table(columns: Sequence[str], rows: Iterable[Sequence[str]]) -> str:
+    """A Markdown table of text cells: the header, its rule, one line per row."""
+    return "\n".join(["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns),
+                      *("| " + " | ".join(row) + " |" for row in rows)]) + "\n"
 
 
 def markdown_table(rows: Sequence[SummaryRow]) -> str:
     """The summary as a Markdown table (collisions in continuous time unless "sampled")."""
-    header = ("| scenario | planner | risk | episodes | collision rate [95 % CI] | "
-              "sampled collision rate | worst distance (m) | worst swept distance (m) | "
-              "CVaR10 distance (m) | goal rate | time to goal (s) | "
-              "mean intervention (m/s²) | fallback steps | filter time (ms) |")
-    lines = [header, "|" + "---|" * 14]
-    for r in rows:
-        failed = f" ({r.failed} failed)" if r.failed else ""
-        lines.append(
-            f"| {short_name(r.scenario)} | {r.planner} | {r.method or r.risk} | "
-            f"{r.episodes}{failed} | "
-            f"{r.collision_rate:.1%} [{r.collision_low:.1%}, {r.collision_high:.1%}] | "
-            f"{r.sampled_collision_rate:.1%} | "
-            f"{r.worst_distance:.3f} | {r.worst_swept_distance:.3f} | {r.cvar_distance:.3f} | "
-            f"{r.goal_rate:.1%} | "
-            f"{time_to_goal_cell(r)} | {r.mean_intervention:.3f} | {r.fallback_share:.1%} | "
-            f"{r.filter_time_ms:.2f} |"
-        )
-    return "\n".join(lines) + "\n"
+    columns = ("scenario", "planner", "risk", "episodes", "collision rate [95 % CI]",
+               "sampled collision rate", "worst distance (m)", "worst swept distance (m)",
+               "CVaR10 distance (m)", "goal rate", "time to goal (s)",
+               "mean intervention (m/s²)", "fallback steps", "filter time (ms)")
+    return table(columns, ([
+        short_name(r.scenario), r.planner, r.method or r.risk,
+        f"{r.episodes}" + (f" ({r.failed} failed)" if r.failed else ""),
+        f"{r.collision_rate:.1%} [{r.collision_low:.1%}, {r.collision_high:.1%}]",
+        f"{r.sampled_collision_rate:.1%}", f"{r.worst_distance:.3f}",
+        f"{r.worst_swept_distance:.3f}", f"{r.cvar_distance:.3f}", f"{r.goal_rate:.1%}",
+        # the mean time to goal, or a dash and the count (the mean of nothing is no number)
+        f"{r.time_to_goal:.2f}" if r.arrivals and math.isfinite(r.time_to_goal)
+        else f"- ({r.arrivals} arrived)", f"{r.mean_intervention:.3f}", f"{r.fallback_share:.1%}",
+        f"{r.filter_time_ms:.2f}"] for r in rows))
 
 
 def status_table(rows: Sequence[SummaryRow]) -> str:
     """Share of steps per filter status, collisions by cause, first bad-data reason."""
-    header = ("| scenario | planner | risk | " + " | ".join(FILTER_STATUSES) + " | "
-              "collisions by cause (" + " / ".join(COLLISION_CAUSES) + ") | first error |")
-    lines = [header, "|" + "---|" * (len(FILTER_STATUSES) + 5)]
-    for r in rows:
-        shares = dict(r.status_shares)
-        causes = dict(r.collision_causes)
-        cells = " | ".join(f"{shares[s]:.1%}" if s in shares and r.risk != "none" else "-"
-                           for s in FILTER_STATUSES)  # "none": every step is a passthrough
-        cause_cell = " / ".join(str(causes.get(c, 0)) for c in COLLISION_CAUSES)
-        reason = (r.first_error or r.first_failure or "").replace("|", "/")
-        lines.append(f"| {short_name(r.scenario)} | {r.planner} | {r.method or r.risk} | {cells} | "
-                     f"{cause_cell} | {reason} |")
-    return "\n".join(lines) + "\n"
+    columns = ("scenario", "planner", "risk", *FILTER_STATUSES,
+               "collisions by cause (" + " / ".join(COLLISION_CAUSES) + ")", "first error")
+    return table(columns, ([
+        short_name(r.scenario), r.planner, r.method or r.risk,
+        *(f"{dict(r.status_shares)[s]:.1%}" if s in dict(r.status_shares) and r.risk != "none"
+          else "-" for s in FILTER_STATUSES),  # "none": every step is a passthrough
+        " / ".join(str(dict(r.collision_causes).get(c, 0)) for c in COLLISION_CAUSES),
+        (r.first_error or r.first_failure or "").replace("|", "/")] for r in rows))
 
 
 # ---------------------------------------------------------------------------- guarantee audit
@@ -227,26 +218,20 @@ def audit_rows(records: Iterable[EpisodeRecord]) -> list[AuditRow]:
     from agents.evaluation.audit import PROMISES, audit_losses, decode_losses
     from filters.errors import InvalidParameterError
 
-    groups: dict[tuple[str, str, str, bool], list[EpisodeRecord]] = defaultdict(list)
-    for record in records:
-        if record.risk != "none" and not record.error:
-            groups[_group(record)].append(record)
     rows = []
-    for (scenario, planner, risk, auto), group in _sorted_groups(groups):
+    for (scenario, planner, risk, auto), group in _groups(
+            r for r in records if r.risk != "none" and not r.error):
         settings = {(r.alpha, r.delta) for r in group}
         if len(settings) > 1:
             raise InvalidParameterError(
                 f"the audit pools one (alpha, delta) per method; {scenario} {risk} has "
                 f"{sorted(settings)}")
         alpha, delta = settings.pop()
-        pooled = {column: audit_losses([], groups=[decode_losses(getattr(r, column))
+        active, pooled = (audit_losses([], groups=[decode_losses(getattr(r, column))
                                                    for r in group], alpha=alpha, delta=delta)
-                  for column in ("audit_losses", "audit_all_losses")}
-        rows.append(AuditRow(
-            scenario=scenario, planner=planner, risk=risk,
-            method=method_label(risk, AUTO if auto else 0.0), promise=PROMISES[risk],
-            active=pooled["audit_losses"], all=pooled["audit_all_losses"],
-        ))
+                          for column in ("audit_losses", "audit_all_losses"))
+        rows.append(AuditRow(scenario, planner, risk, method_label(risk, AUTO if auto else 0.0),
+                             PROMISES[risk], active, pooled))
     return rows
 
 
@@ -258,18 +243,14 @@ def _audit_cells(result: Any, promise: str) -> list[str]:
     if result.n == 0:
         return ["0", "-", "-", "-", "-"]
 
-    def bold(text: str, kind: str) -> str:
-        return f"**{text}**" if kind == promise else text
-
-    def interval(value: float, low: float, high: float) -> str:
-        return f"{value:.3f}" + ("" if math.isnan(low) else f" [{low:.3f}, {high:.3f}]")
-
-    rate = (f"{result.violation_rate:.1%} [{result.violation_low:.1%}, "
-            f"{result.violation_high:.1%}]")
-    return [str(result.n),
-            bold(interval(result.mean_loss, result.mean_low, result.mean_high), "mean"),
-            bold(interval(result.cvar_loss, result.cvar_low, result.cvar_high), "cvar"),
-            bold(rate, "chance"), result.verdict(promise)]
+    cells = {kind: f"{value:.3f}" + ("" if math.isnan(low) else f" [{low:.3f}, {high:.3f}]")
+             for kind, value, low, high in (
+                 ("mean", result.mean_loss, result.mean_low, result.mean_high),
+                 ("cvar", result.cvar_loss, result.cvar_low, result.cvar_high))}
+    cells["chance"] = (f"{result.violation_rate:.1%} [{result.violation_low:.1%}, "
+                       f"{result.violation_high:.1%}]")
+    return [str(result.n), *(f"**{text}**" if kind == promise else text
+                             for kind, text in cells.items()), result.verdict(promise)]
 
 
 def audit_table(rows: Sequence[AuditRow]) -> str:
@@ -280,16 +261,12 @@ def audit_table(rows: Sequence[AuditRow]) -> str:
     :meth:`agents.evaluation.audit.AuditResult.verdict`.
     """
     pool = ["n", "mean ℓ (m)", "CVaR_α ℓ (m)", "P(ℓ > δ) [95 % CI]", "verdict"]
-    header = ("| scenario | planner | method | promise | α | δ (m) | "
-              + " | ".join(f"active: {c}" for c in pool) + " | "
-              + " | ".join(f"all: {c}" for c in pool) + " |")
-    lines = [header, "|" + "---|" * (6 + 2 * len(pool))]
-    for r in rows:
-        cells = [short_name(r.scenario), r.planner, r.method, _PROMISE_TEXT[r.promise],
-                 f"{r.active.alpha:g}", f"{r.active.delta:g}",
-                 *_audit_cells(r.active, r.promise), *_audit_cells(r.all, r.promise)]
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines) + "\n"
+    columns = ["scenario", "planner", "method", "promise", "α", "δ (m)",
+               *(f"active: {c}" for c in pool), *(f"all: {c}" for c in pool)]
+    return table(columns, ([short_name(r.scenario), r.planner, r.method,
+                            _PROMISE_TEXT[r.promise], f"{r.active.alpha:g}",
+                            f"{r.active.delta:g}", *_audit_cells(r.active, r.promise),
+                            *_audit_cells(r.all, r.promise)] for r in rows))
 
 
 AUDIT_NOTE = (

@@ -289,7 +289,16 @@ class PhysicalUnitsPolicy:
         return self.centre + self.half_width * np.asarray(action, dtype=np.float64), state
 
 
+def in_physical_units(policy: Any, physical_space: spaces.Space) -> Any:
+    """``policy`` answering in ``physical_space``'s units: wrapped in
+    :class:`PhysicalUnitsPolicy` if it acts in ``[-1, 1]`` (:func:`is_normalised_policy`),
+    else ``policy`` itself."""
+    return (PhysicalUnitsPolicy(policy, physical_space)
+            if is_normalised_policy(policy, physical_space) else policy)
+
+
 __all__ = [
     "EPISODE_INFO_KEYS", "FILTER_STATUSES", "EpisodeCostInfo", "EpisodeSafety", "NormalisedActions",
-    "PhysicalUnitsPolicy", "SafetyTally", "is_normalised_policy", "report_field",
+    "PhysicalUnitsPolicy", "SafetyTally", "in_physical_units", "is_normalised_policy",
+    "report_field",
 ]
