@@ -2,7 +2,7 @@
 
 On ``builder-inited`` it writes ``docs/_generated/csv_columns.md`` (gitignored), which
 ``glossary.md`` includes; the column list therefore cannot drift from the record
-definition (``tests/agents/test_column_docs.py`` checks that every column is documented).
+definition (``tests/agents/evaluation/test_column_docs.py`` checks that every column is documented).
 """
 
 from __future__ import annotations

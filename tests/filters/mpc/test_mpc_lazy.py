@@ -85,7 +85,7 @@ def penalised(result, rho: float = 1e6) -> float:
 def assert_same(lazy, full):
     """Same status; without slack the same inputs (1e-6). With slack the L1 penalty
     (rho = 1e6) dominates the cost, so the soft QP pins its minimiser only loosely (as
-    in tests/test_mpc_backends.py): the same penalised objective, slacks and first input."""
+    in test_mpc_backends.py): the same penalised objective, slacks and first input."""
     assert lazy.status == full.status, (lazy.solver_status, full.solver_status)
     if lazy.status in (FilterStatus.SOFT, FilterStatus.RECOVERY):
         # DAQP resolves each violation to ~1e-6 m (its primal tolerance), so with tens of

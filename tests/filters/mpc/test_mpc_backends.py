@@ -109,7 +109,7 @@ def test_every_backend_equals_the_cvxpy_reference(horizon, objective, mode):
                                            err_msg=name)
                 np.testing.assert_allclose(ours.inputs, theirs.inputs, atol=5e-2, err_msg=name)
                 assert ours.objective == pytest.approx(theirs.objective, abs=1e-3)
-            else:  # the L1 penalty dwarfs the quadratic cost (see tests/test_mpc.py)
+            else:  # the L1 penalty dwarfs the quadratic cost (see tests/filters/mpc/test_mpc.py)
                 np.testing.assert_allclose(ours.inputs[0], theirs.inputs[0], atol=3e-3,
                                            err_msg=name)
             if ours.slack is not None and theirs.slack is not None:

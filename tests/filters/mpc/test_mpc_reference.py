@@ -158,7 +158,7 @@ def test_update_equals_rebuild(backend, horizon, mode):
         if mode == "recovery" and step % 3 == 2:
             normals, offsets = infeasible_halfspaces()
             normals, offsets = normals[:, :1].repeat(horizon, 1), offsets[:, :1].repeat(horizon, 1)
-        kept.reset()  # forget the warm start (tests/filters/test_mpc_lazy.py checks it)
+        kept.reset()  # forget the warm start (tests/filters/mpc/test_mpc_lazy.py checks it)
         updated = kept.solve(x, reference, (normals, offsets))
         rebuilt = build().solve(x, reference, (normals, offsets))
         assert updated.status == rebuilt.status
