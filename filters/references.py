@@ -17,6 +17,7 @@ passed to :class:`filters.SafetyFilterWrapper` instead; ``env`` is the
 
 from __future__ import annotations
 
+import operator
 import warnings
 from collections.abc import Callable
 from typing import Any, Protocol
@@ -51,7 +52,11 @@ def hold_action_reference(
               x^r_{k+1} = A x^r_k + B u^r_k,\\quad x^r_0 = x_t.
 
     With an environment that has ``applied_input`` (a speed limit), :math:`u^r_k` is the
-    input the environment would apply for the clipped action at :math:`x^r_k`.
+    input the environment would apply for the clipped action at :math:`x^r_k`; it is
+    asked only from the first step whose held-action velocity leaves ``env.max_speed``
+    (before it the environment applies the clipped action itself), with the state and
+    the action as lists of Python floats (indexable like the arrays: the arithmetic on
+    floats is what makes this loop cheap).
 
     A NaN entry of ``action`` stays NaN (``np.clip``'s result).
 
@@ -89,27 +94,41 @@ def hold_action_reference(
     powers, sums = _held_maps(A, B, int(horizon))
     states = (powers @ x0 + sums @ u).reshape(int(horizon) + 1, n)
     apply = getattr(env, "applied_input", None)  # the speed limit, if the env has one
-    if apply is None or not np.isfinite(u).all() or _within_speed_limit(env, states):
+    if apply is None or not np.isfinite(u).all():
+        return states, inputs
+    first = _first_over_speed_limit(env, states)
+    if first is None:
         return states, inputs  # the env applies u at every step: the held roll-out is it
-    for k in range(int(horizon)):
-        inputs[k] = apply(states[k], u)
-        states[k + 1] = A @ states[k] + B @ inputs[k]
+    # Steps before ``first`` keep the held roll-out (the env applies u there); from it
+    # on, the env's applied input at each state, rolled out on Python floats.
+    dynamics = np.hstack([A, B]).tolist()  # rows [A_i | B_i]: x' = [A B] [x; u]
+    action, x = u.tolist(), states[first].tolist()
+    rows = []
+    for k in range(first, int(horizon)):
+        applied = np.asarray(apply(x, action), dtype=np.float64).tolist()
+        inputs[k] = applied
+        xu = x + applied
+        x = [sum(map(operator.mul, row, xu)) for row in dynamics]
+        rows.append(x)
+    states[first + 1:] = rows
     return states, inputs
 
 
-def _within_speed_limit(env: FilterableEnv, states: np.ndarray) -> bool:
-    """Whether every planned velocity (the states' second half, rows ``1..T``) keeps
-    ``env.max_speed`` (``inf``: no limit): then ``applied_input`` returns the clipped
-    action at every step (the protocol's definition) and the loop is not needed. Without
-    a ``max_speed`` to check against, ``False`` (the loop asks ``applied_input``)."""
+def _first_over_speed_limit(env: FilterableEnv, states: np.ndarray) -> int | None:
+    """The first step ``k`` whose held-action velocity ``v_{k+1}`` (the states' second
+    half) leaves ``env.max_speed``, or ``None`` if every planned velocity keeps it
+    (``inf``: no limit). Before ``k`` ``applied_input`` returns the clipped action (the
+    protocol's definition), so only the steps from ``k`` on need it. Without a
+    ``max_speed`` to check against, 0 (every step asks ``applied_input``)."""
     limit = getattr(env, "max_speed", None)
     if limit is None:
-        return False
+        return 0
     max_speed = float(limit)
     if np.isinf(max_speed):
-        return True
+        return None
     velocities = states[1:, states.shape[1] // 2:]
-    return bool(np.all(np.einsum("ij,ij->i", velocities, velocities) <= max_speed * max_speed))
+    over = np.einsum("ij,ij->i", velocities, velocities) > max_speed * max_speed
+    return int(over.argmax()) if over.any() else None
 
 
 _HELD_MAPS: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
