@@ -65,7 +65,7 @@ import numpy as np
 
 from filters.constants import ALPHA, DELTA, DISABLED_OFFSET, EPSILON
 from filters.geometry import Shape
-from filters.halfspace_checks import _check_finite_result, _checked_inputs
+from filters.halfspace_checks import _check_finite_result, _checked_inputs, _Inputs
 from filters.halfspaces import (
     Halfspaces,
     _offsets,
@@ -251,6 +251,20 @@ def intersample_halfspaces(
         return halfspaces, intersample_rows(
             halfspaces, samples, ego_shape=ego_shape, obstacle_shapes=obstacle_shapes,
             input_bounds=input_bounds, dt=dt, **options)
+    return batched_halfspaces(data, ego_shape, input_bounds, dt)
+
+
+def batched_halfspaces(data: _Inputs, ego_shape: Shape,
+                       input_bounds: tuple[np.ndarray, np.ndarray],
+                       dt: float) -> tuple[Halfspaces, IntersampleRows]:
+    """:func:`intersample_halfspaces` on checked inputs (the closed forms, no checks).
+
+    ``data`` is what :func:`filters.halfspace_checks._checked_inputs` returns, with at
+    least one obstacle, ``T >= 2`` and no polytope support; the wrapper, which checks
+    its risk settings once and holds unit normals of its own, builds it directly.
+    Non-finite samples are reported (:class:`~filters.errors.InvalidArrayError`).
+    """
+    k, _, horizon, dim = data.points.shape
     with np.errstate(all="ignore"):  # non-finite samples are reported below, by name
         unit, degenerate = _step_normals(data)
         both = np.empty((k, horizon, 2, dim))  # step t: h_{i,t} (end), h_{i,t+1} (start)
@@ -259,7 +273,7 @@ def intersample_halfspaces(
         both[:, -1, 1] = unit[:, -1]  # a placeholder: the last start row is off
         offsets = _offsets(data.points, both, ego_shape, data.shapes, data.risk, data.alpha,
                            data.delta, data.epsilon, data.margins, None)
-    _check_finite_result(samples, unit, offsets)
+    _check_finite_result(data.points, unit, offsets)
     halfspaces = Halfspaces(unit, np.ascontiguousarray(offsets[:, :, 0]), data.risk,
                             data.alpha, data.delta, data.epsilon, degenerate)
     return halfspaces, _rows(unit, halfspaces.offsets, offsets[:, :-1, 1], input_bounds, dt)
