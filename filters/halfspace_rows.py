@@ -11,7 +11,7 @@ import numpy as np
 
 from filters.errors import InvalidArrayError, InvalidParameterError
 from filters.geometry import Disc
-from filters.halfspace_checks import _check_delta, _Inputs, _unit_normals
+from filters.halfspace_checks import _check_delta, _Inputs
 from filters.halfspaces import Halfspaces, safe_halfspaces
 from filters.intersample import batched_halfspaces, intersample_halfspaces
 from filters.mpc.checks import all_finite
@@ -88,10 +88,12 @@ class HalfspaceRowsMixin:
         if (given is not None and self.intersample and self._calibration is None
                 and self.support is None and samples.shape[2] > 1
                 and len(obstacle_shapes) == samples.shape[0] and all_finite(origins)):
-            # the wrapper's usual step: settings checked once, unit normals of its own
+            # the wrapper's usual step: settings checked once, and the normals are unit
+            # vectors already (filters.normals divides by the norms; normalising them
+            # again would move them by an ulp at most)
             risk, alpha, delta, epsilon = self._checked_settings()
             data = _Inputs(risk, alpha, delta, origins, samples, epsilon, None,
-                           obstacle_shapes, None, None, None, _unit_normals(given))
+                           obstacle_shapes, None, None, None, given)
             halfspaces, rows = batched_halfspaces(data, ego_shape, base.input_bounds,
                                                   float(base.dt))
             self._halfspaces_made = halfspaces
