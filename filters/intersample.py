@@ -65,7 +65,7 @@ import numpy as np
 
 from filters.constants import ALPHA, DELTA, DISABLED_OFFSET, EPSILON
 from filters.geometry import Shape
-from filters.halfspace_checks import _check_finite_result, _checked_inputs
+from filters.halfspace_checks import _check_finite_result, _checked_inputs, _Inputs
 from filters.halfspaces import (
     Halfspaces,
     _offsets,
@@ -181,7 +181,7 @@ def intersample_rows(
             normals[:, 1:], samples, ego_shape=ego_shape, obstacle_shapes=obstacle_shapes,
             support=support, **_steps(options, slice(0, horizon - 1)),
         )
-    rows = _rows(normals, offsets, start, input_bounds, dt)
+    rows = _rows(_row_normals(normals, start is not None), offsets, start, input_bounds, dt)
     margins = rows.margins
     violation = None
     if k and current_position is not None and current_obstacles is not None:
@@ -251,35 +251,59 @@ def intersample_halfspaces(
         return halfspaces, intersample_rows(
             halfspaces, samples, ego_shape=ego_shape, obstacle_shapes=obstacle_shapes,
             input_bounds=input_bounds, dt=dt, **options)
+    return batched_halfspaces(data, ego_shape, input_bounds, dt)
+
+
+def batched_halfspaces(data: _Inputs, ego_shape: Shape,
+                       input_bounds: tuple[np.ndarray, np.ndarray],
+                       dt: float) -> tuple[Halfspaces, IntersampleRows]:
+    """:func:`intersample_halfspaces` on checked inputs (the closed forms, no checks).
+
+    ``data`` is what :func:`filters.halfspace_checks._checked_inputs` returns, with at
+    least one obstacle, ``T >= 2`` and no polytope support; the wrapper, which checks
+    its risk settings once and holds unit normals of its own, builds it directly.
+    Non-finite samples are reported (:class:`~filters.errors.InvalidArrayError`).
+    """
     with np.errstate(all="ignore"):  # non-finite samples are reported below, by name
         unit, degenerate = _step_normals(data)
-        both = np.empty((k, horizon, 2, dim))  # step t: h_{i,t} (end), h_{i,t+1} (start)
-        both[:, :, 0] = unit
-        both[:, :-1, 1] = unit[:, 1:]
-        both[:, -1, 1] = unit[:, -1]  # a placeholder: the last start row is off
-        offsets = _offsets(data.points, both, ego_shape, data.shapes, data.risk, data.alpha,
-                           data.delta, data.epsilon, data.margins, None)
-    _check_finite_result(samples, unit, offsets)
+        rows_n = _row_normals(unit, True)  # step t: h_{i,t} (end), h_{i,t+1} (start)
+        rows_n[1, :, -1] = unit[:, -1]  # a placeholder for the offsets: the row is off
+        offsets = _offsets(data.points, rows_n.transpose(1, 2, 0, 3), ego_shape, data.shapes,
+                           data.risk, data.alpha, data.delta, data.epsilon, data.margins, None)
+        rows_n[1, :, -1] = 0.0
+    _check_finite_result(data.points, unit, offsets)
     halfspaces = Halfspaces(unit, np.ascontiguousarray(offsets[:, :, 0]), data.risk,
                             data.alpha, data.delta, data.epsilon, degenerate)
-    return halfspaces, _rows(unit, halfspaces.offsets, offsets[:, :-1, 1], input_bounds, dt)
+    return halfspaces, _rows(rows_n, halfspaces.offsets, offsets[:, :-1, 1], input_bounds, dt)
 
 
-def _rows(normals: np.ndarray, offsets: np.ndarray, start: np.ndarray | None,
+def _row_normals(normals: np.ndarray, start: bool) -> np.ndarray:
+    """The rows' normals ``(2, k, T, d)`` from the step normals ``(k, T, d)``: the end rows
+    :math:`h_{i,t}`, then the start rows :math:`h_{i,t+1}` (zero, so off, at ``t = T``, and
+    everywhere without ``start``)."""
+    rows_n = np.zeros((2, *normals.shape))
+    rows_n[0] = normals
+    if start:
+        rows_n[1, :, :-1] = normals[:, 1:]
+    return rows_n
+
+
+def _rows(rows_n: np.ndarray, offsets: np.ndarray, start: np.ndarray | None,
           input_bounds: tuple[np.ndarray, np.ndarray], dt: float) -> IntersampleRows:
-    """The rows of :class:`IntersampleRows` from the step halfspaces ``(k, T, d)``, ``(k,
-    T)`` and the start offsets ``b_t(h_{i,t+1})``, ``(k, T - 1)`` (``None``: no start
-    rows)."""
-    k, horizon, dim = normals.shape
-    margins = arc_margin(normals, input_bounds, dt)
-    rows_n = np.zeros((2 * k, horizon, dim))
-    rows_b = np.full((2 * k, horizon), DISABLED_OFFSET)  # 0 @ y <= 1: off
-    rows_n[:k] = normals
-    rows_b[:k] = offsets - margins
-    if start is not None:
-        rows_n[k:, : horizon - 1] = normals[:, 1:]
-        rows_b[k:, : horizon - 1] = start - margins[:, 1:]
-    return IntersampleRows(rows_n, rows_b, margins, None)
+    """The rows of :class:`IntersampleRows` from their normals (:func:`_row_normals`), the
+    step offsets ``(k, T)`` and the start offsets ``b_t(h_{i,t+1})``, ``(k, T - 1)``
+    (``None``: no start rows), each tightened by the bow of its own normal."""
+    _, k, horizon, dim = rows_n.shape
+    margins = arc_margin(rows_n, input_bounds, dt)  # (2, k, T)
+    rows_b = np.empty((2, k, horizon))
+    np.subtract(offsets, margins[0], out=rows_b[0])
+    rows_b[1, :, -1] = DISABLED_OFFSET  # 0 @ y <= 1: off
+    if start is None:
+        rows_b[1] = DISABLED_OFFSET
+    else:
+        np.subtract(start, margins[1, :, :-1], out=rows_b[1, :, :-1])
+    return IntersampleRows(rows_n.reshape(2 * k, horizon, dim), rows_b.reshape(2 * k, horizon),
+                           margins[0], None)
 
 
 def _steps(options: dict[str, object], steps: slice) -> dict[str, object]:

@@ -17,6 +17,8 @@ passed to :class:`filters.SafetyFilterWrapper` instead; ``env`` is the
 
 from __future__ import annotations
 
+import math
+import operator
 import warnings
 from collections.abc import Callable
 from typing import Any, Protocol
@@ -51,7 +53,11 @@ def hold_action_reference(
               x^r_{k+1} = A x^r_k + B u^r_k,\\quad x^r_0 = x_t.
 
     With an environment that has ``applied_input`` (a speed limit), :math:`u^r_k` is the
-    input the environment would apply for the clipped action at :math:`x^r_k`.
+    input the environment would apply for the clipped action at :math:`x^r_k`; it is
+    asked only from the first step whose held-action velocity leaves ``env.max_speed``
+    (before it the environment applies the clipped action itself), with the state and
+    the action as lists of Python floats (indexable like the arrays: the arithmetic on
+    floats is what makes this loop cheap).
 
     A NaN entry of ``action`` stays NaN (``np.clip``'s result).
 
@@ -83,43 +89,61 @@ def hold_action_reference(
             f"the environment's A {A.shape}, B {B.shape}, state {x0.shape} and input bounds "
             f"{low.shape}, {high.shape} do not fit together"
         )
-    u = np.clip(u, low, high)
+    u = np.minimum(np.maximum(u, low), high)  # np.clip's result (NaN stays NaN), cheaper
     inputs = np.empty((int(horizon), m))
     inputs[:] = u
-    powers, sums = _held_maps(A, B, int(horizon))
+    powers, sums, dynamics = _held_maps(A, B, int(horizon))
     states = (powers @ x0 + sums @ u).reshape(int(horizon) + 1, n)
     apply = getattr(env, "applied_input", None)  # the speed limit, if the env has one
-    if apply is None or not np.isfinite(u).all() or _within_speed_limit(env, states):
+    action = u.tolist()
+    if apply is None or not all(map(math.isfinite, action)):
+        return states, inputs
+    first = _first_over_speed_limit(env, states)
+    if first is None:
         return states, inputs  # the env applies u at every step: the held roll-out is it
-    for k in range(int(horizon)):
-        inputs[k] = apply(states[k], u)
-        states[k + 1] = A @ states[k] + B @ inputs[k]
+    # Steps before ``first`` keep the held roll-out (the env applies u there); from it
+    # on, the env's applied input at each state, rolled out on Python floats with the
+    # rows [A_i | B_i] of x' = [A B] [x; u].
+    x = states[first].tolist()
+    applied_inputs, rolled = [], []
+    for _ in range(first, int(horizon)):
+        applied = np.asarray(apply(x, action), dtype=np.float64).tolist()
+        applied_inputs.append(applied)
+        xu = x + applied
+        x = [sum(map(operator.mul, row, xu)) for row in dynamics]
+        rolled.append(x)
+    inputs[first:] = applied_inputs
+    states[first + 1:] = rolled
     return states, inputs
 
 
-def _within_speed_limit(env: FilterableEnv, states: np.ndarray) -> bool:
-    """Whether every planned velocity (the states' second half, rows ``1..T``) keeps
-    ``env.max_speed`` (``inf``: no limit): then ``applied_input`` returns the clipped
-    action at every step (the protocol's definition) and the loop is not needed. Without
-    a ``max_speed`` to check against, ``False`` (the loop asks ``applied_input``)."""
+def _first_over_speed_limit(env: FilterableEnv, states: np.ndarray) -> int | None:
+    """The first step ``k`` whose held-action velocity ``v_{k+1}`` (the states' second
+    half) leaves ``env.max_speed``, or ``None`` if every planned velocity keeps it
+    (``inf``: no limit). Before ``k`` ``applied_input`` returns the clipped action (the
+    protocol's definition), so only the steps from ``k`` on need it. Without a
+    ``max_speed`` to check against, 0 (every step asks ``applied_input``)."""
     limit = getattr(env, "max_speed", None)
     if limit is None:
-        return False
+        return 0
     max_speed = float(limit)
     if np.isinf(max_speed):
-        return True
+        return None
     velocities = states[1:, states.shape[1] // 2:]
-    return bool(np.all(np.einsum("ij,ij->i", velocities, velocities) <= max_speed * max_speed))
+    over = np.einsum("ij,ij->i", velocities, velocities) > max_speed * max_speed
+    return int(over.argmax()) if over.any() else None
 
 
-_HELD_MAPS: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
+_HELD_MAPS: dict[tuple, tuple[np.ndarray, np.ndarray, list[list[float]]]] = {}
 """:func:`_held_maps` by model and horizon (a few entries: one per environment model)."""
 
 
-def _held_maps(A: np.ndarray, B: np.ndarray, horizon: int) -> tuple[np.ndarray, np.ndarray]:
-    r"""``(P, S)`` with rows ``k = 0..T``: :math:`A^k` and :math:`\sum_{j<k} A^j B`, stacked
+def _held_maps(A: np.ndarray, B: np.ndarray,
+               horizon: int) -> tuple[np.ndarray, np.ndarray, list[list[float]]]:
+    r"""``(P, S, D)``: with rows ``k = 0..T``, :math:`A^k` and :math:`\sum_{j<k} A^j B`, stacked
     ``((T+1) n, n)`` and ``((T+1) n, m)``, so that the held-input roll-out is
-    :math:`x_k = A^k x_0 + (\sum_{j<k} A^j B) u` (two products instead of a loop of T)."""
+    :math:`x_k = A^k x_0 + (\sum_{j<k} A^j B) u` (two products instead of a loop of T); and
+    the rows of ``[A B]`` as lists of floats, for the roll-out on floats."""
     key = (A.tobytes(), B.tobytes(), A.shape, B.shape, horizon)
     maps = _HELD_MAPS.get(key)
     if maps is None:
@@ -131,7 +155,8 @@ def _held_maps(A: np.ndarray, B: np.ndarray, horizon: int) -> tuple[np.ndarray, 
             sums[k + 1] = A @ sums[k] + B
         if len(_HELD_MAPS) >= 16:
             _HELD_MAPS.clear()
-        maps = _HELD_MAPS[key] = (powers.reshape(-1, n), sums.reshape(-1, m))
+        maps = _HELD_MAPS[key] = (powers.reshape(-1, n), sums.reshape(-1, m),
+                                  np.hstack([A, B]).tolist())
     return maps
 
 

@@ -231,3 +231,21 @@ def test_the_references_are_rolled_out_under_the_env_speed_limit():
 
     states, _ = PolicyRolloutReference(Push())(base, action, 10)
     assert np.max(_speeds(states)) <= 2.0 + 1e-12
+
+
+def test_the_held_reference_meets_the_speed_limit_late_in_the_horizon():
+    """Held roll-out below the limit, the env's applied input from the step that reaches
+    it: stepping the environment with the action gives the same states and inputs."""
+    from filters.references import hold_action_reference
+
+    env = gym.make("SafeNav/HeadOn-v0", max_speed=3.0)
+    env.reset(seed=0)
+    base = env.unwrapped
+    action = np.array([2.0, 0.5])  # from 1.5 m/s along x: over 3 m/s after a few steps
+    states, inputs = hold_action_reference(base, action, 10)
+    assert np.all(inputs[0] == action) and not np.allclose(inputs[-1], action)
+    for k in range(10):
+        np.testing.assert_allclose(base.ego_state, states[k], rtol=0, atol=1e-12)
+        *_, info = env.step(action)
+        np.testing.assert_allclose(info["acceleration"], inputs[k], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(base.ego_state, states[10], rtol=0, atol=1e-12)
