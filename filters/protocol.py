@@ -55,7 +55,9 @@ class FilterableEnv(Protocol):
     absent: none. ``applied_input(state, action) -> u``, the input the environment
     applies for a finite ``action`` at ``state`` (clipped to the box and to the speed
     limit), which the reference makers use to roll their references out as the
-    environment would; absent: the action clipped to the box.
+    environment would; absent: the action clipped to the box. ``state`` (length
+    ``2 d``) and ``action`` (length ``d``) come as sequences of floats (lists in the
+    held-action reference, arrays elsewhere): accept both.
     """
 
     dt: float
