@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -28,9 +28,6 @@ from filters._validation import integer_at_least
 from filters.errors import InvalidParameterError
 from filters.risk import PAPER_RISKS
 from safe_nav_env.scenarios import scenario_name
-
-INFEASIBLE_STATUSES = ("shifted", "brake", "soft", "recovery")
-"""Filter statuses of a step whose hard QP failed (:class:`filters.mpc.FilterStatus`)."""
 
 
 # ---------------------------------------------------------------------------- episodes
@@ -58,6 +55,8 @@ class EncounterRecord(Trajectory):
         Empty, or why the episode stopped early (its partial data are kept).
     wall_time
         Time the episode took, in s.
+    collision, sampled_collision, first_collision_step, collision_cause, fallback_steps
+        As in :class:`~agents.evaluation.records.EpisodeRecord` (the runner's values).
     """
 
     preset: str = ""
@@ -66,6 +65,11 @@ class EncounterRecord(Trajectory):
     seed: int = 0
     error: str = ""
     wall_time: float = 0.0
+    collision: bool = False
+    sampled_collision: bool = False
+    first_collision_step: int = 0
+    collision_cause: str = ""
+    fallback_steps: int = 0
 
     @property
     def ego_velocities(self) -> np.ndarray:
@@ -75,44 +79,6 @@ class EncounterRecord(Trajectory):
     @property
     def steps(self) -> int:
         return int(self.inputs.shape[0])
-
-    @property
-    def collision(self) -> bool:
-        """Continuous-time collision in the episode (some step's clearance <= 0)."""
-        return bool(self.swept.size and np.min(self.swept) <= 0.0)
-
-    @property
-    def sampled_collision(self) -> bool:
-        """Collision at a sample instant (the paper's count)."""
-        return bool(self.distances.size and np.min(self.distances) <= 0.0)
-
-    @property
-    def fallback_steps(self) -> int:
-        """Steps where the filter's hard QP failed (:data:`INFEASIBLE_STATUSES`)."""
-        return sum(s in INFEASIBLE_STATUSES for s in self.statuses)
-
-    @property
-    def step_collisions(self) -> tuple[list[bool], list[bool]]:
-        """Per step ``1..S``: the continuous-time and the end-sample collision flags."""
-        swept = [bool(np.min(row) <= 0.0) if row.size else False for row in self.swept]
-        sampled = [bool(np.min(row) <= 0.0) if row.size else False
-                   for row in self.distances[1:]]
-        return swept, sampled
-
-    @property
-    def first_collision_step(self) -> int:
-        """The first step with a continuous-time collision (1-based), 0 if none."""
-        swept, _ = self.step_collisions
-        return swept.index(True) + 1 if any(swept) else 0
-
-    @property
-    def collision_cause(self) -> str:
-        """Why the first collision happened: ``""``, ``"fallback"``, ``"inter_sample"`` or
-        ``"noise"`` (:func:`agents.evaluation.runner.collision_cause`, the evaluation's rule)."""
-        from agents.evaluation.runner import collision_cause
-
-        swept, sampled = self.step_collisions
-        return collision_cause(swept, sampled, list(self.statuses))
 
 
 class _PresetPlanner:
@@ -189,6 +155,10 @@ def make_encounter_env(job: EncounterJob):
     return env, adapter.planner
 
 
+_FROM_RECORD = ("collision", "sampled_collision", "first_collision_step", "collision_cause",
+                "fallback_steps")
+
+
 def run_encounter(job: EncounterJob) -> EncounterRecord:
     """Run one episode of ``job`` on the evaluation runner; never raises for a failure.
 
@@ -213,7 +183,8 @@ def run_encounter(job: EncounterJob) -> EncounterRecord:
     return EncounterRecord(**vars(trajectory), preset=job.preset.name, scenario=job.scenario,
                            risk=job.risk, seed=int(job.seed),
                            error=record.error.split(" | ")[0],
-                           wall_time=time.perf_counter() - start)
+                           wall_time=time.perf_counter() - start,
+                           **{name: getattr(record, name) for name in _FROM_RECORD})
 
 
 def _failed_encounter(job: EncounterJob, error: str, start: float) -> EncounterRecord:
@@ -230,30 +201,21 @@ def run_encounters(
     jobs: Sequence[EncounterJob], *, workers: int = 1, progress: bool = False,
 ) -> list[EncounterRecord]:
     """Run ``jobs`` (in ``workers`` processes) and return their records in job order."""
-    integer_at_least("workers", workers)
-    iterator: Iterator[EncounterRecord]
-    if workers == 1 or len(jobs) <= 1:
-        iterator = map(run_encounter, jobs)
-        return list(_progress(iterator, len(jobs), progress))
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
-    from agents.evaluation.executors import worker_init
-
-    context = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=workers, mp_context=context,
-                             initializer=worker_init) as pool:
-        chunk = max(1, min(16, len(jobs) // (4 * workers) or 1))
-        return list(_progress(pool.map(run_encounter, jobs, chunksize=chunk), len(jobs),
-                              progress))
-
-
-def _progress(iterator: Iterable[EncounterRecord], total: int, show: bool):
-    if not show:
-        return iterator
     from tqdm.auto import tqdm
 
-    return tqdm(iterator, total=total, desc="paper episodes", unit="ep")
+    from agents.evaluation.executors import worker_init
+
+    integer_at_least("workers", workers)
+    bar = dict(total=len(jobs), desc="paper episodes", unit="ep", disable=not progress)
+    if workers == 1 or len(jobs) <= 1:
+        return list(tqdm(map(run_encounter, jobs), **bar))
+    with ProcessPoolExecutor(max_workers=workers, initializer=worker_init,
+                             mp_context=multiprocessing.get_context("spawn")) as pool:
+        chunk = max(1, min(16, len(jobs) // (4 * workers) or 1))
+        return list(tqdm(pool.map(run_encounter, jobs, chunksize=chunk), **bar))
 
 
 # ---------------------------------------------------------------------------- Monte Carlo
