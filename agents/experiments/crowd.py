@@ -105,11 +105,8 @@ def crowd_rows(records: Sequence[EpisodeRecord]) -> list[CrowdRow]:
         times = [r.time_to_goal for r in ran if r.goal_reached and not r.collision]
         steps = sum(r.steps for r in ran)
         rows.append(CrowdRow(
-            setting=setting, risk=risk, cases=len(ran), success=successes / n,
-            success_low=wilson_interval(successes, len(ran))[0],
-            success_high=wilson_interval(successes, len(ran))[1],
-            collision=collisions / n, collision_low=wilson_interval(collisions, len(ran))[0],
-            collision_high=wilson_interval(collisions, len(ran))[1],
+            setting, risk, len(ran), successes / n, *wilson_interval(successes, len(ran)),
+            collisions / n, *wilson_interval(collisions, len(ran)),
             standing_collision=sum(r.collision and r.standing_collision for r in ran) / n,
             timeout=(len(ran) - successes - collisions) / n,
             time_to_goal=sum(times) / len(times) if times else math.nan,

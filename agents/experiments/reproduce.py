@@ -175,10 +175,11 @@ def _monte_carlo_section(
 ) -> list[str]:
     rows = summarise_windows(records)
     write_episodes_csv(records, folder / "episodes.csv")
-    figures = _monte_carlo_figures(preset, records, rows, folder / "figures", seed=seed)
-    scenarios = list(dict.fromkeys(r.scenario for r in records))
     dt = next((r.dt for r in records if math.isfinite(r.dt)), DT)
     windows = resolve_windows(records)
+    scenarios = list(windows)
+    figures = _monte_carlo_figures(preset, records, rows, folder / "figures", seed=seed,
+                                   windows={s: w for s, (w, _) in windows.items()}, dt=dt)
     encounters = resolve_windows(records, mode="encounter")
     lines = [f"### Preset `{preset.name}`", "", f"Settings: {preset.description}.", "",
              f"{episodes} runs per scenario and risk, seeds {seed}..{seed + episodes - 1}, "
@@ -225,29 +226,23 @@ def _cause_lines(records: Sequence[EncounterRecord]) -> list[str]:
     """One line per filtered scenario and risk with collisions: the counts per cause."""
     from agents.evaluation.summary import COLLISION_CAUSES
 
-    lines = []
-    for scenario in dict.fromkeys(r.scenario for r in records):
-        for risk in dict.fromkeys(r.risk for r in records):
-            if risk == "none":
-                continue
-            causes = [r.collision_cause for r in records
-                      if r.scenario == scenario and r.risk == risk and not r.error]
-            if any(causes):
-                counts = ", ".join(f"{name} {causes.count(name)}" for name in COLLISION_CAUSES)
-                lines.append(f"- {short_name(scenario)}, {risk}: {counts}")
-    return lines or ["- none"]
+    causes: dict[tuple[str, str], list[str]] = {}
+    for r in records:
+        if r.risk != "none" and not r.error:
+            causes.setdefault((r.scenario, r.risk), []).append(r.collision_cause)
+    return [f"- {short_name(scenario)}, {risk}: "
+            + ", ".join(f"{name} {found.count(name)}" for name in COLLISION_CAUSES)
+            for (scenario, risk), found in causes.items() if any(found)] or ["- none"]
 
 
 def _monte_carlo_figures(
     preset: ReproductionPreset, records: Sequence[EncounterRecord], rows: Sequence[WindowRow],
-    folder: Path, *, seed: int,
+    folder: Path, *, seed: int, windows: dict[str, tuple[int, int]], dt: float,
 ) -> dict[str, Path]:
     from agents.evaluation import plots
 
     files: dict[str, Path] = {}
-    scenarios = list(dict.fromkeys(r.scenario for r in records))
-    windows = {s: w for s, (w, _) in resolve_windows(records).items()}
-    dt = next((r.dt for r in records if math.isfinite(r.dt)), DT)
+    scenarios = list(windows)
     distances = {s: {risk: _series([r for r in records if r.scenario == s and r.risk == risk
                                      and not r.error], "distances")
                      for risk in dict.fromkeys(r.risk for r in records if r.scenario == s)}

@@ -48,6 +48,7 @@ from agents.experiments.stress_table import (
     stress_cells,
     write_cells,
 )
+from filters._validation import integer_at_least
 from filters.constants import EPSILON
 from filters.errors import InvalidParameterError
 from safe_nav_env.scenarios import CUSTOM
@@ -148,8 +149,7 @@ def stress_specs(
     InvalidParameterError
         For an unknown case, method or planner, ``episodes < 1`` or a bad setting.
     """
-    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
-        raise InvalidParameterError(f"episodes must be an integer >= 1, got {episodes!r}")
+    integer_at_least("episodes", episodes)
     for name in ("scenario", "risk", "seed", "case", "noise", "planner"):
         if name in spec_kwargs:
             raise InvalidParameterError(f"the stress suite sets {name!r} itself")
@@ -179,23 +179,10 @@ def _method_of(record: EpisodeRecord, reference: str, epsilon: float) -> tuple[s
 
 
 def _order(key: tuple[str, str, str]) -> tuple:
-    case, planner, method = key
-    cases, planners, methods = list(STRESS_SUITE), list(PLANNERS), list(STRESS_METHODS)
-    return (cases.index(case) if case in cases else len(cases),
-            planners.index(planner) if planner in planners else len(planners),
-            methods.index(method) if method in methods else len(methods), method)
-
-
-def _pareto_panels(cells: Sequence[StressCell]) -> dict[str, list]:
-    from agents.experiments.pareto import ParetoPoint
-
-    panels: dict[str, list] = defaultdict(list)
-    for c in cells:
-        n = c.episodes - c.failed
-        if n >= 1:
-            panels[c.case].append(ParetoPoint(f"{c.planner}: {c.label}", c.collisions, n,
-                                              c.time_to_goal))
-    return dict(panels)
+    """Table order of a cell: case, planner and method as listed, unknown names last."""
+    lists = [list(STRESS_SUITE), list(PLANNERS), list(STRESS_METHODS)]
+    return (*(order.index(name) if name in order else len(order)
+              for name, order in zip(key, lists, strict=True)), key[2])
 
 
 def _timing_table(cells: Sequence[StressCell], records: Sequence[EpisodeRecord],
@@ -296,11 +283,15 @@ def run_stress(output: str | Path | None = None, cases: Sequence[str] = DEFAULT_
 
 
 def _pareto_figure(cells: Sequence[StressCell], folder: Path) -> dict[str, Path]:
-    from agents.experiments.pareto import plot_pareto
+    """``pareto.png``: per case, a point per (planner, setting) that ran at least once."""
+    from agents.experiments.pareto import ParetoPoint, plot_pareto
 
-    if not cells:
-        return {}
+    panels: dict[str, list] = defaultdict(list)
+    for c in cells:
+        if c.episodes > c.failed:
+            panels[c.case].append(ParetoPoint(f"{c.planner}: {c.label}", c.collisions,
+                                              c.episodes - c.failed, c.time_to_goal))
     return {"pareto": plot_pareto(
-        _pareto_panels(cells), folder / "pareto.png",
+        dict(panels), folder / "pareto.png",
         title="Stress suite: collision rate (continuous time) against time to goal, per "
-        "planner and filter setting")}
+        "planner and filter setting")} if cells else {}

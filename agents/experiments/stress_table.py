@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from agents.evaluation.records import EpisodeRecord
-from agents.evaluation.statistics import wilson_interval
+from agents.evaluation.summary import summarise
 
 __all__ = ["TARGET_COLLISION_RATE", "TARGET_GOAL_RATE", "StressCell", "cells_table",
            "explain_collisions", "overview_table", "stress_cells", "write_cells"]
@@ -88,10 +88,6 @@ def _infeasible_before(record: EpisodeRecord) -> bool:
     return 0 < record.first_infeasible_step <= record.first_collision_step
 
 
-def _rate(count: int, n: int) -> float:
-    return count / n if n else math.nan
-
-
 def _by_cell(records: Iterable[EpisodeRecord],
              method_of: _MethodOf) -> dict[_Cell, list[EpisodeRecord]]:
     """The records by (case, planner, method name)."""
@@ -120,21 +116,17 @@ def stress_cells(
     groups = _by_cell(records, method_of)
     cells = []
     for key in sorted(groups, key=order):
-        group = groups[key]
-        ran = [r for r in group if not r.error]
-        n = len(ran)
-        collided = [r for r in ran if r.collision]
-        goals = [r for r in ran if r.goal_reached]
-        rate, goal_rate = _rate(len(collided), n), _rate(len(goals), n)
-        low, high = wilson_interval(len(collided), n)
-        causes = Counter(r.collision_cause for r in collided)
+        (row,) = summarise(groups[key])  # a cell shares case, planner, risk and radius
+        collided = [r for r in groups[key] if r.collision and not r.error]
+        causes = dict(row.collision_causes)
         cells.append(StressCell(
-            *key, label=method_of(group[-1])[1], episodes=len(group), failed=len(group) - n,
-            collisions=len(collided), collision_rate=rate, collision_low=low,
-            collision_high=high, goal_rate=goal_rate,
-            time_to_goal=float(np.mean([r.time_to_goal for r in goals])) if goals else math.nan,
-            meets_target=bool(n and rate <= TARGET_COLLISION_RATE
-                              and goal_rate >= TARGET_GOAL_RATE),
+            *key, label=method_of(groups[key][-1])[1], episodes=row.episodes,
+            failed=row.failed, collisions=len(collided), collision_rate=row.collision_rate,
+            collision_low=row.collision_low, collision_high=row.collision_high,
+            goal_rate=row.goal_rate, time_to_goal=row.time_to_goal,
+            meets_target=bool(row.episodes > row.failed
+                              and row.collision_rate <= TARGET_COLLISION_RATE
+                              and row.goal_rate >= TARGET_GOAL_RATE),
             fallback_collisions=causes["fallback"],
             inter_sample_collisions=causes["inter_sample"], noise_collisions=causes["noise"],
             infeasible_before=sum(_infeasible_before(r) for r in collided)))
