@@ -21,7 +21,6 @@ Output folder::
 from __future__ import annotations
 
 import math
-from collections import defaultdict
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,7 +30,7 @@ from agents.evaluation.campaign import EvaluationOutputs
 from agents.evaluation.config import EvaluationConfig
 from agents.evaluation.records import EpisodeRecord, EpisodeSpec
 from agents.evaluation.summary import wilson_interval
-from agents.experiments.scenes import run_scene_suite, scene_setting, scene_specs
+from agents.experiments.scenes import run_scene_suite, scene_groups, scene_setting, scene_specs
 
 __all__ = ["CROWD_SETTINGS", "CrowdRow", "crowd_rows", "crowd_specs", "crowd_table",
            "run_crowd"]
@@ -93,12 +92,8 @@ class CrowdRow:
 
 def crowd_rows(records: Sequence[EpisodeRecord]) -> list[CrowdRow]:
     """The table's rows, one per (setting, risk), in the order they first appear."""
-    groups: dict[tuple[str, str], list[EpisodeRecord]] = defaultdict(list)
-    for record in records:
-        groups[(setting_of(record), record.risk)].append(record)
     rows = []
-    for (setting, risk), group in groups.items():
-        ran = [r for r in group if not r.error]
+    for setting, risk, group, ran in scene_groups(records, CROWD_SETTINGS):
         n = max(1, len(ran))
         successes = sum(r.goal_reached and not r.collision for r in ran)
         collisions = sum(r.collision for r in ran)

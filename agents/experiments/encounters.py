@@ -24,6 +24,7 @@ from agents.experiments.paper_settings import (
     ReproductionPreset,
     paper_duration,
 )
+from agents.planners import MPCReferencePlanner
 from filters._validation import integer_at_least
 from filters.errors import InvalidParameterError
 from filters.risk import PAPER_RISKS
@@ -81,38 +82,22 @@ class EncounterRecord(Trajectory):
         return int(self.inputs.shape[0])
 
 
-class _PresetPlanner:
-    """The preset's obstacle-agnostic planner: the agent and the filter's reference maker.
-
-    With ``zero_inputs`` the reference inputs are zero, so the wrapper's input cost
-    ``(u - u_ref)' R (u - u_ref)`` is the paper's ``u' R u`` (Problem 2).
-    """
-
-    def __init__(self, planner: Any, *, zero_inputs: bool) -> None:
-        self.planner = planner
-        self.zero_inputs = zero_inputs
-
-    def predict(self, observation: np.ndarray, deterministic: bool = True) -> Any:
-        return self.planner.predict(observation, deterministic=deterministic)
+class _ZeroInputReference(MPCReferencePlanner):
+    """The MPC planner whose reference inputs for the filter are zero, so the wrapper's
+    input cost ``(u - u_ref)' R (u - u_ref)`` is the paper's ``u' R u`` (Problem 2)."""
 
     def __call__(self, env: Any, action: np.ndarray, horizon: int):
-        states, inputs = self.planner(env, action, horizon)
-        return (states, np.zeros_like(inputs)) if self.zero_inputs else (states, inputs)
+        states, inputs = super().__call__(env, action, horizon)
+        return states, np.zeros_like(inputs)
 
 
 def _preset_planner(preset: ReproductionPreset):
-    """A function ``env -> _PresetPlanner`` building the preset's planner for ``env``."""
-    from agents.planners import MPCReferencePlanner
-
+    """A function ``env -> planner``: the preset's obstacle-agnostic MPC planner for ``env``,
+    the agent and the filter's reference maker."""
     Q, Q_terminal, R = preset.planner_weights
-
-    def build(env: Any) -> _PresetPlanner:
-        planner = MPCReferencePlanner.from_env(
-            env, horizon=preset.horizon, Q=Q, Q_terminal=Q_terminal, R=R,
-            convention=preset.planner_convention)
-        return _PresetPlanner(planner, zero_inputs=preset.filter_input_cost != "deviation")
-
-    return build
+    kind = MPCReferencePlanner if preset.filter_input_cost == "deviation" else _ZeroInputReference
+    return lambda env: kind.from_env(env, horizon=preset.horizon, Q=Q, Q_terminal=Q_terminal,
+                                     R=R, convention=preset.planner_convention)
 
 
 def encounter_spec(job: EncounterJob) -> EpisodeSpec:
@@ -150,9 +135,8 @@ def make_encounter_env(job: EncounterJob):
     """The filtered environment of ``job`` (paper episode length) and its planner."""
     from agents.evaluation.runner import make_env
 
-    env, adapter = make_env(encounter_spec(job), policy=_preset_planner(job.preset),
-                            render_mode="rgb_array" if job.render else None)
-    return env, adapter.planner
+    return make_env(encounter_spec(job), policy=_preset_planner(job.preset),
+                    render_mode="rgb_array" if job.render else None)
 
 
 _FROM_RECORD = ("collision", "sampled_collision", "first_collision_step", "collision_cause",
