@@ -114,11 +114,10 @@ def encounter_spec(job: EncounterJob) -> EpisodeSpec:
         (:func:`~agents.experiments.paper_settings.paper_duration`).
     """
     preset = job.preset
-    q, q_terminal, r = preset.filter_weights
-    states, inputs = 4, 2  # the double integrator's state and input sizes
+    q, q_terminal, r = preset.filter_weights  # times the identity; state 4, input 2
     filter_options = dict(
-        horizon=preset.horizon, Q=(q * np.eye(states)).tolist(),
-        Q_terminal=(q_terminal * np.eye(states)).tolist(), R=(r * np.eye(inputs)).tolist(),
+        horizon=preset.horizon, Q=(q * np.eye(4)).tolist(),
+        Q_terminal=(q_terminal * np.eye(4)).tolist(), R=(r * np.eye(2)).tolist(),
         fallback=preset.fallback, objective="trajectory", normals="paper", intersample=False,
         terminal=False)
     env_options = dict(episode_length=paper_duration(job.scenario),
@@ -154,31 +153,23 @@ def run_encounter(job: EncounterJob) -> EncounterRecord:
 
     start = time.perf_counter()
     try:
-        spec = encounter_spec(job)
-    except Exception as exc:  # noqa: BLE001 — a Monte Carlo run records failures
-        return _failed_encounter(job, f"{type(exc).__name__}: {exc}", start)
-    record, trajectory = run_episode(spec, policy=_preset_planner(job.preset),
-                                     record_trajectory=True, render=job.render,
-                                     reuse_env=False)
-    if trajectory is None:
-        return _failed_encounter(job, record.error, start)
-    if not job.record_halfspaces:
+        record, trajectory = run_episode(encounter_spec(job), policy=_preset_planner(job.preset),
+                                         record_trajectory=True, render=job.render,
+                                         reuse_env=False)
+        error = record.error if trajectory is None else record.error.split(" | ")[0]
+        from_record = {name: getattr(record, name) for name in _FROM_RECORD}
+    except Exception as exc:  # noqa: BLE001 — a bad job (e.g. no paper duration) is recorded
+        trajectory, error, from_record = None, f"{type(exc).__name__}: {exc}", {}
+    if trajectory is None:  # failed before its first state was recorded
+        trajectory = Trajectory(
+            ego=np.zeros((0, 2)), obstacles=np.zeros((0, 0, 2)), obstacle_radii=np.zeros(0),
+            ego_radius=math.nan, goal=np.zeros(2), halfspaces=[], statuses=[], frames=[],
+            dt=math.nan)
+    elif not job.record_halfspaces:
         trajectory.halfspaces = []
     return EncounterRecord(**vars(trajectory), preset=job.preset.name, scenario=job.scenario,
-                           risk=job.risk, seed=int(job.seed),
-                           error=record.error.split(" | ")[0],
-                           wall_time=time.perf_counter() - start,
-                           **{name: getattr(record, name) for name in _FROM_RECORD})
-
-
-def _failed_encounter(job: EncounterJob, error: str, start: float) -> EncounterRecord:
-    """The record of an episode that failed before its first state was recorded."""
-    return EncounterRecord(
-        ego=np.zeros((0, 2)), obstacles=np.zeros((0, 0, 2)), obstacle_radii=np.zeros(0),
-        ego_radius=math.nan, goal=np.zeros(2), halfspaces=[], statuses=[], frames=[],
-        dt=math.nan, preset=job.preset.name, scenario=job.scenario, risk=job.risk,
-        seed=int(job.seed), error=error.replace("\n", " ")[:500],
-        wall_time=time.perf_counter() - start)
+                           risk=job.risk, seed=int(job.seed), error=error.replace("\n", " ")[:500],
+                           wall_time=time.perf_counter() - start, **from_record)
 
 
 def run_encounters(

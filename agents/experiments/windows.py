@@ -192,13 +192,10 @@ def summarise_windows(records: Sequence[EncounterRecord]) -> list[WindowRow]:
     rows = []
     for (preset, scenario, risk), group in groups.items():
         ok = [r for r in group if not r.error]
-        window = windows[scenario][0]
+        window, encounter = windows[scenario][0], encounters[scenario][0]
         sampled, swept = _series(ok, "distances"), _series(ok, "swept")
-        in_window = window_minimum(sampled, window) if ok else np.zeros(0)
-        encounter = encounters[scenario][0]
-        in_encounter = window_minimum(sampled, encounter) if ok else np.zeros(0)
-        swept_window = (window_minimum(swept, (window[0], max(window[0], window[1] - 1)))
-                        if ok and swept.shape[1] else np.full(len(ok), np.nan))
+        in_window, in_encounter = (window_minimum(sampled, w) for w in (window, encounter))
+        swept_window = window_minimum(swept, (window[0], max(window[0], window[1] - 1)))
         steps = sum(r.steps for r in ok)
         times = np.concatenate([r.filter_times for r in ok]) if ok else np.zeros(0)
         rows.append(WindowRow(
