@@ -91,7 +91,6 @@ def pedestrian_rows(records: Sequence[EpisodeRecord]) -> list[PedestrianRow]:
                                  for r in ran] or [np.zeros(0, bool)])
         clearances = np.array([r.min_swept_distance for r in ran], dtype=float)
         clearances = clearances[np.isfinite(clearances)]
-        filtered = risk != "none"
         rows.append(PedestrianRow(
             scene=scene, risk=risk, episodes=n, collision=collisions / max(1, n),
             collision_low=low, collision_high=high,
@@ -99,7 +98,7 @@ def pedestrian_rows(records: Sequence[EpisodeRecord]) -> list[PedestrianRow]:
             success=len(successes) / max(1, n),
             time_to_goal=(float(np.mean([r.time_to_goal for r in successes]))
                           if successes else math.nan),
-            infeasible=1.0 - optimal / steps if filtered and steps else math.nan,
+            infeasible=1.0 - optimal / steps if risk != "none" and steps else math.nan,
             miscoverage=float(np.mean(misses)) if misses.size else math.nan,
             median_min_distance=float(np.median(clearances)) if clearances.size else math.nan,
             worst_min_distance=float(clearances.min()) if clearances.size else math.nan,
