@@ -201,14 +201,12 @@ def _monte_carlo_section(
                   f"seed {failed[0].seed}: `{failed[0].error[:200]}`."]
     lines += ["", "Collision counts are episodes with at least one collision: in continuous "
               "time (the environment's swept clearance over each step) and sampled (at the "
-              "0.2 s samples, the paper's count).", ""]
-    lines += _window_table(rows, dt)
-    lines += ["", "Causes of the filtered runs' collisions (continuous time, whole episode; "
+              "0.2 s samples, the paper's count).", "", *_window_table(rows, dt),
+              "", "Causes of the filtered runs' collisions (continuous time, whole episode; "
               "`collision_cause` in `episodes.csv`: a fallback status at the colliding step "
               "or the two before it, an overlap only between two samples, or realised "
-              "noise beyond the margin after nominal steps):", ""]
-    lines += _cause_lines(records)
-    lines += ["", f"![window box plots]({relative}/figures/distance_boxplots.png)", "",
+              "noise beyond the margin after nominal steps):", "", *_cause_lines(records),
+              "", f"![window box plots]({relative}/figures/distance_boxplots.png)", "",
               f"![collisions, continuous time]({relative}/figures/collision_rates.png)", "",
               f"![collisions, sampled]({relative}/figures/collision_rates_sampled.png)", ""]
     for name in figures:
@@ -248,16 +246,14 @@ def _monte_carlo_figures(
     files["distance_boxplots"] = plots.plot_window_boxplots(
         distances, windows, folder / "distance_boxplots.png", dt=dt,
         title=f"preset {preset.name}: sampled distance to collision in the statistics window")
-    files["collision_rates"] = plots.plot_collision_rates(
-        _summary_rows(rows, sampled=False), folder / "collision_rates.png",
-        ylabel="collision rate (continuous time)\nshare of episodes",
-        title=f"Preset {preset.name}: collision rate in continuous time, per scenario and "
-              "risk (Wilson 95 %)")
-    files["collision_rates_sampled"] = plots.plot_collision_rates(
-        _summary_rows(rows, sampled=True), folder / "collision_rates_sampled.png",
-        ylabel="collision rate (at the samples)\nshare of episodes",
-        title=f"Preset {preset.name}: collision rate at the 0.2 s samples (the paper's "
-              "count), per scenario and risk")
+    for name, sampled, axis, what, note in (
+            ("collision_rates", False, "continuous time", "in continuous time,", " (Wilson 95 %)"),
+            ("collision_rates_sampled", True, "at the samples",
+             "at the 0.2 s samples (the paper's count),", "")):
+        files[name] = plots.plot_collision_rates(
+            _summary_rows(rows, sampled=sampled), folder / f"{name}.png",
+            ylabel=f"collision rate ({axis})\nshare of episodes",
+            title=f"Preset {preset.name}: collision rate {what} per scenario and risk{note}")
     for scenario in scenarios:
         first_seed = {r.risk: r for r in records
                       if r.scenario == scenario and r.seed == seed and not r.error}

@@ -43,6 +43,7 @@ from agents.experiments.stress_table import (
     TARGET_COLLISION_RATE,
     TARGET_GOAL_RATE,
     StressCell,
+    by_cell,
     cells_table,
     explain_collisions,
     overview_table,
@@ -186,13 +187,11 @@ def _order(key: tuple[str, str, str]) -> tuple:
 
 def _timing_table(cells: Sequence[StressCell], records: Sequence[EpisodeRecord],
                   method_of: Any) -> str:
-    times: dict[tuple[str, str, str], list[float]] = defaultdict(list)
-    for r in records:
-        times[(r.case, r.planner, method_of(r)[0])].append(r.wall_time)
+    groups = by_cell(records, method_of)
     lines = ["| case | planner | setting | episodes | wall time per episode (s) | "
              "cell total (s) |", "|---|---|---|---|---|---|"]
     for c in cells:
-        t = times[(c.case, c.planner, c.method)]
+        t = [r.wall_time for r in groups[(c.case, c.planner, c.method)]]
         lines.append(f"| {c.case} | {c.planner} | {c.label} | {len(t)} | "
                      f"{sum(t) / max(1, len(t)):.3f} | {sum(t):.1f} |")
     return "\n".join(lines) + "\n"

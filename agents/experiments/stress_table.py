@@ -88,7 +88,7 @@ def _infeasible_before(record: EpisodeRecord) -> bool:
     return 0 < record.first_infeasible_step <= record.first_collision_step
 
 
-def _by_cell(records: Iterable[EpisodeRecord],
+def by_cell(records: Iterable[EpisodeRecord],
              method_of: _MethodOf) -> dict[_Cell, list[EpisodeRecord]]:
     """The records by (case, planner, method name)."""
     groups: dict[_Cell, list[EpisodeRecord]] = {}
@@ -113,7 +113,7 @@ def stress_cells(
     order
         Sort key of a ``(case, planner, method)``.
     """
-    groups = _by_cell(records, method_of)
+    groups = by_cell(records, method_of)
     cells = []
     for key in sorted(groups, key=order):
         (row,) = summarise(groups[key])  # a cell shares case, planner, risk and radius
@@ -179,7 +179,7 @@ def explain_collisions(
     from the first infeasible step to the collision, and the status transitions
     ``before -> at`` the collision with their counts.
     """
-    collided = _by_cell((r for r in records if r.collision and not r.error), method_of)
+    collided = by_cell((r for r in records if r.collision and not r.error), method_of)
     out = []
     for case in dict.fromkeys(c.case for c in cells):
         rows = []
