@@ -30,7 +30,7 @@ from agents.evaluation.campaign import EvaluationOutputs
 from agents.evaluation.config import EvaluationConfig
 from agents.evaluation.records import EpisodeRecord, EpisodeSpec
 from agents.evaluation.summary import wilson_interval
-from agents.experiments.scenes import run_scene_suite, scene_groups, scene_setting, scene_specs
+from agents.experiments.scenes import run_scene_suite, scene_groups, scene_specs
 
 __all__ = ["CROWD_SETTINGS", "CrowdRow", "crowd_rows", "crowd_specs", "crowd_table",
            "run_crowd"]
@@ -56,11 +56,6 @@ def crowd_specs(settings: Sequence[str], risks: Sequence[str], *, episodes: int,
     """One spec per (setting, risk, test case) (:func:`agents.experiments.scenes.scene_specs`)."""
     return scene_specs("Crowd", CROWD_SETTINGS, settings, risks, episodes=episodes, seed=seed,
                        **common)
-
-
-def setting_of(record: EpisodeRecord) -> str:
-    """The :data:`CROWD_SETTINGS` name of a record (from its environment options)."""
-    return scene_setting(record, CROWD_SETTINGS)
 
 
 @dataclass(frozen=True)

@@ -172,27 +172,6 @@ def run_encounter(job: EncounterJob) -> EncounterRecord:
                            wall_time=time.perf_counter() - start, **from_record)
 
 
-def run_encounters(
-    jobs: Sequence[EncounterJob], *, workers: int = 1, progress: bool = False,
-) -> list[EncounterRecord]:
-    """Run ``jobs`` (in ``workers`` processes) and return their records in job order."""
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
-
-    from tqdm.auto import tqdm
-
-    from agents.evaluation.executors import worker_init
-
-    integer_at_least("workers", workers)
-    bar = dict(total=len(jobs), desc="paper episodes", unit="ep", disable=not progress)
-    if workers == 1 or len(jobs) <= 1:
-        return list(tqdm(map(run_encounter, jobs), **bar))
-    with ProcessPoolExecutor(max_workers=workers, initializer=worker_init,
-                             mp_context=multiprocessing.get_context("spawn")) as pool:
-        chunk = max(1, min(16, len(jobs) // (4 * workers) or 1))
-        return list(tqdm(pool.map(run_encounter, jobs, chunksize=chunk), **bar))
-
-
 # ---------------------------------------------------------------------------- Monte Carlo
 RISKS = ("none", *PAPER_RISKS)
 """Risk settings of the paper's Monte Carlo, plus the unfiltered reference."""
@@ -211,13 +190,20 @@ def paper_monte_carlo(
     """The paper's Monte Carlo (Section IV-B) under ``preset``, paper episode lengths.
 
     Episode ``i`` of every (scenario, risk) uses seed ``seed + i``, so the risks are
-    compared on common random numbers.
+    compared on common random numbers. The episodes run in ``workers`` processes; the
+    records come in job order (scenario, risk, seed).
 
     Raises
     ------
     InvalidParameterError
         For an unknown preset, scenario or risk, or ``episodes < 1``.
     """
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    from tqdm.auto import tqdm
+
+    from agents.evaluation.executors import worker_init
     from filters.wrapper import RISKS as FILTER_RISKS
 
     if isinstance(preset, str):
@@ -231,6 +217,13 @@ def paper_monte_carlo(
     for scenario in scenarios:
         paper_duration(scenario)
     integer_at_least("episodes", episodes)
+    integer_at_least("workers", workers)
     jobs = [EncounterJob(preset, scenario, risk, seed + i)
             for scenario in scenarios for risk in risks for i in range(episodes)]
-    return run_encounters(jobs, workers=workers, progress=progress)
+    bar = dict(total=len(jobs), desc="paper episodes", unit="ep", disable=not progress)
+    if workers == 1:
+        return list(tqdm(map(run_encounter, jobs), **bar))
+    with ProcessPoolExecutor(max_workers=workers, initializer=worker_init,
+                             mp_context=multiprocessing.get_context("spawn")) as pool:
+        chunk = max(1, min(16, len(jobs) // (4 * workers)))  # records come back in job order
+        return list(tqdm(pool.map(run_encounter, jobs, chunksize=chunk), **bar))

@@ -77,7 +77,7 @@ from agents.experiments.windows import (
     WindowRow,
     _series,
     _summary_rows,
-    closest_approach_sample,
+    closest_approach_window,
     resolve_windows,
     summarise_windows,
     write_episodes_csv,
@@ -187,7 +187,10 @@ def _monte_carlo_section(
              f"{dt:g} s):"]
     for scenario in scenarios:
         (first, last), source = windows[scenario]
-        closest = closest_approach_sample([r for r in records if r.scenario == scenario])
+        reference = [r for r in records if r.scenario == scenario and r.risk == "none"
+                     and not r.error]  # the median sample of closest approach, unfiltered
+        closest = closest_approach_window(_series(reference, "distances"), before=0,
+                                          after=0)[0] if reference else None
         e_first, e_last = encounters[scenario][0]
         check = (f"; the unfiltered reference is closest to the obstacle at sample {closest} "
                  f"({closest * dt:.1f} s, median over the seeds), encounter window "
@@ -262,12 +265,12 @@ def _monte_carlo_figures(
             files[f"trajectories_{name}"] = plots.plot_trajectories(
                 first_seed, folder / f"trajectories_{name}.png", every=3,
                 title=f"{name}, seed {seed}, preset {preset.name}")
-    featured = plots.featured_run(scenarios, list(dict.fromkeys(r.risk for r in records)))
-    if featured[1] != "none":
-        record = run_encounter(EncounterJob(preset, featured[0], featured[1], seed, render=True,
+    scenario, risk = plots.featured_run(scenarios, list(dict.fromkeys(r.risk for r in records)))
+    if risk != "none":
+        record = run_encounter(EncounterJob(preset, scenario, risk, seed, render=True,
                                             record_halfspaces=True))
         if not record.error:
-            name, risk = short_name(featured[0]), featured[1]
+            name = short_name(scenario)
             label = (f"{plots.RISK_LABELS.get(risk, risk)} (alpha {preset.alpha:g}, "
                      f"delta {preset.delta_for(risk):g} m, eps {preset.epsilon:g} m), "
                      f"{name}, seed {seed}, preset {preset.name}")

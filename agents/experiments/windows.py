@@ -175,13 +175,6 @@ def resolve_windows(
     return windows
 
 
-def closest_approach_sample(records: Sequence[EncounterRecord]) -> int | None:
-    """Median sample of closest approach of the finished unfiltered episodes (or None)."""
-    reference = [r for r in records if r.risk == "none" and not r.error]
-    return (closest_approach_window(_series(reference, "distances"), before=0, after=0)[0]
-            if reference else None)
-
-
 def summarise_windows(records: Sequence[EncounterRecord]) -> list[WindowRow]:
     """One :class:`WindowRow` per (preset, scenario, risk), in the records' order."""
     windows = resolve_windows(records)
