@@ -89,8 +89,8 @@ def pedestrian_rows(records: Sequence[EpisodeRecord]) -> list[PedestrianRow]:
         # than the risk bound delta it was built for.
         misses = np.concatenate([decode_losses(r.audit_all_losses) > r.delta
                                  for r in ran] or [np.zeros(0, bool)])
-        clearances = np.array([r.min_swept_distance for r in ran], dtype=float)
-        clearances = clearances[np.isfinite(clearances)]
+        clearances = np.array([r.min_swept_distance for r in ran
+                               if math.isfinite(r.min_swept_distance)], dtype=float)
         rows.append(PedestrianRow(
             scene=scene, risk=risk, episodes=n, collision=collisions / max(1, n),
             collision_low=low, collision_high=high,

@@ -99,11 +99,10 @@ def _window_table(rows: Sequence[WindowRow], dt: float) -> list[str]:
         "| infeasible steps (episodes) | filter time (ms) |",
         "|" + "---|" * 13]
     for r in rows:
-        failed = f" ({r.failed} failed)" if r.failed else ""
-        first, last = r.window
-        e_first, e_last = r.encounter_window
+        (first, last), (e_first, e_last) = r.window, r.encounter_window
         lines.append(
-            f"| {short_name(r.scenario)} | {r.risk} | {r.episodes}{failed} | {first}-{last} "
+            f"| {short_name(r.scenario)} | {r.risk} | {r.episodes}"
+            f"{f' ({r.failed} failed)' if r.failed else ''} | {first}-{last} "
             f"({first * dt:.1f}-{last * dt:.1f} s) | {r.collisions}/{r.ok} | "
             f"{r.sampled_collisions}/{r.ok} | {r.window_sampled_collisions}/{r.ok} | "
             f"{r.window_worst:.3f} | {r.window_worst_swept:.3f} | {r.episode_worst:.3f} | "
@@ -375,12 +374,11 @@ def reproduce(
               "obstacle early), so the encounter window shows the same statistic where this "
               "preset's encounter is. The match/differ lines use the window.", ""]
     for k, name in enumerate(presets):
-        preset = PRESETS[name]
         folder_name = "monte_carlo" if k == 0 else f"monte_carlo_{name}"
         start = time.perf_counter()
-        records = paper_monte_carlo(preset, scenarios, episodes=episodes, seed=seed,
+        records = paper_monte_carlo(name, scenarios, episodes=episodes, seed=seed,
                                     workers=workers, progress=progress)
-        lines += _monte_carlo_section(preset, records, output / folder_name, seed=seed,
+        lines += _monte_carlo_section(PRESETS[name], records, output / folder_name, seed=seed,
                                       episodes=episodes, wall_time=time.perf_counter() - start,
                                       relative=folder_name)
     report = "\n".join(lines) + "\n"

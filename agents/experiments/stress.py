@@ -248,8 +248,7 @@ def run_stress(output: str | Path | None = None, cases: Sequence[str] = DEFAULT_
 
     def report(records: Sequence[EpisodeRecord]) -> Report:
         cells = stress_cells(records, method_of, _order)
-        descriptions = {name: case.description for name, case in STRESS_SUITE.items()}
-        markdown = cells_table(cells, descriptions)
+        markdown = cells_table(cells, {n: case.description for n, case in STRESS_SUITE.items()})
         missed = sum(not c.meets_target for c in cells)
         body = (
             f"- methods: dr_cvar (eps=auto) estimates epsilon online; every method but the "

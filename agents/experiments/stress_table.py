@@ -201,15 +201,12 @@ def explain_collisions(
     return "\n".join(out) if out else "No collisions.\n"
 
 
-CELL_FIELDS = tuple(f.name for f in fields(StressCell))
-"""Columns of ``stress_table.csv``, in order."""
-
-
 def write_cells(cells: Sequence[StressCell], path: str | Path) -> Path:
-    """Write the cells as CSV (one row per cell, :data:`CELL_FIELDS`); return the path."""
+    """Write the cells as CSV (one row per cell, the fields of :class:`StressCell` in order);
+    return the path."""
     path = Path(path)
     with path.open("w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=CELL_FIELDS)
+        writer = csv.DictWriter(handle, fieldnames=[f.name for f in fields(StressCell)])
         writer.writeheader()
         writer.writerows(asdict(cell) for cell in cells)
     return path
