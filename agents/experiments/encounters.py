@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from agents.evaluation.records import EpisodeSpec
+from agents.evaluation.runner import make_env, run_episode
 from agents.evaluation.trajectory import Trajectory
 from agents.experiments.paper_settings import (
     PAPER_SCENARIOS,
@@ -132,8 +133,6 @@ def encounter_spec(job: EncounterJob) -> EpisodeSpec:
 
 def make_encounter_env(job: EncounterJob):
     """The filtered environment of ``job`` (paper episode length) and its planner."""
-    from agents.evaluation.runner import make_env
-
     return make_env(encounter_spec(job), policy=_preset_planner(job.preset),
                     render_mode="rgb_array" if job.render else None)
 
@@ -149,8 +148,6 @@ def run_encounter(job: EncounterJob) -> EncounterRecord:
     ``safe-nav evaluate``) with its trajectory recorded; the record keeps its partial
     data if the episode failed.
     """
-    from agents.evaluation.runner import run_episode
-
     start = time.perf_counter()
     try:
         record, trajectory = run_episode(encounter_spec(job), policy=_preset_planner(job.preset),

@@ -54,7 +54,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from agents.evaluation.summary import short_name
+from agents.evaluation.summary import COLLISION_CAUSES, short_name
 from agents.experiments.encounters import (
     EncounterJob,
     EncounterRecord,
@@ -72,7 +72,7 @@ from agents.experiments.paper_settings import (
     ReproductionPreset,
     paper_duration,
 )
-from agents.experiments.table_one import EXAMPLE_ONE
+from agents.experiments.table_one import EXAMPLE_ONE, PAPER_TABLE_ONE, halfspace_timing_table
 from agents.experiments.windows import (
     WindowRow,
     _series,
@@ -222,8 +222,6 @@ def _monte_carlo_section(
 
 def _cause_lines(records: Sequence[EncounterRecord]) -> list[str]:
     """One line per filtered scenario and risk with collisions: the counts per cause."""
-    from agents.evaluation.summary import COLLISION_CAUSES
-
     causes: dict[tuple[str, str], list[str]] = {}
     for r in records:
         if r.risk != "none" and not r.error:
@@ -317,8 +315,6 @@ def reproduce(
     timing
         Run the Table I timing (``False`` skips it, for quick runs).
     """
-    from agents.experiments.table_one import PAPER_TABLE_ONE, halfspace_timing_table
-
     unknown = [p for p in presets if p not in PRESETS]
     if unknown or not presets:
         raise InvalidParameterError(f"presets must be a non-empty subset of {sorted(PRESETS)}, "

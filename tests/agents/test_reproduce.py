@@ -16,7 +16,6 @@ from agents.experiments.encounters import (
 from agents.experiments.paper_settings import (
     PAPER_WINDOWS,
     PRESETS,
-    authors_weights,
     paper_duration,
 )
 from agents.experiments.reproduce import compare_with_paper, reproduce
@@ -162,7 +161,6 @@ def test_scenarios_without_a_paper_window_use_the_unfiltered_closest_approach():
 # ---------------------------------------------------------------------------- presets
 def test_presets_carry_the_documented_effective_weights():
     authors = PRESETS["authors_code"]
-    assert authors_weights(2.0, 5.0, 1.0) == (4.0, 25.0, 1.0)
     assert authors.filter_weights == (4.0, 25.0, 1.0)
     assert PRESETS["paper"].filter_weights == (4.0, 25.0, 1.0)
     assert (authors.noise, authors.max_acceleration, authors.delta_for("mean"),
