@@ -21,7 +21,6 @@ Output folder::
 from __future__ import annotations
 
 import math
-from collections import defaultdict
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,7 +30,7 @@ from agents.evaluation.campaign import EvaluationOutputs
 from agents.evaluation.config import EvaluationConfig
 from agents.evaluation.records import EpisodeRecord, EpisodeSpec
 from agents.evaluation.summary import wilson_interval
-from agents.experiments.scenes import run_scene_suite, scene_setting, scene_specs
+from agents.experiments.scenes import run_scene_suite, scene_groups, scene_specs
 
 __all__ = ["CROWD_SETTINGS", "CrowdRow", "crowd_rows", "crowd_specs", "crowd_table",
            "run_crowd"]
@@ -57,11 +56,6 @@ def crowd_specs(settings: Sequence[str], risks: Sequence[str], *, episodes: int,
     """One spec per (setting, risk, test case) (:func:`agents.experiments.scenes.scene_specs`)."""
     return scene_specs("Crowd", CROWD_SETTINGS, settings, risks, episodes=episodes, seed=seed,
                        **common)
-
-
-def setting_of(record: EpisodeRecord) -> str:
-    """The :data:`CROWD_SETTINGS` name of a record (from its environment options)."""
-    return scene_setting(record, CROWD_SETTINGS)
 
 
 @dataclass(frozen=True)
@@ -93,23 +87,16 @@ class CrowdRow:
 
 def crowd_rows(records: Sequence[EpisodeRecord]) -> list[CrowdRow]:
     """The table's rows, one per (setting, risk), in the order they first appear."""
-    groups: dict[tuple[str, str], list[EpisodeRecord]] = defaultdict(list)
-    for record in records:
-        groups[(setting_of(record), record.risk)].append(record)
     rows = []
-    for (setting, risk), group in groups.items():
-        ran = [r for r in group if not r.error]
+    for setting, risk, group, ran in scene_groups(records, CROWD_SETTINGS):
         n = max(1, len(ran))
         successes = sum(r.goal_reached and not r.collision for r in ran)
         collisions = sum(r.collision for r in ran)
         times = [r.time_to_goal for r in ran if r.goal_reached and not r.collision]
         steps = sum(r.steps for r in ran)
         rows.append(CrowdRow(
-            setting=setting, risk=risk, cases=len(ran), success=successes / n,
-            success_low=wilson_interval(successes, len(ran))[0],
-            success_high=wilson_interval(successes, len(ran))[1],
-            collision=collisions / n, collision_low=wilson_interval(collisions, len(ran))[0],
-            collision_high=wilson_interval(collisions, len(ran))[1],
+            setting, risk, len(ran), successes / n, *wilson_interval(successes, len(ran)),
+            collisions / n, *wilson_interval(collisions, len(ran)),
             standing_collision=sum(r.collision and r.standing_collision for r in ran) / n,
             timeout=(len(ran) - successes - collisions) / n,
             time_to_goal=sum(times) / len(times) if times else math.nan,

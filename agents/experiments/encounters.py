@@ -10,13 +10,14 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from agents.evaluation.records import EpisodeSpec
+from agents.evaluation.runner import make_env, run_episode
 from agents.evaluation.trajectory import Trajectory
 from agents.experiments.paper_settings import (
     PAPER_SCENARIOS,
@@ -24,13 +25,11 @@ from agents.experiments.paper_settings import (
     ReproductionPreset,
     paper_duration,
 )
+from agents.planners import MPCReferencePlanner
 from filters._validation import integer_at_least
 from filters.errors import InvalidParameterError
 from filters.risk import PAPER_RISKS
 from safe_nav_env.scenarios import scenario_name
-
-INFEASIBLE_STATUSES = ("shifted", "brake", "soft", "recovery")
-"""Filter statuses of a step whose hard QP failed (:class:`filters.mpc.FilterStatus`)."""
 
 
 # ---------------------------------------------------------------------------- episodes
@@ -58,6 +57,8 @@ class EncounterRecord(Trajectory):
         Empty, or why the episode stopped early (its partial data are kept).
     wall_time
         Time the episode took, in s.
+    collision, sampled_collision, first_collision_step, collision_cause, fallback_steps
+        As in :class:`~agents.evaluation.records.EpisodeRecord` (the runner's values).
     """
 
     preset: str = ""
@@ -66,6 +67,11 @@ class EncounterRecord(Trajectory):
     seed: int = 0
     error: str = ""
     wall_time: float = 0.0
+    collision: bool = False
+    sampled_collision: bool = False
+    first_collision_step: int = 0
+    collision_cause: str = ""
+    fallback_steps: int = 0
 
     @property
     def ego_velocities(self) -> np.ndarray:
@@ -76,77 +82,23 @@ class EncounterRecord(Trajectory):
     def steps(self) -> int:
         return int(self.inputs.shape[0])
 
-    @property
-    def collision(self) -> bool:
-        """Continuous-time collision in the episode (some step's clearance <= 0)."""
-        return bool(self.swept.size and np.min(self.swept) <= 0.0)
 
-    @property
-    def sampled_collision(self) -> bool:
-        """Collision at a sample instant (the paper's count)."""
-        return bool(self.distances.size and np.min(self.distances) <= 0.0)
-
-    @property
-    def fallback_steps(self) -> int:
-        """Steps where the filter's hard QP failed (:data:`INFEASIBLE_STATUSES`)."""
-        return sum(s in INFEASIBLE_STATUSES for s in self.statuses)
-
-    @property
-    def step_collisions(self) -> tuple[list[bool], list[bool]]:
-        """Per step ``1..S``: the continuous-time and the end-sample collision flags."""
-        swept = [bool(np.min(row) <= 0.0) if row.size else False for row in self.swept]
-        sampled = [bool(np.min(row) <= 0.0) if row.size else False
-                   for row in self.distances[1:]]
-        return swept, sampled
-
-    @property
-    def first_collision_step(self) -> int:
-        """The first step with a continuous-time collision (1-based), 0 if none."""
-        swept, _ = self.step_collisions
-        return swept.index(True) + 1 if any(swept) else 0
-
-    @property
-    def collision_cause(self) -> str:
-        """Why the first collision happened: ``""``, ``"fallback"``, ``"inter_sample"`` or
-        ``"noise"`` (:func:`agents.evaluation.runner.collision_cause`, the evaluation's rule)."""
-        from agents.evaluation.runner import collision_cause
-
-        swept, sampled = self.step_collisions
-        return collision_cause(swept, sampled, list(self.statuses))
-
-
-class _PresetPlanner:
-    """The preset's obstacle-agnostic planner: the agent and the filter's reference maker.
-
-    With ``zero_inputs`` the reference inputs are zero, so the wrapper's input cost
-    ``(u - u_ref)' R (u - u_ref)`` is the paper's ``u' R u`` (Problem 2).
-    """
-
-    def __init__(self, planner: Any, *, zero_inputs: bool) -> None:
-        self.planner = planner
-        self.zero_inputs = zero_inputs
-
-    def predict(self, observation: np.ndarray, deterministic: bool = True) -> Any:
-        return self.planner.predict(observation, deterministic=deterministic)
+class _ZeroInputReference(MPCReferencePlanner):
+    """The MPC planner whose reference inputs for the filter are zero, so the wrapper's
+    input cost ``(u - u_ref)' R (u - u_ref)`` is the paper's ``u' R u`` (Problem 2)."""
 
     def __call__(self, env: Any, action: np.ndarray, horizon: int):
-        states, inputs = self.planner(env, action, horizon)
-        return (states, np.zeros_like(inputs)) if self.zero_inputs else (states, inputs)
+        states, inputs = super().__call__(env, action, horizon)
+        return states, np.zeros_like(inputs)
 
 
 def _preset_planner(preset: ReproductionPreset):
-    """A function ``env -> _PresetPlanner`` building the preset's planner for ``env``."""
-    from agents.planners import MPCReferencePlanner
-
+    """A function ``env -> planner``: the preset's obstacle-agnostic MPC planner for ``env``,
+    the agent and the filter's reference maker."""
     Q, Q_terminal, R = preset.planner_weights
-
-    def build(env: Any) -> _PresetPlanner:
-        planner = MPCReferencePlanner.from_env(
-            env, horizon=preset.horizon, Q=Q, Q_terminal=Q_terminal, R=R,
-            convention=preset.planner_convention)
-        return _PresetPlanner(planner, zero_inputs=preset.filter_input_cost != "deviation")
-
-    return build
+    kind = MPCReferencePlanner if preset.filter_input_cost == "deviation" else _ZeroInputReference
+    return lambda env: kind.from_env(env, horizon=preset.horizon, Q=Q, Q_terminal=Q_terminal,
+                                     R=R, convention=preset.planner_convention)
 
 
 def encounter_spec(job: EncounterJob) -> EpisodeSpec:
@@ -163,11 +115,10 @@ def encounter_spec(job: EncounterJob) -> EpisodeSpec:
         (:func:`~agents.experiments.paper_settings.paper_duration`).
     """
     preset = job.preset
-    q, q_terminal, r = preset.filter_weights
-    states, inputs = 4, 2  # the double integrator's state and input sizes
+    q, q_terminal, r = preset.filter_weights  # times the identity; state 4, input 2
     filter_options = dict(
-        horizon=preset.horizon, Q=(q * np.eye(states)).tolist(),
-        Q_terminal=(q_terminal * np.eye(states)).tolist(), R=(r * np.eye(inputs)).tolist(),
+        horizon=preset.horizon, Q=(q * np.eye(4)).tolist(),
+        Q_terminal=(q_terminal * np.eye(4)).tolist(), R=(r * np.eye(2)).tolist(),
         fallback=preset.fallback, objective="trajectory", normals="paper", intersample=False,
         terminal=False)
     env_options = dict(episode_length=paper_duration(job.scenario),
@@ -182,11 +133,12 @@ def encounter_spec(job: EncounterJob) -> EpisodeSpec:
 
 def make_encounter_env(job: EncounterJob):
     """The filtered environment of ``job`` (paper episode length) and its planner."""
-    from agents.evaluation.runner import make_env
+    return make_env(encounter_spec(job), policy=_preset_planner(job.preset),
+                    render_mode="rgb_array" if job.render else None)
 
-    env, adapter = make_env(encounter_spec(job), policy=_preset_planner(job.preset),
-                            render_mode="rgb_array" if job.render else None)
-    return env, adapter.planner
+
+_FROM_RECORD = ("collision", "sampled_collision", "first_collision_step", "collision_cause",
+                "fallback_steps")
 
 
 def run_encounter(job: EncounterJob) -> EncounterRecord:
@@ -196,64 +148,25 @@ def run_encounter(job: EncounterJob) -> EncounterRecord:
     ``safe-nav evaluate``) with its trajectory recorded; the record keeps its partial
     data if the episode failed.
     """
-    from agents.evaluation.runner import run_episode
-
     start = time.perf_counter()
     try:
-        spec = encounter_spec(job)
-    except Exception as exc:  # noqa: BLE001 — a Monte Carlo run records failures
-        return _failed_encounter(job, f"{type(exc).__name__}: {exc}", start)
-    record, trajectory = run_episode(spec, policy=_preset_planner(job.preset),
-                                     record_trajectory=True, render=job.render,
-                                     reuse_env=False)
-    if trajectory is None:
-        return _failed_encounter(job, record.error, start)
-    if not job.record_halfspaces:
+        record, trajectory = run_episode(encounter_spec(job), policy=_preset_planner(job.preset),
+                                         record_trajectory=True, render=job.render,
+                                         reuse_env=False)
+        error = record.error if trajectory is None else record.error.split(" | ")[0]
+        from_record = {name: getattr(record, name) for name in _FROM_RECORD}
+    except Exception as exc:  # noqa: BLE001 — a bad job (e.g. no paper duration) is recorded
+        trajectory, error, from_record = None, f"{type(exc).__name__}: {exc}", {}
+    if trajectory is None:  # failed before its first state was recorded
+        trajectory = Trajectory(
+            ego=np.zeros((0, 2)), obstacles=np.zeros((0, 0, 2)), obstacle_radii=np.zeros(0),
+            ego_radius=math.nan, goal=np.zeros(2), halfspaces=[], statuses=[], frames=[],
+            dt=math.nan)
+    elif not job.record_halfspaces:
         trajectory.halfspaces = []
     return EncounterRecord(**vars(trajectory), preset=job.preset.name, scenario=job.scenario,
-                           risk=job.risk, seed=int(job.seed),
-                           error=record.error.split(" | ")[0],
-                           wall_time=time.perf_counter() - start)
-
-
-def _failed_encounter(job: EncounterJob, error: str, start: float) -> EncounterRecord:
-    """The record of an episode that failed before its first state was recorded."""
-    return EncounterRecord(
-        ego=np.zeros((0, 2)), obstacles=np.zeros((0, 0, 2)), obstacle_radii=np.zeros(0),
-        ego_radius=math.nan, goal=np.zeros(2), halfspaces=[], statuses=[], frames=[],
-        dt=math.nan, preset=job.preset.name, scenario=job.scenario, risk=job.risk,
-        seed=int(job.seed), error=error.replace("\n", " ")[:500],
-        wall_time=time.perf_counter() - start)
-
-
-def run_encounters(
-    jobs: Sequence[EncounterJob], *, workers: int = 1, progress: bool = False,
-) -> list[EncounterRecord]:
-    """Run ``jobs`` (in ``workers`` processes) and return their records in job order."""
-    integer_at_least("workers", workers)
-    iterator: Iterator[EncounterRecord]
-    if workers == 1 or len(jobs) <= 1:
-        iterator = map(run_encounter, jobs)
-        return list(_progress(iterator, len(jobs), progress))
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
-
-    from agents.evaluation.executors import worker_init
-
-    context = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=workers, mp_context=context,
-                             initializer=worker_init) as pool:
-        chunk = max(1, min(16, len(jobs) // (4 * workers) or 1))
-        return list(_progress(pool.map(run_encounter, jobs, chunksize=chunk), len(jobs),
-                              progress))
-
-
-def _progress(iterator: Iterable[EncounterRecord], total: int, show: bool):
-    if not show:
-        return iterator
-    from tqdm.auto import tqdm
-
-    return tqdm(iterator, total=total, desc="paper episodes", unit="ep")
+                           risk=job.risk, seed=int(job.seed), error=error.replace("\n", " ")[:500],
+                           wall_time=time.perf_counter() - start, **from_record)
 
 
 # ---------------------------------------------------------------------------- Monte Carlo
@@ -274,13 +187,20 @@ def paper_monte_carlo(
     """The paper's Monte Carlo (Section IV-B) under ``preset``, paper episode lengths.
 
     Episode ``i`` of every (scenario, risk) uses seed ``seed + i``, so the risks are
-    compared on common random numbers.
+    compared on common random numbers. The episodes run in ``workers`` processes; the
+    records come in job order (scenario, risk, seed).
 
     Raises
     ------
     InvalidParameterError
         For an unknown preset, scenario or risk, or ``episodes < 1``.
     """
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    from tqdm.auto import tqdm
+
+    from agents.evaluation.executors import worker_init
     from filters.wrapper import RISKS as FILTER_RISKS
 
     if isinstance(preset, str):
@@ -294,6 +214,13 @@ def paper_monte_carlo(
     for scenario in scenarios:
         paper_duration(scenario)
     integer_at_least("episodes", episodes)
+    integer_at_least("workers", workers)
     jobs = [EncounterJob(preset, scenario, risk, seed + i)
             for scenario in scenarios for risk in risks for i in range(episodes)]
-    return run_encounters(jobs, workers=workers, progress=progress)
+    bar = dict(total=len(jobs), desc="paper episodes", unit="ep", disable=not progress)
+    if workers == 1:
+        return list(tqdm(map(run_encounter, jobs), **bar))
+    with ProcessPoolExecutor(max_workers=workers, initializer=worker_init,
+                             mp_context=multiprocessing.get_context("spawn")) as pool:
+        chunk = max(1, min(16, len(jobs) // (4 * workers)))  # records come back in job order
+        return list(tqdm(pool.map(run_encounter, jobs, chunksize=chunk), **bar))

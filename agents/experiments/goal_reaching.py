@@ -75,7 +75,6 @@ def goal_reaching(policy: Any, *, starts: int = 120, distance: tuple[float, floa
     """
     import gymnasium as gym
 
-    import safe_nav_env  # noqa: F401
     from agents.training.wrappers import PhysicalUnitsPolicy, is_normalised_policy
     from safe_nav_env import RandomStart, Scenario
     from safe_nav_env.errors import SafeNavEnvError
@@ -92,7 +91,7 @@ def goal_reaching(policy: Any, *, starts: int = 120, distance: tuple[float, floa
     env = gym.make("SafeNav/Custom-v0", scenario=scenarios[0], random_start=start)
     actor = (PhysicalUnitsPolicy(policy, env.action_space)
              if is_normalised_policy(policy, env.action_space) else policy)
-    reached, steps, misses = 0, [], []
+    steps, misses = [], []
     try:
         for i in range(starts):
             scenario = scenarios[i % len(scenarios)]
@@ -105,13 +104,12 @@ def goal_reaching(policy: Any, *, starts: int = 120, distance: tuple[float, floa
                 count += 1
                 done = terminated or truncated
             if info["is_success"]:
-                reached += 1
                 steps.append(count)
             else:
                 misses.append((scenario.goal, first))
     finally:
         env.close()
-    return GoalReaching(reached, starts, float(np.mean(steps)) if steps else float("nan"),
+    return GoalReaching(len(steps), starts, float(np.mean(steps)) if steps else float("nan"),
                         tuple(misses))
 
 

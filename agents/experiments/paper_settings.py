@@ -41,14 +41,6 @@ TOLERANCE_M = 0.1
 
 
 # ---------------------------------------------------------------------------- presets
-def authors_weights(Q: float, Q_terminal: float, R: float) -> tuple[float, float, float]:
-    """Effective (``x' Q x``) weights of the authors' ``sum_squares((x - x_ref) Q)`` cost.
-
-    ``sum_squares(e * q) = q² e' e``, so the effective weights are the squares.
-    """
-    return (float(Q) ** 2, float(Q_terminal) ** 2, float(R) ** 2)
-
-
 @dataclass(frozen=True)
 class ReproductionPreset:
     """Settings of one paper-comparison Monte Carlo.
@@ -124,7 +116,7 @@ PRESETS: dict[str, ReproductionPreset] = {
         noise="authors_code", planner_convention="authors_code",
         planner_weights=(AUTHORS_CODE_PLANNER["Q"], AUTHORS_CODE_PLANNER["Q_terminal"],
                          AUTHORS_CODE_PLANNER["R"]),
-        filter_weights=authors_weights(2.0, 5.0, 1.0),
+        filter_weights=(2.0**2, 5.0**2, 1.0**2),  # sum_squares(e * q) = q² e'e: Q 2, Q_T 5, R 1
         max_acceleration=AUTHORS_CODE_PLANNER["max_acceleration"], mean_delta=0.0,
         horizon=int(AUTHORS_CODE_PLANNER["horizon"]),
     ),

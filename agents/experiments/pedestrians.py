@@ -26,7 +26,6 @@ Output folder::
 from __future__ import annotations
 
 import math
-from collections import defaultdict
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -39,7 +38,7 @@ from agents.evaluation.campaign import EvaluationOutputs
 from agents.evaluation.config import EvaluationConfig
 from agents.evaluation.records import EpisodeRecord
 from agents.evaluation.summary import wilson_interval
-from agents.experiments.scenes import run_scene_suite, scene_setting
+from agents.experiments.scenes import run_scene_suite, scene_groups
 from safe_nav_env.pedestrians.recording import SCENES
 
 __all__ = ["PEDESTRIAN_SETTINGS", "PedestrianRow", "pedestrian_rows", "pedestrian_table",
@@ -78,12 +77,8 @@ class PedestrianRow:
 
 def pedestrian_rows(records: Sequence[EpisodeRecord]) -> list[PedestrianRow]:
     """The table's rows, one per (scene, risk), in the order they first appear."""
-    groups: dict[tuple[str, str], list[EpisodeRecord]] = defaultdict(list)
-    for record in records:
-        groups[(scene_setting(record, PEDESTRIAN_SETTINGS), record.risk)].append(record)
     rows = []
-    for (scene, risk), group in groups.items():
-        ran = [r for r in group if not r.error]
+    for scene, risk, group, ran in scene_groups(records, PEDESTRIAN_SETTINGS):
         n = len(ran)
         collisions = sum(r.collision for r in ran)
         low, high = wilson_interval(collisions, n)
@@ -94,9 +89,8 @@ def pedestrian_rows(records: Sequence[EpisodeRecord]) -> list[PedestrianRow]:
         # than the risk bound delta it was built for.
         misses = np.concatenate([decode_losses(r.audit_all_losses) > r.delta
                                  for r in ran] or [np.zeros(0, bool)])
-        clearances = np.array([r.min_swept_distance for r in ran], dtype=float)
-        clearances = clearances[np.isfinite(clearances)]
-        filtered = risk != "none"
+        clearances = np.array([r.min_swept_distance for r in ran
+                               if math.isfinite(r.min_swept_distance)], dtype=float)
         rows.append(PedestrianRow(
             scene=scene, risk=risk, episodes=n, collision=collisions / max(1, n),
             collision_low=low, collision_high=high,
@@ -104,7 +98,7 @@ def pedestrian_rows(records: Sequence[EpisodeRecord]) -> list[PedestrianRow]:
             success=len(successes) / max(1, n),
             time_to_goal=(float(np.mean([r.time_to_goal for r in successes]))
                           if successes else math.nan),
-            infeasible=1.0 - optimal / steps if filtered and steps else math.nan,
+            infeasible=1.0 - optimal / steps if risk != "none" and steps else math.nan,
             miscoverage=float(np.mean(misses)) if misses.size else math.nan,
             median_min_distance=float(np.median(clearances)) if clearances.size else math.nan,
             worst_min_distance=float(clearances.min()) if clearances.size else math.nan,

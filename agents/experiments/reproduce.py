@@ -54,7 +54,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from agents.evaluation.summary import short_name
+from agents.evaluation.summary import COLLISION_CAUSES, short_name
 from agents.experiments.encounters import (
     EncounterJob,
     EncounterRecord,
@@ -72,12 +72,12 @@ from agents.experiments.paper_settings import (
     ReproductionPreset,
     paper_duration,
 )
-from agents.experiments.table_one import EXAMPLE_ONE
+from agents.experiments.table_one import EXAMPLE_ONE, PAPER_TABLE_ONE, halfspace_timing_table
 from agents.experiments.windows import (
     WindowRow,
     _series,
     _summary_rows,
-    closest_approach_sample,
+    closest_approach_window,
     resolve_windows,
     summarise_windows,
     write_episodes_csv,
@@ -99,11 +99,10 @@ def _window_table(rows: Sequence[WindowRow], dt: float) -> list[str]:
         "| infeasible steps (episodes) | filter time (ms) |",
         "|" + "---|" * 13]
     for r in rows:
-        failed = f" ({r.failed} failed)" if r.failed else ""
-        first, last = r.window
-        e_first, e_last = r.encounter_window
+        (first, last), (e_first, e_last) = r.window, r.encounter_window
         lines.append(
-            f"| {short_name(r.scenario)} | {r.risk} | {r.episodes}{failed} | {first}-{last} "
+            f"| {short_name(r.scenario)} | {r.risk} | {r.episodes}"
+            f"{f' ({r.failed} failed)' if r.failed else ''} | {first}-{last} "
             f"({first * dt:.1f}-{last * dt:.1f} s) | {r.collisions}/{r.ok} | "
             f"{r.sampled_collisions}/{r.ok} | {r.window_sampled_collisions}/{r.ok} | "
             f"{r.window_worst:.3f} | {r.window_worst_swept:.3f} | {r.episode_worst:.3f} | "
@@ -157,9 +156,7 @@ def compare_with_paper(rows: Sequence[WindowRow]) -> list[str]:
                 f"{d.window_sampled_collisions}: {_verdict(sampled_ok)}; continuous time, "
                 f"whole episode {m.collisions} >= {c.collisions} >= {d.collisions}: "
                 f"{_verdict(swept_ok)}.")
-    multi = [r for r in rows if "MultiObstacle" in r.scenario and r.risk == "dr_cvar"]
-    if multi:
-        m = multi[0]
+    for m in [r for r in rows if "MultiObstacle" in r.scenario and r.risk == "dr_cvar"][:1]:
         lines.append(f"- Multi-obstacle filter time: paper {PAPER_FILTER_TIME_MS:g} ms mean "
                      f"(CVXPY + ECOS); here median {m.filter_time_ms:.2f} ms per step "
                      "(halfspaces + QP, no CVXPY; the default back end, DAQP at this size).")
@@ -175,10 +172,11 @@ def _monte_carlo_section(
 ) -> list[str]:
     rows = summarise_windows(records)
     write_episodes_csv(records, folder / "episodes.csv")
-    figures = _monte_carlo_figures(preset, records, rows, folder / "figures", seed=seed)
-    scenarios = list(dict.fromkeys(r.scenario for r in records))
     dt = next((r.dt for r in records if math.isfinite(r.dt)), DT)
     windows = resolve_windows(records)
+    scenarios = list(windows)
+    figures = _monte_carlo_figures(preset, records, rows, folder / "figures", seed=seed,
+                                   windows={s: w for s, (w, _) in windows.items()}, dt=dt)
     encounters = resolve_windows(records, mode="encounter")
     lines = [f"### Preset `{preset.name}`", "", f"Settings: {preset.description}.", "",
              f"{episodes} runs per scenario and risk, seeds {seed}..{seed + episodes - 1}, "
@@ -188,7 +186,10 @@ def _monte_carlo_section(
              f"{dt:g} s):"]
     for scenario in scenarios:
         (first, last), source = windows[scenario]
-        closest = closest_approach_sample([r for r in records if r.scenario == scenario])
+        reference = [r for r in records if r.scenario == scenario and r.risk == "none"
+                     and not r.error]  # the median sample of closest approach, unfiltered
+        closest = closest_approach_window(_series(reference, "distances"), before=0,
+                                          after=0)[0] if reference else None
         e_first, e_last = encounters[scenario][0]
         check = (f"; the unfiltered reference is closest to the obstacle at sample {closest} "
                  f"({closest * dt:.1f} s, median over the seeds), encounter window "
@@ -202,14 +203,12 @@ def _monte_carlo_section(
                   f"seed {failed[0].seed}: `{failed[0].error[:200]}`."]
     lines += ["", "Collision counts are episodes with at least one collision: in continuous "
               "time (the environment's swept clearance over each step) and sampled (at the "
-              "0.2 s samples, the paper's count).", ""]
-    lines += _window_table(rows, dt)
-    lines += ["", "Causes of the filtered runs' collisions (continuous time, whole episode; "
+              "0.2 s samples, the paper's count).", "", *_window_table(rows, dt),
+              "", "Causes of the filtered runs' collisions (continuous time, whole episode; "
               "`collision_cause` in `episodes.csv`: a fallback status at the colliding step "
               "or the two before it, an overlap only between two samples, or realised "
-              "noise beyond the margin after nominal steps):", ""]
-    lines += _cause_lines(records)
-    lines += ["", f"![window box plots]({relative}/figures/distance_boxplots.png)", "",
+              "noise beyond the margin after nominal steps):", "", *_cause_lines(records),
+              "", f"![window box plots]({relative}/figures/distance_boxplots.png)", "",
               f"![collisions, continuous time]({relative}/figures/collision_rates.png)", "",
               f"![collisions, sampled]({relative}/figures/collision_rates_sampled.png)", ""]
     for name in figures:
@@ -223,31 +222,23 @@ def _monte_carlo_section(
 
 def _cause_lines(records: Sequence[EncounterRecord]) -> list[str]:
     """One line per filtered scenario and risk with collisions: the counts per cause."""
-    from agents.evaluation.summary import COLLISION_CAUSES
-
-    lines = []
-    for scenario in dict.fromkeys(r.scenario for r in records):
-        for risk in dict.fromkeys(r.risk for r in records):
-            if risk == "none":
-                continue
-            causes = [r.collision_cause for r in records
-                      if r.scenario == scenario and r.risk == risk and not r.error]
-            if any(causes):
-                counts = ", ".join(f"{name} {causes.count(name)}" for name in COLLISION_CAUSES)
-                lines.append(f"- {short_name(scenario)}, {risk}: {counts}")
-    return lines or ["- none"]
+    causes: dict[tuple[str, str], list[str]] = {}
+    for r in records:
+        if r.risk != "none" and not r.error:
+            causes.setdefault((r.scenario, r.risk), []).append(r.collision_cause)
+    return [f"- {short_name(scenario)}, {risk}: "
+            + ", ".join(f"{name} {found.count(name)}" for name in COLLISION_CAUSES)
+            for (scenario, risk), found in causes.items() if any(found)] or ["- none"]
 
 
 def _monte_carlo_figures(
     preset: ReproductionPreset, records: Sequence[EncounterRecord], rows: Sequence[WindowRow],
-    folder: Path, *, seed: int,
+    folder: Path, *, seed: int, windows: dict[str, tuple[int, int]], dt: float,
 ) -> dict[str, Path]:
     from agents.evaluation import plots
 
     files: dict[str, Path] = {}
-    scenarios = list(dict.fromkeys(r.scenario for r in records))
-    windows = {s: w for s, (w, _) in resolve_windows(records).items()}
-    dt = next((r.dt for r in records if math.isfinite(r.dt)), DT)
+    scenarios = list(windows)
     distances = {s: {risk: _series([r for r in records if r.scenario == s and r.risk == risk
                                      and not r.error], "distances")
                      for risk in dict.fromkeys(r.risk for r in records if r.scenario == s)}
@@ -255,16 +246,14 @@ def _monte_carlo_figures(
     files["distance_boxplots"] = plots.plot_window_boxplots(
         distances, windows, folder / "distance_boxplots.png", dt=dt,
         title=f"preset {preset.name}: sampled distance to collision in the statistics window")
-    files["collision_rates"] = plots.plot_collision_rates(
-        _summary_rows(rows, sampled=False), folder / "collision_rates.png",
-        ylabel="collision rate (continuous time)\nshare of episodes",
-        title=f"Preset {preset.name}: collision rate in continuous time, per scenario and "
-              "risk (Wilson 95 %)")
-    files["collision_rates_sampled"] = plots.plot_collision_rates(
-        _summary_rows(rows, sampled=True), folder / "collision_rates_sampled.png",
-        ylabel="collision rate (at the samples)\nshare of episodes",
-        title=f"Preset {preset.name}: collision rate at the 0.2 s samples (the paper's "
-              "count), per scenario and risk")
+    for name, sampled, axis, what, note in (
+            ("collision_rates", False, "continuous time", "in continuous time,", " (Wilson 95 %)"),
+            ("collision_rates_sampled", True, "at the samples",
+             "at the 0.2 s samples (the paper's count),", "")):
+        files[name] = plots.plot_collision_rates(
+            _summary_rows(rows, sampled=sampled), folder / f"{name}.png",
+            ylabel=f"collision rate ({axis})\nshare of episodes",
+            title=f"Preset {preset.name}: collision rate {what} per scenario and risk{note}")
     for scenario in scenarios:
         first_seed = {r.risk: r for r in records
                       if r.scenario == scenario and r.seed == seed and not r.error}
@@ -273,12 +262,12 @@ def _monte_carlo_figures(
             files[f"trajectories_{name}"] = plots.plot_trajectories(
                 first_seed, folder / f"trajectories_{name}.png", every=3,
                 title=f"{name}, seed {seed}, preset {preset.name}")
-    featured = plots.featured_run(scenarios, list(dict.fromkeys(r.risk for r in records)))
-    if featured[1] != "none":
-        record = run_encounter(EncounterJob(preset, featured[0], featured[1], seed, render=True,
+    scenario, risk = plots.featured_run(scenarios, list(dict.fromkeys(r.risk for r in records)))
+    if risk != "none":
+        record = run_encounter(EncounterJob(preset, scenario, risk, seed, render=True,
                                             record_halfspaces=True))
         if not record.error:
-            name, risk = short_name(featured[0]), featured[1]
+            name = short_name(scenario)
             label = (f"{plots.RISK_LABELS.get(risk, risk)} (alpha {preset.alpha:g}, "
                      f"delta {preset.delta_for(risk):g} m, eps {preset.epsilon:g} m), "
                      f"{name}, seed {seed}, preset {preset.name}")
@@ -326,8 +315,6 @@ def reproduce(
     timing
         Run the Table I timing (``False`` skips it, for quick runs).
     """
-    from agents.experiments.table_one import PAPER_TABLE_ONE, halfspace_timing_table
-
     unknown = [p for p in presets if p not in PRESETS]
     if unknown or not presets:
         raise InvalidParameterError(f"presets must be a non-empty subset of {sorted(PRESETS)}, "
@@ -342,13 +329,12 @@ def reproduce(
     lines += ["## Example 1 (Fig. 2)", "", "![Example 1](figures/example1_halfspaces.png)", "",
               "| halfspace | offset b (m) | ego reference safe |", "|---|---|---|"]
     lines += [f"| {k} | {v['offset']:.4f} | {v['reference_safe']} |" for k, v in hs.items()]
-    alpha = EXAMPLE_ONE["alpha"]
-    gaps = [hs[f"DR-CVaR eps={eps:g}"]["offset"] - hs["CVaR"]["offset"] + eps / alpha
-            for eps in EXAMPLE_ONE["epsilons"]]
+    gap = max(abs(hs[f"DR-CVaR eps={eps:g}"]["offset"] - hs["CVaR"]["offset"]
+                  + eps / EXAMPLE_ONE["alpha"]) for eps in EXAMPLE_ONE["epsilons"])
     paper_claim = all(v["reference_safe"] for k, v in hs.items() if k != "DR-CVaR eps=0.2") and \
         not hs["DR-CVaR eps=0.2"]["reference_safe"]
-    lines += ["", f"- b_DR-CVaR = b_CVaR - eps/alpha: largest gap {max(map(abs, gaps)):.2e} m "
-              f"({_verdict(max(map(abs, gaps)) < 1e-9)}).",
+    lines += ["", f"- b_DR-CVaR = b_CVaR - eps/alpha: largest gap {gap:.2e} m "
+              f"({_verdict(gap < 1e-9)}).",
               f"- Paper: the reference is safe for every halfspace except DR-CVaR at eps = 0.2; "
               f"here: {_verdict(paper_claim)} (seed {seed} samples).", ""]
 
@@ -365,12 +351,9 @@ def reproduce(
                   "halfspace through `safe_halfspaces`.", "",
                   "| method | N_s | paper solve | paper call | CVXPY solve here | CVXPY call here "
                   "| ours here (closed form) |", "|---|---|---|---|---|---|---|"]
-        for (risk, n), (p_solve, p_call) in PAPER_TABLE_ONE.items():
-            here = table["cvxpy"][risk].get(n)
-            if here is None:
-                continue
-            lines.append(f"| {risk} | {n} | {p_solve} | {p_call} | {here['solve']:.3f} | "
-                         f"{here['call']:.2f} | {table['ours'][n]:.4f} |")
+        lines += [f"| {r.risk} | {r.n_samples} | {r.paper_solve} | {r.paper_call} | "
+                  f"{r.solve_mean:.3f} | {r.call_mean:.2f} | {table['ours'][r.n_samples]:.4f} |"
+                  for r in table["result"].cvxpy if (r.risk, r.n_samples) in PAPER_TABLE_ONE]
         lines.append("")
 
     lines += ["## Monte Carlo with the obstacle-agnostic MPC planner (Fig. 4, Fig. 5)", "",
@@ -387,12 +370,11 @@ def reproduce(
               "obstacle early), so the encounter window shows the same statistic where this "
               "preset's encounter is. The match/differ lines use the window.", ""]
     for k, name in enumerate(presets):
-        preset = PRESETS[name]
         folder_name = "monte_carlo" if k == 0 else f"monte_carlo_{name}"
         start = time.perf_counter()
-        records = paper_monte_carlo(preset, scenarios, episodes=episodes, seed=seed,
+        records = paper_monte_carlo(name, scenarios, episodes=episodes, seed=seed,
                                     workers=workers, progress=progress)
-        lines += _monte_carlo_section(preset, records, output / folder_name, seed=seed,
+        lines += _monte_carlo_section(PRESETS[name], records, output / folder_name, seed=seed,
                                       episodes=episodes, wall_time=time.perf_counter() - start,
                                       relative=folder_name)
     report = "\n".join(lines) + "\n"

@@ -21,7 +21,7 @@ from agents.policies.loading import pretrained_policy_path
 from filters._validation import integer_at_least
 from filters.errors import InvalidParameterError
 
-__all__ = ["run_scene_suite", "scene_setting", "scene_specs"]
+__all__ = ["run_scene_suite", "scene_groups", "scene_setting", "scene_specs"]
 
 
 def scene_specs(scenario: str, catalogue: Mapping[str, Mapping[str, Any]],
@@ -71,6 +71,15 @@ def scene_setting(record: EpisodeRecord, catalogue: Mapping[str, Mapping[str, An
         if all(options.get(key) == value for key, value in setting.items()):
             return name
     return record.env_options
+
+
+def scene_groups(records: Sequence[EpisodeRecord], catalogue: Mapping[str, Mapping[str, Any]],
+                 ) -> list[tuple[str, str, list[EpisodeRecord], list[EpisodeRecord]]]:
+    """Per (setting, risk), in the order they first appear: the records, and those that ran."""
+    groups: dict[tuple[str, str], list[EpisodeRecord]] = {}
+    for record in records:
+        groups.setdefault((scene_setting(record, catalogue), record.risk), []).append(record)
+    return [(*key, group, [r for r in group if not r.error]) for key, group in groups.items()]
 
 
 def run_scene_suite(output: str | Path | None, scenario: str,

@@ -31,23 +31,26 @@ from __future__ import annotations
 from collections import defaultdict
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 from agents.evaluation.campaign import EvaluationOutputs, Report, run_campaign
 from agents.evaluation.config import EvaluationConfig, split_options
-from agents.evaluation.records import AUTO, PLANNERS, REFERENCES, EpisodeRecord, EpisodeSpec
+from agents.evaluation.records import AUTO, PLANNERS, EpisodeRecord, EpisodeSpec
 from agents.evaluation.summary import audit_section
 from agents.experiments.stress_table import (
     TARGET_COLLISION_RATE,
     TARGET_GOAL_RATE,
     StressCell,
+    by_cell,
     cells_table,
     explain_collisions,
     overview_table,
     stress_cells,
     write_cells,
 )
+from filters._validation import integer_at_least
 from filters.constants import EPSILON
 from filters.errors import InvalidParameterError
 from safe_nav_env.scenarios import CUSTOM
@@ -148,13 +151,10 @@ def stress_specs(
     InvalidParameterError
         For an unknown case, method or planner, ``episodes < 1`` or a bad setting.
     """
-    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
-        raise InvalidParameterError(f"episodes must be an integer >= 1, got {episodes!r}")
+    integer_at_least("episodes", episodes)
     for name in ("scenario", "risk", "seed", "case", "noise", "planner"):
         if name in spec_kwargs:
             raise InvalidParameterError(f"the stress suite sets {name!r} itself")
-    if reference not in REFERENCES:
-        raise InvalidParameterError(f"reference must be one of {REFERENCES}, got {reference!r}")
     cases = _names("cases", cases, list(STRESS_SUITE))
     chosen = [STRESS_METHODS[n] for n in _names("methods", methods, list(STRESS_METHODS))]
     planners = _names("planners", planners, PLANNERS)
@@ -179,34 +179,19 @@ def _method_of(record: EpisodeRecord, reference: str, epsilon: float) -> tuple[s
 
 
 def _order(key: tuple[str, str, str]) -> tuple:
-    case, planner, method = key
-    cases, planners, methods = list(STRESS_SUITE), list(PLANNERS), list(STRESS_METHODS)
-    return (cases.index(case) if case in cases else len(cases),
-            planners.index(planner) if planner in planners else len(planners),
-            methods.index(method) if method in methods else len(methods), method)
-
-
-def _pareto_panels(cells: Sequence[StressCell]) -> dict[str, list]:
-    from agents.experiments.pareto import ParetoPoint
-
-    panels: dict[str, list] = defaultdict(list)
-    for c in cells:
-        n = c.episodes - c.failed
-        if n >= 1:
-            panels[c.case].append(ParetoPoint(f"{c.planner}: {c.label}", c.collisions, n,
-                                              c.time_to_goal))
-    return dict(panels)
+    """Table order of a cell: case, planner and method as listed, unknown names last."""
+    lists = [list(STRESS_SUITE), list(PLANNERS), list(STRESS_METHODS)]
+    return (*(order.index(name) if name in order else len(order)
+              for name, order in zip(key, lists, strict=True)), key[2])
 
 
 def _timing_table(cells: Sequence[StressCell], records: Sequence[EpisodeRecord],
                   method_of: Any) -> str:
-    times: dict[tuple[str, str, str], list[float]] = defaultdict(list)
-    for r in records:
-        times[(r.case, r.planner, method_of(r)[0])].append(r.wall_time)
+    groups = by_cell(records, method_of)
     lines = ["| case | planner | setting | episodes | wall time per episode (s) | "
              "cell total (s) |", "|---|---|---|---|---|---|"]
     for c in cells:
-        t = times[(c.case, c.planner, c.method)]
+        t = [r.wall_time for r in groups[(c.case, c.planner, c.method)]]
         lines.append(f"| {c.case} | {c.planner} | {c.label} | {len(t)} | "
                      f"{sum(t) / max(1, len(t)):.3f} | {sum(t):.1f} |")
     return "\n".join(lines) + "\n"
@@ -259,13 +244,11 @@ def run_stress(output: str | Path | None = None, cases: Sequence[str] = DEFAULT_
     specs = stress_specs(cases, methods, planners, episodes=episodes, seed=seed,
                          epsilon=epsilon, reference=reference, **settings)
 
-    def method_of(record: EpisodeRecord) -> tuple[str, str]:
-        return _method_of(record, reference, epsilon)
+    method_of = partial(_method_of, reference=reference, epsilon=epsilon)
 
     def report(records: Sequence[EpisodeRecord]) -> Report:
         cells = stress_cells(records, method_of, _order)
-        descriptions = {name: case.description for name, case in STRESS_SUITE.items()}
-        markdown = cells_table(cells, descriptions)
+        markdown = cells_table(cells, {n: case.description for n, case in STRESS_SUITE.items()})
         missed = sum(not c.meets_target for c in cells)
         body = (
             f"- methods: dr_cvar (eps=auto) estimates epsilon online; every method but the "
@@ -296,11 +279,15 @@ def run_stress(output: str | Path | None = None, cases: Sequence[str] = DEFAULT_
 
 
 def _pareto_figure(cells: Sequence[StressCell], folder: Path) -> dict[str, Path]:
-    from agents.experiments.pareto import plot_pareto
+    """``pareto.png``: per case, a point per (planner, setting) that ran at least once."""
+    from agents.experiments.pareto import ParetoPoint, plot_pareto
 
-    if not cells:
-        return {}
+    panels: dict[str, list] = defaultdict(list)
+    for c in cells:
+        if c.episodes > c.failed:
+            panels[c.case].append(ParetoPoint(f"{c.planner}: {c.label}", c.collisions,
+                                              c.episodes - c.failed, c.time_to_goal))
     return {"pareto": plot_pareto(
-        _pareto_panels(cells), folder / "pareto.png",
+        dict(panels), folder / "pareto.png",
         title="Stress suite: collision rate (continuous time) against time to goal, per "
-        "planner and filter setting")}
+        "planner and filter setting")} if cells else {}

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from agents.evaluation.records import EpisodeRecord
-from agents.evaluation.statistics import wilson_interval
+from agents.evaluation.summary import summarise
 
 __all__ = ["TARGET_COLLISION_RATE", "TARGET_GOAL_RATE", "StressCell", "cells_table",
            "explain_collisions", "overview_table", "stress_cells", "write_cells"]
@@ -88,11 +88,7 @@ def _infeasible_before(record: EpisodeRecord) -> bool:
     return 0 < record.first_infeasible_step <= record.first_collision_step
 
 
-def _rate(count: int, n: int) -> float:
-    return count / n if n else math.nan
-
-
-def _by_cell(records: Iterable[EpisodeRecord],
+def by_cell(records: Iterable[EpisodeRecord],
              method_of: _MethodOf) -> dict[_Cell, list[EpisodeRecord]]:
     """The records by (case, planner, method name)."""
     groups: dict[_Cell, list[EpisodeRecord]] = {}
@@ -117,24 +113,20 @@ def stress_cells(
     order
         Sort key of a ``(case, planner, method)``.
     """
-    groups = _by_cell(records, method_of)
+    groups = by_cell(records, method_of)
     cells = []
     for key in sorted(groups, key=order):
-        group = groups[key]
-        ran = [r for r in group if not r.error]
-        n = len(ran)
-        collided = [r for r in ran if r.collision]
-        goals = [r for r in ran if r.goal_reached]
-        rate, goal_rate = _rate(len(collided), n), _rate(len(goals), n)
-        low, high = wilson_interval(len(collided), n)
-        causes = Counter(r.collision_cause for r in collided)
+        (row,) = summarise(groups[key])  # a cell shares case, planner, risk and radius
+        collided = [r for r in groups[key] if r.collision and not r.error]
+        causes = dict(row.collision_causes)
         cells.append(StressCell(
-            *key, label=method_of(group[-1])[1], episodes=len(group), failed=len(group) - n,
-            collisions=len(collided), collision_rate=rate, collision_low=low,
-            collision_high=high, goal_rate=goal_rate,
-            time_to_goal=float(np.mean([r.time_to_goal for r in goals])) if goals else math.nan,
-            meets_target=bool(n and rate <= TARGET_COLLISION_RATE
-                              and goal_rate >= TARGET_GOAL_RATE),
+            *key, label=method_of(groups[key][-1])[1], episodes=row.episodes,
+            failed=row.failed, collisions=len(collided), collision_rate=row.collision_rate,
+            collision_low=row.collision_low, collision_high=row.collision_high,
+            goal_rate=row.goal_rate, time_to_goal=row.time_to_goal,
+            meets_target=bool(row.episodes > row.failed
+                              and row.collision_rate <= TARGET_COLLISION_RATE
+                              and row.goal_rate >= TARGET_GOAL_RATE),
             fallback_collisions=causes["fallback"],
             inter_sample_collisions=causes["inter_sample"], noise_collisions=causes["noise"],
             infeasible_before=sum(_infeasible_before(r) for r in collided)))
@@ -187,7 +179,7 @@ def explain_collisions(
     from the first infeasible step to the collision, and the status transitions
     ``before -> at`` the collision with their counts.
     """
-    collided = _by_cell((r for r in records if r.collision and not r.error), method_of)
+    collided = by_cell((r for r in records if r.collision and not r.error), method_of)
     out = []
     for case in dict.fromkeys(c.case for c in cells):
         rows = []
@@ -209,15 +201,12 @@ def explain_collisions(
     return "\n".join(out) if out else "No collisions.\n"
 
 
-CELL_FIELDS = tuple(f.name for f in fields(StressCell))
-"""Columns of ``stress_table.csv``, in order."""
-
-
 def write_cells(cells: Sequence[StressCell], path: str | Path) -> Path:
-    """Write the cells as CSV (one row per cell, :data:`CELL_FIELDS`); return the path."""
+    """Write the cells as CSV (one row per cell, the fields of :class:`StressCell` in order);
+    return the path."""
     path = Path(path)
     with path.open("w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=CELL_FIELDS)
+        writer = csv.DictWriter(handle, fieldnames=[f.name for f in fields(StressCell)])
         writer.writeheader()
         writer.writerows(asdict(cell) for cell in cells)
     return path

@@ -175,13 +175,6 @@ def resolve_windows(
     return windows
 
 
-def closest_approach_sample(records: Sequence[EncounterRecord]) -> int | None:
-    """Median sample of closest approach of the finished unfiltered episodes (or None)."""
-    reference = [r for r in records if r.risk == "none" and not r.error]
-    return (closest_approach_window(_series(reference, "distances"), before=0, after=0)[0]
-            if reference else None)
-
-
 def summarise_windows(records: Sequence[EncounterRecord]) -> list[WindowRow]:
     """One :class:`WindowRow` per (preset, scenario, risk), in the records' order."""
     windows = resolve_windows(records)
@@ -192,13 +185,10 @@ def summarise_windows(records: Sequence[EncounterRecord]) -> list[WindowRow]:
     rows = []
     for (preset, scenario, risk), group in groups.items():
         ok = [r for r in group if not r.error]
-        window = windows[scenario][0]
+        window, encounter = windows[scenario][0], encounters[scenario][0]
         sampled, swept = _series(ok, "distances"), _series(ok, "swept")
-        in_window = window_minimum(sampled, window) if ok else np.zeros(0)
-        encounter = encounters[scenario][0]
-        in_encounter = window_minimum(sampled, encounter) if ok else np.zeros(0)
-        swept_window = (window_minimum(swept, (window[0], max(window[0], window[1] - 1)))
-                        if ok and swept.shape[1] else np.full(len(ok), np.nan))
+        in_window, in_encounter = (window_minimum(sampled, w) for w in (window, encounter))
+        swept_window = window_minimum(swept, (window[0], max(window[0], window[1] - 1)))
         steps = sum(r.steps for r in ok)
         times = np.concatenate([r.filter_times for r in ok]) if ok else np.zeros(0)
         rows.append(WindowRow(

@@ -7,7 +7,8 @@ import math
 import pytest
 
 from agents.cli import main
-from agents.experiments.crowd import crowd_rows, crowd_specs, run_crowd, setting_of
+from agents.experiments.crowd import CROWD_SETTINGS, crowd_rows, crowd_specs, run_crowd
+from agents.experiments.scenes import scene_setting
 from filters.errors import InvalidParameterError
 
 
@@ -43,7 +44,7 @@ def test_the_table_counts_success_collision_and_timeout_once_each(tmp_path):
         assert row.success_low <= row.success <= row.success_high
         assert 0.0 <= row.discomfort <= 1.0
         assert 0.0 <= row.standing_collision <= row.collision
-    assert all(setting_of(r) == "orca_invisible" for r in outputs.records)
+    assert all(scene_setting(r, CROWD_SETTINGS) == "orca_invisible" for r in outputs.records)
     summary = (tmp_path / "summary.md").read_text()
     assert "| orca_invisible | dr_cvar | 3 |" in summary and "discomfort frequency" in summary
     assert "| of which standing |" in summary
