@@ -37,7 +37,7 @@ from typing import Any
 
 from agents.evaluation.campaign import EvaluationOutputs, Report, run_campaign
 from agents.evaluation.config import EvaluationConfig, split_options
-from agents.evaluation.records import AUTO, PLANNERS, EpisodeRecord, EpisodeSpec
+from agents.evaluation.records import AUTO, PLANNERS, REFERENCES, EpisodeRecord, EpisodeSpec
 from agents.evaluation.summary import audit_section
 from agents.experiments.stress_table import (
     TARGET_COLLISION_RATE,
@@ -158,6 +158,7 @@ def stress_specs(
     cases = _names("cases", cases, list(STRESS_SUITE))
     chosen = [STRESS_METHODS[n] for n in _names("methods", methods, list(STRESS_METHODS))]
     planners = _names("planners", planners, PLANNERS)
+    _names("reference", [reference], list(REFERENCES))  # also when every method fixes its own
     policy = spec_kwargs.pop("policy_path", "")
     return [EpisodeSpec(CUSTOM, method.risk, seed + i, planner=planner,
                         reference=method.reference or reference,

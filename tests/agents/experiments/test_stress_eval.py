@@ -77,6 +77,11 @@ def test_stress_rejects_options_it_sets_itself(tmp_path, capsys):
     assert code == 2
 
 
+def test_a_bad_reference_is_refused_even_when_every_method_fixes_its_own():
+    with pytest.raises(InvalidParameterError, match="reference .*'bogus'"):
+        stress_specs(methods=["default"], reference="bogus", episodes=1)
+
+
 def test_stress_specs_share_seeds_across_cells():
     specs = stress_specs(["biased", "turning"], list(STRESS_METHODS), ["ppo", "goal"],
                          episodes=3, seed=5)
