@@ -17,7 +17,7 @@ from safe_nav_env.dynamics import applied_acceleration, double_integrator, parse
 from safe_nav_env.errors import ConfigError, ScenarioError
 from safe_nav_env.info import _padded
 from safe_nav_env.noise import NoiseModel, resolve_noise
-from safe_nav_env.obstacles import ObstacleModel, distance_to_collision
+from safe_nav_env.obstacles import ObstacleModel
 from safe_nav_env.options import _option, _speed_option
 from safe_nav_env.predictors import Predictor, check_predictions, resolve_predictor
 from safe_nav_env.scenarios import Scenario, ScenarioFactory, _resolve_scenario
@@ -272,14 +272,20 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
                 n_samples=self.n_samples, rng=self.np_random), n, self.n_samples, self.horizon, dim)
         self.predictions = _read_only(samples)
 
-    def _trail_and_show(self, reset: bool) -> None:
-        """Record the positions for the renderer (human mode: draw the frame)."""
+    def _sense(self, *, reset: bool) -> tuple[np.ndarray, np.ndarray]:
+        """The observation and the sampled clearances ``||y - p_i|| - r_A - r_O,i`` in m (as
+        :func:`~safe_nav_env.obstacles.distance_to_collision`); records the positions for
+        the renderer first (human mode: draws the frame)."""
         if self.render_mode is not None:
             if reset:
                 self._trail = []
             self._trail.append((self.ego_state[:2].copy(), self.obstacle_positions))
             if self.render_mode == "human":
                 self.render()
+        delta = self.obstacle_positions - self.ego_state[:2]
+        centre = np.hypot(delta[:, 0], delta[:, 1])
+        obs = self._observe(self.ego_state, delta, self.obstacle_velocities, centre)
+        return obs, _read_only(centre - self._radii_sum)
 
     # ------------------------------------------------------------------ setup
 
@@ -442,26 +448,10 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         self._model.reset(self.np_random)
         self.obstacle_positions = _read_only(self._model.positions)
         self.obstacle_velocities = _read_only(self._model.velocities)
-        if self.random_start is not None:
-            self._draw_start()
-        speed = math.hypot(self.ego_state[2], self.ego_state[3])
-        if speed > self.max_speed:
-            raise ScenarioError(
-                f"scenario {scenario.name!r}: the ego starts at {speed:g} m/s, above "
-                f"max_speed={self.max_speed:g} m/s; pass a larger max_speed (inf: no limit)")
-        self._predict(reset=True)
-        distances = _read_only(distance_to_collision(
-            self.ego_state[:2], self.obstacle_positions, self.ego_radius, self.obstacle_radii))
-        self._trail_and_show(reset=True)
-        obs = self.observe(self.ego_state, self.obstacle_positions, self.obstacle_velocities)
-        return obs, self._info(distances, distances, self._distance_to_goal)
-
-    def _draw_start(self) -> None:
-        """Replace the scenario's ego start by a :attr:`random_start` draw (training only)."""
-        drawn = self.random_start.draw(
+        drawn = None if self.random_start is None else self.random_start.draw(
             self.np_random, goal=self.goal, goal_tolerance=self.goal_tolerance, arena=self._arena,
             ego_radius=self.ego_radius, obstacle_positions=self.obstacle_positions,
-            obstacle_radii=self.obstacle_radii)
+            obstacle_radii=self.obstacle_radii)  # training only: another ego start
         if drawn is not None:
             start, goal = drawn
             speed = math.hypot(start[2], start[3])
@@ -471,6 +461,14 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
             self.goal = _read_only(goal)
             self._goal = (float(goal[0]), float(goal[1]))
             self._distance_to_goal = math.hypot(start[0] - goal[0], start[1] - goal[1])
+        speed = math.hypot(self.ego_state[2], self.ego_state[3])
+        if speed > self.max_speed:
+            raise ScenarioError(
+                f"scenario {scenario.name!r}: the ego starts at {speed:g} m/s, above "
+                f"max_speed={self.max_speed:g} m/s; pass a larger max_speed (inf: no limit)")
+        self._predict(reset=True)
+        obs, distances = self._sense(reset=True)
+        return obs, self._info(distances, distances, self._distance_to_goal)
 
     def step(self, action: np.ndarray
              ) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict[str, Any]]:
@@ -511,9 +509,7 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         self._predict(reset=False)
         self.step_count += 1
 
-        delta = self.obstacle_positions - self.ego_state[:2]
-        centre = np.hypot(delta[:, 0], delta[:, 1])
-        distances = _read_only(centre - self._radii_sum)  # as distance_to_collision()
+        obs, distances = self._sense(reset=False)
         swept = np.minimum(
             swept_clearance(start, (ux, uy), dt, before.tolist(),
                             self.obstacle_positions.tolist(), self._radii_sum.tolist()),
@@ -533,8 +529,6 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
 
         terminated = info["is_success"] or (self.terminate_on_collision and info["collision"])
         truncated = self.step_count >= self.max_episode_steps
-        self._trail_and_show(reset=False)
-        obs = self._observe(self.ego_state, delta, self.obstacle_velocities, centre)
         return obs, reward, bool(terminated), bool(truncated), info
 
     def applied_input(self, state: np.ndarray, action: np.ndarray) -> np.ndarray:

@@ -265,48 +265,27 @@ class Scenario:
 
 
 
-HEAD_ON = Scenario(
-    name="HeadOn",
-    ego_start=(-4.7, 0.0, EGO_START_SPEED, 0.0),
-    goal=(4.7, 0.0),
-    obstacles=(ObstacleSpec(start=(2.0, -0.01), velocity=(-1.0, 0.0)),),
-    duration=3.0,
-    episode_length=8.0,
-)
+def _paper(name: str, ego: tuple[float, float], goal: Vector, *lanes: tuple[Vector, Vector],
+           duration: float = 3.0, episode_length: float = 8.0) -> Scenario:
+    """A paper scenario: the ego at ``ego`` at its start speed along +x, ``(start, velocity)``
+    lanes of the paper's obstacles."""
+    return Scenario(name=name, ego_start=(*ego, EGO_START_SPEED, 0.0), goal=goal,
+                    obstacles=tuple(ObstacleSpec(start=p, velocity=v) for p, v in lanes),
+                    duration=duration, episode_length=episode_length)
+
+
+HEAD_ON = _paper("HeadOn", (-4.7, 0.0), (4.7, 0.0), ((2.0, -0.01), (-1.0, 0.0)))
 """Head-on encounter: one obstacle coming towards the ego along its path."""
 
-OVERTAKING = Scenario(
-    name="Overtaking",
-    ego_start=(-4.7, 0.0, EGO_START_SPEED, 0.0),
-    goal=(4.7, 0.0),
-    obstacles=(ObstacleSpec(start=(-2.0, -0.05), velocity=(1.0, 0.0)),),
-    duration=3.0,
-    episode_length=8.0,
-)
+OVERTAKING = _paper("Overtaking", (-4.7, 0.0), (4.7, 0.0), ((-2.0, -0.05), (1.0, 0.0)))
 """Overtaking: one slower obstacle ahead of the ego, moving the same way."""
 
-INTERSECTION = Scenario(
-    name="Intersection",
-    ego_start=(-3.5, 1.0, EGO_START_SPEED, 0.0),
-    goal=(1.0, -3.0),
-    obstacles=(ObstacleSpec(start=(-2.5, -1.0), velocity=(1.5, 0.0)),),
-    duration=3.0,
-    episode_length=8.0,
-)
+INTERSECTION = _paper("Intersection", (-3.5, 1.0), (1.0, -3.0), ((-2.5, -1.0), (1.5, 0.0)))
 """Intersection: the ego heads down-right across the lane of an obstacle moving along +x."""
 
-MULTI_OBSTACLE = Scenario(
-    name="MultiObstacle",
-    ego_start=(-4.7, -1.0, EGO_START_SPEED, 0.0),
-    goal=(4.7, 0.0),
-    obstacles=(
-        ObstacleSpec(start=(-1.1, 1.01), velocity=(0.7, 0.0)),
-        ObstacleSpec(start=(-2.0, -1.01), velocity=(1.0, 0.0)),
-        ObstacleSpec(start=(-1.0, -2.01), velocity=(0.7, 0.0)),
-    ),
-    duration=5.0,
-    episode_length=10.0,
-)
+MULTI_OBSTACLE = _paper("MultiObstacle", (-4.7, -1.0), (4.7, 0.0), ((-1.1, 1.01), (0.7, 0.0)),
+                        ((-2.0, -1.01), (1.0, 0.0)), ((-1.0, -2.01), (0.7, 0.0)),
+                        duration=5.0, episode_length=10.0)
 """Three obstacles moving along +x around the ego's path (the paper's Fig. 4)."""
 
 

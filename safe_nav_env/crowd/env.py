@@ -117,7 +117,6 @@ class CrowdEnv(SafeNavEnv):
         options.setdefault("terminate_on_collision", True)
         options.setdefault("max_obstacles", self.n_humans)
         self._episode: Scenario | None = None
-        self._crowd: CrowdModel | None = None
         super().__init__(scenario=self._draw_scenario, predictor=predictor, pad_info=False,
                          **options)
 
@@ -156,9 +155,9 @@ class CrowdEnv(SafeNavEnv):
                                     preferred_speed=self.human_speed,
                                     robot_radius=scenario.ego_radius,
                                     robot_visible=self.robot_visible)
-            self._crowd = CrowdModel(simulator, starts, -starts, self.human_radius, self.dt,
+            self._model = CrowdModel(simulator, starts, -starts, self.human_radius, self.dt,
                                      robot_state=lambda: self.ego_state)
-            self._model, self._model_scenario = self._crowd, scenario
+            self._model_scenario = scenario
         super()._load(scenario)
 
     def _info(self, distances: np.ndarray, swept: np.ndarray,

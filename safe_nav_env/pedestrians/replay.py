@@ -93,9 +93,6 @@ class ReplayModel:
         self.start_step = 0
         self.step_count = 0
         self.slots = np.full(self.n, -1, dtype=np.int64)
-        self._clear()
-
-    def _clear(self) -> None:
         self.positions = self.starts.copy()
         self.velocities = np.zeros((self.n, 2))
         self.chord_starts = self.positions
