@@ -55,11 +55,8 @@ def _as_float_tuple(value: Any, path: str) -> float | tuple[float, ...] | tuple[
                             f"{array.shape}")
     if not np.all(np.isfinite(array)):
         raise ScenarioError(f"{path} must be finite, got {value!r}")
-    return array.tolist() if array.ndim == 0 else _to_tuple(array.tolist())
-
-
-def _to_tuple(value: Any) -> Any:
-    return tuple(_to_tuple(v) for v in value) if isinstance(value, list) else float(value)
+    values = array.tolist()  # Python floats
+    return values if array.ndim == 0 else tuple(map(tuple, values) if array.ndim == 2 else values)
 
 
 @dataclass(frozen=True)

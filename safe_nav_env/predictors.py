@@ -80,8 +80,7 @@ class ConstantVelocityKalman:
     turns: a turn shows up only through the observations.
 
     The covariance recursion does not depend on the data, so it is shared by all
-    obstacles and axes; successive calls on a growing history update the state
-    incrementally (one filter step per new row).
+    obstacles and axes; each call filters the whole history (the filter keeps no state).
 
     Parameters
     ----------
@@ -110,7 +109,6 @@ class ConstantVelocityKalman:
         self.measurement_variance = _option("measurement_variance", measurement_variance,
                                             strict=True)
         self.initial_speed_std = _option("initial_speed_std", initial_speed_std, strict=True)
-        self._state: tuple[Any, ...] | None = None  # (rows, last row, dt, mean, P)
 
     def __repr__(self) -> str:
         return (
@@ -151,22 +149,10 @@ class ConstantVelocityKalman:
         dt = _option("dt", dt, strict=True)
         F, Q = self._matrices(dt)
         r = self.measurement_variance
-        state = self._state
-        start = 0
-        if (
-            state is not None
-            and state[2] == dt
-            and state[0] <= obs.shape[0]
-            and state[1].shape == obs.shape[1:]
-            and np.array_equal(state[1], obs[state[0] - 1])
-        ):
-            start, mean, P = state[0], state[3].copy(), state[4].copy()
-        else:
-            mean = np.zeros((*obs.shape[1:], 2))
-            mean[..., 0] = obs[0]
-            P = np.diag([r, self.initial_speed_std**2])
-            start = 1
-        for row in obs[start:]:
+        mean = np.zeros((*obs.shape[1:], 2))
+        mean[..., 0] = obs[0]
+        P = np.diag([r, self.initial_speed_std**2])
+        for row in obs[1:]:
             mean = mean @ F.T
             P = F @ P @ F.T + Q
             innovation = row - mean[..., 0]
@@ -175,7 +161,6 @@ class ConstantVelocityKalman:
             mean = mean + innovation[..., None] * gain
             P = P - np.outer(gain, P[0, :])
             P = 0.5 * (P + P.T)
-        self._state = (obs.shape[0], obs[-1].copy(), dt, mean.copy(), P.copy())
         return mean, P
 
     def predictive(

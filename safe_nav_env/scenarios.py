@@ -265,12 +265,14 @@ class Scenario:
 
 
 
-def _paper(name: str, ego: tuple[float, float], goal: Vector, *lanes: tuple[Vector, Vector],
-           duration: float = 3.0, episode_length: float = 8.0) -> Scenario:
-    """A paper scenario: the ego at ``ego`` at its start speed along +x, ``(start, velocity)``
-    lanes of the paper's obstacles."""
+def _paper(name: str, ego: tuple[float, float], goal: Vector,
+           *lanes: ObstacleSpec | tuple[Vector, Vector], duration: float = 3.0,
+           episode_length: float = 8.0) -> Scenario:
+    """A scenario of the paper's kind: the ego at ``ego`` at its start speed along +x; each
+    obstacle an :class:`ObstacleSpec` or the ``(start, velocity)`` of a plain one."""
     return Scenario(name=name, ego_start=(*ego, EGO_START_SPEED, 0.0), goal=goal,
-                    obstacles=tuple(ObstacleSpec(start=p, velocity=v) for p, v in lanes),
+                    obstacles=tuple(o if isinstance(o, ObstacleSpec) else ObstacleSpec(*o)
+                                    for o in lanes),
                     duration=duration, episode_length=episode_length)
 
 

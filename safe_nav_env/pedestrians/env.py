@@ -157,10 +157,9 @@ class PedestrianEnv(SafeNavEnv):
         if isinstance(scene, Recording):
             if not math.isclose(scene.dt, dt):
                 raise ConfigError(f"the recording is at dt={scene.dt} s, the environment at {dt}")
-            recording = scene
-        else:
-            recording = load_recording(scene, dt=dt)
-        self.recording: Recording = recording
+        self.recording: Recording = (scene if isinstance(scene, Recording)
+                                     else load_recording(scene, dt=dt))
+        recording = self.recording
         self.scene: str = recording.name
         self.forecaster = Forecaster(predictor, dt, history_steps)
         self.residuals = residual_bank(self.scene, self.forecaster, horizon)
