@@ -18,7 +18,7 @@ from safe_nav_env.errors import ConfigError, ScenarioError
 from safe_nav_env.info import _padded
 from safe_nav_env.noise import NoiseModel, resolve_noise
 from safe_nav_env.obstacles import ObstacleModel
-from safe_nav_env.options import _option, _speed_option
+from safe_nav_env.options import _option
 from safe_nav_env.predictors import Predictor, check_predictions, resolve_predictor
 from safe_nav_env.scenarios import Scenario, ScenarioFactory, _resolve_scenario
 from safe_nav_env.starts import RandomStart, resolve_random_start
@@ -218,7 +218,8 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
             "episode_length", episode_length, strict=True)
         self.dt: float = _option("dt", dt, strict=True)
         self.max_acceleration = _option("max_acceleration", max_acceleration, strict=True)
-        self.max_speed: float = _speed_option(max_speed)
+        self.max_speed: float = math.inf if max_speed is None else _option(  # None: JSON's null
+            "max_speed (m/s; inf or None: no limit)", max_speed, strict=True, allow_inf=True)
         self.max_obstacles: int = _option("max_obstacles", max_obstacles, integer=True)
         self.progress_weight = _option("progress_weight", progress_weight)
         self.arrival_bonus = _option("arrival_bonus", arrival_bonus)
@@ -355,12 +356,10 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
             raise ValueError("obstacle_positions and obstacle_velocities must both have shape "
                              f"(n, 2), got {positions.shape} and {velocities.shape}")
         delta = positions - x[:2]
-        n = delta.shape[0]
-        centre = np.hypot(delta[:, 0], delta[:, 1]) if n > 1 else None  # only to sort
-        return self._observe(x, delta, velocities, centre)
+        return self._observe(x, delta, velocities, np.hypot(delta[:, 0], delta[:, 1]))
 
     def _observe(self, x: np.ndarray, delta: np.ndarray, velocities: np.ndarray,
-                 centre: np.ndarray | None) -> np.ndarray:
+                 centre: np.ndarray) -> np.ndarray:
         """:meth:`observe` without the checks, given ``delta = positions - p`` and its norms.
 
         The few entries are computed on Python floats (the same IEEE double operations

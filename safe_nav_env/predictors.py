@@ -38,7 +38,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 
 from safe_nav_env.errors import ConfigError
-from safe_nav_env.options import _named, _option
+from safe_nav_env.options import _finite_array, _named, _option
 
 __all__ = ["ENVIRONMENT", "PREDICTORS", "ConstantVelocityKalman", "Predictor", "StalePredictor",
     "check_predictions", "resolve_predictor"]
@@ -144,7 +144,7 @@ class ConstantVelocityKalman:
         ConfigError
             If ``history`` is not a finite ``(n_steps, n_obs, d)`` array with ``n_steps >= 1``.
         """
-        obs = _finite_array("history", history, "(n_steps, n_obs, d) with n_steps >= 1",
+        obs = _finite_array("history", history, "array", "(n_steps, n_obs, d) with n_steps >= 1",
                             lambda shape: len(shape) == 3 and shape[0] > 0)
         dt = _option("dt", dt, strict=True)
         F, Q = self._matrices(dt)
@@ -243,19 +243,6 @@ class StalePredictor:
         return self.base(history[:rows], dt=dt, horizon=horizon, n_samples=n_samples, rng=rng)
 
 
-def _finite_array(name: str, value: object, expected: str, shape_ok: Any) -> np.ndarray:
-    """``value`` as a float64 array whose shape passes ``shape_ok`` and entries are finite."""
-    try:
-        array = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ConfigError(f"{name}: a non-numeric value {value!r}") from exc
-    if not shape_ok(array.shape):
-        raise ConfigError(f"{name} must have shape {expected}, got {array.shape}")
-    if not np.isfinite(array).all():
-        raise ConfigError(f"{name} must be finite, got NaN or infinite entries")
-    return array
-
-
 PREDICTORS: dict[str, Any] = {ENVIRONMENT: None, "kalman": ConstantVelocityKalman}
 """Predictor names accepted by :func:`resolve_predictor` (``None``: the environment's sampler)."""
 
@@ -299,5 +286,5 @@ def check_predictions(
         If the output has another shape or holds NaN/inf.
     """
     expected = (n_obs, n_samples, horizon, dim)
-    return _finite_array("the predictor's samples", samples,
+    return _finite_array("the predictor's samples", samples, "array",
                          f"(n_obs, n_samples, horizon, d) = {expected}", lambda s: s == expected)

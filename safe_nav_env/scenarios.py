@@ -31,7 +31,7 @@ import numpy as np
 from safe_nav_env.constants import ARENA, EGO_RADIUS, EGO_START_SPEED, OBSTACLE_RADIUS
 from safe_nav_env.errors import ConfigError, ScenarioError
 from safe_nav_env.noise import NoiseModel, resolve_noise
-from safe_nav_env.options import _from_fields, _named, _option
+from safe_nav_env.options import _finite_array, _from_fields, _named, _option
 
 Vector = tuple[float, ...]
 
@@ -41,16 +41,9 @@ DEFAULT_DURATION = 10.0
 
 def _vector(value: Any, path: str, sizes: Sequence[int]) -> Vector:
     """Return ``value`` as a tuple of finite floats whose length is one of ``sizes``."""
-    try:
-        array = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ScenarioError(f"{path} must be a numeric vector, got {value!r}") from exc
-    expected = " or ".join(f"({n},)" for n in sizes)
-    if array.ndim != 1 or array.shape[0] not in sizes:
-        raise ScenarioError(f"{path} must have shape {expected}, got shape {array.shape}")
-    if not np.all(np.isfinite(array)):
-        raise ScenarioError(f"{path} must be finite, got {array.tolist()}")
-    return tuple(float(v) for v in array)
+    return tuple(_finite_array(path, value, "vector", " or ".join(f"({n},)" for n in sizes),
+                               lambda shape: len(shape) == 1 and shape[0] in sizes,
+                               ScenarioError).tolist())
 
 
 _number = partial(_option, error=ScenarioError)  # scenario data: a ScenarioError

@@ -123,8 +123,7 @@ class CrowdEnv(SafeNavEnv):
     def _draw_scenario(self, rng: np.random.Generator) -> Scenario:
         """The robot on the circle's bottom, the humans drawn as CrowdNav draws them."""
         r = self.circle_radius
-        ego_radius = EGO_RADIUS  # the Scenario default, which the environment uses
-        placed = [((0.0, -r), (0.0, r), ego_radius)]  # (start, goal, radius)
+        placed = [((0.0, -r), (0.0, r), EGO_RADIUS)]  # (start, goal, radius); the ego's: Scenario's
         humans = []
         for index in range(self.n_humans):
             for _ in range(_DRAWS):

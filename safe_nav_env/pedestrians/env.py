@@ -268,21 +268,18 @@ class PedestrianEnv(SafeNavEnv):
     # ---------------------------------------------------- observation and info
 
     def _observe(self, x: np.ndarray, delta: np.ndarray, velocities: np.ndarray,
-                 centre: np.ndarray | None) -> np.ndarray:
+                 centre: np.ndarray) -> np.ndarray:
         """The base observation without the absent slots (their observation slots stay zero)."""
         model = self._model
         if model is self._replay and delta.shape[0] == model.n:
             present = model.present
             if not present.all():
-                delta, velocities = delta[present], velocities[present]
-                centre = centre[present] if centre is not None and delta.shape[0] > 1 else None
+                delta, velocities, centre = delta[present], velocities[present], centre[present]
         return super()._observe(x, delta, velocities, centre)
 
     def _info(self, distances: np.ndarray, swept: np.ndarray,
               distance_to_goal: float) -> dict[str, Any]:
-        model = self._model
-        if model is not self._replay:
-            return super()._info(distances, swept, distance_to_goal)
+        model = self._replay  # the model of every episode (_info runs after a reset)
         present = model.present
         absent = ~present
         if absent.any():  # absent rows as padded ones: infinitely far, at rest

@@ -168,10 +168,7 @@ class ReplayModel:
             if ped not in held:
                 slots[next(free)] = ped
         self.slots = np.array(slots, dtype=np.int64)
-        self._fill(j, first=first)
-
-    def _fill(self, j: int, *, first: bool) -> None:
-        """Positions, chord starts, velocity estimates and strata of the slots at step ``j``."""
+        # Positions, chord starts, velocity estimates and strata of the slots at step j.
         rec = self.recording
         present = self.present
         positions = self.starts.copy()
