@@ -306,11 +306,10 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         self.obstacle_radii: np.ndarray = self._model.radii
         self._radii_sum = self.obstacle_radii + self.ego_radius
         self.goal: np.ndarray = _read_only(np.array(scenario.goal, dtype=np.float64))
-        arena = np.array(scenario.arena, dtype=np.float64)
         self._arena = scenario.arena
         self._goal = scenario.goal
-        self.position_bounds: tuple[np.ndarray, np.ndarray] = (_read_only(arena[0]),
-                                                              _read_only(arena[1]))
+        self.position_bounds: tuple[np.ndarray, np.ndarray] = tuple(
+            _read_only(np.array(corner, dtype=np.float64)) for corner in scenario.arena)
         self.ego_state: np.ndarray = _read_only(np.array(scenario.ego_start, dtype=np.float64))
         self.obstacle_positions: np.ndarray = _read_only(self._model.starts.copy())
         self.obstacle_velocities: np.ndarray = _read_only(self._model.initial_velocities.copy())

@@ -124,7 +124,6 @@ class CrowdEnv(SafeNavEnv):
         """The robot on the circle's bottom, the humans drawn as CrowdNav draws them."""
         r = self.circle_radius
         placed = [((0.0, -r), (0.0, r), EGO_RADIUS)]  # (start, goal, radius); the ego's: Scenario's
-        humans = []
         for index in range(self.n_humans):
             for _ in range(_DRAWS):
                 angle = rng.random() * 2.0 * math.pi
@@ -138,12 +137,11 @@ class CrowdEnv(SafeNavEnv):
                 raise ConfigError(f"no free start for human {index} on a circle of radius {r} m "
                                   f"in {_DRAWS} draws; use fewer humans or a larger circle")
             placed.append((tuple(start), tuple(-start), self.human_radius))
-            humans.append(start)
         bound = r + 2.0
         self._episode = Scenario(
             name="Crowd", ego_start=(0.0, -r, 0.0, 0.0), goal=(0.0, r),
-            obstacles=tuple(ObstacleSpec(start=(float(p[0]), float(p[1])), velocity=(0.0, 0.0),
-                                         radius=self.human_radius) for p in humans),
+            obstacles=tuple(ObstacleSpec(start=p, velocity=(0.0, 0.0), radius=self.human_radius)
+                            for p, _, _ in placed[1:]),
             episode_length=TIME_LIMIT, arena=((-bound, -bound), (bound, bound)))
         return self._episode
 

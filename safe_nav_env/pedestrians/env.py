@@ -150,7 +150,6 @@ class PedestrianEnv(SafeNavEnv):
             )
         options.setdefault("max_speed", MAX_SPEED)
         dt = _option("dt", dt, strict=True)
-        horizon = _option("horizon", horizon, low=1, integer=True)
         max_obstacles = _option("max_obstacles", max_obstacles, low=1, integer=True)
         self.pedestrian_radius = _option("pedestrian_radius", pedestrian_radius, strict=True)
         self.ego_speed = _option("ego_speed", ego_speed, strict=True)
@@ -159,21 +158,21 @@ class PedestrianEnv(SafeNavEnv):
                 raise ConfigError(f"the recording is at dt={scene.dt} s, the environment at {dt}")
         self.recording: Recording = (scene if isinstance(scene, Recording)
                                      else load_recording(scene, dt=dt))
-        recording = self.recording
-        self.scene: str = recording.name
+        self.scene: str = self.recording.name
         self.forecaster = Forecaster(predictor, dt, history_steps)
-        self.residuals = residual_bank(self.scene, self.forecaster, horizon)
-        self.arena = recording.walkable_box() if arena is None else _arena(arena, error=ConfigError)
-        self._replay = ReplayModel(
-            recording, self.forecaster, self.residuals, max_obstacles=max_obstacles,
-            radius=self.pedestrian_radius, arena=self.arena,
-            ego_position=lambda: self.ego_state[:2],
-        )
+        self.arena = (self.recording.walkable_box() if arena is None
+                      else _arena(arena, error=ConfigError))
         self._episode: Scenario | None = None
         self._start_step: int | None = None
-        super().__init__(
+        super().__init__(  # validates horizon; the first scenario is drawn at reset
             scenario=self._draw_scenario, n_samples=n_samples, horizon=horizon, dt=dt,
             max_obstacles=max_obstacles, pad_info=False, predictor=None, **options,
+        )
+        self.residuals = residual_bank(self.scene, self.forecaster, self.horizon)
+        self._replay = ReplayModel(
+            self.recording, self.forecaster, self.residuals, max_obstacles=max_obstacles,
+            radius=self.pedestrian_radius, arena=self.arena,
+            ego_position=lambda: self.ego_state[:2],
         )
 
     # ----------------------------------------------------------------- episode
@@ -271,10 +270,9 @@ class PedestrianEnv(SafeNavEnv):
                  centre: np.ndarray) -> np.ndarray:
         """The base observation without the absent slots (their observation slots stay zero)."""
         model = self._model
-        if model is self._replay and delta.shape[0] == model.n:
+        if model is self._replay and delta.shape[0] == model.n and not model.present.all():
             present = model.present
-            if not present.all():
-                delta, velocities, centre = delta[present], velocities[present], centre[present]
+            delta, velocities, centre = delta[present], velocities[present], centre[present]
         return super()._observe(x, delta, velocities, centre)
 
     def _info(self, distances: np.ndarray, swept: np.ndarray,

@@ -88,8 +88,7 @@ class ReplayModel:
         self.starts = np.tile(self.parked, (self.n, 1))
         self.initial_velocities = np.zeros((self.n, 2))
         self._ego_position = ego_position
-        positions = recording.positions
-        self._present = [np.flatnonzero(~np.isnan(row[:, 0])) for row in positions]
+        self._present = [np.flatnonzero(~np.isnan(row[:, 0])) for row in recording.positions]
         self.start_step = 0
         self.step_count = 0
         self.slots = np.full(self.n, -1, dtype=np.int64)
