@@ -63,12 +63,17 @@ def _named(table: Mapping[str, Any], value: str, path: str, what: str,
 
 def _from_fields(cls: type, value: Mapping[str, Any], path: str,
                  error: type[ValueError] = ScenarioError) -> Any:
-    """``cls(**value)`` for a mapping of the dataclass ``cls``'s fields.
+    """``cls(**value)`` for a mapping of the dataclass ``cls``'s fields (a ``cls`` is returned
+    as it is; anything else raises ``error``).
 
     An unknown or missing field raises ``error`` naming it; an ``error`` of ``cls`` whose
     message starts with ``"<cls name>."`` is raised again starting with ``path``
     (``"ObstacleSpec.radius ..."`` -> ``"obstacles[1].radius ..."``).
     """
+    if isinstance(value, cls):
+        return value
+    if not isinstance(value, Mapping):
+        raise error(f"{path} must be a {cls.__name__} or a mapping, got {value!r}")
     allowed = sorted(f.name for f in fields(cls) if f.init)
     unknown = sorted(set(value) - set(allowed))
     if unknown:

@@ -144,14 +144,6 @@ class ObstacleSpec:
         return math.hypot(*self.velocity)
 
 
-def _obstacle(value: Any, path: str) -> ObstacleSpec:
-    if isinstance(value, ObstacleSpec):
-        return value
-    if not isinstance(value, Mapping):
-        raise ScenarioError(f"{path} must be an ObstacleSpec or a mapping, got {value!r}")
-    return _from_fields(ObstacleSpec, value, path)
-
-
 @dataclass(frozen=True)
 class Scenario:
     """A reach-avoid encounter: the ego drives from ``ego_start`` to ``goal`` among obstacles.
@@ -234,7 +226,8 @@ class Scenario:
             raise ScenarioError(f"obstacles must be a sequence of ObstacleSpec, got "
                                 f"{self.obstacles!r}")
         set_(self, "obstacles",
-             tuple(_obstacle(o, f"obstacles[{i}]") for i, o in enumerate(self.obstacles)))
+             tuple(_from_fields(ObstacleSpec, o, f"obstacles[{i}]")
+                   for i, o in enumerate(self.obstacles)))
 
         if self.episode_length is not None:
             set_(self, "episode_length", _number("episode_length", self.episode_length,
