@@ -199,13 +199,17 @@ class ObstacleModel:
                 nominal = np.where(halted[:, None], self.projected(), nominal)
         positions = nominal + law.sample(rng, (self.n, 2))
         self.step_count += 1
-        velocities = self.velocities.copy()
         if self.any_can_turn and self.turning.any():
             times = np.array([self.step_count - 1, self.step_count]) * self.dt
             theta = self.heading(times)
             increment = np.where(self.turning, theta[:, 1] - theta[:, 0], 0.0)
-            velocities = _rotate(self.velocities, increment)
-        self._set_state(positions, velocities, nominal)
+            self._set_state(positions, _rotate(self.velocities, increment), nominal)
+        else:
+            self.chord_starts = self.positions
+            self.positions, self.velocities, self.anchors = (
+                positions, self.velocities.copy(), nominal
+            )
+            self._projected = None
         return positions
 
     def nominal_predictions(self, horizon: int) -> tuple[np.ndarray, np.ndarray | None]:
