@@ -233,7 +233,6 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         self.predictor: Predictor | None = resolve_predictor(predictor)
         self.random_start: RandomStart | None = resolve_random_start(random_start)
         self.actuation: Actuation | None = resolve_actuation(actuator_lag, drag, self.dt)
-        self._history: list[np.ndarray] = []
 
         # What a safety filter reads (filters.protocol.FilterableEnv).
         self.dynamics: tuple[np.ndarray, np.ndarray, np.ndarray] = double_integrator(self.dt)
@@ -252,7 +251,6 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         self.observation_space = spaces.Box(low, high, dtype=np.float32)
 
         self._renderer: Any = None
-        self._model: ObstacleModel | None = None
         self._model_scenario: Scenario | None = None
         first = self._scenario_source if isinstance(self._scenario_source, Scenario) else None
         self._load(first)
@@ -265,7 +263,7 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
                                           self.horizon)
         else:
             if reset:
-                self._history = []
+                self._history: list[np.ndarray] = []
             self._history.append(self.obstacle_positions)
             n, dim = self.obstacle_positions.shape
             samples = check_predictions(self.predictor(
@@ -299,8 +297,8 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         self.n_samples: int = self._n_samples_override or self.noise.n_samples
         length = self._episode_length or scenario.time_limit
         self.max_episode_steps: int = max(1, math.ceil(length / self.dt - 1e-9))
-        if self._model_scenario is not scenario:
-            self._model = ObstacleModel(scenario.obstacles, self.dt)
+        if self._model_scenario is not scenario:  # always at the first _load
+            self._model: ObstacleModel = ObstacleModel(scenario.obstacles, self.dt)
             self._model_scenario = scenario
         self.ego_radius: float = scenario.ego_radius
         self.obstacle_radii: np.ndarray = self._model.radii

@@ -308,11 +308,10 @@ class NoiseModel:
     n_samples: int = N_SAMPLES
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "prediction", noise_law(self.prediction, "noise.prediction"))
-        object.__setattr__(self, "reality", noise_law(self.reality, "noise.reality"))
         object.__setattr__(self, "n_samples", _option("noise.n_samples", self.n_samples, low=1,
                                                       integer=True, error=ScenarioError))
         for name in ("prediction", "reality"):
+            object.__setattr__(self, name, noise_law(getattr(self, name), f"noise.{name}"))
             dim = getattr(self, name).dim
             if dim is not None and dim != 2:
                 raise ScenarioError(f"noise.{name} is for {dim} axes, the arena has 2")

@@ -135,10 +135,16 @@ class ReplayModel:
         trajectories drawn from the bank with ``rng`` (for the occupied slots only);
         absent slots get their parking point in every sample. ``law`` is unused.
         """
-        rows = np.flatnonzero(self.present)  # draw for the occupied slots; the others are parked
+        present = self.present
+        if present.all():
+            rows = slice(None)
+        else:  # draw for the occupied slots only; the others are parked
+            rows = np.flatnonzero(present)
         velocities, strata = self.velocities[rows], self._strata[rows]
         nominal = self.forecaster.nominal(self._nominal_origin[rows], velocities, horizon)
         drawn = self.bank.sample(rng, nominal, strata, headings(velocities, strata), n_samples)
+        if isinstance(rows, slice):
+            return drawn
         samples = np.empty((self.n, int(n_samples), int(horizon), 2))
         samples[:] = self.parked
         samples[rows] = drawn
