@@ -17,8 +17,8 @@ from safe_nav_env.dynamics import applied_acceleration, double_integrator, parse
 from safe_nav_env.errors import ConfigError, ScenarioError
 from safe_nav_env.info import _padded
 from safe_nav_env.noise import NoiseModel, resolve_noise
-from safe_nav_env.obstacles import ObstacleModel, distance_to_collision
-from safe_nav_env.options import _option, _speed_option
+from safe_nav_env.obstacles import ObstacleModel
+from safe_nav_env.options import _option
 from safe_nav_env.predictors import Predictor, check_predictions, resolve_predictor
 from safe_nav_env.scenarios import Scenario, ScenarioFactory, _resolve_scenario
 from safe_nav_env.starts import RandomStart, resolve_random_start
@@ -218,7 +218,8 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
             "episode_length", episode_length, strict=True)
         self.dt: float = _option("dt", dt, strict=True)
         self.max_acceleration = _option("max_acceleration", max_acceleration, strict=True)
-        self.max_speed: float = _speed_option(max_speed)
+        self.max_speed: float = math.inf if max_speed is None else _option(  # None: JSON's null
+            "max_speed (m/s; inf or None: no limit)", max_speed, strict=True, allow_inf=True)
         self.max_obstacles: int = _option("max_obstacles", max_obstacles, integer=True)
         self.progress_weight = _option("progress_weight", progress_weight)
         self.arrival_bonus = _option("arrival_bonus", arrival_bonus)
@@ -232,7 +233,6 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         self.predictor: Predictor | None = resolve_predictor(predictor)
         self.random_start: RandomStart | None = resolve_random_start(random_start)
         self.actuation: Actuation | None = resolve_actuation(actuator_lag, drag, self.dt)
-        self._history: list[np.ndarray] = []
 
         # What a safety filter reads (filters.protocol.FilterableEnv).
         self.dynamics: tuple[np.ndarray, np.ndarray, np.ndarray] = double_integrator(self.dt)
@@ -251,7 +251,6 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         self.observation_space = spaces.Box(low, high, dtype=np.float32)
 
         self._renderer: Any = None
-        self._model: ObstacleModel | None = None
         self._model_scenario: Scenario | None = None
         first = self._scenario_source if isinstance(self._scenario_source, Scenario) else None
         self._load(first)
@@ -264,7 +263,7 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
                                           self.horizon)
         else:
             if reset:
-                self._history = []
+                self._history: list[np.ndarray] = []
             self._history.append(self.obstacle_positions)
             n, dim = self.obstacle_positions.shape
             samples = check_predictions(self.predictor(
@@ -272,14 +271,20 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
                 n_samples=self.n_samples, rng=self.np_random), n, self.n_samples, self.horizon, dim)
         self.predictions = _read_only(samples)
 
-    def _trail_and_show(self, reset: bool) -> None:
-        """Record the positions for the renderer (human mode: draw the frame)."""
+    def _sense(self, *, reset: bool) -> tuple[np.ndarray, np.ndarray]:
+        """The observation and the sampled clearances ``||y - p_i|| - r_A - r_O,i`` in m (as
+        :func:`~safe_nav_env.obstacles.distance_to_collision`); records the positions for
+        the renderer first (human mode: draws the frame)."""
         if self.render_mode is not None:
             if reset:
                 self._trail = []
             self._trail.append((self.ego_state[:2].copy(), self.obstacle_positions))
             if self.render_mode == "human":
                 self.render()
+        delta = self.obstacle_positions - self.ego_state[:2]
+        centre = np.hypot(delta[:, 0], delta[:, 1])
+        obs = self._observe(self.ego_state, delta, self.obstacle_velocities, centre)
+        return obs, _read_only(centre - self._radii_sum)
 
     # ------------------------------------------------------------------ setup
 
@@ -292,18 +297,17 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         self.n_samples: int = self._n_samples_override or self.noise.n_samples
         length = self._episode_length or scenario.time_limit
         self.max_episode_steps: int = max(1, math.ceil(length / self.dt - 1e-9))
-        if self._model_scenario is not scenario:
-            self._model = ObstacleModel(scenario.obstacles, self.dt)
+        if self._model_scenario is not scenario:  # always at the first _load
+            self._model: ObstacleModel = ObstacleModel(scenario.obstacles, self.dt)
             self._model_scenario = scenario
         self.ego_radius: float = scenario.ego_radius
         self.obstacle_radii: np.ndarray = self._model.radii
         self._radii_sum = self.obstacle_radii + self.ego_radius
         self.goal: np.ndarray = _read_only(np.array(scenario.goal, dtype=np.float64))
-        arena = np.array(scenario.arena, dtype=np.float64)
         self._arena = scenario.arena
         self._goal = scenario.goal
-        self.position_bounds: tuple[np.ndarray, np.ndarray] = (_read_only(arena[0]),
-                                                              _read_only(arena[1]))
+        self.position_bounds: tuple[np.ndarray, np.ndarray] = tuple(
+            _read_only(np.array(corner, dtype=np.float64)) for corner in scenario.arena)
         self.ego_state: np.ndarray = _read_only(np.array(scenario.ego_start, dtype=np.float64))
         self.obstacle_positions: np.ndarray = _read_only(self._model.starts.copy())
         self.obstacle_velocities: np.ndarray = _read_only(self._model.initial_velocities.copy())
@@ -349,12 +353,10 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
             raise ValueError("obstacle_positions and obstacle_velocities must both have shape "
                              f"(n, 2), got {positions.shape} and {velocities.shape}")
         delta = positions - x[:2]
-        n = delta.shape[0]
-        centre = np.hypot(delta[:, 0], delta[:, 1]) if n > 1 else None  # only to sort
-        return self._observe(x, delta, velocities, centre)
+        return self._observe(x, delta, velocities, np.hypot(delta[:, 0], delta[:, 1]))
 
     def _observe(self, x: np.ndarray, delta: np.ndarray, velocities: np.ndarray,
-                 centre: np.ndarray | None) -> np.ndarray:
+                 centre: np.ndarray) -> np.ndarray:
         """:meth:`observe` without the checks, given ``delta = positions - p`` and its norms.
 
         The few entries are computed on Python floats (the same IEEE double operations
@@ -442,26 +444,10 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         self._model.reset(self.np_random)
         self.obstacle_positions = _read_only(self._model.positions)
         self.obstacle_velocities = _read_only(self._model.velocities)
-        if self.random_start is not None:
-            self._draw_start()
-        speed = math.hypot(self.ego_state[2], self.ego_state[3])
-        if speed > self.max_speed:
-            raise ScenarioError(
-                f"scenario {scenario.name!r}: the ego starts at {speed:g} m/s, above "
-                f"max_speed={self.max_speed:g} m/s; pass a larger max_speed (inf: no limit)")
-        self._predict(reset=True)
-        distances = _read_only(distance_to_collision(
-            self.ego_state[:2], self.obstacle_positions, self.ego_radius, self.obstacle_radii))
-        self._trail_and_show(reset=True)
-        obs = self.observe(self.ego_state, self.obstacle_positions, self.obstacle_velocities)
-        return obs, self._info(distances, distances, self._distance_to_goal)
-
-    def _draw_start(self) -> None:
-        """Replace the scenario's ego start by a :attr:`random_start` draw (training only)."""
-        drawn = self.random_start.draw(
+        drawn = None if self.random_start is None else self.random_start.draw(
             self.np_random, goal=self.goal, goal_tolerance=self.goal_tolerance, arena=self._arena,
             ego_radius=self.ego_radius, obstacle_positions=self.obstacle_positions,
-            obstacle_radii=self.obstacle_radii)
+            obstacle_radii=self.obstacle_radii)  # training only: another ego start
         if drawn is not None:
             start, goal = drawn
             speed = math.hypot(start[2], start[3])
@@ -471,6 +457,14 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
             self.goal = _read_only(goal)
             self._goal = (float(goal[0]), float(goal[1]))
             self._distance_to_goal = math.hypot(start[0] - goal[0], start[1] - goal[1])
+        speed = math.hypot(self.ego_state[2], self.ego_state[3])
+        if speed > self.max_speed:
+            raise ScenarioError(
+                f"scenario {scenario.name!r}: the ego starts at {speed:g} m/s, above "
+                f"max_speed={self.max_speed:g} m/s; pass a larger max_speed (inf: no limit)")
+        self._predict(reset=True)
+        obs, distances = self._sense(reset=True)
+        return obs, self._info(distances, distances, self._distance_to_goal)
 
     def step(self, action: np.ndarray
              ) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict[str, Any]]:
@@ -511,9 +505,7 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         self._predict(reset=False)
         self.step_count += 1
 
-        delta = self.obstacle_positions - self.ego_state[:2]
-        centre = np.hypot(delta[:, 0], delta[:, 1])
-        distances = _read_only(centre - self._radii_sum)  # as distance_to_collision()
+        obs, distances = self._sense(reset=False)
         swept = np.minimum(
             swept_clearance(start, (ux, uy), dt, before.tolist(),
                             self.obstacle_positions.tolist(), self._radii_sum.tolist()),
@@ -533,8 +525,6 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
 
         terminated = info["is_success"] or (self.terminate_on_collision and info["collision"])
         truncated = self.step_count >= self.max_episode_steps
-        self._trail_and_show(reset=False)
-        obs = self._observe(self.ego_state, delta, self.obstacle_velocities, centre)
         return obs, reward, bool(terminated), bool(truncated), info
 
     def applied_input(self, state: np.ndarray, action: np.ndarray) -> np.ndarray:

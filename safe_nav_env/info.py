@@ -27,7 +27,5 @@ def _padded(info: dict[str, Any], n: int, rows: int) -> dict[str, Any]:
         array[n:] = fill  # only the padding rows: no second pass over the data
         array.flags.writeable = False
         padded[key] = array
-    present = np.zeros(rows, dtype=bool)
-    present[:n] = True
-    padded["obstacle_present"] = present
+    padded["obstacle_present"] = np.arange(rows) < n
     return padded

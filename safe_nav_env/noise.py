@@ -38,7 +38,7 @@ import numpy as np
 
 from safe_nav_env.constants import N_SAMPLES
 from safe_nav_env.errors import ScenarioError
-from safe_nav_env.options import _from_fields, _named, _option
+from safe_nav_env.options import _finite_array, _from_fields, _named, _option
 
 # A covariance as given by the user: σ², (σ²_1, ..., σ²_d) or a d × d matrix.
 Covariance = float | tuple[float, ...] | tuple[tuple[float, ...], ...]
@@ -46,20 +46,10 @@ Mean = float | tuple[float, ...]
 
 
 def _as_float_tuple(value: Any, path: str) -> float | tuple[float, ...] | tuple[tuple, ...]:
-    try:
-        array = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ScenarioError(f"{path} must be numeric, got {value!r}") from exc
-    if array.ndim > 2:
-        raise ScenarioError(f"{path} must be a scalar, a vector or a matrix, got shape "
-                            f"{array.shape}")
-    if not np.all(np.isfinite(array)):
-        raise ScenarioError(f"{path} must be finite, got {value!r}")
-    return array.tolist() if array.ndim == 0 else _to_tuple(array.tolist())
-
-
-def _to_tuple(value: Any) -> Any:
-    return tuple(_to_tuple(v) for v in value) if isinstance(value, list) else float(value)
+    array = _finite_array(path, value, "scalar, vector or matrix", "(), (d,) or (d, e)",
+                          lambda shape: len(shape) <= 2, ScenarioError)
+    values = array.tolist()  # Python floats
+    return values if array.ndim == 0 else tuple(map(tuple, values) if array.ndim == 2 else values)
 
 
 @dataclass(frozen=True)
@@ -318,11 +308,10 @@ class NoiseModel:
     n_samples: int = N_SAMPLES
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "prediction", noise_law(self.prediction, "noise.prediction"))
-        object.__setattr__(self, "reality", noise_law(self.reality, "noise.reality"))
         object.__setattr__(self, "n_samples", _option("noise.n_samples", self.n_samples, low=1,
                                                       integer=True, error=ScenarioError))
         for name in ("prediction", "reality"):
+            object.__setattr__(self, name, noise_law(getattr(self, name), f"noise.{name}"))
             dim = getattr(self, name).dim
             if dim is not None and dim != 2:
                 raise ScenarioError(f"noise.{name} is for {dim} axes, the arena has 2")

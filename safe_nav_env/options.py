@@ -8,7 +8,7 @@ names the option or field path, the value it got and what was expected.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import fields
 from typing import Any
 
@@ -37,11 +37,20 @@ def _option(
     return int(value) if integer else float(value)
 
 
-def _speed_option(value: Any) -> float:
-    """Validate ``max_speed`` (m/s): a number ``> 0``; ``inf`` or ``None`` (JSON's
-    ``null``, for the command line) for no speed limit."""
-    return math.inf if value is None else _option(
-        "max_speed (m/s; inf or None: no limit)", value, strict=True, allow_inf=True)
+def _finite_array(path: str, value: Any, what: str, expected: str,
+                  shape_ok: Callable[[tuple[int, ...]], bool],
+                  error: type[ValueError] = ConfigError) -> np.ndarray:
+    """``value`` as a finite float64 array whose shape passes ``shape_ok``; else ``error``
+    naming ``path``, the kind of value expected (``what``) and its shape (``expected``)."""
+    try:
+        array = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise error(f"{path} must be a numeric {what}, got the non-numeric {value!r}") from exc
+    if not shape_ok(array.shape):
+        raise error(f"{path} must have shape {expected}, got shape {array.shape}")
+    if not np.isfinite(array).all():
+        raise error(f"{path} must be finite (no NaN or inf), got {value!r}")
+    return array
 
 
 def _named(table: Mapping[str, Any], value: str, path: str, what: str,
@@ -54,12 +63,17 @@ def _named(table: Mapping[str, Any], value: str, path: str, what: str,
 
 def _from_fields(cls: type, value: Mapping[str, Any], path: str,
                  error: type[ValueError] = ScenarioError) -> Any:
-    """``cls(**value)`` for a mapping of the dataclass ``cls``'s fields.
+    """``cls(**value)`` for a mapping of the dataclass ``cls``'s fields (a ``cls`` is returned
+    as it is; anything else raises ``error``).
 
     An unknown or missing field raises ``error`` naming it; an ``error`` of ``cls`` whose
     message starts with ``"<cls name>."`` is raised again starting with ``path``
     (``"ObstacleSpec.radius ..."`` -> ``"obstacles[1].radius ..."``).
     """
+    if isinstance(value, cls):
+        return value
+    if not isinstance(value, Mapping):
+        raise error(f"{path} must be a {cls.__name__} or a mapping, got {value!r}")
     allowed = sorted(f.name for f in fields(cls) if f.init)
     unknown = sorted(set(value) - set(allowed))
     if unknown:

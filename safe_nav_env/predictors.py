@@ -38,7 +38,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 
 from safe_nav_env.errors import ConfigError
-from safe_nav_env.options import _named, _option
+from safe_nav_env.options import _finite_array, _named, _option
 
 __all__ = ["ENVIRONMENT", "PREDICTORS", "ConstantVelocityKalman", "Predictor", "StalePredictor",
     "check_predictions", "resolve_predictor"]
@@ -80,8 +80,7 @@ class ConstantVelocityKalman:
     turns: a turn shows up only through the observations.
 
     The covariance recursion does not depend on the data, so it is shared by all
-    obstacles and axes; successive calls on a growing history update the state
-    incrementally (one filter step per new row).
+    obstacles and axes; each call filters the whole history (the filter keeps no state).
 
     Parameters
     ----------
@@ -110,7 +109,6 @@ class ConstantVelocityKalman:
         self.measurement_variance = _option("measurement_variance", measurement_variance,
                                             strict=True)
         self.initial_speed_std = _option("initial_speed_std", initial_speed_std, strict=True)
-        self._state: tuple[Any, ...] | None = None  # (rows, last row, dt, mean, P)
 
     def __repr__(self) -> str:
         return (
@@ -146,27 +144,15 @@ class ConstantVelocityKalman:
         ConfigError
             If ``history`` is not a finite ``(n_steps, n_obs, d)`` array with ``n_steps >= 1``.
         """
-        obs = _finite_array("history", history, "(n_steps, n_obs, d) with n_steps >= 1",
+        obs = _finite_array("history", history, "array", "(n_steps, n_obs, d) with n_steps >= 1",
                             lambda shape: len(shape) == 3 and shape[0] > 0)
         dt = _option("dt", dt, strict=True)
         F, Q = self._matrices(dt)
         r = self.measurement_variance
-        state = self._state
-        start = 0
-        if (
-            state is not None
-            and state[2] == dt
-            and state[0] <= obs.shape[0]
-            and state[1].shape == obs.shape[1:]
-            and np.array_equal(state[1], obs[state[0] - 1])
-        ):
-            start, mean, P = state[0], state[3].copy(), state[4].copy()
-        else:
-            mean = np.zeros((*obs.shape[1:], 2))
-            mean[..., 0] = obs[0]
-            P = np.diag([r, self.initial_speed_std**2])
-            start = 1
-        for row in obs[start:]:
+        mean = np.zeros((*obs.shape[1:], 2))
+        mean[..., 0] = obs[0]
+        P = np.diag([r, self.initial_speed_std**2])
+        for row in obs[1:]:
             mean = mean @ F.T
             P = F @ P @ F.T + Q
             innovation = row - mean[..., 0]
@@ -175,7 +161,6 @@ class ConstantVelocityKalman:
             mean = mean + innovation[..., None] * gain
             P = P - np.outer(gain, P[0, :])
             P = 0.5 * (P + P.T)
-        self._state = (obs.shape[0], obs[-1].copy(), dt, mean.copy(), P.copy())
         return mean, P
 
     def predictive(
@@ -258,19 +243,6 @@ class StalePredictor:
         return self.base(history[:rows], dt=dt, horizon=horizon, n_samples=n_samples, rng=rng)
 
 
-def _finite_array(name: str, value: object, expected: str, shape_ok: Any) -> np.ndarray:
-    """``value`` as a float64 array whose shape passes ``shape_ok`` and entries are finite."""
-    try:
-        array = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ConfigError(f"{name}: a non-numeric value {value!r}") from exc
-    if not shape_ok(array.shape):
-        raise ConfigError(f"{name} must have shape {expected}, got {array.shape}")
-    if not np.isfinite(array).all():
-        raise ConfigError(f"{name} must be finite, got NaN or infinite entries")
-    return array
-
-
 PREDICTORS: dict[str, Any] = {ENVIRONMENT: None, "kalman": ConstantVelocityKalman}
 """Predictor names accepted by :func:`resolve_predictor` (``None``: the environment's sampler)."""
 
@@ -314,5 +286,5 @@ def check_predictions(
         If the output has another shape or holds NaN/inf.
     """
     expected = (n_obs, n_samples, horizon, dim)
-    return _finite_array("the predictor's samples", samples,
+    return _finite_array("the predictor's samples", samples, "array",
                          f"(n_obs, n_samples, horizon, d) = {expected}", lambda s: s == expected)

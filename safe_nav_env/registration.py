@@ -34,11 +34,7 @@ def register_envs() -> None:
     ``max_episode_steps`` is registered; ``gym.make(..., max_episode_steps=n)``
     can still shorten episodes with a :class:`gymnasium.wrappers.TimeLimit`.
     """
-    for env_id_, scenario in ENV_IDS.items():
-        if env_id_ in gym.registry:
-            continue
-        kwargs = {} if scenario is None else {"scenario": scenario}
-        gym.register(id=env_id_, entry_point=ENTRY_POINT, kwargs=kwargs)
-    for env_id_, entry_point in SCENE_IDS.items():  # scenes load at gym.make, not here
-        if env_id_ not in gym.registry:
-            gym.register(id=env_id_, entry_point=entry_point)
+    entries = [(i, ENTRY_POINT, {} if s is None else {"scenario": s}) for i, s in ENV_IDS.items()]
+    for env_id_, entry_point, kwargs in entries + [(i, e, {}) for i, e in SCENE_IDS.items()]:
+        if env_id_ not in gym.registry:  # scenes load at gym.make, not here
+            gym.register(id=env_id_, entry_point=entry_point, kwargs=kwargs)

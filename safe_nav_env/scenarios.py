@@ -31,7 +31,7 @@ import numpy as np
 from safe_nav_env.constants import ARENA, EGO_RADIUS, EGO_START_SPEED, OBSTACLE_RADIUS
 from safe_nav_env.errors import ConfigError, ScenarioError
 from safe_nav_env.noise import NoiseModel, resolve_noise
-from safe_nav_env.options import _from_fields, _named, _option
+from safe_nav_env.options import _finite_array, _from_fields, _named, _option
 
 Vector = tuple[float, ...]
 
@@ -41,16 +41,9 @@ DEFAULT_DURATION = 10.0
 
 def _vector(value: Any, path: str, sizes: Sequence[int]) -> Vector:
     """Return ``value`` as a tuple of finite floats whose length is one of ``sizes``."""
-    try:
-        array = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ScenarioError(f"{path} must be a numeric vector, got {value!r}") from exc
-    expected = " or ".join(f"({n},)" for n in sizes)
-    if array.ndim != 1 or array.shape[0] not in sizes:
-        raise ScenarioError(f"{path} must have shape {expected}, got shape {array.shape}")
-    if not np.all(np.isfinite(array)):
-        raise ScenarioError(f"{path} must be finite, got {array.tolist()}")
-    return tuple(float(v) for v in array)
+    return tuple(_finite_array(path, value, "vector", " or ".join(f"({n},)" for n in sizes),
+                               lambda shape: len(shape) == 1 and shape[0] in sizes,
+                               ScenarioError).tolist())
 
 
 _number = partial(_option, error=ScenarioError)  # scenario data: a ScenarioError
@@ -151,14 +144,6 @@ class ObstacleSpec:
         return math.hypot(*self.velocity)
 
 
-def _obstacle(value: Any, path: str) -> ObstacleSpec:
-    if isinstance(value, ObstacleSpec):
-        return value
-    if not isinstance(value, Mapping):
-        raise ScenarioError(f"{path} must be an ObstacleSpec or a mapping, got {value!r}")
-    return _from_fields(ObstacleSpec, value, path)
-
-
 @dataclass(frozen=True)
 class Scenario:
     """A reach-avoid encounter: the ego drives from ``ego_start`` to ``goal`` among obstacles.
@@ -241,7 +226,8 @@ class Scenario:
             raise ScenarioError(f"obstacles must be a sequence of ObstacleSpec, got "
                                 f"{self.obstacles!r}")
         set_(self, "obstacles",
-             tuple(_obstacle(o, f"obstacles[{i}]") for i, o in enumerate(self.obstacles)))
+             tuple(_from_fields(ObstacleSpec, o, f"obstacles[{i}]")
+                   for i, o in enumerate(self.obstacles)))
 
         if self.episode_length is not None:
             set_(self, "episode_length", _number("episode_length", self.episode_length,
@@ -265,48 +251,29 @@ class Scenario:
 
 
 
-HEAD_ON = Scenario(
-    name="HeadOn",
-    ego_start=(-4.7, 0.0, EGO_START_SPEED, 0.0),
-    goal=(4.7, 0.0),
-    obstacles=(ObstacleSpec(start=(2.0, -0.01), velocity=(-1.0, 0.0)),),
-    duration=3.0,
-    episode_length=8.0,
-)
+def _paper(name: str, ego: tuple[float, float], goal: Vector,
+           *lanes: ObstacleSpec | tuple[Vector, Vector], duration: float = 3.0,
+           episode_length: float = 8.0) -> Scenario:
+    """A scenario of the paper's kind: the ego at ``ego`` at its start speed along +x; each
+    obstacle an :class:`ObstacleSpec` or the ``(start, velocity)`` of a plain one."""
+    return Scenario(name=name, ego_start=(*ego, EGO_START_SPEED, 0.0), goal=goal,
+                    obstacles=tuple(o if isinstance(o, ObstacleSpec) else ObstacleSpec(*o)
+                                    for o in lanes),
+                    duration=duration, episode_length=episode_length)
+
+
+HEAD_ON = _paper("HeadOn", (-4.7, 0.0), (4.7, 0.0), ((2.0, -0.01), (-1.0, 0.0)))
 """Head-on encounter: one obstacle coming towards the ego along its path."""
 
-OVERTAKING = Scenario(
-    name="Overtaking",
-    ego_start=(-4.7, 0.0, EGO_START_SPEED, 0.0),
-    goal=(4.7, 0.0),
-    obstacles=(ObstacleSpec(start=(-2.0, -0.05), velocity=(1.0, 0.0)),),
-    duration=3.0,
-    episode_length=8.0,
-)
+OVERTAKING = _paper("Overtaking", (-4.7, 0.0), (4.7, 0.0), ((-2.0, -0.05), (1.0, 0.0)))
 """Overtaking: one slower obstacle ahead of the ego, moving the same way."""
 
-INTERSECTION = Scenario(
-    name="Intersection",
-    ego_start=(-3.5, 1.0, EGO_START_SPEED, 0.0),
-    goal=(1.0, -3.0),
-    obstacles=(ObstacleSpec(start=(-2.5, -1.0), velocity=(1.5, 0.0)),),
-    duration=3.0,
-    episode_length=8.0,
-)
+INTERSECTION = _paper("Intersection", (-3.5, 1.0), (1.0, -3.0), ((-2.5, -1.0), (1.5, 0.0)))
 """Intersection: the ego heads down-right across the lane of an obstacle moving along +x."""
 
-MULTI_OBSTACLE = Scenario(
-    name="MultiObstacle",
-    ego_start=(-4.7, -1.0, EGO_START_SPEED, 0.0),
-    goal=(4.7, 0.0),
-    obstacles=(
-        ObstacleSpec(start=(-1.1, 1.01), velocity=(0.7, 0.0)),
-        ObstacleSpec(start=(-2.0, -1.01), velocity=(1.0, 0.0)),
-        ObstacleSpec(start=(-1.0, -2.01), velocity=(0.7, 0.0)),
-    ),
-    duration=5.0,
-    episode_length=10.0,
-)
+MULTI_OBSTACLE = _paper("MultiObstacle", (-4.7, -1.0), (4.7, 0.0), ((-1.1, 1.01), (0.7, 0.0)),
+                        ((-2.0, -1.01), (1.0, 0.0)), ((-1.0, -2.01), (0.7, 0.0)),
+                        duration=5.0, episode_length=10.0)
 """Three obstacles moving along +x around the ego's path (the paper's Fig. 4)."""
 
 

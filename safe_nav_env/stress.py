@@ -85,6 +85,7 @@ from safe_nav_env.scenarios import (
     OVERTAKING,
     ObstacleSpec,
     Scenario,
+    _paper,
 )
 
 __all__ = ["ACTUATOR_LAG", "CROSSING5", "DENSE8", "DRAG", "DRIFT", "STOPPING", "STRESS_SUITE",
@@ -123,21 +124,15 @@ def understated_noise(factor: float) -> NoiseModel:
                       Laplace(PREDICTION_VARIANCE * factor**2), n_samples=N_SAMPLES)
 
 
-TURNING = Scenario(
-    name="turning",
-    ego_start=(-4.7, 0.0, EGO_START_SPEED, 0.0),
-    goal=(4.7, 0.0),
-    obstacles=(
-        # Heading -x above the path; may turn counter-clockwise (towards -y) by 45°.
-        ObstacleSpec(start=(3.0, 1.2), velocity=(-1.0, 0.0), turn_rate=0.8,
-                     turn_probability=0.5, turn_start=0.8, turn_angle=math.pi / 4),
-        # Heading -x below the path; may turn clockwise (towards +y) by 45°.
-        ObstacleSpec(start=(1.5, -1.4), velocity=(-1.0, 0.0), turn_rate=-0.8,
-                     turn_probability=0.5, turn_start=0.4, turn_angle=math.pi / 4),
-    ),
-    duration=5.0,
-    episode_length=8.0,
-)
+TURNING = _paper(
+    "turning", (-4.7, 0.0), (4.7, 0.0),
+    # Heading -x above the path; may turn counter-clockwise (towards -y) by 45°.
+    ObstacleSpec(start=(3.0, 1.2), velocity=(-1.0, 0.0), turn_rate=0.8,
+                 turn_probability=0.5, turn_start=0.8, turn_angle=math.pi / 4),
+    # Heading -x below the path; may turn clockwise (towards +y) by 45°.
+    ObstacleSpec(start=(1.5, -1.4), velocity=(-1.0, 0.0), turn_rate=-0.8,
+                 turn_probability=0.5, turn_start=0.4, turn_angle=math.pi / 4),
+    duration=5.0)
 """Two obstacles that may turn (probability 0.5 each) into the ego's path: bimodal predictions."""
 
 

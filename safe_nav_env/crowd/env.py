@@ -117,16 +117,13 @@ class CrowdEnv(SafeNavEnv):
         options.setdefault("terminate_on_collision", True)
         options.setdefault("max_obstacles", self.n_humans)
         self._episode: Scenario | None = None
-        self._crowd: CrowdModel | None = None
         super().__init__(scenario=self._draw_scenario, predictor=predictor, pad_info=False,
                          **options)
 
     def _draw_scenario(self, rng: np.random.Generator) -> Scenario:
         """The robot on the circle's bottom, the humans drawn as CrowdNav draws them."""
         r = self.circle_radius
-        ego_radius = EGO_RADIUS  # the Scenario default, which the environment uses
-        placed = [((0.0, -r), (0.0, r), ego_radius)]  # (start, goal, radius)
-        humans = []
+        placed = [((0.0, -r), (0.0, r), EGO_RADIUS)]  # (start, goal, radius); the ego's: Scenario's
         for index in range(self.n_humans):
             for _ in range(_DRAWS):
                 angle = rng.random() * 2.0 * math.pi
@@ -140,12 +137,11 @@ class CrowdEnv(SafeNavEnv):
                 raise ConfigError(f"no free start for human {index} on a circle of radius {r} m "
                                   f"in {_DRAWS} draws; use fewer humans or a larger circle")
             placed.append((tuple(start), tuple(-start), self.human_radius))
-            humans.append(start)
         bound = r + 2.0
         self._episode = Scenario(
             name="Crowd", ego_start=(0.0, -r, 0.0, 0.0), goal=(0.0, r),
-            obstacles=tuple(ObstacleSpec(start=(float(p[0]), float(p[1])), velocity=(0.0, 0.0),
-                                         radius=self.human_radius) for p in humans),
+            obstacles=tuple(ObstacleSpec(start=p, velocity=(0.0, 0.0), radius=self.human_radius)
+                            for p, _, _ in placed[1:]),
             episode_length=TIME_LIMIT, arena=((-bound, -bound), (bound, bound)))
         return self._episode
 
@@ -156,9 +152,9 @@ class CrowdEnv(SafeNavEnv):
                                     preferred_speed=self.human_speed,
                                     robot_radius=scenario.ego_radius,
                                     robot_visible=self.robot_visible)
-            self._crowd = CrowdModel(simulator, starts, -starts, self.human_radius, self.dt,
+            self._model = CrowdModel(simulator, starts, -starts, self.human_radius, self.dt,
                                      robot_state=lambda: self.ego_state)
-            self._model, self._model_scenario = self._crowd, scenario
+            self._model_scenario = scenario
         super()._load(scenario)
 
     def _info(self, distances: np.ndarray, swept: np.ndarray,

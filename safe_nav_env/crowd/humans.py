@@ -133,14 +133,10 @@ class OrcaHumans(HumanSimulator):
             sim.set_agent_velocity(self._robot, velocity)
             sim.set_agent_pref_velocity(self._robot, velocity)
         sim.do_step()
-        velocities = np.array([_xy(sim.get_agent_velocity(i)) for i in range(n)])
-        self.velocities = velocities.reshape(n, 2)
+        velocities = [sim.get_agent_velocity(i) for i in range(n)]
+        self.velocities = np.array([(float(v.x), float(v.y)) for v in velocities]).reshape(n, 2)
         self.positions = self.positions + self.dt * self.velocities
         return self.positions
-
-
-def _xy(vector: Any) -> tuple[float, float]:
-    return (float(vector.x), float(vector.y))
 
 
 @contextlib.contextmanager
@@ -193,8 +189,14 @@ class SocialForceHumans(HumanSimulator):
     def step(self, robot_position: np.ndarray, robot_velocity: np.ndarray) -> np.ndarray:
         state = self._state(np.asarray(robot_position, float), np.asarray(robot_velocity, float))
         n = self.positions.shape[0]
-        if self._sim is None:
-            self._sim = self._make(state)
+        if self._sim is None:  # the library's default forces
+            self._sim = self._module.Simulator(state.copy())
+            peds = self._sim.peds
+            peds.step_width = self.dt
+            peds.agent_radius = self.radius
+            # Speed cap: 1.3 x the preferred speed (the library's multiplier of the start speed).
+            peds.initial_speeds = np.full(state.shape[0], self.preferred_speed)
+            peds.max_speeds = peds.max_speed_multiplier * peds.initial_speeds
         else:  # the robot's row is the robot's state, not the model's
             peds = self._sim.peds
             peds.state[:, :6] = state
@@ -204,17 +206,6 @@ class SocialForceHumans(HumanSimulator):
         self.positions = np.array(new[:n, 0:2])
         self.velocities = np.array(new[:n, 2:4])
         return self.positions
-
-    def _make(self, state: np.ndarray) -> Any:
-        sim = self._module.Simulator(state.copy())  # the library's default forces
-        peds = sim.peds
-        peds.step_width = self.dt
-        peds.agent_radius = self.radius
-        # Speed cap: 1.3 x the preferred speed (the library's multiplier of the start speed).
-        speeds = np.full(state.shape[0], self.preferred_speed)
-        peds.initial_speeds = speeds
-        peds.max_speeds = peds.max_speed_multiplier * speeds
-        return sim
 
 
 def make_humans(policy: str, **kwargs: Any) -> HumanSimulator:

@@ -150,31 +150,29 @@ class PedestrianEnv(SafeNavEnv):
             )
         options.setdefault("max_speed", MAX_SPEED)
         dt = _option("dt", dt, strict=True)
-        horizon = _option("horizon", horizon, low=1, integer=True)
         max_obstacles = _option("max_obstacles", max_obstacles, low=1, integer=True)
         self.pedestrian_radius = _option("pedestrian_radius", pedestrian_radius, strict=True)
         self.ego_speed = _option("ego_speed", ego_speed, strict=True)
         if isinstance(scene, Recording):
             if not math.isclose(scene.dt, dt):
                 raise ConfigError(f"the recording is at dt={scene.dt} s, the environment at {dt}")
-            recording = scene
-        else:
-            recording = load_recording(scene, dt=dt)
-        self.recording: Recording = recording
-        self.scene: str = recording.name
+        self.recording: Recording = (scene if isinstance(scene, Recording)
+                                     else load_recording(scene, dt=dt))
+        self.scene: str = self.recording.name
         self.forecaster = Forecaster(predictor, dt, history_steps)
-        self.residuals = residual_bank(self.scene, self.forecaster, horizon)
-        self.arena = recording.walkable_box() if arena is None else _arena(arena, error=ConfigError)
-        self._replay = ReplayModel(
-            recording, self.forecaster, self.residuals, max_obstacles=max_obstacles,
-            radius=self.pedestrian_radius, arena=self.arena,
-            ego_position=lambda: self.ego_state[:2],
-        )
+        self.arena = (self.recording.walkable_box() if arena is None
+                      else _arena(arena, error=ConfigError))
         self._episode: Scenario | None = None
         self._start_step: int | None = None
-        super().__init__(
+        super().__init__(  # validates horizon; the first scenario is drawn at reset
             scenario=self._draw_scenario, n_samples=n_samples, horizon=horizon, dt=dt,
             max_obstacles=max_obstacles, pad_info=False, predictor=None, **options,
+        )
+        self.residuals = residual_bank(self.scene, self.forecaster, self.horizon)
+        self._replay = ReplayModel(
+            self.recording, self.forecaster, self.residuals, max_obstacles=max_obstacles,
+            radius=self.pedestrian_radius, arena=self.arena,
+            ego_position=lambda: self.ego_state[:2],
         )
 
     # ----------------------------------------------------------------- episode
@@ -269,21 +267,17 @@ class PedestrianEnv(SafeNavEnv):
     # ---------------------------------------------------- observation and info
 
     def _observe(self, x: np.ndarray, delta: np.ndarray, velocities: np.ndarray,
-                 centre: np.ndarray | None) -> np.ndarray:
+                 centre: np.ndarray) -> np.ndarray:
         """The base observation without the absent slots (their observation slots stay zero)."""
         model = self._model
-        if model is self._replay and delta.shape[0] == model.n:
+        if model is self._replay and delta.shape[0] == model.n and not model.present.all():
             present = model.present
-            if not present.all():
-                delta, velocities = delta[present], velocities[present]
-                centre = centre[present] if centre is not None and delta.shape[0] > 1 else None
+            delta, velocities, centre = delta[present], velocities[present], centre[present]
         return super()._observe(x, delta, velocities, centre)
 
     def _info(self, distances: np.ndarray, swept: np.ndarray,
               distance_to_goal: float) -> dict[str, Any]:
-        model = self._model
-        if model is not self._replay:
-            return super()._info(distances, swept, distance_to_goal)
+        model = self._replay  # the model of every episode (_info runs after a reset)
         present = model.present
         absent = ~present
         if absent.any():  # absent rows as padded ones: infinitely far, at rest

@@ -88,9 +88,8 @@ class Forecaster:
         object.__setattr__(self, "dt", _option("dt (s)", self.dt, strict=True))
         h = _option("history_steps", self.history_steps, low=2, integer=True)
         object.__setattr__(self, "history_steps", h)
-        tables = [np.zeros((2, 0))]  # index L: the (2, L) weights of a window of L rows
-        for length in range(1, int(h) + 1):
-            tables.append(self._weights(length))
+        # index L: the (2, L) weights of a window of L rows
+        tables = [np.zeros((2, 0))] + [self._weights(length) for length in range(1, h + 1)]
         for table in tables:
             table.flags.writeable = False
         object.__setattr__(self, "weights", tuple(tables))

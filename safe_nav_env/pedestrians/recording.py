@@ -24,7 +24,6 @@ positions, which the predictors then only read up to the current step.
 
 from __future__ import annotations
 
-import io
 import math
 from dataclasses import dataclass
 from functools import cache
@@ -149,20 +148,6 @@ def parse_tracks(text: str, source: str = "<text>") -> np.ndarray:
         For an empty file (no data line) or a malformed line; the message names
         ``source``, the 1-based line number and the line's text.
     """
-    table = None
-    if text.strip():  # fast path; any doubt goes to the line-by-line check, which names the line
-        try:
-            table = np.loadtxt(io.StringIO(text), dtype=np.float64, comments=None, ndmin=2)
-        except ValueError:
-            table = None
-    if (
-        table is not None
-        and table.shape[0] > 0
-        and table.shape[1] == 4
-        and np.isfinite(table).all()
-        and np.unique(table[:, :2], axis=0).shape[0] == table.shape[0]
-    ):
-        return table
     rows: list[tuple[float, float, float, float]] = []
     seen: dict[tuple[float, float], int] = {}
     for number, line in enumerate(text.splitlines(), start=1):

@@ -88,19 +88,9 @@ class ReplayModel:
         self.starts = np.tile(self.parked, (self.n, 1))
         self.initial_velocities = np.zeros((self.n, 2))
         self._ego_position = ego_position
-        positions = recording.positions
-        self._present = [np.flatnonzero(~np.isnan(row[:, 0])) for row in positions]
+        self._present = [np.flatnonzero(~np.isnan(row[:, 0])) for row in recording.positions]
         self.start_step = 0
-        self.step_count = 0
-        self.slots = np.full(self.n, -1, dtype=np.int64)
-        self._clear()
-
-    def _clear(self) -> None:
-        self.positions = self.starts.copy()
-        self.velocities = np.zeros((self.n, 2))
-        self.chord_starts = self.positions
-        self._nominal_origin = self.starts.copy()
-        self._strata = np.full(self.n, NEW, dtype=np.int64)
+        self.reset(None)  # the slots at step 0, as ObstacleModel starts at its reset state
 
     @property
     def present(self) -> np.ndarray:
@@ -121,7 +111,7 @@ class ReplayModel:
 
     # ----------------------------------------------------------- ObstacleModel API
 
-    def reset(self, rng: np.random.Generator) -> None:
+    def reset(self, rng: np.random.Generator | None) -> None:
         """Fill the slots at the start step (no randomness used; ``rng`` for the interface)."""
         self.step_count = 0
         self.slots = np.full(self.n, -1, dtype=np.int64)
@@ -177,10 +167,7 @@ class ReplayModel:
             if ped not in held:
                 slots[next(free)] = ped
         self.slots = np.array(slots, dtype=np.int64)
-        self._fill(j, first=first)
-
-    def _fill(self, j: int, *, first: bool) -> None:
-        """Positions, chord starts, velocity estimates and strata of the slots at step ``j``."""
+        # Positions, chord starts, velocity estimates and strata of the slots at step j.
         rec = self.recording
         present = self.present
         positions = self.starts.copy()
