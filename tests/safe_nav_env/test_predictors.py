@@ -103,10 +103,10 @@ def test_kalman_on_a_straight_constant_velocity_path_converges():
             np.testing.assert_allclose(empirical, cov, rtol=0.1, atol=0.05 * cov.max())
 
 
-def test_kalman_incremental_updates_equal_a_full_refilter_and_samples_are_seeded():
+def test_a_reused_kalman_predictor_equals_a_fresh_one_and_samples_are_seeded():
     rng = np.random.default_rng(1)
     history = np.cumsum(rng.normal(size=(25, 3, 2)) * 0.1 + 0.2, axis=0)
-    incremental = ConstantVelocityKalman()
+    incremental = ConstantVelocityKalman()  # reused over growing histories
     for n in range(1, 26):
         mean, P = incremental.filter(history[:n], 0.2)
     fresh_mean, fresh_P = ConstantVelocityKalman().filter(history, 0.2)
