@@ -45,24 +45,15 @@ from filters.constants import ALPHA, DELTA, EPSILON
 from filters.geometry import Disc, Shape, collision_margin
 from filters.halfspace_checks import (
     DEGENERATE_DISTANCE,
-    _check_delta,
     _check_finite_result,
-    _check_shapes,
     _checked_inputs,
     _Inputs,
-    _unit_normals,
     warn_deprecated_backend,
 )
-from filters.risk import (
-    check_alpha,
-    check_epsilon_array,
-    check_margins,
-    check_risk,
-    risk_of_samples,
-)
+from filters.risk import risk_of_samples
 from filters.support import dr_cvar_on_polytope
 
-__all__ = ["DEGENERATE_DISTANCE", "Halfspaces", "offsets_along", "safe_halfspaces"]
+__all__ = ["DEGENERATE_DISTANCE", "Halfspaces", "safe_halfspaces"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -313,71 +304,6 @@ def _offsets(
     else:
         value = risk_of_samples(losses, risk, alpha, epsilon, overwrite=True, margin=margins)
     return -(value - delta + _margins(ego_shape, shapes, normals))
-
-
-def offsets_along(
-    normals: np.ndarray,
-    samples: np.ndarray,
-    *,
-    ego_shape: Shape,
-    obstacle_shapes: Sequence[Shape],
-    risk: str = "dr_cvar",
-    alpha: float = ALPHA,
-    delta: float = DELTA,
-    epsilon: float | object = EPSILON,
-    support: tuple[object, object] | None = None,
-    conformal_margins: object | None = None,
-    backend: str | None = None,
-) -> np.ndarray:
-    """``safe_halfspaces(..., normals=normals).offsets`` for the filter's hot path.
-
-    The same computation as :func:`safe_halfspaces` with given ``normals``
-    (normalised here the same way), with the checks a caller that already holds
-    checked halfspaces needs: the shapes of ``normals`` ``(n, T, d)`` and ``samples``
-    ``(n, N_s, T', d)`` with ``T' >= T`` (the first ``T`` steps are used), the risk
-    settings, and a finite result. Used for the inter-sample start rows
-    (:mod:`filters.intersample`), whose normals are the next step's.
-
-    Raises
-    ------
-    InvalidArrayError, InvalidParameterError, InvalidTypeError
-        As :func:`safe_halfspaces`.
-    """
-    warn_deprecated_backend(backend, "offsets_along")
-    risk = check_risk(risk)
-    alpha = check_alpha(alpha, risk)
-    delta = _check_delta(delta)
-    if (type(normals) is not np.ndarray or normals.ndim != 3 or type(samples) is not np.ndarray
-            or samples.ndim != 4 or samples.shape[0] != normals.shape[0]
-            or samples.shape[2] < normals.shape[1] or samples.shape[3] != normals.shape[2]
-            or samples.shape[1] == 0 or normals.shape[1] == 0 or support is not None):
-        # anything unusual: the full checks (and their messages) of safe_halfspaces
-        shape = np.shape(normals)
-        horizon, dim = (shape[1], shape[2]) if len(shape) == 3 else (1, 2)
-        points = samples
-        if isinstance(samples, np.ndarray) and samples.ndim == 4:
-            points = samples[:, :, :horizon]
-        return safe_halfspaces(
-            np.zeros((max(horizon, 1), max(dim, 1))), points,
-            ego_shape=ego_shape, obstacle_shapes=obstacle_shapes, risk=risk, alpha=alpha,
-            delta=delta, epsilon=epsilon, support=support, normals=normals,
-            conformal_margins=conformal_margins).offsets
-    n_obstacles, horizon, dim = normals.shape
-    points = samples[:, :, :horizon] if samples.shape[2] != horizon else samples
-    points = np.asarray(points, dtype=np.float64)
-    epsilon = check_epsilon_array(epsilon, horizon)
-    margins = None
-    if risk == "conformal":
-        margins = check_margins(conformal_margins, (n_obstacles, horizon))
-    shapes = _check_shapes(ego_shape, obstacle_shapes, n_obstacles, dim)
-    with np.errstate(all="ignore"):
-        unit = _unit_normals(np.asarray(normals, dtype=np.float64))
-        if n_obstacles == 0:
-            return np.zeros((0, horizon))
-        offsets = _offsets(points, unit, ego_shape, shapes, risk, alpha, delta, epsilon,
-                           margins, None)
-    _check_finite_result(points, unit, offsets)
-    return offsets
 
 
 # --------------------------------------------------------------------------- closed forms

@@ -70,7 +70,6 @@ from filters.halfspaces import (
     Halfspaces,
     _offsets,
     _step_normals,
-    offsets_along,
     safe_halfspaces,
     warn_deprecated_backend,
 )
@@ -177,10 +176,10 @@ def intersample_rows(
     options.update(risk_options)
     start = None
     if k and horizon > 1:
-        start = offsets_along(  # safe_halfspaces(..., normals=...) without its re-checks
-            normals[:, 1:], samples, ego_shape=ego_shape, obstacle_shapes=obstacle_shapes,
-            support=support, **_steps(options, slice(0, horizon - 1)),
-        )
+        start = safe_halfspaces(  # step t's samples along the normals of step t + 1
+            np.zeros((horizon - 1, dim)), np.asarray(samples)[:, :, :horizon - 1],
+            ego_shape=ego_shape, obstacle_shapes=obstacle_shapes, support=support,
+            normals=normals[:, 1:], **_steps(options, slice(0, horizon - 1))).offsets
     rows = _rows(_row_normals(normals, start is not None), offsets, start, input_bounds, dt)
     margins = rows.margins
     violation = None

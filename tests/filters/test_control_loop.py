@@ -21,9 +21,6 @@ import safe_nav_env  # noqa: F401
 from agents import load_ppo
 from agents.evaluation.records import TIMING_FIELDS, EpisodeSpec
 from agents.evaluation.runner import _ENV_CACHE, clear_env_cache, run_episode
-from filters import Disc, InvalidArrayError, safe_halfspaces
-from filters.halfspaces import offsets_along
-from filters.intersample import intersample_rows
 
 TIMING = {*TIMING_FIELDS, "policy"}
 
@@ -133,72 +130,6 @@ def test_observation_equals_the_array_formulas():
                 np.testing.assert_allclose(base.observe(x, p, v),
                                            _observe_reference(base, x, p, v), **close)
         env.close()
-
-
-@pytest.mark.parametrize("risk", ["mean", "cvar", "dr_cvar", "gaussian_cc", "moment_dr",
-                                  "conformal"])
-def test_offsets_along_equals_safe_halfspaces_with_given_normals(risk):
-    rng = np.random.default_rng(7)
-    for n, n_samples, horizon in ((1, 20, 1), (3, 100, 9), (4, 57, 20)):
-        samples = rng.uniform(-4, 4, (n, 1, horizon + 1, 2)) + 0.1 * rng.standard_normal(
-            (n, n_samples, horizon + 1, 2))
-        normals = rng.standard_normal((n, horizon, 2))
-        shapes = dict(ego_shape=Disc(0.3), obstacle_shapes=[Disc(0.2 + 0.1 * i) for i in range(n)])
-        options = dict(risk=risk, alpha=0.2, delta=0.05, epsilon=np.linspace(0.0, 0.1, horizon))
-        if risk == "conformal":
-            options["conformal_margins"] = rng.uniform(0.0, 0.3, horizon)
-        fast = offsets_along(normals, samples, **shapes, **options)
-        slow = safe_halfspaces(np.zeros((horizon, 2)), samples[:, :, :horizon], **shapes,
-                               normals=normals, **options)
-        np.testing.assert_allclose(fast, slow.offsets, rtol=1e-12, atol=1e-12)
-    with pytest.raises(InvalidArrayError, match="non-zero"):
-        offsets_along(np.zeros((1, 2, 2)), samples[:1], **dict(shapes, obstacle_shapes=[Disc(1)]))
-    bad = samples.copy()
-    bad[0, 3, 1, 0] = np.nan
-    with pytest.raises(InvalidArrayError, match="samples"):
-        offsets_along(normals, bad, **shapes)
-
-
-def test_intersample_rows_unchanged_by_the_fast_start_rows(monkeypatch):
-    """The start rows through offsets_along equal those of a full safe_halfspaces call."""
-    import filters.intersample as intersample
-
-    rng = np.random.default_rng(9)
-    samples = rng.uniform(-3, 3, (3, 1, 10, 2)) + 0.1 * rng.standard_normal((3, 100, 10, 2))
-    shapes = dict(ego_shape=Disc(0.3), obstacle_shapes=[Disc(0.3)] * 3)
-    hs = safe_halfspaces(rng.uniform(-3, 3, (10, 2)), samples, **shapes)
-    kwargs = dict(input_bounds=(-10 * np.ones(2), 10 * np.ones(2)), dt=0.2, **shapes)
-    fast = intersample_rows(hs, samples, **kwargs)
-
-    def full(normals, samples, **options):
-        horizon = normals.shape[1]
-        return safe_halfspaces(np.zeros((horizon, 2)), samples[:, :, :horizon],
-                               normals=normals, **options).offsets
-
-    monkeypatch.setattr(intersample, "offsets_along", full)
-    slow = intersample_rows(hs, samples, **kwargs)
-    np.testing.assert_allclose(fast.offsets, slow.offsets, rtol=1e-12, atol=1e-12)
-    np.testing.assert_allclose(fast.normals, slow.normals, rtol=1e-12, atol=1e-12)
-
-
-def test_offsets_along_refuses_bad_input_with_the_package_errors():
-    from filters import InvalidParameterError
-
-    rng = np.random.default_rng(3)
-    samples = rng.standard_normal((2, 10, 4, 2))
-    normals = rng.standard_normal((2, 3, 2))
-    shapes = dict(ego_shape=Disc(0.3), obstacle_shapes=[Disc(0.3)] * 2)
-    with pytest.raises(InvalidArrayError, match="samples"):
-        offsets_along(normals, samples[:, :, :2], **shapes)  # fewer steps than normals
-    with pytest.raises(InvalidArrayError):
-        offsets_along(normals[0], samples, **shapes)  # not (n, T, d)
-    with pytest.raises(InvalidArrayError):
-        offsets_along(normals, samples.tolist()[:1], **shapes)  # one obstacle, two normals
-    with pytest.raises(InvalidParameterError, match="risk"):
-        offsets_along(normals, samples, risk="worst", **shapes)
-    with pytest.raises(InvalidParameterError, match="obstacle_shapes"):
-        offsets_along(normals, samples, ego_shape=Disc(0.3), obstacle_shapes=[Disc(0.3)])
-    assert offsets_along(normals, samples, **shapes).shape == (2, 3)
 
 
 def test_a_filter_with_a_persistent_calibration_is_never_reused():

@@ -20,7 +20,7 @@ import pytest
 
 from filters import Disc, intersample_rows, safe_halfspaces
 from filters.halfspace_cvxpy import TIGHT_CLARABEL, cvxpy_halfspace
-from filters.halfspaces import _losses, offsets_along
+from filters.halfspaces import _losses
 from filters.intersample import intersample_halfspaces
 
 #: Relative tolerance of offsets against CVXPY, ``|b - b_ref| <= RTOL (1 + |b_ref|)``
@@ -98,9 +98,9 @@ def test_offsets_along_given_normals_equal_the_cvxpy_formulation(seed):
     n, _, horizon, _ = samples.shape
     normals = rng.standard_normal((n, horizon, 2))
     epsilon = rng.uniform(0.0, 0.3, horizon)
-    ours = offsets_along(normals, samples, ego_shape=case["ego"],
-                         obstacle_shapes=case["obstacles"], risk="dr_cvar",
-                         alpha=case["alpha"], delta=case["delta"], epsilon=epsilon)
+    ours = safe_halfspaces(np.zeros((horizon, 2)), samples, ego_shape=case["ego"],
+                           obstacle_shapes=case["obstacles"], risk="dr_cvar", normals=normals,
+                           alpha=case["alpha"], delta=case["delta"], epsilon=epsilon).offsets
     for i in range(n):
         margin = case["ego"].radius + case["obstacles"][i].radius
         for t in range(horizon):
