@@ -33,10 +33,8 @@ class HalfspaceRowsMixin:
         """Positions ``(T, d)`` the normals start from (see ``normals``); ``y0 = C x0``."""
         if self.normals == "ego":
             return np.broadcast_to(y0, ref_positions.shape)
-        plan = self._last_plan
-        if self.normals == "previous_plan" and plan is not None:
-            # (T+1, d) planned at the last step, shifted and re-anchored
-            return _shifted_positions(plan @ self._base.dynamics[2].T, y0)
+        if self.normals == "previous_plan" and self._last_plan is not None:
+            return _shifted_positions(self._last_plan @ self._unwrapped.dynamics[2].T, y0)
         return ref_positions
 
     def _clearest_plan(self, y0: np.ndarray) -> np.ndarray | None:
@@ -44,7 +42,7 @@ class HalfspaceRowsMixin:
         was optimal, else ``None`` (the plan of ``normals="clearest"``)."""
         if self._last_plan is None or not self._plan_optimal:
             return None
-        return _shifted_positions(self._last_plan @ self._base.dynamics[2].T, y0)
+        return _shifted_positions(self._last_plan @ self._unwrapped.dynamics[2].T, y0)
 
     def _halfspaces(
         self, base: FilterableEnv, x0: np.ndarray, ref_states: np.ndarray, radii: np.ndarray
@@ -98,19 +96,14 @@ class HalfspaceRowsMixin:
                                                   float(base.dt))
             self._halfspaces_made = halfspaces
             return halfspaces.normals, halfspaces.offsets, (rows.normals, rows.offsets)
-        options = self._risk_options()
-        if not self.intersample:
-            halfspaces = safe_halfspaces(
-                origins, samples, ego_shape=ego_shape, obstacle_shapes=obstacle_shapes,
-                support=self.support, previous_normals=previous, ego_velocity=velocity,
-                normals=given, **options)
-            self._halfspaces_made = halfspaces
-            return halfspaces.normals, halfspaces.offsets, (halfspaces.normals,
-                                                            halfspaces.offsets)
-        halfspaces, rows = intersample_halfspaces(
-            origins, samples, ego_shape=ego_shape, obstacle_shapes=obstacle_shapes,
-            input_bounds=base.input_bounds, dt=float(base.dt), support=self.support,
-            previous_normals=previous, ego_velocity=velocity, normals=given, **options)
+        options = dict(ego_shape=ego_shape, obstacle_shapes=obstacle_shapes, support=self.support,
+                       previous_normals=previous, ego_velocity=velocity, normals=given,
+                       **self._risk_options())
+        if self.intersample:
+            halfspaces, rows = intersample_halfspaces(
+                origins, samples, input_bounds=base.input_bounds, dt=float(base.dt), **options)
+        else:
+            halfspaces = rows = safe_halfspaces(origins, samples, **options)
         self._halfspaces_made = halfspaces
         return halfspaces.normals, halfspaces.offsets, (rows.normals, rows.offsets)
 

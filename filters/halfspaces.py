@@ -99,9 +99,6 @@ class Halfspaces:
         """Number of prediction steps ``T``."""
         return int(self.offsets.shape[1])
 
-    def _positions(self, positions: object) -> np.ndarray:
-        return finite_array("positions", positions, shape=(self.horizon, self.normals.shape[-1]))
-
     def violation(self, positions: object) -> np.ndarray:
         """Signed violation :math:`h_{i,t} \\cdot y_t - b_{i,t}` in metres (``<= 0`` is safe).
 
@@ -120,7 +117,7 @@ class Halfspaces:
         InvalidArrayError
             If ``positions`` is not a finite ``(T, d)`` array.
         """
-        y = self._positions(positions)
+        y = finite_array("positions", positions, shape=(self.horizon, self.normals.shape[-1]))
         return np.einsum("itd,td->it", self.normals, y) - self.offsets
 
     def contains(self, positions: object) -> np.ndarray:

@@ -11,7 +11,7 @@ class RenderHookMixin:
     whose attributes it uses)."""
 
     def _install_render_hook(self) -> None:
-        hooks = self._base.render_hooks
+        hooks = self._unwrapped.render_hooks
         if self._draw_halfspaces in hooks:  # bound methods of this wrapper compare equal
             hooks.remove(self._draw_halfspaces)
         if self.draw_halfspaces and self.risk != "none":

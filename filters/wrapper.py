@@ -173,8 +173,8 @@ class SafetyFilterWrapper(CalibrationMixin, HalfspaceRowsMixin, RenderHookMixin,
             self.objective = "trajectory" if planned else "first_input"
         if config.normals is None:
             self.normals = "paper" if planned else "clearest"
-        self._rows = 2 if self.intersample else 1  # rows_per_obstacle, read every step
-        base = self._base
+        self.rows_per_obstacle = 2 if self.intersample else 1  # halfspace rows per obstacle
+        base = self._unwrapped
         scalar_in_range("stop_time", config.stop_time, low=0.5 * float(base.dt), high=np.inf,
                         high_inclusive=False)
         prediction_horizon = int(getattr(base, "horizon", np.shape(base.predictions)[2]))
@@ -225,17 +225,8 @@ class SafetyFilterWrapper(CalibrationMixin, HalfspaceRowsMixin, RenderHookMixin,
         if self._calibration is not None:
             self._warm_up_calibration()
 
-    @property
-    def _base(self) -> FilterableEnv:
-        return self._unwrapped
-
-    @property
-    def rows_per_obstacle(self) -> int:
-        """Halfspace rows per obstacle and step: 2 with the inter-sample rows, else 1."""
-        return 2 if self.intersample else 1
-
     def _build_filter(self, n_obstacles: int) -> MPCSafetyFilter:
-        base = self._base
+        base = self._unwrapped
         A, B, C = base.dynamics
         Q, Q_terminal, R = self._weights
         terminal_set = None
@@ -286,7 +277,7 @@ class SafetyFilterWrapper(CalibrationMixin, HalfspaceRowsMixin, RenderHookMixin,
         proposed = np.minimum(np.maximum(raw, low), high)
         proposed.setflags(write=False)
         if self.risk == "none":
-            report = self._passthrough_report(proposed)
+            report = _report(PASSTHROUGH, proposed, proposed, 0.0)
             applied = proposed
         else:
             finite = all(map(math.isfinite, raw.tolist()))
@@ -300,16 +291,12 @@ class SafetyFilterWrapper(CalibrationMixin, HalfspaceRowsMixin, RenderHookMixin,
         return obs, reward, terminated, truncated, info
 
     # ------------------------------------------------------------------ internals
-    @staticmethod
-    def _passthrough_report(proposed: np.ndarray) -> FilterReport:
-        return _report(PASSTHROUGH, proposed, proposed, 0.0)
-
     def _filter(self, proposed: np.ndarray, *, finite: bool) -> tuple[np.ndarray, FilterReport]:
         base = self._unwrapped
         x0 = np.asarray(base.ego_state, dtype=float)
         radii = np.asarray(base.obstacle_radii, dtype=float)
         mpc = self._mpc
-        if mpc is None or self._rows * radii.shape[0] > mpc.n_obstacles:
+        if mpc is None or self.rows_per_obstacle * radii.shape[0] > mpc.n_obstacles:
             mpc = self._mpc = self._build_filter(len(radii))
         begin = time.perf_counter()
         try:

@@ -77,7 +77,7 @@ class CalibrationMixin:
         (``obstacle_ids``, negative for an empty row): each prediction is then scored
         against its own obstacle's position only.
         """
-        base = self._base
+        base = self._unwrapped
         predictions = np.asarray(base.predictions, dtype=float)[:, :, : self.horizon]
         if np.isfinite(predictions).all():
             self._calibration.update(predictions, np.asarray(base.obstacle_positions),
@@ -97,7 +97,7 @@ class CalibrationMixin:
             self._calibration, self._calibrated = _SNAPSHOTS[key].copy(), _SNAPSHOTS[key].copy()
             self.calibration_time = time.perf_counter() - begin
             return
-        base = self._base
+        base = self._unwrapped
         saved = {name: getattr(base, name) for name in ("_np_random", "_np_random_seed",
                                                          "render_mode") if hasattr(base, name)}
         try:
@@ -139,7 +139,7 @@ class CalibrationMixin:
         episode). Anything else (a callable predictor, an environment not made by
         ``gym.make``) gives ``None``: no sharing.
         """
-        base = self._base
+        base = self._unwrapped
         spec = getattr(base, "spec", None)
         kwargs = _plain_settings(dict(spec.kwargs)) if spec is not None else None
         if kwargs is None:
