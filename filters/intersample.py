@@ -59,7 +59,7 @@ general (a quantile is not subadditive); for them the rows are a heuristic.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -181,8 +181,6 @@ def intersample_rows(
             ego_shape=ego_shape, obstacle_shapes=obstacle_shapes, support=support,
             normals=normals[:, 1:], **_steps(options, slice(0, horizon - 1))).offsets
     rows = _rows(_row_normals(normals, start is not None), offsets, start, input_bounds, dt)
-    margins = rows.margins
-    violation = None
     if k and current_position is not None and current_obstacles is not None:
         now = safe_halfspaces(
             np.zeros((1, dim)), np.asarray(current_obstacles, dtype=np.float64)[:, None, None],
@@ -190,8 +188,8 @@ def intersample_rows(
             normals=normals[:, :1], **_steps(options, slice(0, 1)),
         )
         violation = normals[:, 0] @ np.asarray(current_position, dtype=np.float64)
-        violation = violation - (now.offsets[:, 0] - margins[:, 0])
-    return IntersampleRows(rows.normals, rows.offsets, margins, violation)
+        return replace(rows, start_violation=violation - (now.offsets[:, 0] - rows.margins[:, 0]))
+    return rows
 
 
 def intersample_halfspaces(
@@ -236,21 +234,19 @@ def intersample_halfspaces(
     InvalidArrayError, InvalidParameterError, InvalidTypeError
         As :func:`filters.safe_halfspaces`.
     """
-    options = dict(risk=risk, alpha=alpha, delta=delta, epsilon=epsilon, support=support,
-                   conformal_margins=conformal_margins)
     data = _checked_inputs(reference_positions, samples, ego_shape, obstacle_shapes,
                            risk, alpha, delta, epsilon, support, previous_normals,
                            ego_velocity, normals, conformal_margins)
-    k, _, horizon, dim = data.points.shape
-    if k == 0 or horizon == 1 or data.polytope is not None:  # nothing to batch
-        halfspaces = safe_halfspaces(
-            reference_positions, samples, ego_shape=ego_shape, obstacle_shapes=obstacle_shapes,
-            previous_normals=previous_normals, ego_velocity=ego_velocity, normals=normals,
-            **options)
-        return halfspaces, intersample_rows(
-            halfspaces, samples, ego_shape=ego_shape, obstacle_shapes=obstacle_shapes,
-            input_bounds=input_bounds, dt=dt, **options)
-    return batched_halfspaces(data, ego_shape, input_bounds, dt)
+    k, _, horizon, _ = data.points.shape
+    if k and horizon > 1 and data.polytope is None:
+        return batched_halfspaces(data, ego_shape, input_bounds, dt)
+    shapes = dict(ego_shape=ego_shape, obstacle_shapes=obstacle_shapes, support=support,
+                  conformal_margins=conformal_margins)  # nothing to batch: the two calls
+    halfspaces = safe_halfspaces(
+        reference_positions, samples, risk=risk, alpha=alpha, delta=delta, epsilon=epsilon,
+        previous_normals=previous_normals, ego_velocity=ego_velocity, normals=normals, **shapes)
+    return halfspaces, intersample_rows(halfspaces, samples, input_bounds=input_bounds, dt=dt,
+                                        **shapes)
 
 
 def batched_halfspaces(data: _Inputs, ego_shape: Shape,
