@@ -11,13 +11,12 @@ import numpy as np
 
 from filters.errors import InvalidArrayError, InvalidParameterError
 from filters.geometry import Disc
-from filters.halfspace_checks import _check_delta, _Inputs
+from filters.halfspace_checks import _Inputs
 from filters.halfspaces import Halfspaces, safe_halfspaces
 from filters.intersample import batched_halfspaces, intersample_halfspaces
 from filters.mpc.checks import all_finite
 from filters.normals import clearest_normals, nearside_normals
 from filters.protocol import FilterableEnv
-from filters.risk import check_alpha, check_epsilon, check_risk
 
 
 class HalfspaceRowsMixin:
@@ -86,11 +85,10 @@ class HalfspaceRowsMixin:
         if (given is not None and self.intersample and self._calibration is None
                 and self.support is None and samples.shape[2] > 1
                 and len(obstacle_shapes) == samples.shape[0] and all_finite(origins)):
-            # the wrapper's usual step: settings checked once, and the normals are unit
-            # vectors already (filters.normals divides by the norms; normalising them
-            # again would move them by an ulp at most)
-            risk, alpha, delta, epsilon = self._checked_settings()
-            data = _Inputs(risk, alpha, delta, origins, samples, epsilon, None,
+            # the wrapper's usual step: the settings were checked by FilterConfig, and the
+            # normals are unit vectors already (filters.normals divides by the norms;
+            # normalising them again would move them by an ulp at most)
+            data = _Inputs(self.risk, self.alpha, self.delta, origins, samples, self.epsilon, None,
                            obstacle_shapes, None, None, None, given)
             halfspaces, rows = batched_halfspaces(data, ego_shape, base.input_bounds,
                                                   float(base.dt))
@@ -106,18 +104,6 @@ class HalfspaceRowsMixin:
             halfspaces = rows = safe_halfspaces(origins, samples, **options)
         self._halfspaces_made = halfspaces
         return halfspaces.normals, halfspaces.offsets, (rows.normals, rows.offsets)
-
-    def _checked_settings(self) -> tuple[str, float, float, float]:
-        """``(risk, alpha, delta, epsilon)`` checked as :func:`filters.safe_halfspaces`
-        checks them, once per set of values (not every step)."""
-        key = (self.risk, self.alpha, self.delta, self.epsilon)
-        cached = self.__dict__.get("_settings_cache")
-        if cached is None or cached[0] != key:
-            risk = check_risk(self.risk)
-            checked = (risk, check_alpha(self.alpha, risk), _check_delta(self.delta),
-                       check_epsilon(self.epsilon))
-            cached = self._settings_cache = (key, checked)
-        return cached[1]
 
     def _shapes(self, ego_radius: float, radii: np.ndarray) -> tuple[Disc, list[Disc]]:
         """The ego and obstacle discs, built once per set of radii (not every step)."""
