@@ -89,7 +89,7 @@ def test_halfspaces_equal_the_cvxpy_formulation(seed, risk):
 
 
 @pytest.mark.parametrize("seed", range(4))
-def test_offsets_along_given_normals_equal_the_cvxpy_formulation(seed):
+def test_given_normals_offsets_equal_the_cvxpy_formulation(seed):
     """The wrapper's rows: offsets along given normals (the near-side and clearest rules,
     the inter-sample start rows), per-step radii ``epsilon``."""
     rng = np.random.default_rng([seed, 99])
