@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Sequence
-from contextlib import AbstractContextManager, nullcontext
+from contextlib import nullcontext
 from dataclasses import fields
 from pathlib import Path
 from typing import Any
@@ -46,7 +46,7 @@ from agents.evaluation.runner import load_policy, make_env
 from filters.errors import InvalidParameterError
 
 __all__ = ["SPEC_OPTIONS", "EvaluationInterrupted", "EvaluationRecords", "check_specs",
-           "episode_specs", "evaluate", "output_folder", "run_specs"]
+           "episode_specs", "evaluate", "output_folder"]
 
 SPEC_OPTIONS = tuple(f.name for f in fields(EpisodeSpec)
                      if f.name not in ("scenario", "risk", "seed", "policy_sha256"))
@@ -159,30 +159,6 @@ def check_specs(specs: Sequence[EpisodeSpec]) -> list[EpisodeSpec]:
     return checked
 
 
-def run_specs(
-    specs: Sequence[EpisodeSpec],
-    *,
-    workers: int = 1,
-    executor: str | Executor = "process",
-    address: str | None = None,
-    on_record: Any = None,
-):
-    """Run episodes, yielding records as they finish (order of completion).
-
-    ``executor="process"`` spreads them over ``workers`` local processes
-    (``workers=1`` runs in this process); ``executor="ray"`` submits them as Ray
-    tasks (on the cluster at ``address``); an
-    :class:`~agents.evaluation.executors.Executor` instance is used as is (and left
-    open, so its workers serve the next call too). An executor made here is closed at
-    the end and stopped at once on an error or Ctrl-C.
-    """
-    with _executor(executor, workers, address) as runner:
-        for record in runner.run(specs):
-            if on_record is not None:
-                on_record(record)
-            yield record
-
-
 def output_folder(output: str | Path) -> Path:
     """``output`` as a path, if it can be an output folder (it is not made here).
 
@@ -222,9 +198,7 @@ def _resume(path: Path, specs: Sequence[EpisodeSpec], key: dict[str, Any],
         stored = read_records(path)
     except RecordsFileError as exc:
         raise RecordsFileError(f"{exc}; use another output folder or --overwrite") from None
-    latest: dict[tuple, EpisodeRecord] = {}
-    for record in stored:
-        latest[record.key()] = record
+    latest = {record.key(): record for record in stored}
     kept = [r for r in latest.values() if not r.error]
     if len(kept) != len(stored):  # failed or repeated rows: rewrite without them
         write_records(path, kept)
@@ -301,18 +275,12 @@ def evaluate(
         specs = episode_specs(scenarios, risks, episodes, seed, **spec_kwargs)
     elif spec_kwargs:
         raise InvalidParameterError(f"pass either specs or settings, got both ({spec_kwargs})")
-    with _executor(executor, workers, address) as runner:
+    # An executor given is left open (its owner closes it); one made here is closed at the
+    # end of the block, and stopped at once on an error or Ctrl-C.
+    with (nullcontext(executor) if isinstance(executor, Executor)
+          else make_executor(executor, workers, address=address)) as runner:
         runner.start()  # its workers get ready while the policy loads here
         return _run(check_specs(specs), runner, csv_path, vary, progress, overwrite)
-
-
-def _executor(executor: str | Executor, workers: int,
-              address: str | None) -> AbstractContextManager[Executor]:
-    """``executor`` as is (its owner closes it), or a new one that the ``with`` block closes
-    at its end and stops at once on an error or Ctrl-C."""
-    if isinstance(executor, Executor):
-        return nullcontext(executor)
-    return make_executor(executor, workers, address=address)
 
 
 def _run(specs: list[EpisodeSpec], executor: Executor, csv_path: str | Path | None,
@@ -332,13 +300,14 @@ def _run(specs: list[EpisodeSpec], executor: Executor, csv_path: str | Path | No
     records = list(done)
     bar = None
     try:
-        iterator = run_specs(todo, executor=executor, on_record=writer)
+        iterator = executor.run(todo)
         if progress and todo:
             from tqdm.auto import tqdm
 
-            bar = tqdm(iterator, total=len(todo), desc="episodes", unit="ep")
-            iterator = bar
+            iterator = bar = tqdm(iterator, total=len(todo), desc="episodes", unit="ep")
         for record in iterator:
+            if writer is not None:
+                writer(record)
             records.append(record)
     except KeyboardInterrupt as exc:
         raise EvaluationInterrupted(len(records), len(specs), path, len(done)) from exc

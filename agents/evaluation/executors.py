@@ -28,10 +28,11 @@ from typing import Any
 from agents.errors import WorkersLostError
 from agents.evaluation.records import EpisodeRecord, EpisodeSpec
 from agents.evaluation.runner import run_spec
+from filters._validation import integer_at_least
 from filters.errors import InvalidParameterError
 
 __all__ = ["EXECUTORS", "Executor", "ProcessExecutor", "RayExecutor", "SerialExecutor",
-           "make_executor", "run_on_ray", "stop_fork_server", "worker_init"]
+           "make_executor", "stop_fork_server", "worker_init"]
 
 EXECUTORS = ("process", "ray")
 """Executor kinds of :func:`make_executor` (``"process"`` with one worker runs serially)."""
@@ -114,14 +115,8 @@ class ProcessExecutor(Executor):
     """
 
     def __init__(self, workers: int, *, max_restarts: int = 3) -> None:
-        if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-            raise InvalidParameterError(f"workers must be an integer >= 1, got {workers!r}")
-        if isinstance(max_restarts, bool) or not isinstance(max_restarts, int) \
-                or max_restarts < 0:
-            raise InvalidParameterError(
-                f"max_restarts must be an integer >= 0, got {max_restarts!r}")
-        self.workers = workers
-        self.max_restarts = max_restarts
+        self.workers = integer_at_least("workers", workers)
+        self.max_restarts = integer_at_least("max_restarts", max_restarts, low=0)
         self._pool: Any = None
         self._starter: Any = None  # the thread of start(), while it starts the workers
         self.starts = 0
@@ -334,17 +329,12 @@ class RayExecutor(Executor):
 
             raise MissingExtraError("--executor ray needs the 'ray' extra, which is not "
                                     "installed: pip install -e '.[ray]'") from exc
-        for name, value, low in (("max_in_flight", max_in_flight, 1),
-                                 ("max_retries", max_retries, 0)):
-            if isinstance(value, bool) or not isinstance(value, int) or value < low:
-                raise InvalidParameterError(f"{name} must be an integer >= {low}, got "
-                                            f"{value!r}")
         if address is not None and (not isinstance(address, str) or not address.strip()):
             raise InvalidParameterError(f"address must be HOST:PORT or 'auto', got {address!r}")
         self._ray = ray
         self.address = address
-        self.max_in_flight = max_in_flight
-        self.max_retries = max_retries
+        self.max_in_flight = integer_at_least("max_in_flight", max_in_flight)
+        self.max_retries = integer_at_least("max_retries", max_retries, low=0)
         self._in_flight: dict[Any, EpisodeSpec] = {}
         self._initialised = False
 
@@ -400,13 +390,6 @@ class RayExecutor(Executor):
         self.close()
 
 
-def run_on_ray(specs: Sequence[EpisodeSpec], *, address: str | None = None,
-               max_in_flight: int = 256) -> Iterator[EpisodeRecord]:
-    """Yield the records of ``specs`` as their Ray tasks finish."""
-    with RayExecutor(address=address, max_in_flight=max_in_flight) as executor:
-        yield from executor.run(specs)
-
-
 def make_executor(kind: str = "process", workers: int = 1, *,
                   address: str | None = None) -> Executor:
     """An executor: ``"process"`` with ``workers`` local processes (1: this process), or
@@ -417,8 +400,7 @@ def make_executor(kind: str = "process", workers: int = 1, *,
     InvalidParameterError
         For another ``kind``, ``workers < 1``, or an ``address`` without ``"ray"``.
     """
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        raise InvalidParameterError(f"workers must be an integer >= 1, got {workers!r}")
+    integer_at_least("workers", workers)
     if kind == "ray":
         return RayExecutor(address=address)
     if kind != "process":
