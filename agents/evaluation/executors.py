@@ -78,6 +78,7 @@ class Executor:
         self.close()
 
     def __enter__(self) -> Executor:
+        self.start()  # the workers start while the caller imports and checks
         return self
 
     def __exit__(self, exc_type: Any, *exc: object) -> None:
@@ -133,10 +134,6 @@ class ProcessExecutor(Executor):
             self.starts += 1
         return self._pool
 
-    def __enter__(self) -> ProcessExecutor:
-        self.start()  # the workers start while the caller imports and checks
-        return self
-
     def start(self) -> None:
         """Start every worker process, in a thread: the first start waits for the fork
         server to import the project (about a second) while the caller goes on."""
@@ -157,12 +154,15 @@ class ProcessExecutor(Executor):
             self._starter.join()
             self._starter = None
 
+    def _live_workers(self) -> list[Any]:
+        """The pool's live worker processes (none before the first run or start)."""
+        self._started()
+        processes = (self._pool._processes or {}) if self._pool is not None else {}
+        return [p for p in list(processes.values()) if p.is_alive()]
+
     def worker_pids(self) -> list[int]:
         """Process ids of the pool's live workers (none before the first run or start)."""
-        self._started()
-        if self._pool is None:
-            return []
-        return [p.pid for p in list((self._pool._processes or {}).values()) if p.is_alive()]
+        return [p.pid for p in self._live_workers()]
 
     def run(self, specs: Sequence[EpisodeSpec]) -> Iterator[EpisodeRecord]:
         from concurrent.futures import FIRST_COMPLETED, wait
@@ -223,19 +223,15 @@ class ProcessExecutor(Executor):
 
     def close(self) -> None:
         self._started()
-        if self._pool is not None:
-            self._pool.shutdown(wait=True)
+        if self._pool is not None:  # nothing runs between calls but start()'s empty tasks
+            self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
 
     def terminate(self) -> None:
         """Kill the workers now; episodes running are lost."""
-        self._started()
-        if self._pool is not None:
-            for process in list((self._pool._processes or {}).values()):
-                if process.is_alive():
-                    process.kill()
-            self._pool.shutdown(wait=True, cancel_futures=True)
-            self._pool = None
+        for process in self._live_workers():
+            process.kill()
+        self.close()
 
 
 CHUNK_EPISODES = 16
@@ -338,22 +334,18 @@ class RayExecutor(Executor):
         self._in_flight: dict[Any, EpisodeSpec] = {}
         self._initialised = False
 
-    def _ensure_ray(self) -> None:
-        ray = self._ray
-        if ray.is_initialized():
-            return
-        try:
-            ray.init(address=self.address, log_to_driver=False)
-        except ConnectionError as exc:
-            raise WorkersLostError(
-                f"cannot connect to the Ray cluster at {self.address or 'RAY_ADDRESS'}: {exc} "
-                "(is it running? a cluster with token authentication, recent Ray's default, "
-                "also needs RAY_AUTH_MODE=token and its token: see docs/ray.md)") from None
-        self._initialised = True
-
     def run(self, specs: Sequence[EpisodeSpec]) -> Iterator[EpisodeRecord]:
         ray = self._ray
-        self._ensure_ray()
+        if not ray.is_initialized():
+            try:
+                ray.init(address=self.address, log_to_driver=False)
+            except ConnectionError as exc:
+                raise WorkersLostError(
+                    f"cannot connect to the Ray cluster at {self.address or 'RAY_ADDRESS'}: "
+                    f"{exc} (is it running? a cluster with token authentication, recent Ray's "
+                    "default, also needs RAY_AUTH_MODE=token and its token: see docs/ray.md)"
+                ) from None
+            self._initialised = True
         # SPREAD: episodes go to every node (the default packs them on the driver's node
         # first, leaving the others idle on a small cluster).
         task = ray.remote(num_cpus=1, max_retries=self.max_retries,
