@@ -43,6 +43,7 @@ from agents.evaluation.records import (
     write_records,
 )
 from agents.evaluation.runner import load_policy, make_env
+from filters._validation import integer_at_least
 from filters.errors import InvalidParameterError
 
 __all__ = ["SPEC_OPTIONS", "EvaluationInterrupted", "EvaluationRecords", "check_specs",
@@ -69,8 +70,7 @@ class EvaluationInterrupted(KeyboardInterrupt):
     def __init__(self, finished: int, total: int, csv_path: Path | None,
                  reused: int = 0) -> None:
         super().__init__(f"interrupted after {finished} of {total} episodes")
-        self.finished, self.total, self.csv_path = finished, total, csv_path
-        self.reused = reused
+        self.finished, self.total, self.csv_path, self.reused = finished, total, csv_path, reused
 
 
 class EvaluationRecords(list):
@@ -103,15 +103,12 @@ def episode_specs(
     ScenarioError
         For an unknown scenario.
     """
-    unknown = sorted(set(spec_kwargs) - set(SPEC_OPTIONS))
-    if unknown:
+    if unknown := sorted(set(spec_kwargs) - set(SPEC_OPTIONS)):
         raise InvalidParameterError(f"unknown episode setting(s) {unknown}; expected some of "
                                     f"{list(SPEC_OPTIONS)}")
-    for risk in risks:
-        if risk not in RISKS:
-            raise InvalidParameterError(f"risk must be one of {RISKS}, got {risk!r}")
-    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
-        raise InvalidParameterError(f"episodes must be an integer >= 1, got {episodes!r}")
+    if bad := [risk for risk in risks if risk not in RISKS]:
+        raise InvalidParameterError(f"risk must be one of {RISKS}, got {bad[0]!r}")
+    integer_at_least("episodes", episodes)
     return [EpisodeSpec(scenario=s, risk=r, seed=seed + i, **spec_kwargs)
             for s in scenarios for r in risks for i in range(episodes)]
 
@@ -175,13 +172,6 @@ def output_folder(output: str | Path) -> Path:
                                       "file; choose another --output")
             break
     return output
-
-
-def _output_csv(csv_path: str | Path) -> Path:
-    path = output_folder(Path(csv_path).parent) / Path(csv_path).name
-    if path.exists() and not path.is_file():
-        raise OutputPathError(f"results file {path} is a folder")
-    return path
 
 
 def _resume(path: Path, specs: Sequence[EpisodeSpec], key: dict[str, Any],
@@ -287,16 +277,15 @@ def _run(specs: list[EpisodeSpec], executor: Executor, csv_path: str | Path | No
          vary: Sequence[str], progress: bool, overwrite: bool) -> EvaluationRecords:
     """The records of ``specs`` (resumed from ``csv_path``, the rest run on ``executor``)."""
     done: list[EpisodeRecord] = []
-    writer = None
-    path = None
+    writer = path = None
     if csv_path is not None:
-        path = _output_csv(csv_path)
+        path = output_folder(Path(csv_path).parent) / Path(csv_path).name
+        if path.exists() and not path.is_file():
+            raise OutputPathError(f"results file {path} is a folder")
         done = _resume(path, specs, run_key(specs, vary=vary), overwrite)
-        finished = {r.key() for r in done}
-        todo = [spec for spec in specs if spec.key() not in finished]
         writer = RecordWriter(path)
-    else:
-        todo = list(specs)
+    finished = {r.key() for r in done}
+    todo = [spec for spec in specs if spec.key() not in finished] if done else list(specs)
     records = list(done)
     bar = None
     try:

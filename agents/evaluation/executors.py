@@ -26,6 +26,7 @@ from collections.abc import Iterator, Sequence
 from typing import Any
 
 from agents.errors import WorkersLostError
+from agents.evaluation.policy_files import exported_policies, preload_policies
 from agents.evaluation.records import EpisodeRecord, EpisodeSpec
 from agents.evaluation.runner import run_spec
 from filters._validation import integer_at_least
@@ -179,8 +180,6 @@ class ProcessExecutor(Executor):
         # (a chunk's records are yielded together when it returns).
         # The policies the parent loaded (evaluate's check_specs does) travel with every
         # chunk as numpy arrays (tens of kB): workers skip torch, SB3 and the file's load.
-        from agents.evaluation.policy_files import exported_policies
-
         policies = exported_policies()
         in_flight: dict[Any, list[EpisodeSpec]] = {}
         lost_in_a_row = 0
@@ -202,24 +201,21 @@ class ProcessExecutor(Executor):
                         continue
                     lost_in_a_row = 0
                     yield from future.result()  # run_spec records an episode's own errors
-                if lost:
+                if lost:  # drop the broken pool: the next round starts a fresh one
                     lost_in_a_row += 1
                     pending.extend(lost[::-1])
-                    self._restart(lost_in_a_row, left=len(pending))
+                    self.terminate()
+                    if lost_in_a_row > self.max_restarts:
+                        raise WorkersLostError(
+                            f"the worker pool broke {lost_in_a_row} times in a row without an "
+                            f"episode finishing ({len(pending)} episodes left): a worker "
+                            "process keeps dying (out of memory? killed?); the finished "
+                            "episodes are saved: run the same command again to resume, or "
+                            "with --workers 1 to see the error")
+                    self.restarts += 1
         finally:
             for future in in_flight:
                 future.cancel()
-
-    def _restart(self, lost_in_a_row: int, left: int) -> None:
-        """Drop the broken pool (the next round starts a fresh one), within the bound."""
-        self.terminate()
-        if lost_in_a_row > self.max_restarts:
-            raise WorkersLostError(
-                f"the worker pool broke {lost_in_a_row} times in a row without an episode "
-                f"finishing ({left} episodes left): a worker process keeps dying (out of "
-                "memory? killed?); the finished episodes are saved: run the same command "
-                "again to resume, or with --workers 1 to see the error")
-        self.restarts += 1
 
     def close(self) -> None:
         self._started()
@@ -270,10 +266,7 @@ def run_specs_chunk(specs: Sequence[EpisodeSpec],
     ``policies``: the parent's loaded policies
     (:func:`agents.evaluation.policy_files.exported_policies`), used instead of loading the files.
     """
-    if policies:
-        from agents.evaluation.policy_files import preload_policies
-
-        preload_policies(policies)
+    preload_policies(policies or {})
     return [run_spec(spec) for spec in specs]
 
 

@@ -133,14 +133,6 @@ def cache_folder() -> Path:
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "safe-nav"
 
 
-class _NoOptimizer:
-    """Stands in for the optimizer of a policy that only acts (SB3 builds one with every
-    policy; torch's optimizers import ``torch._dynamo``, about a second)."""
-
-    def __init__(self, params: Any, **kwargs: Any) -> None:
-        pass
-
-
 def _inference_policy(path: Path) -> Any:
     """The SB3 policy of a PPO ``.zip``, to act with: what ``PPO.load`` builds, without
     the algorithm and its optimizer (SB3's own reader, the saved policy class and
@@ -151,7 +143,9 @@ def _inference_policy(path: Path) -> Any:
     data, params, _ = load_from_zip_file(path, device="cpu")
     if data is None or "policy" not in params or "policy_class" not in data:
         raise PolicyFileError(f"{path} holds no SB3 policy (no data or weights)")
-    kwargs = {**(data.get("policy_kwargs") or {}), "optimizer_class": _NoOptimizer}
+    # No optimizer for a policy that only acts (SB3 builds one with every policy; torch's
+    # optimizers import ``torch._dynamo``, about a second).
+    kwargs = {**(data.get("policy_kwargs") or {}), "optimizer_class": lambda *_, **__: None}
     kwargs.pop("device", None)  # as PPO.load does
     policy = data["policy_class"](data["observation_space"], data["action_space"],
                                   lambda _: 0.0, use_sde=data.get("use_sde", False), **kwargs)

@@ -87,13 +87,6 @@ def read_records(path: str | Path) -> list[EpisodeRecord]:
     return records
 
 
-def _row(record: EpisodeRecord) -> list[Any]:
-    """The record's CSV row, :data:`RECORD_FIELDS` in order (the fields are flat, so this
-    is ``dataclasses.asdict``'s row without its deep copy: the parent writes one per
-    episode while the workers run)."""
-    return [getattr(record, name) for name in RECORD_FIELDS]
-
-
 class RecordWriter:
     """Appends records to a CSV as they finish, so an interrupted run can resume.
 
@@ -117,7 +110,9 @@ class RecordWriter:
             self._handle.flush()
 
     def __call__(self, record: EpisodeRecord) -> None:
-        self._writer.writerow(_row(record))
+        # The fields are flat: dataclasses.asdict's row without its deep copy (the parent
+        # writes one per episode while the workers run).
+        self._writer.writerow([getattr(record, name) for name in RECORD_FIELDS])
         self._handle.flush()
 
     def close(self) -> None:
@@ -133,11 +128,9 @@ class RecordWriter:
 def write_records(path: str | Path, records: Iterable[EpisodeRecord]) -> None:
     """Replace ``path`` by a CSV of ``records`` (atomically: a temporary file, then a rename)."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     temporary = path.with_name(path.name + ".tmp")
-    with open(temporary, "w", newline="") as handle:
-        writer = csv.writer(handle)
-        writer.writerow(RECORD_FIELDS)
+    temporary.unlink(missing_ok=True)  # a crashed rewrite's rows
+    with RecordWriter(temporary) as writer:
         for record in records:
-            writer.writerow(_row(record))
+            writer(record)
     os.replace(temporary, path)
