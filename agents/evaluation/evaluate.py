@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Sequence
-from contextlib import AbstractContextManager, nullcontext
+from contextlib import nullcontext
 from dataclasses import fields
 from pathlib import Path
 from typing import Any
@@ -43,10 +43,11 @@ from agents.evaluation.records import (
     write_records,
 )
 from agents.evaluation.runner import load_policy, make_env
+from filters._validation import integer_at_least
 from filters.errors import InvalidParameterError
 
 __all__ = ["SPEC_OPTIONS", "EvaluationInterrupted", "EvaluationRecords", "check_specs",
-           "episode_specs", "evaluate", "output_folder", "run_specs"]
+           "episode_specs", "evaluate", "output_folder"]
 
 SPEC_OPTIONS = tuple(f.name for f in fields(EpisodeSpec)
                      if f.name not in ("scenario", "risk", "seed", "policy_sha256"))
@@ -69,8 +70,7 @@ class EvaluationInterrupted(KeyboardInterrupt):
     def __init__(self, finished: int, total: int, csv_path: Path | None,
                  reused: int = 0) -> None:
         super().__init__(f"interrupted after {finished} of {total} episodes")
-        self.finished, self.total, self.csv_path = finished, total, csv_path
-        self.reused = reused
+        self.finished, self.total, self.csv_path, self.reused = finished, total, csv_path, reused
 
 
 class EvaluationRecords(list):
@@ -103,15 +103,12 @@ def episode_specs(
     ScenarioError
         For an unknown scenario.
     """
-    unknown = sorted(set(spec_kwargs) - set(SPEC_OPTIONS))
-    if unknown:
+    if unknown := sorted(set(spec_kwargs) - set(SPEC_OPTIONS)):
         raise InvalidParameterError(f"unknown episode setting(s) {unknown}; expected some of "
                                     f"{list(SPEC_OPTIONS)}")
-    for risk in risks:
-        if risk not in RISKS:
-            raise InvalidParameterError(f"risk must be one of {RISKS}, got {risk!r}")
-    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
-        raise InvalidParameterError(f"episodes must be an integer >= 1, got {episodes!r}")
+    if bad := [risk for risk in risks if risk not in RISKS]:
+        raise InvalidParameterError(f"risk must be one of {RISKS}, got {bad[0]!r}")
+    integer_at_least("episodes", episodes)
     return [EpisodeSpec(scenario=s, risk=r, seed=seed + i, **spec_kwargs)
             for s in scenarios for r in risks for i in range(episodes)]
 
@@ -159,30 +156,6 @@ def check_specs(specs: Sequence[EpisodeSpec]) -> list[EpisodeSpec]:
     return checked
 
 
-def run_specs(
-    specs: Sequence[EpisodeSpec],
-    *,
-    workers: int = 1,
-    executor: str | Executor = "process",
-    address: str | None = None,
-    on_record: Any = None,
-):
-    """Run episodes, yielding records as they finish (order of completion).
-
-    ``executor="process"`` spreads them over ``workers`` local processes
-    (``workers=1`` runs in this process); ``executor="ray"`` submits them as Ray
-    tasks (on the cluster at ``address``); an
-    :class:`~agents.evaluation.executors.Executor` instance is used as is (and left
-    open, so its workers serve the next call too). An executor made here is closed at
-    the end and stopped at once on an error or Ctrl-C.
-    """
-    with _executor(executor, workers, address) as runner:
-        for record in runner.run(specs):
-            if on_record is not None:
-                on_record(record)
-            yield record
-
-
 def output_folder(output: str | Path) -> Path:
     """``output`` as a path, if it can be an output folder (it is not made here).
 
@@ -201,13 +174,6 @@ def output_folder(output: str | Path) -> Path:
     return output
 
 
-def _output_csv(csv_path: str | Path) -> Path:
-    path = output_folder(Path(csv_path).parent) / Path(csv_path).name
-    if path.exists() and not path.is_file():
-        raise OutputPathError(f"results file {path} is a folder")
-    return path
-
-
 def _resume(path: Path, specs: Sequence[EpisodeSpec], key: dict[str, Any],
             overwrite: bool) -> list[EpisodeRecord]:
     """The finished records of ``specs`` in ``path``; drops its failed rows from the file."""
@@ -222,9 +188,7 @@ def _resume(path: Path, specs: Sequence[EpisodeSpec], key: dict[str, Any],
         stored = read_records(path)
     except RecordsFileError as exc:
         raise RecordsFileError(f"{exc}; use another output folder or --overwrite") from None
-    latest: dict[tuple, EpisodeRecord] = {}
-    for record in stored:
-        latest[record.key()] = record
+    latest = {record.key(): record for record in stored}
     kept = [r for r in latest.values() if not r.error]
     if len(kept) != len(stored):  # failed or repeated rows: rewrite without them
         write_records(path, kept)
@@ -301,44 +265,38 @@ def evaluate(
         specs = episode_specs(scenarios, risks, episodes, seed, **spec_kwargs)
     elif spec_kwargs:
         raise InvalidParameterError(f"pass either specs or settings, got both ({spec_kwargs})")
-    with _executor(executor, workers, address) as runner:
+    # An executor given is left open (its owner closes it); one made here is closed at the
+    # end of the block, and stopped at once on an error or Ctrl-C.
+    with (nullcontext(executor) if isinstance(executor, Executor)
+          else make_executor(executor, workers, address=address)) as runner:
         runner.start()  # its workers get ready while the policy loads here
         return _run(check_specs(specs), runner, csv_path, vary, progress, overwrite)
-
-
-def _executor(executor: str | Executor, workers: int,
-              address: str | None) -> AbstractContextManager[Executor]:
-    """``executor`` as is (its owner closes it), or a new one that the ``with`` block closes
-    at its end and stops at once on an error or Ctrl-C."""
-    if isinstance(executor, Executor):
-        return nullcontext(executor)
-    return make_executor(executor, workers, address=address)
 
 
 def _run(specs: list[EpisodeSpec], executor: Executor, csv_path: str | Path | None,
          vary: Sequence[str], progress: bool, overwrite: bool) -> EvaluationRecords:
     """The records of ``specs`` (resumed from ``csv_path``, the rest run on ``executor``)."""
     done: list[EpisodeRecord] = []
-    writer = None
-    path = None
+    writer = path = None
     if csv_path is not None:
-        path = _output_csv(csv_path)
+        path = output_folder(Path(csv_path).parent) / Path(csv_path).name
+        if path.exists() and not path.is_file():
+            raise OutputPathError(f"results file {path} is a folder")
         done = _resume(path, specs, run_key(specs, vary=vary), overwrite)
-        finished = {r.key() for r in done}
-        todo = [spec for spec in specs if spec.key() not in finished]
         writer = RecordWriter(path)
-    else:
-        todo = list(specs)
+    finished = {r.key() for r in done}
+    todo = [spec for spec in specs if spec.key() not in finished] if done else list(specs)
     records = list(done)
     bar = None
     try:
-        iterator = run_specs(todo, executor=executor, on_record=writer)
+        iterator = executor.run(todo)
         if progress and todo:
             from tqdm.auto import tqdm
 
-            bar = tqdm(iterator, total=len(todo), desc="episodes", unit="ep")
-            iterator = bar
+            iterator = bar = tqdm(iterator, total=len(todo), desc="episodes", unit="ep")
         for record in iterator:
+            if writer is not None:
+                writer(record)
             records.append(record)
     except KeyboardInterrupt as exc:
         raise EvaluationInterrupted(len(records), len(specs), path, len(done)) from exc

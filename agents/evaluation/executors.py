@@ -26,12 +26,14 @@ from collections.abc import Iterator, Sequence
 from typing import Any
 
 from agents.errors import WorkersLostError
+from agents.evaluation.policy_files import exported_policies, preload_policies
 from agents.evaluation.records import EpisodeRecord, EpisodeSpec
 from agents.evaluation.runner import run_spec
+from filters._validation import integer_at_least
 from filters.errors import InvalidParameterError
 
 __all__ = ["EXECUTORS", "Executor", "ProcessExecutor", "RayExecutor", "SerialExecutor",
-           "make_executor", "run_on_ray", "stop_fork_server", "worker_init"]
+           "make_executor", "stop_fork_server", "worker_init"]
 
 EXECUTORS = ("process", "ray")
 """Executor kinds of :func:`make_executor` (``"process"`` with one worker runs serially)."""
@@ -77,6 +79,7 @@ class Executor:
         self.close()
 
     def __enter__(self) -> Executor:
+        self.start()  # the workers start while the caller imports and checks
         return self
 
     def __exit__(self, exc_type: Any, *exc: object) -> None:
@@ -114,14 +117,8 @@ class ProcessExecutor(Executor):
     """
 
     def __init__(self, workers: int, *, max_restarts: int = 3) -> None:
-        if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-            raise InvalidParameterError(f"workers must be an integer >= 1, got {workers!r}")
-        if isinstance(max_restarts, bool) or not isinstance(max_restarts, int) \
-                or max_restarts < 0:
-            raise InvalidParameterError(
-                f"max_restarts must be an integer >= 0, got {max_restarts!r}")
-        self.workers = workers
-        self.max_restarts = max_restarts
+        self.workers = integer_at_least("workers", workers)
+        self.max_restarts = integer_at_least("max_restarts", max_restarts, low=0)
         self._pool: Any = None
         self._starter: Any = None  # the thread of start(), while it starts the workers
         self.starts = 0
@@ -137,10 +134,6 @@ class ProcessExecutor(Executor):
                                              initializer=worker_init)
             self.starts += 1
         return self._pool
-
-    def __enter__(self) -> ProcessExecutor:
-        self.start()  # the workers start while the caller imports and checks
-        return self
 
     def start(self) -> None:
         """Start every worker process, in a thread: the first start waits for the fork
@@ -162,12 +155,15 @@ class ProcessExecutor(Executor):
             self._starter.join()
             self._starter = None
 
+    def _live_workers(self) -> list[Any]:
+        """The pool's live worker processes (none before the first run or start)."""
+        self._started()
+        processes = (self._pool._processes or {}) if self._pool is not None else {}
+        return [p for p in list(processes.values()) if p.is_alive()]
+
     def worker_pids(self) -> list[int]:
         """Process ids of the pool's live workers (none before the first run or start)."""
-        self._started()
-        if self._pool is None:
-            return []
-        return [p.pid for p in list((self._pool._processes or {}).values()) if p.is_alive()]
+        return [p.pid for p in self._live_workers()]
 
     def run(self, specs: Sequence[EpisodeSpec]) -> Iterator[EpisodeRecord]:
         from concurrent.futures import FIRST_COMPLETED, wait
@@ -184,8 +180,6 @@ class ProcessExecutor(Executor):
         # (a chunk's records are yielded together when it returns).
         # The policies the parent loaded (evaluate's check_specs does) travel with every
         # chunk as numpy arrays (tens of kB): workers skip torch, SB3 and the file's load.
-        from agents.evaluation.policy_files import exported_policies
-
         policies = exported_policies()
         in_flight: dict[Any, list[EpisodeSpec]] = {}
         lost_in_a_row = 0
@@ -207,40 +201,33 @@ class ProcessExecutor(Executor):
                         continue
                     lost_in_a_row = 0
                     yield from future.result()  # run_spec records an episode's own errors
-                if lost:
+                if lost:  # drop the broken pool: the next round starts a fresh one
                     lost_in_a_row += 1
                     pending.extend(lost[::-1])
-                    self._restart(lost_in_a_row, left=len(pending))
+                    self.terminate()
+                    if lost_in_a_row > self.max_restarts:
+                        raise WorkersLostError(
+                            f"the worker pool broke {lost_in_a_row} times in a row without an "
+                            f"episode finishing ({len(pending)} episodes left): a worker "
+                            "process keeps dying (out of memory? killed?); the finished "
+                            "episodes are saved: run the same command again to resume, or "
+                            "with --workers 1 to see the error")
+                    self.restarts += 1
         finally:
             for future in in_flight:
                 future.cancel()
 
-    def _restart(self, lost_in_a_row: int, left: int) -> None:
-        """Drop the broken pool (the next round starts a fresh one), within the bound."""
-        self.terminate()
-        if lost_in_a_row > self.max_restarts:
-            raise WorkersLostError(
-                f"the worker pool broke {lost_in_a_row} times in a row without an episode "
-                f"finishing ({left} episodes left): a worker process keeps dying (out of "
-                "memory? killed?); the finished episodes are saved: run the same command "
-                "again to resume, or with --workers 1 to see the error")
-        self.restarts += 1
-
     def close(self) -> None:
         self._started()
-        if self._pool is not None:
-            self._pool.shutdown(wait=True)
+        if self._pool is not None:  # nothing runs between calls but start()'s empty tasks
+            self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
 
     def terminate(self) -> None:
         """Kill the workers now; episodes running are lost."""
-        self._started()
-        if self._pool is not None:
-            for process in list((self._pool._processes or {}).values()):
-                if process.is_alive():
-                    process.kill()
-            self._pool.shutdown(wait=True, cancel_futures=True)
-            self._pool = None
+        for process in self._live_workers():
+            process.kill()
+        self.close()
 
 
 CHUNK_EPISODES = 16
@@ -279,10 +266,7 @@ def run_specs_chunk(specs: Sequence[EpisodeSpec],
     ``policies``: the parent's loaded policies
     (:func:`agents.evaluation.policy_files.exported_policies`), used instead of loading the files.
     """
-    if policies:
-        from agents.evaluation.policy_files import preload_policies
-
-        preload_policies(policies)
+    preload_policies(policies or {})
     return [run_spec(spec) for spec in specs]
 
 
@@ -334,36 +318,27 @@ class RayExecutor(Executor):
 
             raise MissingExtraError("--executor ray needs the 'ray' extra, which is not "
                                     "installed: pip install -e '.[ray]'") from exc
-        for name, value, low in (("max_in_flight", max_in_flight, 1),
-                                 ("max_retries", max_retries, 0)):
-            if isinstance(value, bool) or not isinstance(value, int) or value < low:
-                raise InvalidParameterError(f"{name} must be an integer >= {low}, got "
-                                            f"{value!r}")
         if address is not None and (not isinstance(address, str) or not address.strip()):
             raise InvalidParameterError(f"address must be HOST:PORT or 'auto', got {address!r}")
         self._ray = ray
         self.address = address
-        self.max_in_flight = max_in_flight
-        self.max_retries = max_retries
+        self.max_in_flight = integer_at_least("max_in_flight", max_in_flight)
+        self.max_retries = integer_at_least("max_retries", max_retries, low=0)
         self._in_flight: dict[Any, EpisodeSpec] = {}
         self._initialised = False
 
-    def _ensure_ray(self) -> None:
-        ray = self._ray
-        if ray.is_initialized():
-            return
-        try:
-            ray.init(address=self.address, log_to_driver=False)
-        except ConnectionError as exc:
-            raise WorkersLostError(
-                f"cannot connect to the Ray cluster at {self.address or 'RAY_ADDRESS'}: {exc} "
-                "(is it running? a cluster with token authentication, recent Ray's default, "
-                "also needs RAY_AUTH_MODE=token and its token: see docs/ray.md)") from None
-        self._initialised = True
-
     def run(self, specs: Sequence[EpisodeSpec]) -> Iterator[EpisodeRecord]:
         ray = self._ray
-        self._ensure_ray()
+        if not ray.is_initialized():
+            try:
+                ray.init(address=self.address, log_to_driver=False)
+            except ConnectionError as exc:
+                raise WorkersLostError(
+                    f"cannot connect to the Ray cluster at {self.address or 'RAY_ADDRESS'}: "
+                    f"{exc} (is it running? a cluster with token authentication, recent Ray's "
+                    "default, also needs RAY_AUTH_MODE=token and its token: see docs/ray.md)"
+                ) from None
+            self._initialised = True
         # SPREAD: episodes go to every node (the default packs them on the driver's node
         # first, leaving the others idle on a small cluster).
         task = ray.remote(num_cpus=1, max_retries=self.max_retries,
@@ -400,13 +375,6 @@ class RayExecutor(Executor):
         self.close()
 
 
-def run_on_ray(specs: Sequence[EpisodeSpec], *, address: str | None = None,
-               max_in_flight: int = 256) -> Iterator[EpisodeRecord]:
-    """Yield the records of ``specs`` as their Ray tasks finish."""
-    with RayExecutor(address=address, max_in_flight=max_in_flight) as executor:
-        yield from executor.run(specs)
-
-
 def make_executor(kind: str = "process", workers: int = 1, *,
                   address: str | None = None) -> Executor:
     """An executor: ``"process"`` with ``workers`` local processes (1: this process), or
@@ -417,8 +385,7 @@ def make_executor(kind: str = "process", workers: int = 1, *,
     InvalidParameterError
         For another ``kind``, ``workers < 1``, or an ``address`` without ``"ray"``.
     """
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        raise InvalidParameterError(f"workers must be an integer >= 1, got {workers!r}")
+    integer_at_least("workers", workers)
     if kind == "ray":
         return RayExecutor(address=address)
     if kind != "process":

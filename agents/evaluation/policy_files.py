@@ -19,6 +19,8 @@ from typing import Any
 
 from agents.errors import PolicyFileError
 from agents.evaluation.records import file_sha256
+from agents.policies.loading import load_ppo, pretrained_policy_path, set_torch_threads
+from agents.policies.numpy_policy import NumpyPolicy, UnsupportedPolicyError
 
 __all__ = ["cache_folder", "check_policy", "exported_policies", "load_policy", "policy_file",
            "preload_policies"]
@@ -26,16 +28,11 @@ __all__ = ["cache_folder", "check_policy", "exported_policies", "load_policy", "
 
 def policy_file(policy_path: str | Path = "") -> Path:
     """The PPO policy file of ``policy_path`` (the shipped one if empty)."""
-    if not policy_path:
-        return _pretrained_policy_path()
-    return Path(policy_path)
+    return Path(policy_path) if policy_path else _pretrained_policy_path()
 
 
-@functools.cache
-def _pretrained_policy_path() -> Path:
-    from agents.training.ppo import pretrained_policy_path
-
-    return pretrained_policy_path()  # importlib.resources: about 1 ms a call, 4 per episode
+# importlib.resources: about 1 ms a call, 4 per episode
+_pretrained_policy_path = functools.cache(pretrained_policy_path)
 
 
 _SHA_CACHE: dict[tuple[str, int, int], str] = {}
@@ -93,18 +90,16 @@ def load_policy(policy_path: str | Path = "", *, sha256: str = "") -> tuple[Any,
                               f"run (SHA-256 {sha[:12]}..., expected {sha256[:12]}...)")
     key = (str(policy_file(policy_path).resolve()), sha)
     if key not in _POLICY_CACHE:
-        cached = _cached_export(sha)
-        _POLICY_CACHE[key] = cached if cached is not None else _export(policy_file(policy_path),
-                                                                       sha)
+        try:  # the export kept by an earlier process (unreadable or of another format: redone)
+            _POLICY_CACHE[key] = NumpyPolicy.load(cache_folder() / "policies" / f"{sha}.npz")
+        except (OSError, UnsupportedPolicyError):
+            _POLICY_CACHE[key] = _export(policy_file(policy_path), sha)
     return _POLICY_CACHE[key], sha
 
 
 def _export(path: Path, sha: str) -> Any:
     """Load ``path`` with torch and SB3 and export it to numpy (kept in the cache folder),
     or return the SB3 model if it cannot be exported."""
-    from agents.policies.numpy_policy import NumpyPolicy, UnsupportedPolicyError
-    from agents.training.ppo import load_ppo, set_torch_threads
-
     set_torch_threads(1)
     try:  # SB3's deterministic actions to float32 rounding, without its overhead
         policy = NumpyPolicy.from_sb3(_inference_policy(path))
@@ -138,26 +133,6 @@ def cache_folder() -> Path:
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "safe-nav"
 
 
-def _cached_export(sha: str) -> Any:
-    """The numpy export of the policy file with content hash ``sha`` kept by an earlier
-    :func:`load_policy`, or ``None`` (none, unreadable, or of another export format)."""
-    from agents.policies.numpy_policy import NumpyPolicy, UnsupportedPolicyError
-
-    path = cache_folder() / "policies" / f"{sha}.npz"
-    try:
-        return NumpyPolicy.load(path)
-    except (OSError, UnsupportedPolicyError):
-        return None
-
-
-class _NoOptimizer:
-    """Stands in for the optimizer of a policy that only acts (SB3 builds one with every
-    policy; torch's optimizers import ``torch._dynamo``, about a second)."""
-
-    def __init__(self, params: Any, **kwargs: Any) -> None:
-        pass
-
-
 def _inference_policy(path: Path) -> Any:
     """The SB3 policy of a PPO ``.zip``, to act with: what ``PPO.load`` builds, without
     the algorithm and its optimizer (SB3's own reader, the saved policy class and
@@ -168,7 +143,9 @@ def _inference_policy(path: Path) -> Any:
     data, params, _ = load_from_zip_file(path, device="cpu")
     if data is None or "policy" not in params or "policy_class" not in data:
         raise PolicyFileError(f"{path} holds no SB3 policy (no data or weights)")
-    kwargs = {**(data.get("policy_kwargs") or {}), "optimizer_class": _NoOptimizer}
+    # No optimizer for a policy that only acts (SB3 builds one with every policy; torch's
+    # optimizers import ``torch._dynamo``, about a second).
+    kwargs = {**(data.get("policy_kwargs") or {}), "optimizer_class": lambda *_, **__: None}
     kwargs.pop("device", None)  # as PPO.load does
     policy = data["policy_class"](data["observation_space"], data["action_space"],
                                   lambda _: 0.0, use_sde=data.get("use_sde", False), **kwargs)
@@ -185,8 +162,6 @@ def exported_policies() -> dict[tuple[str, str], Any]:
     :func:`load_policy` keys them. A local worker started with them
     (:func:`preload_policies`) never imports torch or Stable-Baselines3.
     """
-    from agents.policies.numpy_policy import NumpyPolicy
-
     return {key: policy for key, policy in _POLICY_CACHE.items()
             if isinstance(policy, NumpyPolicy)}
 

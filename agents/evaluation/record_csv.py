@@ -11,7 +11,7 @@ from __future__ import annotations
 import csv
 import math
 import os
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -37,11 +37,9 @@ def sort_records(records: Iterable[EpisodeRecord]) -> list[EpisodeRecord]:
 
 
 def _parse(name: str, raw: str, path: Path, line: int) -> Any:
-    kind = _KINDS[name]
     if name == "epsilon" and raw == AUTO:
         return raw
-    if name == "epsilon":
-        kind = "float"
+    kind = "float" if name == "epsilon" else _KINDS[name]
     try:
         if kind in ("int", int):
             return int(float(raw)) if raw else 0
@@ -57,6 +55,16 @@ def _parse(name: str, raw: str, path: Path, line: int) -> Any:
     return raw
 
 
+def _check_header(path: Path, header: Sequence[str]) -> None:
+    """Raise :class:`RecordsFileError` unless ``header`` is :data:`RECORD_FIELDS`."""
+    if tuple(header) != RECORD_FIELDS:
+        missing = [c for c in RECORD_FIELDS if c not in header]
+        extra = [c for c in header if c not in RECORD_FIELDS]
+        raise RecordsFileError(
+            f"{path} has other columns than this version of safe-nav writes (columns "
+            f"missing: {missing or 'none'}, unknown: {extra or 'none'})")
+
+
 def read_records(path: str | Path) -> list[EpisodeRecord]:
     """Records from a results CSV (written by :class:`RecordWriter`).
 
@@ -70,26 +78,13 @@ def read_records(path: str | Path) -> list[EpisodeRecord]:
     records = []
     with open(path, newline="") as handle:
         reader = csv.DictReader(handle)
-        header = tuple(reader.fieldnames or ())
-        if header != RECORD_FIELDS:
-            missing = [c for c in RECORD_FIELDS if c not in header]
-            extra = [c for c in header if c not in RECORD_FIELDS]
-            raise RecordsFileError(
-                f"{path} was not written by this version of safe-nav (columns missing: "
-                f"{missing or 'none'}, unknown: {extra or 'none'})")
+        _check_header(path, reader.fieldnames or ())
         for row in reader:
             if None in row or any(row[name] is None for name in RECORD_FIELDS):
                 raise RecordsFileError(f"{path}, line {reader.line_num}: wrong number of columns")
             records.append(EpisodeRecord(**{name: _parse(name, row[name], path, reader.line_num)
                                             for name in RECORD_FIELDS}))
     return records
-
-
-def _row(record: EpisodeRecord) -> list[Any]:
-    """The record's CSV row, :data:`RECORD_FIELDS` in order (the fields are flat, so this
-    is ``dataclasses.asdict``'s row without its deep copy: the parent writes one per
-    episode while the workers run)."""
-    return [getattr(record, name) for name in RECORD_FIELDS]
 
 
 class RecordWriter:
@@ -107,21 +102,18 @@ class RecordWriter:
         new = not self.path.exists() or self.path.stat().st_size == 0
         if not new:
             with open(self.path, newline="") as handle:
-                header = tuple(next(csv.reader(handle), ()))
-            if header != RECORD_FIELDS:
-                raise RecordsFileError(
-                    f"{self.path} has other columns than this version of safe-nav writes")
+                _check_header(self.path, next(csv.reader(handle), ()))
         self._handle = open(self.path, "a", newline="")
         self._writer = csv.writer(self._handle)
-        self.written = 0
         if new:
             self._writer.writerow(RECORD_FIELDS)
             self._handle.flush()
 
     def __call__(self, record: EpisodeRecord) -> None:
-        self._writer.writerow(_row(record))
+        # The fields are flat: dataclasses.asdict's row without its deep copy (the parent
+        # writes one per episode while the workers run).
+        self._writer.writerow([getattr(record, name) for name in RECORD_FIELDS])
         self._handle.flush()
-        self.written += 1
 
     def close(self) -> None:
         self._handle.close()
@@ -136,11 +128,9 @@ class RecordWriter:
 def write_records(path: str | Path, records: Iterable[EpisodeRecord]) -> None:
     """Replace ``path`` by a CSV of ``records`` (atomically: a temporary file, then a rename)."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     temporary = path.with_name(path.name + ".tmp")
-    with open(temporary, "w", newline="") as handle:
-        writer = csv.writer(handle)
-        writer.writerow(RECORD_FIELDS)
+    temporary.unlink(missing_ok=True)  # a crashed rewrite's rows
+    with RecordWriter(temporary) as writer:
         for record in records:
-            writer.writerow(_row(record))
+            writer(record)
     os.replace(temporary, path)

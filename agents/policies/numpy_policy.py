@@ -61,12 +61,25 @@ class UnsupportedPolicyError(InvalidTypeError):
     """The SB3 policy has a part that :class:`NumpyPolicy` cannot export."""
 
 
-def _leaky_relu(z: np.ndarray, slope: float) -> np.ndarray:
-    return np.where(z >= 0.0, z, slope * z)
+def _tanh(z: np.ndarray, parameter: float) -> np.ndarray:
+    return np.tanh(z)
 
 
-def _elu(z: np.ndarray, alpha: float) -> np.ndarray:
-    return np.where(z > 0.0, z, alpha * np.expm1(np.minimum(z, 0.0)))
+def _relu(z: np.ndarray, parameter: float) -> np.ndarray:
+    return np.maximum(z, 0.0)
+
+
+def _leaky_relu(z: np.ndarray, parameter: float) -> np.ndarray:
+    return np.where(z >= 0.0, z, parameter * z)
+
+
+def _elu(z: np.ndarray, parameter: float) -> np.ndarray:
+    return np.where(z > 0.0, z, parameter * np.expm1(np.minimum(z, 0.0)))
+
+
+_ACTIVATIONS = {"tanh": _tanh, "relu": _relu, "leaky_relu": _leaky_relu, "elu": _elu}
+"""The numpy activations ``σ(z, parameter)`` by name (``parameter``: the leaky slope or the
+ELU alpha, unused by the others)."""
 
 
 EXPORT_FORMAT = 1
@@ -74,21 +87,13 @@ EXPORT_FORMAT = 1
 
 
 def _named_activation(name: str, parameter: float = 0.0) -> Callable[[np.ndarray], np.ndarray]:
-    """The numpy activation ``z -> σ(z)`` called ``name`` (picklable); ``parameter`` is the
-    leaky slope or the ELU alpha."""
-    return {"tanh": lambda: np.tanh, "relu": lambda: partial(np.maximum, 0.0),
-            "leaky_relu": lambda: partial(_leaky_relu, slope=float(parameter)),
-            "elu": lambda: partial(_elu, alpha=float(parameter))}[name]()
+    """The numpy activation ``z -> σ(z)`` called ``name`` (picklable)."""
+    return partial(_ACTIVATIONS[name], parameter=float(parameter))
 
 
 def _activation_name(activation: Callable[[np.ndarray], np.ndarray]) -> tuple[str, float]:
     """``(name, parameter)`` of an activation made by :func:`_named_activation`."""
-    if activation is np.tanh:
-        return "tanh", 0.0
-    func, keywords = activation.func, activation.keywords  # type: ignore[attr-defined]
-    if func is np.maximum:
-        return "relu", 0.0
-    return ("leaky_relu", keywords["slope"]) if func is _leaky_relu else ("elu", keywords["alpha"])
+    return activation.func.__name__[1:], activation.keywords["parameter"]  # type: ignore[attr-defined]
 
 
 def _activation(module: Any) -> Callable[[np.ndarray], np.ndarray] | None:
