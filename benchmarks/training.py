@@ -115,18 +115,12 @@ def _filter_clock() -> Any:
             self.reports = self.not_optimal = 0
 
         def _on_step(self) -> bool:
-            for info in self.locals["infos"]:
-                report = info.get("filter")
-                if report is None:
-                    continue
-                qp = report.filter_time - report.halfspace_time
-                optimal = report.status == "optimal"
-                self.times["reference"] += report.reference_time
-                self.times["halfspaces"] += report.halfspace_time
-                self.times["qp"] += qp
-                self.times["qp_not_optimal"] += 0.0 if optimal else qp
-                self.reports += 1
-                self.not_optimal += not optimal
+            for report in filter(None, (info.get("filter") for info in self.locals["infos"])):
+                qp, late = report.filter_time - report.halfspace_time, report.status != "optimal"
+                for key, value in zip(PARTS, (report.reference_time, report.halfspace_time,
+                                              qp, qp * late), strict=True):
+                    self.times[key] += value
+                self.reports, self.not_optimal = self.reports + 1, self.not_optimal + late
             return True
 
     return FilterClock()
