@@ -9,7 +9,7 @@ from __future__ import annotations
 import platform
 import time
 from collections import Counter
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from typing import Any, TypeVar
 
 import numpy as np
@@ -42,6 +42,22 @@ def alternate(kinds: Sequence[K], rounds: int, measure: Callable[[K], R], *,
     runs see the same load on a shared machine."""
     return [(kind, measure(kind)) for index in range(rounds)
             for kind in (kinds[::-1] if swap and index % 2 else kinds)]
+
+
+def drive(env: Any, steps: int, seed: int, act: Callable[[Any, bool], Any]
+          ) -> Iterator[tuple[dict, float]]:
+    """Step ``env`` ``steps`` times with ``act(obs, new_episode)``, resetting it with
+    ``seed``, ``seed + 1``, ... whenever an episode ends; yield each step's ``info`` and
+    the wall time of its ``env.step`` in ms."""
+    episode, done = 0, True
+    for _ in range(steps):
+        new_episode = done
+        if done:
+            obs, _ = env.reset(seed=seed + episode)
+            episode += 1
+        (obs, _, terminated, truncated, info), ms = clock(env.step, act(obs, new_episode))
+        done = terminated or truncated
+        yield info, ms
 
 
 def median(values: Iterable[float], where: Iterable[bool] | None = None) -> float:
