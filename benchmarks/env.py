@@ -5,7 +5,7 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 
-from benchmarks.timing import clock, clock_cpu, median
+from benchmarks.timing import clock, clock_cpu, drive, median
 from safe_nav_env.registration import ENV_IDS, SCENE_IDS
 
 RENDERED = ("SafeNav/HeadOn-v0", "SafeNav/MultiObstacle-v0", "SafeNav/RandomCrossing-v0")
@@ -70,8 +70,9 @@ def render_frames(frames: int = 100, *, seed: int = 0) -> dict[str, tuple[np.nda
     """Wall and CPU (this process) ms of each ``render()`` of :data:`RENDERED`, by id.
 
     DR-CVaR filtered episodes (the wrapper draws its halfspaces through the render hooks)
-    under zero actions, restarting as needed; the first frame, which draws and caches
-    the static scene, is not timed. On a shared machine the CPU time is the steadier one.
+    under zero actions, restarting with ``seed + 1``, ... as needed; the first frame,
+    which draws and caches the static scene, is not timed. On a shared machine the CPU
+    time is the steadier one.
     """
     from filters import SafetyFilterWrapper
 
@@ -80,12 +81,8 @@ def render_frames(frames: int = 100, *, seed: int = 0) -> dict[str, tuple[np.nda
         env = SafetyFilterWrapper(gym.make(env_id, render_mode="rgb_array"), risk="dr_cvar")
         env.reset(seed=seed)
         env.render()
-        rows = []
-        for k in range(frames):
-            _, _, terminated, truncated, _ = env.step(np.zeros(2))
-            if terminated or truncated:
-                env.reset(seed=seed + k + 1)
-            rows.append(clock_cpu(env.render)[1:])
+        rows = [clock_cpu(env.render)[1:] for _ in drive(env, frames, seed,
+                                                          lambda obs, new: np.zeros(2))]
         env.close()
         times[env_id] = tuple(np.array(rows).T)
     return times
