@@ -2,12 +2,10 @@
 
 from __future__ import annotations
 
-import time
-
 import gymnasium as gym
 import numpy as np
 
-from benchmarks.timing import median
+from benchmarks.timing import clock, clock_cpu, drive, median
 from safe_nav_env.registration import ENV_IDS, SCENE_IDS
 
 RENDERED = ("SafeNav/HeadOn-v0", "SafeNav/MultiObstacle-v0", "SafeNav/RandomCrossing-v0")
@@ -28,15 +26,17 @@ def steps_per_second(env_id: str, *, n_steps: int = 5000, repeats: int = 5, seed
         -high, high, size=(n_steps, *env.action_space.shape)).astype(np.float32)
     env.reset(seed=seed)
     env.step(actions[0])  # the passive checker inspects the first step only
-    rates = []
-    for _ in range(repeats):
-        env.reset(seed=seed)
-        start = time.perf_counter()
+
+    def run() -> None:
         for action in actions:
             _, _, terminated, truncated, _ = env.step(action)
             if terminated or truncated:
                 env.reset()
-        rates.append(n_steps / (time.perf_counter() - start))
+
+    rates = []
+    for _ in range(repeats):
+        env.reset(seed=seed)
+        rates.append(1e3 * n_steps / clock(run)[1])
     env.close()
     return median(rates)
 
@@ -48,13 +48,12 @@ def normal_draws_per_second(*, size: int = 6000, repeats: int = 5, seed: int = 0
     irreducible part of the step, so this rate bounds what the environment can reach.
     """
     rng = np.random.default_rng(seed)
-    rates = []
-    for _ in range(repeats):
-        start = time.perf_counter()
+
+    def draw() -> None:
         for _ in range(200):
             rng.standard_normal(size)
-        rates.append(200 * size / (time.perf_counter() - start))
-    return median(rates)
+
+    return median(2e5 * size / clock(draw)[1] for _ in range(repeats))
 
 
 def benchmark(*, n_steps: int = 5000, repeats: int = 5, seed: int = 0,
@@ -71,8 +70,9 @@ def render_frames(frames: int = 100, *, seed: int = 0) -> dict[str, tuple[np.nda
     """Wall and CPU (this process) ms of each ``render()`` of :data:`RENDERED`, by id.
 
     DR-CVaR filtered episodes (the wrapper draws its halfspaces through the render hooks)
-    under zero actions, restarting as needed; the first frame, which draws and caches
-    the static scene, is not timed. On a shared machine the CPU time is the steadier one.
+    under zero actions, restarting with ``seed + 1``, ... as needed; the first frame,
+    which draws and caches the static scene, is not timed. On a shared machine the CPU
+    time is the steadier one.
     """
     from filters import SafetyFilterWrapper
 
@@ -81,14 +81,8 @@ def render_frames(frames: int = 100, *, seed: int = 0) -> dict[str, tuple[np.nda
         env = SafetyFilterWrapper(gym.make(env_id, render_mode="rgb_array"), risk="dr_cvar")
         env.reset(seed=seed)
         env.render()
-        rows = []
-        for k in range(frames):
-            _, _, terminated, truncated, _ = env.step(np.zeros(2))
-            if terminated or truncated:
-                env.reset(seed=seed + k + 1)
-            start, start_cpu = time.perf_counter(), time.process_time()
-            env.render()
-            rows.append((time.perf_counter() - start, time.process_time() - start_cpu))
+        rows = [clock_cpu(env.render)[1:] for _ in drive(env, frames, seed,
+                                                          lambda obs, new: np.zeros(2))]
         env.close()
-        times[env_id] = tuple(1e3 * np.array(rows).T)
+        times[env_id] = tuple(np.array(rows).T)
     return times

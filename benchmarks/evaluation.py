@@ -31,7 +31,7 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
-from benchmarks.timing import clock, median
+from benchmarks.timing import alternate, clock, median
 from filters._validation import integer_at_least
 
 WORKER_COUNTS = (1, 2)
@@ -166,16 +166,17 @@ def benchmark_evaluation(episodes: int = 300, runs: int = 3, *,
 
     defaults = build_parser().parse_args(["evaluate"])
     total = episodes * len(defaults.scenarios) * len(defaults.risks)
-    results = []
+    results: list[EvaluationRun] = []
     with tempfile.TemporaryDirectory(prefix="bench-evaluation-") as folder:
-        for index in range(runs):
-            order = WORKER_COUNTS if index % 2 == 0 else WORKER_COUNTS[::-1]
-            for workers in order:
-                run = _evaluate_once(workers, episodes, Path(folder) / f"workers{workers}")
-                if progress:
-                    print(f"  run {index + 1}/{runs}, {workers} worker(s): {run.wall:.1f} s, "
-                          f"load {run.load:.2f}", file=sys.stderr, flush=True)
-                results.append(run)
+        def measure(workers: int) -> None:
+            results.append(run := _evaluate_once(workers, episodes,
+                                                 Path(folder) / f"workers{workers}"))
+            if progress:
+                print(f"  run {-(-len(results) // len(WORKER_COUNTS))}/{runs}, {workers} "
+                      f"worker(s): {run.wall:.1f} s, load {run.load:.2f}", file=sys.stderr,
+                      flush=True)
+
+        alternate(WORKER_COUNTS, runs, measure, swap=True)
         same = same_rows(*(Path(folder) / f"workers{w}" / "episodes.csv"
                            for w in WORKER_COUNTS))
     return EvaluationScaling(total, tuple(results), same)

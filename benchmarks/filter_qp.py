@@ -4,7 +4,7 @@
 random crossing episodes: the ego starts at x = -4.5 m at 1.5 m/s on a lane
 y ~ U(-1, 1) m with an obstacle-agnostic straight-line reference toward +x; the
 obstacles start ahead of it (``[-2, 3] x [-1.5, 1.5]`` m up to 3 obstacles, widened
-beyond, see :func:`obstacle_area`) with speeds U(0, 1) m/s in uniform directions, so
+beyond, see :func:`_crossing_start`) with speeds U(0, 1) m/s in uniform directions, so
 that they cross its path. Its halfspaces are either
 
 * synthetic (``n_samples=None``): the normal from the ego reference to the nominal
@@ -67,16 +67,6 @@ def filter_kwargs(horizon: int, n_obstacles: int) -> dict:
             "R": np.eye(2), "input_bounds": (-INPUT_LIMIT, INPUT_LIMIT),
             "position_bounds": (-ARENA_HALF_WIDTH, ARENA_HALF_WIDTH),
             "n_obstacles": n_obstacles}
-
-
-def obstacle_area(n_obstacles: int) -> tuple[float, float, float]:
-    """``(x_low, x_high, y_half)`` in m: obstacles start in ``[x_low, x_high] x [-y_half, y_half]``.
-
-    ``[-2, 3] x [-1.5, 1.5]`` up to 3 obstacles, each side scaled by ``sqrt(n / 3)``
-    beyond (capped at 4.5 m), so that each obstacle keeps about as much room.
-    """
-    scale = np.sqrt(max(1.0, n_obstacles / 3.0))
-    return -2.0, min(4.5, -2.0 + 5.0 * scale), min(4.5, 1.5 * scale)
 
 
 def straight_reference(x: np.ndarray, lane: float, horizon: int, *,
@@ -170,10 +160,16 @@ def make_instances(n_steps: int, n_obstacles: int, horizon: int, rng: np.random.
 
 def _crossing_start(rng: np.random.Generator, n_obstacles: int
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Ego state (4,), obstacle positions and velocities (n, 2) of a new episode."""
-    x_low, x_high, y_half = obstacle_area(n_obstacles)
+    """Ego state (4,), obstacle positions and velocities (n, 2) of a new episode.
+
+    The obstacles start in ``[-2, 3] x [-1.5, 1.5]`` m up to 3 obstacles, each side
+    scaled by ``sqrt(n / 3)`` beyond (capped at 4.5 m), so that each obstacle keeps
+    about as much room.
+    """
+    scale = np.sqrt(max(1.0, n_obstacles / 3.0))
+    y_half = min(4.5, 1.5 * scale)
     x = np.array([-4.5, rng.uniform(-1.0, 1.0), SPEED, 0.0])
-    obstacles = np.column_stack([rng.uniform(x_low, x_high, n_obstacles),
+    obstacles = np.column_stack([rng.uniform(-2.0, min(4.5, -2.0 + 5.0 * scale), n_obstacles),
                                  rng.uniform(-y_half, y_half, n_obstacles)])
     speed = rng.uniform(0.0, 1.0, n_obstacles)
     heading = rng.uniform(0.0, 2.0 * np.pi, n_obstacles)

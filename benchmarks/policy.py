@@ -4,10 +4,22 @@ roll-out reference (``safe-nav bench`` and ``safe-nav bench --scaling``)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
-from benchmarks.timing import clock, median
+from benchmarks.timing import clock, drive, median
+
+
+def shipped_policy() -> tuple[Any, Any]:
+    """The shipped PPO model and its :class:`agents.NumpyPolicy` export, on one torch
+    thread as in the evaluation workers."""
+    from agents.policies.loading import load_ppo, set_torch_threads
+    from agents.policies.numpy_policy import NumpyPolicy
+
+    set_torch_threads(1)
+    model = load_ppo()
+    return model, NumpyPolicy.from_sb3(model)
 
 
 @dataclass(frozen=True)
@@ -43,12 +55,7 @@ def benchmark_numpy_policy(*, calls: int = 2000, batch: int = 64, seed: int = 0)
     (the network does not care where they come from); one torch thread, as in the
     evaluation workers.
     """
-    from agents.policies.loading import load_ppo, set_torch_threads
-    from agents.policies.numpy_policy import NumpyPolicy
-
-    set_torch_threads(1)
-    model = load_ppo()
-    policy = NumpyPolicy.from_sb3(model)
+    model, policy = shipped_policy()
     observations = np.random.default_rng(seed).standard_normal(
         (calls, *policy._obs_shape)).astype(np.float32)
     single, batched, difference = [], [], 0.0
@@ -80,28 +87,23 @@ def benchmark_rollout_reference(horizon: int = 10, steps: int = 200, seed: int =
     import gymnasium as gym
 
     import safe_nav_env  # noqa: F401
-    from agents.policies.numpy_policy import NumpyPolicy
-    from agents.training.ppo import load_ppo, set_torch_threads
     from filters.references import PolicyRolloutReference, hold_action_reference
 
-    set_torch_threads(1)
-    model = load_ppo()
+    model, numpy_policy = shipped_policy()
     makers = {"sb3": PolicyRolloutReference(model),
-              "numpy": PolicyRolloutReference(NumpyPolicy.from_sb3(model)),
+              "numpy": PolicyRolloutReference(numpy_policy),
               "hold": hold_action_reference}
     env = gym.make("SafeNav/MultiObstacle-v0", horizon=horizon)
     base = env.unwrapped
     fields = ("ego_state", "predictions", "obstacle_positions", "obstacle_velocities")
     situations = []  # what a reference maker reads, recorded along the episodes
-    episode, done = 0, True
-    for _ in range(steps):
-        if done:
-            obs, _ = env.reset(seed=seed + episode)
-            episode += 1
-        action, _ = model.predict(obs, deterministic=True)
-        situations.append(({name: getattr(base, name) for name in fields}, action))
-        obs, _, terminated, truncated, _ = env.step(action)
-        done = terminated or truncated
+
+    def act(obs: np.ndarray, _: bool) -> np.ndarray:
+        situations.append(({name: getattr(base, name) for name in fields},
+                           model.predict(obs, deterministic=True)[0]))
+        return situations[-1][1]
+
+    list(drive(env, steps, seed, act))
     medians = {}
     for name, maker in makers.items():  # each in a loop of its own, as a control loop runs
         maker(base, situations[0][1], horizon)  # first call: torch's kernels

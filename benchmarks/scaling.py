@@ -43,7 +43,7 @@ from benchmarks.filter_qp import (
     max_input_gap,
     solver_passes,
 )
-from benchmarks.timing import clock, counts, machine, median, p90
+from benchmarks.timing import clock, clock_cpu, counts, machine, median, p90
 from filters import Disc, MPCSafetyFilter, safe_halfspaces
 from filters._validation import integer_at_least
 from filters.errors import InvalidParameterError
@@ -104,11 +104,8 @@ def benchmark_point(n_obstacles: int, horizon: int, n_samples: int, *, steps: in
     for step in instances:
         data = StepData(step.x0, step.reference_states[1:], zero_inputs,
                         np.asarray(step.halfspaces.normals), np.asarray(step.halfspaces.offsets))
-        begin, begin_cpu = time.perf_counter(), time.thread_time()
-        solution = clarabel.solve(data)
-        cpu = 1e3 * (time.thread_time() - begin_cpu)
-        per_qp.append((1e3 * (time.perf_counter() - begin), cpu, solution.iterations,
-                       solution.found))
+        solution, wall, cpu = clock_cpu(clarabel.solve, data, cpu=time.thread_time)
+        per_qp.append((wall, cpu, solution.iterations, solution.found))
     wall, cpu, iterations, solved = np.array(per_qp, dtype=float).T
     step_ms = halfspace_ms + solves["ours"].ms
     qp, step, cvxpy = (median(v) for v in (solves["ours"].ms, step_ms, solves["cvxpy"].ms))

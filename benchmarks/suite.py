@@ -23,7 +23,7 @@ import numpy as np
 
 import safe_nav_env  # noqa: F401  (registers the ids)
 from benchmarks.filter_qp import Instance, filter_kwargs, format_passes, solver_passes
-from benchmarks.timing import clock, machine, median, p90
+from benchmarks.timing import clock, drive, machine, median, p90
 from filters import Disc, MPCSafetyFilter, SafetyFilterWrapper, safe_halfspaces
 from filters.intersample import intersample_rows
 from filters.mpc import stopping_terminal_set
@@ -62,21 +62,19 @@ def filter_step(n_steps: int = 500, seed: int = 0, *, continuous: bool = False
                                     dt=float(base.dt), **shapes)
         return rows.normals, rows.offsets
 
-    live = MPCSafetyFilter(A, B, C, **kwargs)
-    instances, halfspace_ms, episode, done = [], [], 0, True
-    while len(instances) < n_steps:
-        if done:
-            env.reset(seed=seed + episode)
+    live, instances, halfspace_ms = MPCSafetyFilter(A, B, C, **kwargs), [], []
+
+    def act(_: np.ndarray, new_episode: bool) -> np.ndarray:
+        if new_episode:
             live.reset()
-            episode += 1
         x0 = np.asarray(base.ego_state, dtype=float)
         states, inputs = planner.plan(x0, base.goal)
         rows, ms = clock(halfspaces, x0, states[1:] @ C.T, base.predictions[:, :, :10])
-        instances.append(Instance(x0, states, rows, done, reference_inputs=inputs))
+        instances.append(Instance(x0, states, rows, new_episode, reference_inputs=inputs))
         halfspace_ms.append(ms)
-        result = live.solve(x0, states, rows, reference_inputs=inputs)
-        _, _, terminated, truncated, _ = env.step(result.inputs[0].astype(np.float32))
-        done = terminated or truncated
+        return live.solve(x0, states, rows, reference_inputs=inputs).inputs[0].astype(np.float32)
+
+    list(drive(env, n_steps, seed, act))
     env.close()
     passes, ours = solver_passes(A, B, C, kwargs, instances)
     variant = ("the continuous-time filter (inter-sample rows, terminal set, recovery)"
@@ -93,25 +91,15 @@ def control_loop(steps: int = 500, seed: int = 0) -> str:
     driven by the same actor; the times are the filter reports' (reference, halfspaces,
     QP = ``filter_time - halfspace_time``), so all are measured on the same steps.
     """
-    from agents.policies.numpy_policy import NumpyPolicy
-    from agents.training.ppo import load_ppo, set_torch_threads
+    from benchmarks.policy import shipped_policy
 
-    set_torch_threads(1)
-    actor = NumpyPolicy.from_sb3(load_ppo())
+    _, actor = shipped_policy()
     env = SafetyFilterWrapper(gym.make("SafeNav/MultiObstacle-v0"), policy=actor)
-    rows, wrapper_ms, episode, done = [], [], 0, True
-    while len(rows) < steps:
-        if done:
-            obs, _ = env.reset(seed=seed + episode)
-            episode += 1
-        (obs, _, terminated, truncated, info), ms = clock(env.step, actor.predict(obs)[0])
-        wrapper_ms.append(ms)
-        report = info["filter"]
-        rows.append((report.reference_time, report.halfspace_time,
-                     report.filter_time - report.halfspace_time))
-        done = terminated or truncated
+    rows = [(info["filter"].reference_time, info["filter"].halfspace_time,
+             info["filter"].filter_time - info["filter"].halfspace_time, ms / 1e3)
+            for info, ms in drive(env, steps, seed, lambda obs, _: actor.predict(obs)[0])]
     env.close()
-    reference, halfspaces, qp = 1e3 * np.asarray(rows).T
+    reference, halfspaces, qp, wrapper_ms = 1e3 * np.asarray(rows).T
     return (f"    in the control loop (MultiObstacle, the shipped PPO planner, roll-out "
             f"reference, DR-CVaR, the wrapper's defaults), {len(rows)} steps, medians: "
             f"reference {median(reference):.3f} ms, halfspaces {median(halfspaces):.3f} ms, "

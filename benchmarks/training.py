@@ -8,13 +8,12 @@ in alternating chunks, so both see the same load on a shared machine, and return
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from benchmarks.timing import median
+from benchmarks.timing import alternate, clock_cpu, median
 
 PARTS = ("reference", "halfspaces", "qp", "qp_not_optimal")
 """Parts of a filtered step timed from the filter reports (:class:`TrainingThroughput`)."""
@@ -115,18 +114,12 @@ def _filter_clock() -> Any:
             self.reports = self.not_optimal = 0
 
         def _on_step(self) -> bool:
-            for info in self.locals["infos"]:
-                report = info.get("filter")
-                if report is None:
-                    continue
-                qp = report.filter_time - report.halfspace_time
-                optimal = report.status == "optimal"
-                self.times["reference"] += report.reference_time
-                self.times["halfspaces"] += report.halfspace_time
-                self.times["qp"] += qp
-                self.times["qp_not_optimal"] += 0.0 if optimal else qp
-                self.reports += 1
-                self.not_optimal += not optimal
+            for report in filter(None, (info.get("filter") for info in self.locals["infos"])):
+                qp, late = report.filter_time - report.halfspace_time, report.status != "optimal"
+                for key, value in zip(PARTS, (report.reference_time, report.halfspace_time,
+                                              qp, qp * late), strict=True):
+                    self.times[key] += value
+                self.reports, self.not_optimal = self.reports + 1, self.not_optimal + late
             return True
 
     return FilterClock()
@@ -149,23 +142,24 @@ def benchmark_training(timesteps: int = 20_480, chunk: int = 2048, seed: int = 0
                                   n_envs=n_envs, progress_bar=False,
                                   filter_kwargs={"risk": "dr_cvar"} if filtered else None)[0]
               for filtered in (False, True)}
-    rates: dict[bool, list[tuple[float, float]]] = {False: [], True: []}
-    parts, shares = [], []
-    for _ in range(max(1, timesteps // chunk)):
-        for filtered, model in models.items():
-            clock, before = _filter_clock(), model.num_timesteps
-            wall, cpu = time.perf_counter(), time.process_time()
-            model.learn(chunk, reset_num_timesteps=False, callback=clock)
-            wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
-            steps = model.num_timesteps - before
-            rates[filtered].append((steps / wall, steps / cpu))
-            if filtered:
-                parts.append({key: 1e6 * value / steps for key, value in clock.times.items()})
-                shares.append(clock.not_optimal / max(1, clock.reports))
+
+    def learn(filtered: bool) -> tuple[float, float, dict[str, float], float]:
+        """One chunk: steps per wall and CPU second, µs per step of each part, share."""
+        model, callback = models[filtered], _filter_clock()
+        before = model.num_timesteps
+        _, wall_ms, cpu_ms = clock_cpu(model.learn, chunk, reset_num_timesteps=False,
+                                       callback=callback)
+        steps = model.num_timesteps - before
+        return (1e3 * steps / wall_ms, 1e3 * steps / cpu_ms,
+                {key: 1e6 * value / steps for key, value in callback.times.items()},
+                callback.not_optimal / max(1, callback.reports))
+
+    runs = alternate((False, True), max(1, timesteps // chunk), learn)
     for model in models.values():
         model.get_env().close()
-    (plain_wall, plain_cpu), (filtered_wall, filtered_cpu) = (
-        tuple(map(tuple, zip(*rates[kind], strict=True))) for kind in (False, True))
+    (plain_wall, plain_cpu, _, _), (filtered_wall, filtered_cpu, parts, shares) = (
+        tuple(zip(*(run for filtered, run in runs if filtered is kind), strict=True))
+        for kind in (False, True))
     filter_us = {key: median(p[key] for p in parts) for key in PARTS}
     filter_us["step"] = 1e6 / median(filtered_wall)
     return TrainingThroughput(chunk, plain_wall, filtered_wall, plain_cpu, filtered_cpu,
