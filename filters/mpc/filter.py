@@ -53,7 +53,7 @@ from filters.mpc.backends import (
     check_backend,
     make_backend,
 )
-from filters.mpc.checks import finite_step_array, parse_halfspaces
+from filters.mpc.checks import step_arrays
 from filters.mpc.problem import MPCProblem
 from filters.mpc.recovery import (
     braking_gain,
@@ -404,11 +404,8 @@ class MPCSafetyFilter:
         """
         start = time.perf_counter()
         T, n, m = self._T, self._n, self._m
-        x0 = finite_step_array("x0", x0, (n,))
-        reference_states = finite_step_array("reference_states", reference_states, (T + 1, n))
-        if reference_inputs is not None:
-            reference_inputs = finite_step_array("reference_inputs", reference_inputs, (T, m))
-        normals, offsets = parse_halfspaces(halfspaces, T, self._d, self._K)
+        x0, reference_states, reference_inputs, normals, offsets = step_arrays(
+            x0, reference_states, reference_inputs, halfspaces, T, n, m, self._d, self._K)
         return self._solve_step(x0, reference_states[1:], reference_inputs, normals, offsets,
                                 start)
 
