@@ -10,7 +10,9 @@
   size).
 * :mod:`filters.mpc.condensed`: the whitened condensed QP (identity Hessian, row bank).
 * :mod:`filters.mpc.filter`: :class:`MPCSafetyFilter`, the step: validation, shortcut,
-  acceptance check, recovery.
+  QP, recovery.
+* :mod:`filters.mpc.acceptance`: the per-step roll-out, row excesses, acceptance check
+  and cost of a plan.
 * :mod:`filters.mpc.cvxpy_filter`: :class:`CVXPYSafetyFilter`, the same filter on the
   CVXPY back end (the reference in tests and benchmarks).
 * :mod:`filters.mpc.recovery`: the paper's Remark (shift the last plan, then brake).

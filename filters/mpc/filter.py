@@ -32,7 +32,6 @@ from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
-import scipy.linalg
 
 from filters._validation import finite_array
 from filters.constants import (  # noqa: F401  (re-exported: filters.mpc.filter.* names)
@@ -45,6 +44,7 @@ from filters.constants import (  # noqa: F401  (re-exported: filters.mpc.filter.
 )
 from filters.errors import InvalidParameterError, InvalidTypeError
 from filters.mpc._linalg import matvec_operator
+from filters.mpc.acceptance import PlanChecker
 from filters.mpc.backends import (
     AUTO_DAQP_MAX_INPUTS,
     BACKENDS,
@@ -53,7 +53,7 @@ from filters.mpc.backends import (
     check_backend,
     make_backend,
 )
-from filters.mpc.checks import all_finite, finite_step_array, parse_halfspaces
+from filters.mpc.checks import step_arrays
 from filters.mpc.problem import MPCProblem
 from filters.mpc.recovery import (
     braking_gain,
@@ -64,10 +64,10 @@ from filters.mpc.recovery import (
 from filters.mpc.result import (
     FilterResult,
     FilterStatus,
+    PaddedSteps,
     QPSolution,
     StepData,
     filter_result,
-    padded_step,
     recovery_status,
 )
 
@@ -88,7 +88,6 @@ __all__ = [
 FALLBACKS = ("soft", "brake", "paper")
 
 _NO_QP = "unconstrained optimum feasible (no QP needed)"
-_vecdot = getattr(np, "vecdot", None) or (lambda a, b: np.einsum("...d,...d->...", a, b))
 
 
 class MPCSafetyFilter:
@@ -262,26 +261,17 @@ class MPCSafetyFilter:
         phi, gamma = problem.rollout  # precomputed for the per-step checks
         self._phi, self._gamma = matvec_operator(phi), matvec_operator(gamma)
         self._gain = matvec_operator(problem.gain)
-        # One product M @ [x0; u] - r: the roll-out, the positions, every bound row's excess.
-        evaluation, self._eval_offset = problem.check_map
-        self._eval = matvec_operator(evaluation)
-        self._split = ((T + 1) * n, (T + 1) * n + T * problem.d)
-        self._n_bound = len(self._eval_offset) - self._split[1] - T * len(problem.speed_rows[1])
-        # Block-diagonal weights of the cost (8) on the flattened deviations.
-        self._R_block = matvec_operator(scipy.linalg.block_diag(*problem.input_weights))
-        self._Q_block = matvec_operator(scipy.linalg.block_diag(*problem.state_weights))
+        self._check = PlanChecker(problem)  # roll-out, row excesses, acceptance, cost
         u_low, u_high = problem.input_bounds
         self._u_low_all, self._u_high_all = np.tile(u_low, T), np.tile(u_high, T)
         self._zero_inputs = np.zeros((T, m))
         self._zero_inputs.setflags(write=False)
         # Hot-path constants (property lookups and shape tuples cost per step).
         self._T, self._n, self._m, self._d, self._K = T, n, m, problem.d, problem.n_obstacles
-        self._u_low, self._u_high = u_low, u_high
         self._has_state_cost = problem.has_state_cost
         self._primary_soft_rows = problem.soft_rows
         self._recovery_zeros = (np.zeros((T, n)), self._zero_inputs)
-        self._states_shape, self._positions_shape = (T + 1, n), (T, problem.d)
-        self._z = np.empty(n + T * m)  # [x0; u] of the evaluation map
+        self._padded = PaddedSteps(self._K, T, problem.d)
         self._plan: np.ndarray | None = None
         self._failures = 0
         self._qp_solves = 0
@@ -365,20 +355,7 @@ class MPCSafetyFilter:
         """Braking input at state ``x``, ``clip(-K x)`` to the input box, shape ``(m,)``."""
         return np.clip(-self._brake_gain @ x, *self.problem.input_bounds)
 
-    # ------------------------------------------------------------------ checks
-    def _evaluate(
-        self, x0: np.ndarray, inputs: np.ndarray, normals: np.ndarray, offsets: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Roll-out ``(T + 1, n)``, halfspace excess ``(k, T)``, bound-row excess (1-D, in
-        the order of :attr:`MPCProblem.check_map`: arena, terminal, then speed rows);
-        excess ``lhs - rhs`` <= 0: the row holds."""
-        z = np.concatenate((x0, inputs.reshape(-1)), out=self._z)
-        out = self._eval @ z - self._eval_offset
-        split, end = self._split
-        states = out[:split].reshape(self._states_shape)
-        halfspace = _vecdot(normals, out[split:end].reshape(self._positions_shape)) - offsets
-        return states, halfspace, out[end:]
-
+    # ------------------------------------------------------------------ the step
     def _call(self, backend: Any, step: StepData) -> QPSolution:
         self._qp_solves += 1
         try:
@@ -386,44 +363,6 @@ class MPCSafetyFilter:
         except Exception as exc:  # a back end bug must not crash the control loop
             return QPSolution(False, f"exception: {exc!r}")
 
-    def _accept(
-        self, solution: QPSolution, soft_rows: frozenset[str], x0: np.ndarray,
-        normals: np.ndarray, offsets: np.ndarray,
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | str:
-        """Inputs, states and excesses of an acceptable answer, or why it was rejected."""
-        if not solution.found or solution.inputs is None:
-            return ""
-        raw = solution.inputs
-        if not all_finite(raw):
-            return "rejected: non-finite solution"
-        # A solver's answer may sit slightly outside the box: clip, then check the rows.
-        inputs = np.minimum(np.maximum(raw, self._u_low), self._u_high)
-        clipped = 0.0 if (inputs == raw).all() else float(
-            np.maximum.reduce(np.abs(inputs - raw), axis=None))
-        if not clipped <= INPUT_CLIP_TOLERANCE:
-            return f"rejected: input bound violated by {clipped:.3g}"
-        states, halfspace, bounds = self._evaluate(x0, inputs, normals, offsets)
-        k = normals.shape[0]
-        # The back end's slacks describe its own inputs: after a clip beyond the
-        # feasibility tolerance they are stale, and a soft row is allowed the violation of
-        # the clipped plan itself (the slack reported is recomputed from the plan anyway).
-        fresh = clipped <= FEASIBILITY_TOLERANCE
-        excess_h, excess_b = halfspace, bounds
-        if "halfspaces" in soft_rows and solution.halfspace_slack is not None:
-            excess_h = halfspace - np.maximum(
-                solution.halfspace_slack[:k] if fresh else halfspace, 0.0)
-        if "bounds" in soft_rows and solution.bound_slack is not None:
-            nb = self._n_bound  # the speed rows after them are always hard
-            excess_b = bounds.copy()
-            excess_b[:nb] -= np.maximum(solution.bound_slack if fresh else bounds[:nb], 0.0)
-        worst = float(np.maximum.reduce(excess_b, initial=-np.inf))
-        if k:
-            worst = max(worst, float(np.maximum.reduce(excess_h, axis=None)))
-        if not worst <= FEASIBILITY_TOLERANCE:  # False for NaN too
-            return f"rejected: constraint violation {worst:.3g} > {FEASIBILITY_TOLERANCE:g}"
-        return inputs, states, halfspace, bounds
-
-    # ------------------------------------------------------------------ the step
     def solve(
         self,
         x0: np.ndarray,
@@ -465,44 +404,51 @@ class MPCSafetyFilter:
         """
         start = time.perf_counter()
         T, n, m = self._T, self._n, self._m
-        x0 = finite_step_array("x0", x0, (n,))
-        reference_states = finite_step_array("reference_states", reference_states, (T + 1, n))
-        ref_states = reference_states[1:]
-        if reference_inputs is None:
-            ref_inputs = self._zero_inputs
-        else:
-            ref_inputs = finite_step_array("reference_inputs", reference_inputs, (T, m))
-        normals, offsets = parse_halfspaces(halfspaces, T, self._d, self._K)
+        x0, reference_states, reference_inputs, normals, offsets = step_arrays(
+            x0, reference_states, reference_inputs, halfspaces, T, n, m, self._d, self._K)
+        return self._solve_step(x0, reference_states[1:], reference_inputs, normals, offsets,
+                                start)
+
+    def _solve_step(self, x0: np.ndarray, ref_states: np.ndarray,
+                    reference_inputs: np.ndarray | None, normals: np.ndarray,
+                    offsets: np.ndarray, start: float) -> FilterResult:
+        """The step on checked data (:meth:`solve`): the shortcut, the QP, the recovery."""
+        T, m = self._T, self._m
+        check = self._check
+        ref_inputs = self._zero_inputs if reference_inputs is None else reference_inputs
         k = normals.shape[0]
         self._qp_solves = 0
-        if not self._has_state_cost:  # first_input: x^r is the roll-out of u^r (keeps b small)
-            ref_states = (self._phi @ x0 + self._gamma @ ref_inputs.reshape(-1)).reshape(T, n)
+        at_reference = None  # the evaluation of u = u^r, when made
+        if not self._has_state_cost:
+            # first_input: x^r is the roll-out of u^r (keeps b small), which is also the
+            # unconstrained optimum: one evaluation gives both.
+            at_reference = check.evaluate(x0, ref_inputs, normals, offsets)
+            ref_states = at_reference[0][1:]
 
         if self._skip and reference_inputs is not None:
             u = ref_inputs.reshape(-1)
             if self._has_state_cost:
                 residual = ref_states.reshape(-1) - self._phi @ x0 - self._gamma @ u
                 u = u + self._gain @ residual  # a new array
-            else:
-                u = np.array(u)  # a copy: it may become the stored plan
             if (u >= self._u_low_all).all() and (u <= self._u_high_all).all():
-                states, halfspace, bounds = self._evaluate(x0, u, normals, offsets)
+                states, halfspace, bounds = at_reference or check.evaluate(
+                    x0, u, normals, offsets)
                 if np.maximum.reduce(bounds, initial=-np.inf) <= 0.0 and (
                     not k or np.maximum.reduce(halfspace, axis=None) <= 0.0
                 ):
-                    inputs = u.reshape(T, m)
+                    inputs = np.array(u).reshape(T, m)  # a copy: it becomes the stored plan
                     self._plan, self._failures = inputs, 0
                     slack = np.zeros((k, T)) if self._soft else None
                     return self._result(
                         FilterStatus.OPTIMAL, inputs, states, slack, 0.0, _NO_QP, 0, 0.0,
-                        self._cost(inputs, states, ref_states, ref_inputs), start,
+                        check.cost(inputs, states, ref_states, reference_inputs), start,
                     )
 
-        step = padded_step(x0, ref_states, ref_inputs, normals, offsets, self._K)
+        step = self._padded(x0, ref_states, ref_inputs, normals, offsets)
         self._step = step
 
         primary = self._call(self._primary, step)
-        answer = self._accept(primary, self._primary_soft_rows, x0, normals, offsets)
+        answer = check.accept(primary, self._primary_soft_rows, x0, normals, offsets)
         iterations, solve_time = primary.iterations, primary.solve_time
         status_text = primary.status if isinstance(answer, tuple) or not answer else (
             f"{primary.status} ({answer})"
@@ -510,13 +456,13 @@ class MPCSafetyFilter:
         if isinstance(answer, tuple):
             inputs, states, halfspace, bounds = answer
             self._plan, self._failures = inputs, 0
-            slack = self._slack(halfspace) if self._soft else None
+            slack = check.slack(halfspace) if self._soft else None
             status = FilterStatus.SOFT if slack is not None and slack.any() else (
                 FilterStatus.OPTIMAL
             )
-            return self._result(status, inputs, states, slack, self._bound_total(bounds),
+            return self._result(status, inputs, states, slack, check.bound_total(bounds),
                                 status_text, iterations, solve_time,
-                                self._cost(inputs, states, ref_states, ref_inputs), start)
+                                check.cost(inputs, states, ref_states, reference_inputs), start)
         self._failures += 1
         return self._recover(step, x0, normals, offsets, status_text, iterations, solve_time,
                              start)
@@ -526,6 +472,7 @@ class MPCSafetyFilter:
                  start: float) -> FilterResult:
         """After a failed hard QP: the recovery QPs (arena hard, then soft; then braking),
         or the paper's fallback."""
+        check = self._check
         prefix = None if self._recovery is not None else shifted_plan(self._plan, self._failures)
         status_text = f"hard QP: {status_text}"
         data = step if self._fallback == "soft" else StepData(  # "brake": no reference
@@ -534,7 +481,7 @@ class MPCSafetyFilter:
             if backend is None:  # fallback="paper": the last plan, shifted
                 break
             recovery = self._call(backend, data)
-            answer = self._accept(recovery, backend.problem.soft_rows, x0, normals, offsets)
+            answer = check.accept(recovery, backend.problem.soft_rows, x0, normals, offsets)
             iterations += recovery.iterations
             solve_time += recovery.solve_time
             reason = "" if isinstance(answer, tuple) or not answer else f" ({answer})"
@@ -542,11 +489,11 @@ class MPCSafetyFilter:
             if isinstance(answer, tuple):
                 inputs, states, halfspace, bounds = answer
                 self._plan = inputs
-                slack, bound_total = self._slack(halfspace), self._bound_total(bounds)
+                slack, bound_total = check.slack(halfspace), check.bound_total(bounds)
                 return self._result(
                     recovery_status(slack, bound_total), inputs, states, slack, bound_total,
                     status_text, iterations, solve_time,
-                    self._cost(inputs, states, step.ref_states, step.ref_inputs), start)
+                    check.cost(inputs, states, step.ref_states, step.ref_inputs), start)
         return self._brake(x0, normals, offsets, prefix, status_text, iterations, solve_time,
                            step, start)
 
@@ -554,41 +501,17 @@ class MPCSafetyFilter:
                prefix: np.ndarray | None, status_text: str, iterations: int,
                solve_time: float, step: StepData, start: float) -> FilterResult:
         """The shifted plan ``prefix`` (``"shifted"``), or braking from ``x0`` (``"brake"``)."""
-        p, T, m = self.problem, self._T, self._m
+        p, T, m, check = self.problem, self._T, self._m, self._check
         status = FilterStatus.BRAKE if prefix is None else FilterStatus.SHIFTED
         inputs, states = rollout_with_brake(
             p.A, p.B, x0, np.zeros((0, m)) if prefix is None else prefix, T,
             self._brake_gain, p.input_bounds,
         )
-        _, halfspace, bounds = self._evaluate(x0, inputs, normals, offsets)
-        return self._result(status, inputs, states, self._slack(halfspace),
-                            self._bound_total(bounds), status_text, iterations, solve_time,
-                            self._cost(inputs, states, step.ref_states, step.ref_inputs),
+        _, halfspace, bounds = check.evaluate(x0, inputs, normals, offsets)
+        return self._result(status, inputs, states, check.slack(halfspace),
+                            check.bound_total(bounds), status_text, iterations, solve_time,
+                            check.cost(inputs, states, step.ref_states, step.ref_inputs),
                             start)
-
-    def _cost(self, inputs: np.ndarray, states: np.ndarray, ref_states: np.ndarray,
-              ref_inputs: np.ndarray) -> float:
-        """:meth:`MPCProblem.cost` with the block-diagonal weights (two products)."""
-        du = inputs.reshape(-1) if ref_inputs is self._zero_inputs else (
-            inputs - ref_inputs).reshape(-1)
-        total = du @ (self._R_block @ du)
-        if self._has_state_cost:
-            dx = (states[1:] - ref_states).reshape(-1)
-            total += dx @ (self._Q_block @ dx)
-        return float(total)
-
-    @staticmethod
-    def _slack(halfspace: np.ndarray) -> np.ndarray:
-        """Violations ``max(0, excess)``, entries <= SLACK_TOLERANCE set to 0."""
-        return np.where(halfspace > SLACK_TOLERANCE, halfspace, 0.0)
-
-    def _bound_total(self, bounds: np.ndarray) -> float:
-        """Total violation of the arena and terminal rows (not the speed rows after them),
-        entries <= SLACK_TOLERANCE not counted."""
-        bounds = bounds[: self._n_bound]
-        if not np.maximum.reduce(bounds, initial=-np.inf) > SLACK_TOLERANCE:
-            return 0.0
-        return float(np.add.reduce(bounds[bounds > SLACK_TOLERANCE]))
 
     def _result(
         self, status: FilterStatus, inputs: np.ndarray, states: np.ndarray,

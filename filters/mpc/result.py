@@ -169,15 +169,27 @@ class StepData:
     offsets: np.ndarray
 
 
-def padded_step(x0: np.ndarray, ref_states: np.ndarray, ref_inputs: np.ndarray,
-                normals: np.ndarray, offsets: np.ndarray, K: int) -> StepData:
-    """The back ends' step data: the ``k`` halfspaces padded to ``K`` rows (unused rows
-    read ``0 @ y <= DISABLED_OFFSET``)."""
-    k, T, d = normals.shape
-    if k < K:
-        normals = np.concatenate([normals, np.zeros((K - k, T, d))])
-        offsets = np.concatenate([offsets, np.full((K - k, T), DISABLED_OFFSET)])
-    return StepData(x0, ref_states, ref_inputs, normals, offsets)
+class PaddedSteps:
+    """The back ends' step data, halfspaces padded to ``K`` rows.
+
+    The ``k`` rows given are copied into new ``(K, T, d)`` and ``(K, T)`` arrays (copies
+    of templates) whose other rows read ``0 @ y <= DISABLED_OFFSET`` (always met).
+    """
+
+    def __init__(self, K: int, T: int, d: int) -> None:
+        self._normals = np.zeros((K, T, d))
+        self._offsets = np.full((K, T), DISABLED_OFFSET)
+
+    def __call__(self, x0: np.ndarray, ref_states: np.ndarray, ref_inputs: np.ndarray,
+                 normals: np.ndarray, offsets: np.ndarray) -> StepData:
+        k = normals.shape[0]
+        padded_normals, padded_offsets = self._normals.copy(), self._offsets.copy()
+        padded_normals[:k] = normals
+        padded_offsets[:k] = offsets
+        step = object.__new__(StepData)  # the frozen __init__ costs a call per field
+        step.__dict__.update(x0=x0, ref_states=ref_states, ref_inputs=ref_inputs,
+                             normals=padded_normals, offsets=padded_offsets)
+        return step
 
 
 def filter_result(

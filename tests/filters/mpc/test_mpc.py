@@ -645,6 +645,20 @@ def test_bad_solve_arguments_raise(backend, make, error, name):
         solve(make_filter(backend), instance)
 
 
+def test_step_arrays_accept_finite_data_whose_sum_overflows():
+    """The one-reduction finiteness check falls back to the per-array checks, which pass
+    finite data whose total overflows (the offsets of switched-off rows may be huge)."""
+    from filters.mpc.checks import step_arrays
+
+    x0, states = np.zeros(4), np.zeros((T + 1, 4))
+    normals, offsets = np.zeros((2, T, 2)), np.full((2, T), 1e308)
+    checked = step_arrays(x0, states, None, (normals, offsets), T, 4, 2, 2, 3)
+    assert checked[3] is normals and checked[4] is offsets and checked[2] is None
+    offsets[1, 3] = np.nan
+    with pytest.raises(InvalidArrayError, match=r"halfspaces.offsets .*\(1, 3\)"):
+        step_arrays(x0, states, None, (normals, offsets), T, 4, 2, 2, 3)
+
+
 def test_errors_share_the_package_base_and_subclass_builtins():
     for error in (InvalidArrayError, InvalidParameterError, InvalidTypeError):
         assert issubclass(error, SafeNavError)
