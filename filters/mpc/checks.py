@@ -18,7 +18,6 @@ from filters.errors import InvalidArrayError, InvalidParameterError, InvalidType
 __all__ = ["all_finite", "box", "finite_step_array", "integer", "parse_halfspaces", "step_arrays",
            "weight"]
 
-_FLOAT64 = np.dtype(np.float64)
 
 #: The per-step arrays of :class:`filters.mpc.MPCSafetyFilter` are checked by
 #: :func:`filters._validation.finite_array` (one reduction for a finite float64 array).
@@ -125,11 +124,6 @@ def parse_halfspaces(halfspaces: object, horizon: int, dim: int, n_obstacles: in
     return normals, offsets
 
 
-def _plain(array: object, shape: tuple[int, ...]) -> bool:
-    """Whether ``array`` is a float64 ndarray of exactly ``shape``."""
-    return type(array) is np.ndarray and array.dtype == _FLOAT64 and array.shape == shape
-
-
 def step_arrays(
     x0: object, reference_states: object, reference_inputs: object, halfspaces: object,
     horizon: int, n: int, m: int, dim: int, n_obstacles: int,
@@ -138,28 +132,14 @@ def step_arrays(
 
     Returns ``(x0, reference_states, reference_inputs, normals, offsets)`` of shapes
     ``(n,)``, ``(T + 1, n)``, ``(T, m)`` (or ``None``), ``(k, T, d)``, ``(k, T)``, each
-    finite. When all are float64 arrays of these shapes (halfspaces as a pair, the
-    control loop's case), finiteness is one reduction over all of them; otherwise, or
-    when that reduction is not finite, each is checked alone
-    (:func:`finite_step_array`, :func:`parse_halfspaces`), which names the bad one.
+    finite, checked by :func:`finite_step_array` and :func:`parse_halfspaces` (which name
+    the bad one; a float64 array of the right shape costs one reduction).
 
     Raises
     ------
     InvalidArrayError, InvalidTypeError
         As :func:`finite_step_array` and :func:`parse_halfspaces`.
     """
-    if type(halfspaces) is tuple and len(halfspaces) == 2:
-        normals, offsets = halfspaces
-        k = normals.shape[0] if type(normals) is np.ndarray and normals.ndim == 3 else -1
-        if (0 <= k <= n_obstacles and _plain(normals, (k, horizon, dim))
-                and _plain(offsets, (k, horizon)) and _plain(x0, (n,))
-                and _plain(reference_states, (horizon + 1, n))
-                and (reference_inputs is None or _plain(reference_inputs, (horizon, m)))):
-            parts = [x0, reference_states.reshape(-1), normals.reshape(-1), offsets.reshape(-1)]
-            if reference_inputs is not None:
-                parts.append(reference_inputs.reshape(-1))
-            if math.isfinite(np.add.reduce(np.concatenate(parts))):
-                return x0, reference_states, reference_inputs, normals, offsets
     x0 = finite_step_array("x0", x0, (n,))
     reference_states = finite_step_array("reference_states", reference_states, (horizon + 1, n))
     if reference_inputs is not None:
