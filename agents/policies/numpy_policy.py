@@ -93,7 +93,9 @@ def _named_activation(name: str, parameter: float = 0.0) -> Callable[[np.ndarray
 
 def _activation_name(activation: Callable[[np.ndarray], np.ndarray]) -> tuple[str, float]:
     """``(name, parameter)`` of an activation made by :func:`_named_activation`."""
-    return activation.func.__name__[1:], activation.keywords["parameter"]  # type: ignore[attr-defined]
+    func = activation.func  # type: ignore[attr-defined]
+    name = next(name for name, known in _ACTIVATIONS.items() if known is func)
+    return name, activation.keywords["parameter"]  # type: ignore[attr-defined]
 
 
 def _activation(module: Any) -> Callable[[np.ndarray], np.ndarray] | None:
