@@ -140,7 +140,14 @@ def filter_config(args: argparse.Namespace, risk: str, names: Sequence[str]) -> 
     """The one :class:`filters.FilterConfig` of a command line: ``risk``, the
     ``--filter-option`` settings, then the filter flags ``names`` that were given."""
     given = {name: getattr(args, name) for name in names if getattr(args, name) is not None}
-    return FilterConfig.from_dict({**dict(args.filter_options), **given, "risk": risk})
+    return FilterConfig.from_dict({**dict(args.filter_option), **given, "risk": risk})
+
+
+def _given(args: argparse.Namespace, *names: str) -> list[str]:
+    """The flags ``--name`` among ``names`` (their argparse dests) whose value differs
+    from their subcommand's default."""
+    return [f"--{name.replace('_', '-')}" for name in names
+            if getattr(args, name) != args.parser.get_default(name)]
 
 
 _TRAIN_FILTER_FLAGS = ("alpha", "delta", "epsilon", "objective", "fallback",
@@ -148,10 +155,11 @@ _TRAIN_FILTER_FLAGS = ("alpha", "delta", "epsilon", "objective", "fallback",
 
 
 def _add_options(parser: argparse.ArgumentParser, kind: str, help: str) -> None:
-    """The repeatable ``--{kind}-option KEY=VALUE`` (VALUE as JSON, else a string)."""
+    """The repeatable ``--{kind}-option KEY=VALUE`` (VALUE as JSON, else a string), a list
+    of ``(KEY, VALUE)`` in ``args.{kind}_option``."""
     parser.add_argument(f"--{kind}-option", type=_option, action="append", default=[],
-                        metavar="KEY=VALUE", dest=f"{kind}_options",
-                        help=f"{help} (VALUE as JSON, else a string); repeatable")
+                        metavar="KEY=VALUE", help=f"{help} (VALUE as JSON, else a string); "
+                        "repeatable")
 
 
 def _add_run_flags(parser: argparse.ArgumentParser, *, episodes: int, output: str) -> None:
@@ -194,7 +202,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Train PPO on a SafeNav scenario and print its safety metrics (episode "
         "collision rate in continuous time, episode cost, goal rate, filter intervention and "
         "statuses) after every rollout; they are also written to <output>.metrics.csv.")
-    train.set_defaults(run=_train)
+    train.set_defaults(run=_train, parser=train)
     train.add_argument("--env-id", type=_argument_type(scenario_id),
                        default="SafeNav/RandomCrossing-v0")
     train.add_argument("--timesteps", type=_positive_int, default=400_000)
@@ -232,7 +240,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     evaluate = sub.add_parser("evaluate", help="Monte Carlo: filtered vs unfiltered policies",
                               **formatted)
-    evaluate.set_defaults(run=_evaluate)
+    evaluate.set_defaults(run=_evaluate, parser=evaluate)
     evaluate.add_argument("--scenarios", type=_argument_type(_canonical_scenario), nargs="+",
                           default=list(PAPER_SCENARIOS),
                           help="scenario names (HeadOn, Overtaking, Intersection, "
@@ -360,10 +368,7 @@ def _reproduce(args: argparse.Namespace) -> int:
 
 def _suite_clash(args: argparse.Namespace) -> str:
     """The error of flags that ``--suite`` (other than scenarios) sets itself, or ``""``."""
-    clash = [flag for flag, given in (
-        ("--sweep", args.sweep), ("--noise", args.noise),
-        ("--scenarios", args.scenarios != list(PAPER_SCENARIOS)),
-        ("--risks", args.suite == "stress" and args.risks != ["none", *PAPER_RISKS])) if given]
+    clash = _given(args, "sweep", "noise", "scenarios", *["risks"] * (args.suite == "stress"))
     sets, use = {"stress": ("the cases, methods and noise", "--cases/--methods"),
                  "crowd": ("the scene", "--crowd-settings")}.get(args.suite,
                                                                   ("the scene", "--scenes"))
@@ -378,20 +383,20 @@ def _evaluate(args: argparse.Namespace) -> int:
     from safe_nav_env.scenarios import CUSTOM
 
     if (args.suite == "scenarios" and CUSTOM in args.scenarios
-            and "scenario" not in dict(args.env_options)):
+            and "scenario" not in dict(args.env_option)):
         return _error(args, f"--scenarios {CUSTOM} needs its scenario: add --env-option "
                       f"scenario='{_CUSTOM_EXAMPLE}' (the fields of safe_nav_env.Scenario as "
                       "JSON) or --env-option scenario=HeadOn (a scenario name)")
     if args.suite != "scenarios" and _suite_clash(args):
         return _error(args, _suite_clash(args))
-    suite_output = args.suite != "scenarios" and args.output == Path("results/evaluate")
+    suite_output = args.suite != "scenarios" and not _given(args, "output")
     config = EvaluationConfig(  # a suite's output folder is results/<suite> unless given
         output=Path(f"results/{args.suite}") if suite_output else args.output,
         workers=args.workers, executor=args.executor, address=args.address,
         overwrite=args.overwrite, plots=not args.no_plots, progress=not args.no_progress)
     common = dict(config=config, episodes=args.episodes, seed=args.seed,
                   reference=args.reference, policy_path=args.policy, alpha=args.alpha,
-                  filter_options=dict(args.filter_options), env_options=dict(args.env_options))
+                  filter_options=dict(args.filter_option), env_options=dict(args.env_option))
     radii = dict(delta=args.delta, epsilon=args.epsilon)
     if args.suite == "stress":  # one --planner other than ppo replaces --planners
         outputs = stress.run_stress(None, args.cases, args.methods, **radii, **common,
@@ -420,17 +425,13 @@ def _evaluate(args: argparse.Namespace) -> int:
 def _train(args: argparse.Namespace) -> int:
     from agents.training.ppo import train_ppo
 
-    given = [f"--{name.replace('_', '-')}" for name in _TRAIN_FILTER_FLAGS
-             if getattr(args, name) is not None]
-    given += ["--filter-option"] * bool(args.filter_options) + ["--reference"] * (
-        args.reference != "default")
-    if args.filter is None and given:
-        return _error(args, f"{', '.join(given)} need --filter")
-    if not args.lagrangian and (args.cost_limit != 0.0 or args.lambda_lr != 0.05):
-        return _error(args, "--cost-limit/--lambda-lr need --lagrangian")
+    for needed, names in (("filter", (*_TRAIN_FILTER_FLAGS, "filter_option", "reference")),
+                          ("lagrangian", ("cost_limit", "lambda_lr"))):
+        if not getattr(args, needed) and (given := _given(args, *names)):
+            return _error(args, f"{', '.join(given)} need --{needed}")
     _, report = train_ppo(  # bad options raise before any training (main prints them)
         args.env_id, args.timesteps, args.seed, n_envs=args.n_envs,
-        env_kwargs=dict(args.env_options), lagrangian=args.lagrangian,
+        env_kwargs=dict(args.env_option), lagrangian=args.lagrangian,
         filter_kwargs=filter_config(args, args.filter, _TRAIN_FILTER_FLAGS) if args.filter
         else None, filter_reference=args.reference, cost_limit=args.cost_limit,
         lambda_lr=args.lambda_lr, eval_freq=args.eval_freq, eval_episodes=args.eval_episodes,
