@@ -366,32 +366,28 @@ def _reproduce(args: argparse.Namespace) -> int:
     return 0
 
 
-def _suite_clash(args: argparse.Namespace) -> str:
-    """The error of flags that ``--suite`` (other than scenarios) sets itself, or ``""``."""
-    clash = _given(args, "sweep", "noise", "scenarios", *["risks"] * (args.suite == "stress"))
-    sets, use = {"stress": ("the cases, methods and noise", "--cases/--methods"),
-                 "crowd": ("the scene", "--crowd-settings")}.get(args.suite,
-                                                                  ("the scene", "--scenes"))
-    return clash and (f"--suite {args.suite} sets {sets} itself; drop {', '.join(clash)} "
-                      f"(use {use})")
-
-
 def _evaluate(args: argparse.Namespace) -> int:
     from agents.evaluation.campaign import run_evaluation, run_sweep
     from agents.evaluation.config import EvaluationConfig
     from agents.experiments import crowd, pedestrians, stress
     from safe_nav_env.scenarios import CUSTOM
 
-    if (args.suite == "scenarios" and CUSTOM in args.scenarios
-            and "scenario" not in dict(args.env_option)):
+    suite = args.suite != "scenarios"
+    if not suite and CUSTOM in args.scenarios and "scenario" not in dict(args.env_option):
         return _error(args, f"--scenarios {CUSTOM} needs its scenario: add --env-option "
                       f"scenario='{_CUSTOM_EXAMPLE}' (the fields of safe_nav_env.Scenario as "
                       "JSON) or --env-option scenario=HeadOn (a scenario name)")
-    if args.suite != "scenarios" and _suite_clash(args):
-        return _error(args, _suite_clash(args))
-    suite_output = args.suite != "scenarios" and not _given(args, "output")
+    # a suite sets these flags itself
+    if suite and (clash := _given(args, "sweep", "noise", "scenarios",
+                                  *["risks"] * (args.suite == "stress"))):
+        sets, use = {"stress": ("the cases, methods and noise", "--cases/--methods"),
+                     "crowd": ("the scene", "--crowd-settings")}.get(args.suite,
+                                                                      ("the scene", "--scenes"))
+        return _error(args, f"--suite {args.suite} sets {sets} itself; drop "
+                      f"{', '.join(clash)} (use {use})")
     config = EvaluationConfig(  # a suite's output folder is results/<suite> unless given
-        output=Path(f"results/{args.suite}") if suite_output else args.output,
+        output=Path(f"results/{args.suite}") if suite and not _given(args, "output")
+        else args.output,
         workers=args.workers, executor=args.executor, address=args.address,
         overwrite=args.overwrite, plots=not args.no_plots, progress=not args.no_progress)
     common = dict(config=config, episodes=args.episodes, seed=args.seed,
@@ -401,7 +397,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     if args.suite == "stress":  # one --planner other than ppo replaces --planners
         outputs = stress.run_stress(None, args.cases, args.methods, **radii, **common,
                              planners=args.planners if args.planner == "ppo" else [args.planner])
-    elif args.suite != "scenarios":
+    elif suite:
         run, settings = ((crowd.run_crowd, args.crowd_settings) if args.suite == "crowd"
                          else (pedestrians.run_pedestrians, args.scenes))
         outputs = run(None, settings, args.risks, planner=args.planner, **radii, **common)

@@ -337,3 +337,5 @@ def test_the_filter_flags_build_the_same_config_as_the_python_call():
 def test_train_filter_flags_need_the_filter(capsys):
     assert main(["train", "--timesteps", "1", "--delta", "0.2", "--fallback", "brake"]) == 2
     assert "--delta, --fallback need --filter" in _one_line(capsys)
+    assert main(["train", "--timesteps", "1", "--lambda-lr", "0.1"]) == 2
+    assert "--lambda-lr need --lagrangian" in _one_line(capsys)
