@@ -185,7 +185,9 @@ class _Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from agents.evaluation.executors import EXECUTORS
     from agents.experiments import crowd, pedestrians, stress
+    from agents.training.ppo import FILTER_REFERENCES, VEC_ENVS, train_ppo
     from benchmarks.command import add_arguments, run
     from safe_nav_env import NOISE_PRESETS
     from safe_nav_env.stress import STRESS_SUITE
@@ -203,32 +205,32 @@ def build_parser() -> argparse.ArgumentParser:
         "collision rate in continuous time, episode cost, goal rate, filter intervention and "
         "statuses) after every rollout; they are also written to <output>.metrics.csv.")
     train.set_defaults(run=_train, parser=train)
-    train.add_argument("--env-id", type=_argument_type(scenario_id),
-                       default="SafeNav/RandomCrossing-v0")
-    train.add_argument("--timesteps", type=_positive_int, default=400_000)
-    train.add_argument("--seed", type=_seed, default=0)
-    train.add_argument("--n-envs", type=_positive_int, default=8)
-    train.add_argument("--vec-env", choices=("dummy", "subproc"), default="dummy",
+    ppo = {name: p.default for name, p in inspect.signature(train_ppo).parameters.items()}
+    train.add_argument("--env-id", type=_argument_type(scenario_id), default=ppo["env_id"])
+    train.add_argument("--timesteps", type=_positive_int, default=ppo["total_timesteps"])
+    train.add_argument("--seed", type=_seed, default=ppo["seed"])
+    train.add_argument("--n-envs", type=_positive_int, default=ppo["n_envs"])
+    train.add_argument("--vec-env", choices=VEC_ENVS, default=ppo["vec_env"],
                        help="in-process environments (default) or one process each")
     train.add_argument("--output", type=Path, default=Path("runs/ppo_random_crossing.zip"))
     train.add_argument("--filter", choices=[r for r in RISKS if r != "none"], default=None,
                        help="train with the safety filter in the loop (safe exploration)")
     add_filter_flags(train, _TRAIN_FILTER_FLAGS, defaults=False)
-    train.add_argument("--reference", choices=("default", "rollout"), default="default",
+    train.add_argument("--reference", choices=FILTER_REFERENCES, default=ppo["filter_reference"],
                        help="filter reference: the wrapper's, or the policy being trained "
                        "rolled out over the horizon")
     _add_options(train, "filter", "any other field of filters.FilterConfig")
     train.add_argument("--lagrangian", action="store_true",
                        help="train PPO-Lagrangian (cost: the continuous-time collision indicator)")
-    train.add_argument("--cost-limit", type=float, default=0.0,
+    train.add_argument("--cost-limit", type=float, default=ppo["cost_limit"],
                        help="PPO-Lagrangian: allowed mean episode cost (default 0)")
-    train.add_argument("--lambda-lr", type=float, default=0.05,
+    train.add_argument("--lambda-lr", type=float, default=ppo["lambda_lr"],
                        help="PPO-Lagrangian: dual step size of the multiplier")
-    train.add_argument("--eval-freq", type=_seed, default=0,
+    train.add_argument("--eval-freq", type=_seed, default=ppo["eval_freq"],
                        help="evaluate every N steps on held-out seeds (0: off); saves the best "
                        "model to <output>_best/")
-    train.add_argument("--eval-episodes", type=_positive_int, default=20)
-    train.add_argument("--tensorboard", type=str, default=None, metavar="DIR",
+    train.add_argument("--eval-episodes", type=_positive_int, default=ppo["eval_episodes"])
+    train.add_argument("--tensorboard", metavar="DIR",
                        help="write TensorBoard event files to DIR (pip install 'safe-nav[train]')")
     _add_options(train, "env", "gym.make keyword of the training environments, e.g. "
                  "random_start=0.5 or time_penalty=0.05")
@@ -260,7 +262,7 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--policy", type=_argument_type(_policy), default="",
                           help="PPO policy .zip (default: the shipped one)%(default).0s")
     _add_run_flags(evaluate, episodes=300, output="results/evaluate")
-    evaluate.add_argument("--executor", choices=("process", "ray"), default="process",
+    evaluate.add_argument("--executor", choices=EXECUTORS, default=EXECUTORS[0],
                           help="where episodes run: local processes or a Ray cluster")
     evaluate.add_argument("--address", default=None, metavar="HOST:PORT",
                           help="--executor ray: the cluster to run on, HOST:PORT of its head "
