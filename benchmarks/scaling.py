@@ -163,9 +163,7 @@ def plot_scaling(points: Sequence[dict], path: str | Path) -> Path:
     plt = pyplot()
     fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2))
     n_samples = min(p["n_samples"] for p in points)
-    cycle = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    colour = {n: cycle[i % len(cycle)]
-              for i, n in enumerate(sorted({p["n_obstacles"] for p in points}))}
+    colour = {n: f"C{i}" for i, n in enumerate(sorted({p["n_obstacles"] for p in points}))}
     for n in colour:
         row = sorted((p for p in points if p["n_obstacles"] == n and p["n_samples"] == n_samples),
                      key=lambda p: p["horizon"])

@@ -24,8 +24,6 @@ import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
 DEFAULT_SCENARIO = "RandomCrossing"
 DEFAULT_RISK = "dr_cvar"
 
@@ -47,7 +45,8 @@ class Recording:
     fps
         Frames per second of the clip (the environment's ``render_fps``: real time).
     reached_goal, collided
-        ``info["is_success"]`` at the end; any continuous-time collision on the way.
+        Whether the ego reached the goal; any continuous-time collision on the way
+        (:class:`agents.evaluation.runner.EpisodeStats`, as in the evaluation's records).
     mean_intervention
         Mean ``||u_safe - u_ref||`` over the steps, in m/s².
     """
@@ -114,7 +113,7 @@ def record_episode(
 
     from agents.evaluation.plots import RISK_LABELS, save_gif
     from agents.evaluation.records import EpisodeSpec
-    from agents.evaluation.runner import make_env
+    from agents.evaluation.runner import EpisodeStats, make_env
     from filters._validation import integer_at_least
 
     if max_steps is not None:
@@ -132,23 +131,24 @@ def record_episode(
     except BaseException:
         env.close()
         raise
+    stats = EpisodeStats()  # the evaluation's own per-episode bookkeeping
     with video:  # RecordVideo writes the clip on close()
         obs, info = video.reset(seed=int(spec.seed))
-        steps, collided, interventions, done = 0, False, [], False
+        stats.start(env.unwrapped, info)
+        done = False
         while not done:
-            obs, _, terminated, truncated, info = video.step(
+            obs, reward, terminated, truncated, info = video.step(
                 planner.predict(obs, deterministic=True)[0])
-            steps += 1
-            collided = collided or bool(info["collision"])
-            interventions.append(float(info["filter"].intervention))
-            done = terminated or truncated or steps == max_steps
+            stats.step(env.unwrapped, reward, info)
+            done = terminated or truncated or stats.steps == max_steps
         frames, fps = list(video.recorded_frames), int(video.frames_per_sec)
+    episode = stats.summary()
     path = (folder / f"{stem}-episode-0.mp4").replace(folder / f"{stem}.mp4")
     label = (f"{spec.scenario}, seed {spec.seed}, PPO + "
              f"{RISK_LABELS.get(spec.risk, spec.risk)} filter")
     return Recording(path, save_gif(frames, folder / f"{stem}.gif", fps=fps, label=label)
-                     if gif else None, len(frames), steps, fps, bool(info["is_success"]),
-                     collided, float(np.mean(interventions)))
+                     if gif else None, len(frames), episode["steps"], fps,
+                     episode["goal_reached"], episode["collision"], episode["mean_intervention"])
 
 
 def main(argv: list[str] | None = None) -> int:
