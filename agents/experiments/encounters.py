@@ -187,20 +187,21 @@ def paper_monte_carlo(
     """The paper's Monte Carlo (Section IV-B) under ``preset``, paper episode lengths.
 
     Episode ``i`` of every (scenario, risk) uses seed ``seed + i``, so the risks are
-    compared on common random numbers. The episodes run in ``workers`` processes; the
-    records come in job order (scenario, risk, seed).
+    compared on common random numbers. The episodes run on the evaluation pipeline's
+    executor (:func:`agents.evaluation.executors.make_executor` with ``workers`` local
+    processes, which runs again the episodes of a worker that died), each through
+    :func:`run_encounter`; the records come in job order (scenario, risk, seed).
 
     Raises
     ------
     InvalidParameterError
-        For an unknown preset, scenario or risk, or ``episodes < 1``.
+        For an unknown preset, scenario or risk, ``episodes < 1`` or ``workers < 1``.
+    WorkersLostError
+        If the worker processes keep dying.
     """
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
-
     from tqdm.auto import tqdm
 
-    from agents.evaluation.executors import worker_init
+    from agents.evaluation.executors import make_executor
     from filters.wrapper import RISKS as FILTER_RISKS
 
     if isinstance(preset, str):
@@ -214,13 +215,10 @@ def paper_monte_carlo(
     for scenario in scenarios:
         paper_duration(scenario)
     integer_at_least("episodes", episodes)
-    integer_at_least("workers", workers)
     jobs = [EncounterJob(preset, scenario, risk, seed + i)
             for scenario in scenarios for risk in risks for i in range(episodes)]
-    bar = dict(total=len(jobs), desc="paper episodes", unit="ep", disable=not progress)
-    if workers == 1:
-        return list(tqdm(map(run_encounter, jobs), **bar))
-    with ProcessPoolExecutor(max_workers=workers, initializer=worker_init,
-                             mp_context=multiprocessing.get_context("spawn")) as pool:
-        chunk = max(1, min(16, len(jobs) // (4 * workers)))  # records come back in job order
-        return list(tqdm(pool.map(run_encounter, jobs, chunksize=chunk), **bar))
+    order = {(job.scenario, job.risk, job.seed): k for k, job in enumerate(jobs)}
+    with make_executor("process", workers) as executor:  # results in order of completion
+        records = list(tqdm(executor.run(jobs, run_encounter), total=len(jobs),
+                            desc="paper episodes", unit="ep", disable=not progress))
+    return sorted(records, key=lambda r: order[(r.scenario, r.risk, r.seed)])
