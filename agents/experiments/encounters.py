@@ -112,7 +112,8 @@ def encounter_spec(job: EncounterJob) -> EpisodeSpec:
     ------
     InvalidParameterError
         If the scenario has no paper duration
-        (:func:`~agents.experiments.paper_settings.paper_duration`).
+        (:func:`~agents.experiments.paper_settings.paper_duration`), or a setting fails
+        the :class:`~agents.evaluation.records.EpisodeSpec`'s checks (e.g. an unknown risk).
     """
     preset = job.preset
     q, q_terminal, r = preset.filter_weights  # times the identity; state 4, input 2
@@ -151,8 +152,7 @@ def run_encounter(job: EncounterJob) -> EncounterRecord:
     start = time.perf_counter()
     try:
         record, trajectory = run_episode(encounter_spec(job), policy=_preset_planner(job.preset),
-                                         record_trajectory=True, render=job.render,
-                                         reuse_env=False)
+                                         record_trajectory=True, render=job.render)
         error = record.error if trajectory is None else record.error.split(" | ")[0]
         from_record = {name: getattr(record, name) for name in _FROM_RECORD}
     except Exception as exc:  # noqa: BLE001 — a bad job (e.g. no paper duration) is recorded
@@ -202,21 +202,17 @@ def paper_monte_carlo(
     from tqdm.auto import tqdm
 
     from agents.evaluation.executors import make_executor
-    from filters.wrapper import RISKS as FILTER_RISKS
 
     if isinstance(preset, str):
         if preset not in PRESETS:
             raise InvalidParameterError(f"preset must be one of {sorted(PRESETS)}, got "
                                         f"{preset!r}")
         preset = PRESETS[preset]
-    for risk in risks:
-        if risk not in FILTER_RISKS:
-            raise InvalidParameterError(f"risk must be one of {FILTER_RISKS}, got {risk!r}")
-    for scenario in scenarios:
-        paper_duration(scenario)
     integer_at_least("episodes", episodes)
     jobs = [EncounterJob(preset, scenario, risk, seed + i)
             for scenario in scenarios for risk in risks for i in range(episodes)]
+    for job in jobs[::episodes]:  # each (scenario, risk) through the episode's own checks
+        encounter_spec(job)
     order = {(job.scenario, job.risk, job.seed): k for k, job in enumerate(jobs)}
     with make_executor("process", workers) as executor:  # results in order of completion
         records = list(tqdm(executor.run(jobs, run_encounter), total=len(jobs),

@@ -319,6 +319,16 @@ def test_the_monte_carlo_runs_on_the_executors_with_the_same_records_in_job_orde
         assert pooled.statuses == serial.statuses
 
 
+@pytest.mark.parametrize(("kwargs", "match"), [
+    ({"preset": "mine"}, "preset"), ({"risks": ("cvar", "bogus")}, "risk"),
+    ({"scenarios": ("SafeNav/RandomCrossing-v0",)}, "RandomCrossing"),
+    ({"episodes": 0}, "episodes"), ({"workers": 0}, "workers"),
+])
+def test_the_monte_carlo_refuses_bad_settings_before_any_episode(kwargs, match):
+    with pytest.raises(InvalidParameterError, match=match):
+        paper_monte_carlo(**kwargs)
+
+
 @pytest.mark.slow
 def test_reproduce_report_states_window_lengths_presets_and_both_counts(tmp_path):
     report = reproduce(tmp_path, episodes=2, workers=1, timing=False, progress=False,
