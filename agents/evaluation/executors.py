@@ -302,9 +302,9 @@ def _ray_task(spec: Any, task: Task | None = None) -> Any:
 
 
 class RayExecutor(Executor):
-    """Episodes as Ray tasks, at most ``max_in_flight`` submitted at once.
+    """Episodes as Ray tasks, at most :attr:`MAX_IN_FLIGHT` submitted at once.
 
-    A task whose worker or node dies is run again by Ray (``max_retries`` times; the
+    A task whose worker or node dies is run again by Ray (:attr:`MAX_RETRIES` times; the
     episodes are seeded, so a retry gives the same result), and each episode is
     yielded once, when its task returns.
 
@@ -315,14 +315,14 @@ class RayExecutor(Executor):
         --port=PORT``) or ``"auto"`` (the cluster ``ray start`` started on this
         machine); ``None`` uses ``RAY_ADDRESS`` if set, else starts a local Ray.
         Ignored if Ray is already initialised in this process.
-    max_in_flight
-        Bound on submitted tasks (bounded memory for big sweeps), >= 1.
-    max_retries
-        Runs of a task again after its worker process or node died, >= 0.
     """
 
-    def __init__(self, *, address: str | None = None, max_in_flight: int = 256,
-                 max_retries: int = 3) -> None:
+    MAX_IN_FLIGHT = 256
+    """Bound on submitted tasks (bounded memory for big sweeps)."""
+    MAX_RETRIES = 3
+    """Runs of a task again after its worker process or node died."""
+
+    def __init__(self, *, address: str | None = None) -> None:
         try:
             import ray
         except ImportError as exc:  # pragma: no cover - depends on the extra
@@ -334,8 +334,6 @@ class RayExecutor(Executor):
             raise InvalidParameterError(f"address must be HOST:PORT or 'auto', got {address!r}")
         self._ray = ray
         self.address = address
-        self.max_in_flight = integer_at_least("max_in_flight", max_in_flight)
-        self.max_retries = integer_at_least("max_retries", max_retries, low=0)
         self._in_flight: dict[Any, Any] = {}
         self._initialised = False
 
@@ -353,12 +351,12 @@ class RayExecutor(Executor):
             self._initialised = True
         # SPREAD: episodes go to every node (the default packs them on the driver's node
         # first, leaving the others idle on a small cluster).
-        remote = ray.remote(num_cpus=1, max_retries=self.max_retries,
+        remote = ray.remote(num_cpus=1, max_retries=self.MAX_RETRIES,
                           scheduling_strategy="SPREAD")(_ray_task)
         pending = list(specs)[::-1]
         self._in_flight = {}
         while pending or self._in_flight:
-            while pending and len(self._in_flight) < self.max_in_flight:
+            while pending and len(self._in_flight) < self.MAX_IN_FLIGHT:
                 spec = pending.pop()
                 self._in_flight[remote.remote(spec, task)] = spec
             done, _ = ray.wait(list(self._in_flight), num_returns=1)
@@ -369,7 +367,7 @@ class RayExecutor(Executor):
                     ray.exceptions.ObjectLostError) as exc:
                 raise WorkersLostError(
                     f"episode {spec.scenario} {spec.risk} seed {spec.seed} was lost "
-                    f"{self.max_retries + 1} times with its Ray worker or node "
+                    f"{self.MAX_RETRIES + 1} times with its Ray worker or node "
                     f"({type(exc).__name__}); the finished episodes are saved: run the "
                     "same command again to resume") from exc
             yield result
