@@ -94,11 +94,11 @@ class _ZeroInputReference(MPCReferencePlanner):
 
 def _preset_planner(preset: ReproductionPreset):
     """A function ``env -> planner``: the preset's obstacle-agnostic MPC planner for ``env``,
-    the agent and the filter's reference maker."""
+    the agent and the filter's reference maker (zero reference inputs: Problem 2's ``u' R u``)."""
     Q, Q_terminal, R = preset.planner_weights
-    kind = MPCReferencePlanner if preset.filter_input_cost == "deviation" else _ZeroInputReference
-    return lambda env: kind.from_env(env, horizon=preset.horizon, Q=Q, Q_terminal=Q_terminal,
-                                     R=R, convention=preset.planner_convention)
+    return lambda env: _ZeroInputReference.from_env(
+        env, horizon=preset.horizon, Q=Q, Q_terminal=Q_terminal, R=R,
+        convention=preset.planner_convention)
 
 
 def encounter_spec(job: EncounterJob) -> EpisodeSpec:
