@@ -35,14 +35,17 @@ from safe_nav_env.scenarios import scenario_name
 # ---------------------------------------------------------------------------- episodes
 @dataclass(frozen=True)
 class EncounterJob:
-    """One paper-comparison episode: a preset, a scenario id, a risk and a seed."""
+    """One paper-comparison episode: a preset, a scenario id, a risk and a seed.
+
+    ``render``: the featured run of the figures, with its ``rgb_array`` frames and its
+    halfspaces (the Monte Carlo's records keep neither).
+    """
 
     preset: ReproductionPreset
     scenario: str
     risk: str
     seed: int
     render: bool = False
-    record_halfspaces: bool = False
 
 
 @dataclass(eq=False)
@@ -162,7 +165,7 @@ def run_encounter(job: EncounterJob) -> EncounterRecord:
             ego=np.zeros((0, 2)), obstacles=np.zeros((0, 0, 2)), obstacle_radii=np.zeros(0),
             ego_radius=math.nan, goal=np.zeros(2), halfspaces=[], statuses=[], frames=[],
             dt=math.nan)
-    elif not job.record_halfspaces:
+    elif not job.render:
         trajectory.halfspaces = []
     return EncounterRecord(**vars(trajectory), preset=job.preset.name, scenario=job.scenario,
                            risk=job.risk, seed=int(job.seed), error=error.replace("\n", " ")[:500],
