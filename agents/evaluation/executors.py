@@ -1,12 +1,15 @@
 """Where episodes run: in this process, in a pool of local processes, or on Ray.
 
-An executor runs :func:`agents.evaluation.runner.run_spec` over episode specs and yields the
-records as they finish (order of completion; :func:`agents.evaluation.evaluate.evaluate`
-sorts them). Executors keep their workers between calls to :meth:`Executor.run`
-until closed, so a sweep pays the start-up (processes, imports, policy load) once.
+An executor runs a task over episodes and yields its results as they finish (order of
+completion; :func:`agents.evaluation.evaluate.evaluate` sorts them). The task is
+:func:`agents.evaluation.runner.run_spec` (episode spec -> record) unless the caller
+passes another module-level function of one episode (``safe-nav reproduce`` runs
+:func:`agents.experiments.encounters.run_encounter`, which keeps each trajectory).
+Executors keep their workers between calls to :meth:`Executor.run` until closed, so a
+sweep pays the start-up (processes, imports, policy load) once.
 
-Episodes are seeded individually, so every executor gives the same records, and an
-episode run again (its worker died) gives the same record too: a worker process killed
+Episodes are seeded individually, so every executor gives the same results, and an
+episode run again (its worker died) gives the same result too: a worker process killed
 mid-run or a Ray node lost costs the episodes it was running, which run again, and
 every episode is yielded exactly once.
 
@@ -22,12 +25,11 @@ from __future__ import annotations
 import os
 import signal
 import sys
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
 from agents.errors import WorkersLostError
 from agents.evaluation.policy_files import exported_policies, preload_policies
-from agents.evaluation.records import EpisodeRecord, EpisodeSpec
 from agents.evaluation.runner import run_spec
 from filters._validation import integer_at_least
 from filters.errors import InvalidParameterError
@@ -37,6 +39,12 @@ __all__ = ["EXECUTORS", "Executor", "ProcessExecutor", "RayExecutor", "SerialExe
 
 EXECUTORS = ("process", "ray")
 """Executor kinds of :func:`make_executor` (``"process"`` with one worker runs serially)."""
+
+Task = Callable[[Any], Any]
+"""A function of one episode (:func:`run_spec`, the default, takes an
+:class:`~agents.evaluation.records.EpisodeSpec`), defined at module level so that it
+pickles by reference to the workers; it records an episode's own failure in its result
+instead of raising."""
 
 
 def worker_init() -> None:
@@ -62,8 +70,9 @@ def worker_init() -> None:
 class Executor:
     """Runs episodes; use as a context manager (or call :meth:`close`)."""
 
-    def run(self, specs: Sequence[EpisodeSpec]) -> Iterator[EpisodeRecord]:
-        """Yield the record of every spec as it finishes."""
+    def run(self, specs: Sequence[Any], task: Task | None = None) -> Iterator[Any]:
+        """Yield ``task(spec)`` of every spec as it finishes (``task`` ``None``:
+        :func:`run_spec`, the spec's :class:`~agents.evaluation.records.EpisodeRecord`)."""
         raise NotImplementedError
 
     def start(self) -> None:
@@ -92,9 +101,10 @@ class Executor:
 class SerialExecutor(Executor):
     """Runs episodes one after the other in this process."""
 
-    def run(self, specs: Sequence[EpisodeSpec]) -> Iterator[EpisodeRecord]:
+    def run(self, specs: Sequence[Any], task: Task | None = None) -> Iterator[Any]:
+        run = task or run_spec
         for spec in specs:
-            yield run_spec(spec)
+            yield run(spec)
 
 
 class ProcessExecutor(Executor):
@@ -104,7 +114,7 @@ class ProcessExecutor(Executor):
 
     A worker that dies mid-run (killed, out of memory) breaks the pool: the episodes
     not yet returned are run again on a fresh pool (they are seeded, so they give
-    the same records), and every episode is yielded exactly once. The parent never
+    the same results), and every episode is yielded exactly once. The parent never
     waits on a dead worker.
 
     Parameters
@@ -165,7 +175,7 @@ class ProcessExecutor(Executor):
         """Process ids of the pool's live workers (none before the first run or start)."""
         return [p.pid for p in self._live_workers()]
 
-    def run(self, specs: Sequence[EpisodeSpec]) -> Iterator[EpisodeRecord]:
+    def run(self, specs: Sequence[Any], task: Task | None = None) -> Iterator[Any]:
         from concurrent.futures import FIRST_COMPLETED, wait
         from concurrent.futures.process import BrokenProcessPool
 
@@ -177,11 +187,11 @@ class ProcessExecutor(Executor):
         # workers finish together instead of one running the last chunk alone), two
         # chunks per worker in flight so workers never wait for the parent. A broken
         # pool loses at most those chunks: their episodes run again, none is yielded twice
-        # (a chunk's records are yielded together when it returns).
+        # (a chunk's results are yielded together when it returns).
         # The policies the parent loaded (evaluate's check_specs does) travel with every
         # chunk as numpy arrays (tens of kB): workers skip torch, SB3 and the file's load.
         policies = exported_policies()
-        in_flight: dict[Any, list[EpisodeSpec]] = {}
+        in_flight: dict[Any, list[Any]] = {}
         lost_in_a_row = 0
         try:
             while pending or in_flight:
@@ -189,18 +199,18 @@ class ProcessExecutor(Executor):
                 while pending and len(in_flight) < 2 * self.workers:
                     size = max(1, min(CHUNK_EPISODES, len(pending) // (8 * self.workers)))
                     chunk = [pending.pop() for _ in range(size)]
-                    in_flight[pool.submit(run_specs_chunk, chunk, policies)] = chunk
+                    in_flight[pool.submit(run_specs_chunk, chunk, policies, task)] = chunk
                 done, _ = wait(in_flight, return_when=FIRST_COMPLETED)
                 if any(isinstance(f.exception(), BrokenProcessPool) for f in done):
                     done, _ = wait(in_flight)  # a broken pool fails all its futures
-                lost: list[EpisodeSpec] = []
+                lost: list[Any] = []
                 for future in done:
                     chunk = in_flight.pop(future)
                     if isinstance(future.exception(), BrokenProcessPool):
                         lost.extend(chunk)
                         continue
                     lost_in_a_row = 0
-                    yield from future.result()  # run_spec records an episode's own errors
+                    yield from future.result()  # a task records an episode's own errors
                 if lost:  # drop the broken pool: the next round starts a fresh one
                     lost_in_a_row += 1
                     pending.extend(lost[::-1])
@@ -259,15 +269,17 @@ def stop_fork_server() -> None:
     multiprocessing.forkserver._forkserver._stop()
 
 
-def run_specs_chunk(specs: Sequence[EpisodeSpec],
-                    policies: dict[tuple[str, str], Any] | None = None) -> list[EpisodeRecord]:
-    """The records of ``specs``, in order (one task of a local worker).
+def run_specs_chunk(specs: Sequence[Any], policies: dict[tuple[str, str], Any] | None = None,
+                    task: Task | None = None) -> list[Any]:
+    """``task(spec)`` (default :func:`run_spec`) of every spec, in order (one task of a
+    local worker).
 
     ``policies``: the parent's loaded policies
     (:func:`agents.evaluation.policy_files.exported_policies`), used instead of loading the files.
     """
     preload_policies(policies or {})
-    return [run_spec(spec) for spec in specs]
+    run = task or run_spec
+    return [run(spec) for spec in specs]
 
 
 def _start_workers(pool: Any, count: int) -> None:
@@ -284,16 +296,16 @@ def _ready() -> None:
     """A task that does nothing: its worker has started and imported this module."""
 
 
-def _ray_task(spec: EpisodeSpec) -> EpisodeRecord:
+def _ray_task(spec: Any, task: Task | None = None) -> Any:
     worker_init()
-    return run_spec(spec)
+    return (task or run_spec)(spec)
 
 
 class RayExecutor(Executor):
-    """Episodes as Ray tasks, at most ``max_in_flight`` submitted at once.
+    """Episodes as Ray tasks, at most :attr:`MAX_IN_FLIGHT` submitted at once.
 
-    A task whose worker or node dies is run again by Ray (``max_retries`` times; the
-    episodes are seeded, so a retry gives the same record), and each episode is
+    A task whose worker or node dies is run again by Ray (:attr:`MAX_RETRIES` times; the
+    episodes are seeded, so a retry gives the same result), and each episode is
     yielded once, when its task returns.
 
     Parameters
@@ -303,14 +315,14 @@ class RayExecutor(Executor):
         --port=PORT``) or ``"auto"`` (the cluster ``ray start`` started on this
         machine); ``None`` uses ``RAY_ADDRESS`` if set, else starts a local Ray.
         Ignored if Ray is already initialised in this process.
-    max_in_flight
-        Bound on submitted tasks (bounded memory for big sweeps), >= 1.
-    max_retries
-        Runs of a task again after its worker process or node died, >= 0.
     """
 
-    def __init__(self, *, address: str | None = None, max_in_flight: int = 256,
-                 max_retries: int = 3) -> None:
+    MAX_IN_FLIGHT = 256
+    """Bound on submitted tasks (bounded memory for big sweeps)."""
+    MAX_RETRIES = 3
+    """Runs of a task again after its worker process or node died."""
+
+    def __init__(self, *, address: str | None = None) -> None:
         try:
             import ray
         except ImportError as exc:  # pragma: no cover - depends on the extra
@@ -322,12 +334,10 @@ class RayExecutor(Executor):
             raise InvalidParameterError(f"address must be HOST:PORT or 'auto', got {address!r}")
         self._ray = ray
         self.address = address
-        self.max_in_flight = integer_at_least("max_in_flight", max_in_flight)
-        self.max_retries = integer_at_least("max_retries", max_retries, low=0)
-        self._in_flight: dict[Any, EpisodeSpec] = {}
+        self._in_flight: dict[Any, Any] = {}
         self._initialised = False
 
-    def run(self, specs: Sequence[EpisodeSpec]) -> Iterator[EpisodeRecord]:
+    def run(self, specs: Sequence[Any], task: Task | None = None) -> Iterator[Any]:
         ray = self._ray
         if not ray.is_initialized():
             try:
@@ -341,26 +351,26 @@ class RayExecutor(Executor):
             self._initialised = True
         # SPREAD: episodes go to every node (the default packs them on the driver's node
         # first, leaving the others idle on a small cluster).
-        task = ray.remote(num_cpus=1, max_retries=self.max_retries,
+        remote = ray.remote(num_cpus=1, max_retries=self.MAX_RETRIES,
                           scheduling_strategy="SPREAD")(_ray_task)
         pending = list(specs)[::-1]
         self._in_flight = {}
         while pending or self._in_flight:
-            while pending and len(self._in_flight) < self.max_in_flight:
+            while pending and len(self._in_flight) < self.MAX_IN_FLIGHT:
                 spec = pending.pop()
-                self._in_flight[task.remote(spec)] = spec
+                self._in_flight[remote.remote(spec, task)] = spec
             done, _ = ray.wait(list(self._in_flight), num_returns=1)
             spec = self._in_flight.pop(done[0])
             try:
-                record = ray.get(done[0])
+                result = ray.get(done[0])
             except (ray.exceptions.WorkerCrashedError, ray.exceptions.NodeDiedError,
                     ray.exceptions.ObjectLostError) as exc:
                 raise WorkersLostError(
                     f"episode {spec.scenario} {spec.risk} seed {spec.seed} was lost "
-                    f"{self.max_retries + 1} times with its Ray worker or node "
+                    f"{self.MAX_RETRIES + 1} times with its Ray worker or node "
                     f"({type(exc).__name__}); the finished episodes are saved: run the "
                     "same command again to resume") from exc
-            yield record
+            yield result
 
     def close(self) -> None:
         """Disconnect from Ray (and stop it if this executor started it)."""

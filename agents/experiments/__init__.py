@@ -4,8 +4,9 @@ The stress, crowd and pedestrian suites are campaigns: they build their episode 
 and run them with :func:`agents.evaluation.campaign.run_campaign` under an
 :class:`~agents.evaluation.config.EvaluationConfig`. The paper's Monte Carlo
 (:mod:`~agents.experiments.encounters`) needs each episode's trajectory and the
-preset's planner, which the executors do not carry: it runs the same runner
-(:func:`agents.evaluation.runner.run_episode`) on a process pool of its own.
+preset's planner: it runs the same runner (:func:`agents.evaluation.runner.run_episode`)
+on the same executors (:mod:`agents.evaluation.executors`), with its own task per
+episode (:func:`~agents.experiments.encounters.run_encounter`).
 
 * :mod:`agents.experiments.reproduce` — the paper's figures and tables;
   its parts: :mod:`~agents.experiments.paper_settings` (the paper's numbers and the

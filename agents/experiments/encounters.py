@@ -35,14 +35,17 @@ from safe_nav_env.scenarios import scenario_name
 # ---------------------------------------------------------------------------- episodes
 @dataclass(frozen=True)
 class EncounterJob:
-    """One paper-comparison episode: a preset, a scenario id, a risk and a seed."""
+    """One paper-comparison episode: a preset, a scenario id, a risk and a seed.
+
+    ``render``: the featured run of the figures, with its ``rgb_array`` frames and its
+    halfspaces (the Monte Carlo's records keep neither).
+    """
 
     preset: ReproductionPreset
     scenario: str
     risk: str
     seed: int
     render: bool = False
-    record_halfspaces: bool = False
 
 
 @dataclass(eq=False)
@@ -94,11 +97,11 @@ class _ZeroInputReference(MPCReferencePlanner):
 
 def _preset_planner(preset: ReproductionPreset):
     """A function ``env -> planner``: the preset's obstacle-agnostic MPC planner for ``env``,
-    the agent and the filter's reference maker."""
+    the agent and the filter's reference maker (zero reference inputs: Problem 2's ``u' R u``)."""
     Q, Q_terminal, R = preset.planner_weights
-    kind = MPCReferencePlanner if preset.filter_input_cost == "deviation" else _ZeroInputReference
-    return lambda env: kind.from_env(env, horizon=preset.horizon, Q=Q, Q_terminal=Q_terminal,
-                                     R=R, convention=preset.planner_convention)
+    return lambda env: _ZeroInputReference.from_env(
+        env, horizon=preset.horizon, Q=Q, Q_terminal=Q_terminal, R=R,
+        convention=preset.planner_convention)
 
 
 def encounter_spec(job: EncounterJob) -> EpisodeSpec:
@@ -112,7 +115,8 @@ def encounter_spec(job: EncounterJob) -> EpisodeSpec:
     ------
     InvalidParameterError
         If the scenario has no paper duration
-        (:func:`~agents.experiments.paper_settings.paper_duration`).
+        (:func:`~agents.experiments.paper_settings.paper_duration`), or a setting fails
+        the :class:`~agents.evaluation.records.EpisodeSpec`'s checks (e.g. an unknown risk).
     """
     preset = job.preset
     q, q_terminal, r = preset.filter_weights  # times the identity; state 4, input 2
@@ -151,8 +155,7 @@ def run_encounter(job: EncounterJob) -> EncounterRecord:
     start = time.perf_counter()
     try:
         record, trajectory = run_episode(encounter_spec(job), policy=_preset_planner(job.preset),
-                                         record_trajectory=True, render=job.render,
-                                         reuse_env=False)
+                                         record_trajectory=True, render=job.render)
         error = record.error if trajectory is None else record.error.split(" | ")[0]
         from_record = {name: getattr(record, name) for name in _FROM_RECORD}
     except Exception as exc:  # noqa: BLE001 — a bad job (e.g. no paper duration) is recorded
@@ -162,7 +165,7 @@ def run_encounter(job: EncounterJob) -> EncounterRecord:
             ego=np.zeros((0, 2)), obstacles=np.zeros((0, 0, 2)), obstacle_radii=np.zeros(0),
             ego_radius=math.nan, goal=np.zeros(2), halfspaces=[], statuses=[], frames=[],
             dt=math.nan)
-    elif not job.record_halfspaces:
+    elif not job.render:
         trajectory.halfspaces = []
     return EncounterRecord(**vars(trajectory), preset=job.preset.name, scenario=job.scenario,
                            risk=job.risk, seed=int(job.seed), error=error.replace("\n", " ")[:500],
@@ -187,40 +190,34 @@ def paper_monte_carlo(
     """The paper's Monte Carlo (Section IV-B) under ``preset``, paper episode lengths.
 
     Episode ``i`` of every (scenario, risk) uses seed ``seed + i``, so the risks are
-    compared on common random numbers. The episodes run in ``workers`` processes; the
-    records come in job order (scenario, risk, seed).
+    compared on common random numbers. The episodes run on the evaluation pipeline's
+    executor (:func:`agents.evaluation.executors.make_executor` with ``workers`` local
+    processes, which runs again the episodes of a worker that died), each through
+    :func:`run_encounter`; the records come in job order (scenario, risk, seed).
 
     Raises
     ------
     InvalidParameterError
-        For an unknown preset, scenario or risk, or ``episodes < 1``.
+        For an unknown preset, scenario or risk, ``episodes < 1`` or ``workers < 1``.
+    WorkersLostError
+        If the worker processes keep dying.
     """
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
-
     from tqdm.auto import tqdm
 
-    from agents.evaluation.executors import worker_init
-    from filters.wrapper import RISKS as FILTER_RISKS
+    from agents.evaluation.executors import make_executor
 
     if isinstance(preset, str):
         if preset not in PRESETS:
             raise InvalidParameterError(f"preset must be one of {sorted(PRESETS)}, got "
                                         f"{preset!r}")
         preset = PRESETS[preset]
-    for risk in risks:
-        if risk not in FILTER_RISKS:
-            raise InvalidParameterError(f"risk must be one of {FILTER_RISKS}, got {risk!r}")
-    for scenario in scenarios:
-        paper_duration(scenario)
     integer_at_least("episodes", episodes)
-    integer_at_least("workers", workers)
     jobs = [EncounterJob(preset, scenario, risk, seed + i)
             for scenario in scenarios for risk in risks for i in range(episodes)]
-    bar = dict(total=len(jobs), desc="paper episodes", unit="ep", disable=not progress)
-    if workers == 1:
-        return list(tqdm(map(run_encounter, jobs), **bar))
-    with ProcessPoolExecutor(max_workers=workers, initializer=worker_init,
-                             mp_context=multiprocessing.get_context("spawn")) as pool:
-        chunk = max(1, min(16, len(jobs) // (4 * workers)))  # records come back in job order
-        return list(tqdm(pool.map(run_encounter, jobs, chunksize=chunk), **bar))
+    for job in jobs[::episodes]:  # each (scenario, risk) through the episode's own checks
+        encounter_spec(job)
+    order = {(job.scenario, job.risk, job.seed): k for k, job in enumerate(jobs)}
+    with make_executor("process", workers) as executor:  # results in order of completion
+        records = list(tqdm(executor.run(jobs, run_encounter), total=len(jobs),
+                            desc="paper episodes", unit="ep", disable=not progress))
+    return sorted(records, key=lambda r: order[(r.scenario, r.risk, r.seed)])

@@ -59,7 +59,8 @@ def goal_reaching(policy: Any, *, starts: int = 120, distance: tuple[float, floa
     :math:`U(\\text{distance})` in m, with a speed :math:`U(0, \\text{max\\_speed})` in a
     uniform direction; at rest when ``max_speed`` is 0), from the environment seeded
     ``seed + i``. An episode lasts ``episode_length`` s (the goal tolerance is the
-    environment's, 0.3 m).
+    environment's, 0.3 m). The episodes run on the evaluation runner
+    (:func:`agents.evaluation.runner.run_episode`, risk ``"none"``).
 
     Parameters
     ----------
@@ -70,12 +71,12 @@ def goal_reaching(policy: Any, *, starts: int = 120, distance: tuple[float, floa
     Raises
     ------
     InvalidParameterError
-        If ``starts < 1``, the distance range is not ``0 < low <= high`` or a goal is not
-        inside the arena.
+        If ``starts < 1``, the distance range is not ``0 < low <= high``, a goal is not
+        inside the arena, or an episode fails (the policy raises, or its action is not a
+        finite 2-vector).
     """
-    import gymnasium as gym
-
-    from agents.training.wrappers import PhysicalUnitsPolicy, is_normalised_policy
+    from agents.evaluation.records import EpisodeSpec
+    from agents.evaluation.runner import run_episode
     from safe_nav_env import RandomStart, Scenario
     from safe_nav_env.errors import SafeNavEnvError
 
@@ -88,27 +89,20 @@ def goal_reaching(policy: Any, *, starts: int = 120, distance: tuple[float, floa
                               episode_length=episode_length) for goal in goals]
     except SafeNavEnvError as exc:
         raise InvalidParameterError(str(exc)) from exc
-    env = gym.make("SafeNav/Custom-v0", scenario=scenarios[0], random_start=start)
-    actor = (PhysicalUnitsPolicy(policy, env.action_space)
-             if is_normalised_policy(policy, env.action_space) else policy)
     steps, misses = [], []
-    try:
-        for i in range(starts):
-            scenario = scenarios[i % len(scenarios)]
-            obs, info = env.reset(seed=seed + i, options={"scenario": scenario})
-            first = tuple(float(v) for v in info["ego_state"])
-            done, count = False, 0
-            while not done:
-                action, _ = actor.predict(obs, deterministic=True)
-                obs, _, terminated, truncated, info = env.step(action)
-                count += 1
-                done = terminated or truncated
-            if info["is_success"]:
-                steps.append(count)
-            else:
-                misses.append((scenario.goal, first))
-    finally:
-        env.close()
+    for i in range(starts):
+        scenario = scenarios[i % len(scenarios)]
+        # The evaluation runner, unfiltered; a policy in [-1, 1] acts through NormalisedActions.
+        record, trajectory = run_episode(
+            EpisodeSpec(scenario="Custom", risk="none", seed=seed + i), policy=policy,
+            record_trajectory=True, env_kwargs={"scenario": scenario, "random_start": start})
+        if record.error:  # the runner records an episode's failure: here it is the policy's
+            raise InvalidParameterError(f"policy {type(policy).__name__} failed from start {i} "
+                                        f"(seed {seed + i}): {record.error.split(' | ')[0]}")
+        if record.goal_reached:
+            steps.append(record.steps)
+        else:
+            misses.append((scenario.goal, tuple(float(v) for v in trajectory.ego_states[0])))
     return GoalReaching(len(steps), starts, float(np.mean(steps)) if steps else float("nan"),
                         tuple(misses))
 

@@ -45,6 +45,10 @@ TOLERANCE_M = 0.1
 class ReproductionPreset:
     """Settings of one paper-comparison Monte Carlo.
 
+    Both presets give the filter the input cost ``u' R u`` of Problem 2 (the paper's and
+    the authors' code's; :mod:`agents.experiments.encounters`), not the package's
+    default ``(u - u_ref)' R (u - u_ref)``.
+
     Attributes
     ----------
     name, description
@@ -64,10 +68,6 @@ class ReproductionPreset:
         δ of the mean halfspace, in m (``None``: ``delta``).
     horizon
         Planner and filter horizon, in steps.
-    filter_input_cost
-        ``"absolute"``: the filter's input cost is ``u' R u`` (Problem 2 of the paper, and
-        the authors' code); ``"deviation"``: ``(u - u_ref)' R (u - u_ref)`` with the
-        planner's inputs (the package's default, a safe plan passes unchanged).
     fallback
         The filter's rule when its QP is infeasible (:data:`filters.mpc.filter.FALLBACKS`):
         ``"paper"`` shifts the last plan (the paper's Remark, the authors' code).
@@ -85,7 +85,6 @@ class ReproductionPreset:
     epsilon: float = EPSILON
     mean_delta: float | None = None
     horizon: int = HORIZON
-    filter_input_cost: str = "absolute"
     fallback: str = "paper"
 
     def delta_for(self, risk: str) -> float:

@@ -264,8 +264,7 @@ def _monte_carlo_figures(
                 title=f"{name}, seed {seed}, preset {preset.name}")
     scenario, risk = plots.featured_run(scenarios, list(dict.fromkeys(r.risk for r in records)))
     if risk != "none":
-        record = run_encounter(EncounterJob(preset, scenario, risk, seed, render=True,
-                                            record_halfspaces=True))
+        record = run_encounter(EncounterJob(preset, scenario, risk, seed, render=True))
         if not record.error:
             name = short_name(scenario)
             label = (f"{plots.RISK_LABELS.get(risk, risk)} (alpha {preset.alpha:g}, "

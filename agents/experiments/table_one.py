@@ -20,6 +20,7 @@ Part of the paper's reproduction (:func:`agents.experiments.reproduce.reproduce`
 
 from __future__ import annotations
 
+import math
 import timeit
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -53,7 +54,7 @@ radius (m), samples of N(obstacle, variance I), and the risk parameters."""
 
 _Y_REF = np.array(EXAMPLE_ONE["reference"])
 _OBSTACLE = np.array(EXAMPLE_ONE["obstacle"])
-_STD = 0.1  # m: samples of N(p, 0.01 I)
+_STD = math.sqrt(EXAMPLE_ONE["variance"])  # m: samples of N(p, 0.01 I)
 _GRID = (3, 10)  # obstacles x steps
 
 

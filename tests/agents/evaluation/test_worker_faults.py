@@ -57,7 +57,7 @@ def test_a_killed_worker_loses_and_repeats_no_episode(tmp_path):
                                                                     key=lambda r: r.key())
 
 
-def _dies(specs, policies=None):
+def _dies(specs, policies=None, task=None):
     os._exit(1)  # the worker process dies with the episode (a segfault, the OOM killer)
 
 

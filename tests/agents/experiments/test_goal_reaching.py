@@ -47,3 +47,13 @@ def test_the_same_seed_gives_the_same_starts():
 def test_bad_settings_raise(kwargs, match):
     with pytest.raises(InvalidParameterError, match=match):
         goal_reaching(_Still(), **kwargs)
+
+
+class _Broken:
+    def predict(self, obs, deterministic=True):
+        return np.full(2, np.nan, dtype=np.float32), None
+
+
+def test_a_failing_policy_raises_with_the_episode_error():
+    with pytest.raises(InvalidParameterError, match="_Broken failed from start 0 .*finite"):
+        goal_reaching(_Broken(), starts=3)

@@ -11,6 +11,7 @@ from agents.experiments.encounters import (
     EncounterJob,
     EncounterRecord,
     make_encounter_env,
+    paper_monte_carlo,
     run_encounter,
 )
 from agents.experiments.paper_settings import (
@@ -301,6 +302,31 @@ def test_the_authors_planner_takes_a_large_first_step():
     assert record.error == "" and abs(record.inputs[0, 0]) > 15.0
     paper = run_encounter(EncounterJob(PRESETS["paper"], "SafeNav/HeadOn-v0", "none", 0))
     assert abs(paper.inputs[0, 0]) <= 10.0
+
+
+def test_the_monte_carlo_runs_on_the_executors_with_the_same_records_in_job_order():
+    # Two local worker processes (the evaluation pipeline's pool) against this process.
+    runs = [paper_monte_carlo("paper", ("SafeNav/HeadOn-v0",), ("none", "cvar"), episodes=2,
+                              seed=5, workers=workers) for workers in (1, 2)]
+    for records in runs:
+        assert [(r.risk, r.seed) for r in records] == [("none", 5), ("none", 6), ("cvar", 5),
+                                                       ("cvar", 6)]
+    for serial, pooled in zip(*runs, strict=True):
+        assert pooled.error == serial.error == ""
+        for name in ("ego_states", "inputs", "obstacles", "distances", "swept"):
+            np.testing.assert_allclose(getattr(pooled, name), getattr(serial, name), rtol=0,
+                                       atol=1e-9)  # seeded: the same episode in any process
+        assert pooled.statuses == serial.statuses
+
+
+@pytest.mark.parametrize(("kwargs", "match"), [
+    ({"preset": "mine"}, "preset"), ({"risks": ("cvar", "bogus")}, "risk"),
+    ({"scenarios": ("SafeNav/RandomCrossing-v0",)}, "RandomCrossing"),
+    ({"episodes": 0}, "episodes"), ({"workers": 0}, "workers"),
+])
+def test_the_monte_carlo_refuses_bad_settings_before_any_episode(kwargs, match):
+    with pytest.raises(InvalidParameterError, match=match):
+        paper_monte_carlo(**kwargs)
 
 
 @pytest.mark.slow
