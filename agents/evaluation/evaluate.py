@@ -106,8 +106,6 @@ def episode_specs(
     if unknown := sorted(set(spec_kwargs) - set(SPEC_OPTIONS)):
         raise InvalidParameterError(f"unknown episode setting(s) {unknown}; expected some of "
                                     f"{list(SPEC_OPTIONS)}")
-    if bad := [risk for risk in risks if risk not in RISKS]:
-        raise InvalidParameterError(f"risk must be one of {RISKS}, got {bad[0]!r}")
     integer_at_least("episodes", episodes)
     return [EpisodeSpec(scenario=s, risk=r, seed=seed + i, **spec_kwargs)
             for s in scenarios for r in risks for i in range(episodes)]
