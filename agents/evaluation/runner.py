@@ -251,7 +251,8 @@ def run_episode(
             stats.start(base, info, intersample=any(  # the filter adds inter-sample rows
                 isinstance(layer, SafetyFilterWrapper) and layer.intersample
                 for layer in _wrappers(env)))
-            recorder = TrajectoryRecorder(env, render, info) if record_trajectory else None
+            recorder = (TrajectoryRecorder(env, render, info, stats.per_step)
+                        if record_trajectory else None)
             done = False
             while not done:
                 action, _ = planner.predict(obs, deterministic=True)
