@@ -58,7 +58,7 @@ from filters._validation import finite_array, scalar_in_range
 from filters.risk import CHANCE_RISKS, check_alpha, empirical_cvar
 
 __all__ = ["AUDIT_TOLERANCE", "PROMISES", "AuditResult", "audit_losses", "cluster_bootstrap",
-           "decode_losses", "encode_losses", "first_step_losses", "weighted_cvar", "weighted_mean"]
+           "decode_losses", "encode_losses", "first_step_losses"]
 
 AUDIT_TOLERANCE = 1e-3
 """How close (m) the plan's step-1 position must come to a halfspace's tightest row
@@ -184,52 +184,9 @@ class AuditResult:
         return "within noise" if not math.isnan(low) and low <= bound else "violated"
 
 
-def weighted_mean(values: np.ndarray, owner: np.ndarray, counts: np.ndarray) -> np.ndarray:
-    r"""Mean of each replicate's pool: group :math:`g` taken :math:`c_{bg}` times.
-
-    .. math:: \bar x_b = \sum_g c_{bg} S_g \Big/ \sum_g c_{bg} n_g
-
-    with :math:`S_g` and :math:`n_g` the sum and the number of the values of group
-    :math:`g`. ``values`` (n,), ``owner`` (n,) the group of each value, ``counts``
-    (B, groups) with a value in every row's pool; returns (B,).
-    """
-    n_groups = counts.shape[1]
-    sums = np.bincount(owner, weights=values, minlength=n_groups)
-    sizes = np.bincount(owner, minlength=n_groups).astype(float)
-    return (counts @ sums) / (counts @ sizes)
-
-
-def weighted_cvar(values: np.ndarray, owner: np.ndarray, counts: np.ndarray,
-                  alpha: float) -> np.ndarray:
-    r"""Empirical CVaR_α of each replicate's pool (see :func:`weighted_mean`).
-
-    ``values`` sorted in descending order. Value :math:`i` appears
-    :math:`w_{bi} = c_{b,\mathrm{owner}(i)}` times in pool :math:`b`; with
-    :math:`N_b = \sum_i w_{bi}` and :math:`W_{bi} = \sum_{j \le i} w_{bj}`, the top
-    :math:`\alpha N_b` of the pool, fractional atom included, is
-
-    .. math::
-
-        \mathrm{CVaR}_\alpha = \frac{1}{\alpha N_b} \Big(\sum_{i < k} w_{bi} x_i
-        + (\alpha N_b - W_{b,k-1}) x_k\Big), \qquad k = \min\{i : W_{bi} \ge \alpha N_b\},
-
-    :func:`filters.risk.empirical_cvar` of the pool written out (the tests check the two
-    against each other), without building the pool. O(n) per replicate.
-    """
-    result = np.empty(len(counts))
-    for b, row in enumerate(counts):
-        weights = row[owner]
-        cumulative = np.cumsum(weights)
-        mass = alpha * cumulative[-1]
-        k = int(np.searchsorted(cumulative, mass))  # the atom that completes the tail
-        below = cumulative[k - 1] if k else 0.0
-        result[b] = (values[:k] @ weights[:k] + (mass - below) * values[k]) / mass
-    return result
-
-
 def cluster_bootstrap(
     groups: Sequence[np.ndarray],
-    statistic: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray],
+    statistic: Callable[[np.ndarray], float],
     *,
     n_boot: int = 1000,
     level: float = 0.95,
@@ -238,35 +195,23 @@ def cluster_bootstrap(
     """Percentile interval of ``statistic`` over the pooled values, resampling whole groups.
 
     Each replicate draws ``len(groups)`` groups (episodes) with replacement from a
-    seeded ``numpy.random.Generator``, pools their values and evaluates ``statistic``;
-    the interval is the ``(1 - level)/2`` and ``(1 + level)/2`` quantiles of the
-    replicates (replicates with no values are skipped). Correlation *within* a group is
-    kept, which an interval over independent steps would ignore.
-
-    A replicate's pool is every group's values taken as often as the group was drawn,
-    so ``statistic(values, owner, counts)`` gets the values of all groups once, sorted
-    in descending order (n,), the group of each (n,), and how often each group was drawn
-    in each replicate (replicates, groups); it returns the statistic of every replicate:
-    :func:`weighted_mean`, or :func:`weighted_cvar` with its ``alpha`` bound.
+    seeded ``numpy.random.Generator``, pools their values and evaluates
+    ``statistic(pool)`` (e.g. ``np.mean``, or :func:`filters.risk.empirical_cvar` with
+    its ``alpha`` bound); the interval is the ``(1 - level)/2`` and ``(1 + level)/2``
+    quantiles of the replicates (replicates with no values are skipped). Correlation
+    *within* a group is kept, which an interval over independent steps would ignore.
 
     Returns
     -------
     (low, high)
         NaN, NaN if no group has a value.
     """
-    sizes = np.array([len(g) for g in groups], dtype=int)
-    if sizes.sum() == 0:
+    groups = [np.asarray(g, dtype=float).reshape(-1) for g in groups]
+    if sum(g.size for g in groups) == 0:
         return (math.nan, math.nan)
-    rng = np.random.default_rng(seed)
-    values = np.concatenate([np.asarray(g, dtype=float) for g in groups])
-    owner = np.repeat(np.arange(len(groups)), sizes)
-    order = np.argsort(-values, kind="stable")
-    n_groups = len(groups)
-    draws = rng.integers(0, n_groups, (n_boot, n_groups))  # row b: the groups of replicate b
-    counts = np.zeros((n_boot, n_groups))  # (replicates, groups): times each group was drawn
-    np.add.at(counts, (np.arange(n_boot)[:, None], draws), 1.0)
-    counts = counts[counts @ sizes > 0]  # replicates with no values are skipped
-    replicates = statistic(values[order], owner[order], counts)
+    draws = np.random.default_rng(seed).integers(0, len(groups), (n_boot, len(groups)))
+    pools = (np.concatenate([groups[i] for i in row]) for row in draws)
+    replicates = [float(statistic(pool)) for pool in pools if pool.size]
     low, high = np.quantile(replicates, [(1 - level) / 2, (1 + level) / 2])
     return (float(low), float(high))
 
@@ -308,8 +253,8 @@ def audit_losses(losses: Sequence[float] | np.ndarray, *, alpha: float,
     low, high = wilson_interval(violations, n)
     intervals: dict[str, float] = {}
     if groups is not None and n:
-        for name, statistic in (("mean", weighted_mean),
-                                ("cvar", functools.partial(weighted_cvar, alpha=alpha))):
+        for name, statistic in (("mean", np.mean),
+                                ("cvar", functools.partial(empirical_cvar, alpha=alpha))):
             intervals[f"{name}_low"], intervals[f"{name}_high"] = cluster_bootstrap(
                 groups, statistic, n_boot=n_boot, seed=seed)
     return AuditResult(

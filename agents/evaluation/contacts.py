@@ -14,11 +14,10 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.optimize import brentq
 
 from filters._validation import finite_array, scalar_in_range
 from filters.errors import InvalidArrayError
-from safe_nav_env.collision import real_cubic_roots
+from safe_nav_env.collision import swept_clearance
 
 __all__ = ["CollisionMark", "StepClearance", "find_collisions", "step_clearance"]
 
@@ -31,14 +30,11 @@ class StepClearance:
     ----------
     clearance
         :math:`\\min_{s \\in [0, dt]} \\|y(s) - p(s)\\| - r_A - r_O`, in m.
-    closest
-        The time ``s`` of that minimum within the step, in s.
     contact
         The first ``s`` at which the clearance reaches 0 (``nan`` if it stays > 0), in s.
     """
 
     clearance: float
-    closest: float
     contact: float
 
 
@@ -52,15 +48,16 @@ def step_clearance(
     radius_sum: float,
     dt: float,
 ) -> StepClearance:
-    r"""Exact minimum clearance over one step: ego on its arc, obstacle on its chord.
+    r"""Exact minimum clearance over one step and the first contact: ego on its arc,
+    obstacle on its chord.
 
     .. math::
-        \Delta(s) = (p - q_0) + s\,(v - (q_1 - q_0)/dt) + \tfrac{s^2}{2} u,
-        \qquad s \in [0, dt]
+        \Delta(\tau) = (p - q_0) + \tau\,(dt\,v - (q_1 - q_0)) + \tau^2 \tfrac{dt^2}{2} u,
+        \qquad \tau = s / dt \in [0, 1]
 
-    :math:`\|\Delta(s)\|^2` is a quartic in s; its minimum is at an end point or at a
-    real root of its cubic derivative, and the first contact is the smallest root
-    of :math:`\|\Delta(s)\|^2 = (r_A + r_O)^2` in the step.
+    The clearance is the environment's own
+    (:func:`safe_nav_env.collision.swept_clearance`); the first contact is the smallest
+    root in the step of the quartic :math:`\|\Delta(\tau)\|^2 - (r_A + r_O)^2`.
 
     Parameters
     ----------
@@ -87,26 +84,17 @@ def step_clearance(
                          high_inclusive=False)
     radius_sum = scalar_in_range("radius_sum", radius_sum, low=0.0, high=np.inf,
                                  high_inclusive=False)
-    # In the normalised time tau = s / dt (as safe_nav_env.collision.swept_clearance):
-    # ||d0 + tau w + tau² c||² = c4 tau⁴ + c3 tau³ + c2 tau² + c1 tau + c0
+    (clearance,) = swept_clearance(np.concatenate([p, v]), u, dt, [q0], [q1], [radius_sum])
+    if clearance > 0.0:
+        return StepClearance(clearance=clearance, contact=math.nan)
     d0, w, c = p - q0, dt * v - (q1 - q0), 0.5 * dt * dt * u
-    quartic = np.array([c @ c, 2 * w @ c, w @ w + 2 * d0 @ c, 2 * d0 @ w, d0 @ d0])
-    stationary = real_cubic_roots(*(quartic[:4] * [2.0, 1.5, 1.0, 0.5]))  # half the derivative
-    candidates = [0.0, 1.0] + [t for t in stationary if 0.0 < t < 1.0]
-    values = [np.polyval(quartic, t) for t in candidates]
-    best = int(np.argmin(values))
-    closest = candidates[best]
-    clearance = math.sqrt(max(values[best], 0.0)) - radius_sum
-    contact = math.nan
-    if clearance <= 0.0:  # the first root of ||.||² = radius_sum², bracketed: between two
-        # successive candidates up to the closest approach ||.||² is monotone
-        def excess(t: float) -> float:
-            return float(np.polyval(quartic, t)) - radius_sum**2
-
-        ends = sorted(t for t in candidates if t <= closest)
-        j = next(i for i, t in enumerate(ends) if excess(t) <= 0.0)
-        contact = ends[0] if j == 0 else brentq(excess, ends[j - 1], ends[j], xtol=1e-15)
-    return StepClearance(clearance=clearance, closest=closest * dt, contact=contact * dt)
+    excess = np.array([c @ c, 2 * w @ c, w @ w + 2 * d0 @ c, 2 * d0 @ w,
+                       d0 @ d0 - radius_sum**2])
+    roots = np.roots(excess)  # a touching (double) root may carry a rounding-size imaginary part
+    inside = [t.real for t in roots if abs(t.imag) <= 1e-6 and 0.0 <= t.real <= 1.0]
+    first = 0.0 if excess[-1] <= 0.0 else min(inside, default=float(np.clip(
+        roots[np.argmin(np.abs(roots.imag))].real, 0.0, 1.0)))
+    return StepClearance(clearance=clearance, contact=float(first * dt))
 
 
 @dataclass(frozen=True)

@@ -106,8 +106,6 @@ def episode_specs(
     if unknown := sorted(set(spec_kwargs) - set(SPEC_OPTIONS)):
         raise InvalidParameterError(f"unknown episode setting(s) {unknown}; expected some of "
                                     f"{list(SPEC_OPTIONS)}")
-    if bad := [risk for risk in risks if risk not in RISKS]:
-        raise InvalidParameterError(f"risk must be one of {RISKS}, got {bad[0]!r}")
     integer_at_least("episodes", episodes)
     return [EpisodeSpec(scenario=s, risk=r, seed=seed + i, **spec_kwargs)
             for s in scenarios for r in risks for i in range(episodes)]
@@ -179,8 +177,7 @@ def _resume(path: Path, specs: Sequence[EpisodeSpec], key: dict[str, Any],
     """The finished records of ``specs`` in ``path``; drops its failed rows from the file."""
     if overwrite:
         for old in (path, run_key_path(path)):
-            if old.exists():
-                old.unlink()
+            old.unlink(missing_ok=True)
     check_run_key(path, key)
     if not (path.exists() and path.stat().st_size):
         return []
@@ -287,22 +284,19 @@ def _run(specs: list[EpisodeSpec], executor: Executor, csv_path: str | Path | No
     finished = {r.key() for r in done}
     todo = [spec for spec in specs if spec.key() not in finished] if done else list(specs)
     records = list(done)
-    bar = None
-    try:
-        iterator = executor.run(todo)
-        if progress and todo:
-            from tqdm.auto import tqdm
+    from tqdm.auto import tqdm
 
-            iterator = bar = tqdm(iterator, total=len(todo), desc="episodes", unit="ep")
-        for record in iterator:
+    bar = tqdm(executor.run(todo), total=len(todo), desc="episodes", unit="ep",
+               disable=not (progress and todo))
+    try:
+        for record in bar:
             if writer is not None:
                 writer(record)
             records.append(record)
     except KeyboardInterrupt as exc:
         raise EvaluationInterrupted(len(records), len(specs), path, len(done)) from exc
     finally:
-        if bar is not None:
-            bar.close()
+        bar.close()
         if writer is not None:
             writer.close()
     result = EvaluationRecords(sort_records(records))

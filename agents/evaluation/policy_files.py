@@ -6,7 +6,7 @@ anything runs; :func:`load_policy` keeps each policy (its numpy export,
 local workers take the parent's exports (:func:`exported_policies`,
 :func:`preload_policies`) instead of loading the file again. The export is also kept on
 disk (:func:`cache_folder`, one ``.npz`` per SHA-256 of a policy file's content), so that
-later processes load it without importing torch and Stable-Baselines3 (about a second).
+later processes load it without importing torch and Stable-Baselines3.
 """
 
 from __future__ import annotations
@@ -98,22 +98,18 @@ def load_policy(policy_path: str | Path = "", *, sha256: str = "") -> tuple[Any,
 
 
 def _export(path: Path, sha: str) -> Any:
-    """Load ``path`` with torch and SB3 and export it to numpy (kept in the cache folder),
+    """Load ``path`` with Stable-Baselines3 and export it to numpy (kept in the cache folder),
     or return the SB3 model if it cannot be exported."""
     set_torch_threads(1)
-    try:  # SB3's deterministic actions to float32 rounding, without its overhead
-        policy = NumpyPolicy.from_sb3(_inference_policy(path))
-    except Exception:  # noqa: BLE001 - anything unusual: SB3's whole loader decides
-        try:
-            model = load_ppo(path)
-        except Exception as exc:  # noqa: BLE001 - SB3/torch/zip raise many kinds
-            raise PolicyFileError(
-                f"cannot load the PPO policy {path} ({type(exc).__name__}: "
-                f"{exc})".replace("\n", " ")) from exc
-        try:
-            policy = NumpyPolicy.from_sb3(model)
-        except UnsupportedPolicyError:
-            return model
+    try:
+        model = load_ppo(path)
+    except Exception as exc:  # noqa: BLE001 - SB3/torch/zip raise many kinds
+        raise PolicyFileError(f"cannot load the PPO policy {path} ({type(exc).__name__}: "
+                              f"{exc})".replace("\n", " ")) from exc
+    try:
+        policy = NumpyPolicy.from_sb3(model)
+    except UnsupportedPolicyError:
+        return model
     try:
         folder = cache_folder() / "policies"
         folder.mkdir(parents=True, exist_ok=True)
@@ -126,32 +122,11 @@ def _export(path: Path, sha: str) -> Any:
 def cache_folder() -> Path:
     """Where safe-nav keeps what it can rebuild (numpy exports of policies): the folder
     ``SAFE_NAV_CACHE_DIR`` names, else ``$XDG_CACHE_HOME/safe-nav``, else
-    ``~/.cache/safe-nav``. Deleting it costs one export (a torch import, about a second)."""
+    ``~/.cache/safe-nav``. Deleting it costs one export (torch and SB3 load the file again)."""
     folder = os.environ.get("SAFE_NAV_CACHE_DIR")
     if folder:
         return Path(folder)
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "safe-nav"
-
-
-def _inference_policy(path: Path) -> Any:
-    """The SB3 policy of a PPO ``.zip``, to act with: what ``PPO.load`` builds, without
-    the algorithm and its optimizer (SB3's own reader, the saved policy class and
-    settings, the saved weights loaded strictly). Files of old SB3 versions may raise:
-    :func:`load_policy` then loads with ``PPO.load``."""
-    from stable_baselines3.common.save_util import load_from_zip_file
-
-    data, params, _ = load_from_zip_file(path, device="cpu")
-    if data is None or "policy" not in params or "policy_class" not in data:
-        raise PolicyFileError(f"{path} holds no SB3 policy (no data or weights)")
-    # No optimizer for a policy that only acts (SB3 builds one with every policy; torch's
-    # optimizers import ``torch._dynamo``, about a second).
-    kwargs = {**(data.get("policy_kwargs") or {}), "optimizer_class": lambda *_, **__: None}
-    kwargs.pop("device", None)  # as PPO.load does
-    policy = data["policy_class"](data["observation_space"], data["action_space"],
-                                  lambda _: 0.0, use_sde=data.get("use_sde", False), **kwargs)
-    policy.load_state_dict(params["policy"])
-    policy.set_training_mode(False)
-    return policy
 
 
 def exported_policies() -> dict[tuple[str, str], Any]:

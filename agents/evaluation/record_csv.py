@@ -19,19 +19,21 @@ from agents.errors import RecordsFileError
 from agents.evaluation.episodes import _KINDS, AUTO, KEY_FIELDS, RECORD_FIELDS, EpisodeRecord
 from filters.wrapper import RISKS
 
-__all__ = ["RecordWriter", "read_records", "sort_records", "write_records"]
+__all__ = ["RISK_ORDER", "RecordWriter", "read_records", "sort_records", "write_records"]
+
+RISK_ORDER = {risk: i for i, risk in enumerate(RISKS)}
+"""Order of the risk settings in the CSV and the tables (:data:`filters.wrapper.RISKS`)."""
 
 
 def sort_records(records: Iterable[EpisodeRecord]) -> list[EpisodeRecord]:
     """Records in a canonical order (scenario, risk, seed, ...), independent of completion order."""
-    risk_order = {risk: i for i, risk in enumerate(RISKS)}
     epsilon = KEY_FIELDS.index("epsilon")
 
     def order(record: EpisodeRecord) -> tuple:
         key = list(record.key())
         value = key[epsilon]  # a fixed radius sorts before "auto" (str and float do not compare)
         key[epsilon] = (1, 0.0) if value == AUTO else (0, value)
-        return (record.case, record.scenario, risk_order.get(record.risk, len(RISKS)), *key[2:])
+        return (record.case, record.scenario, RISK_ORDER.get(record.risk, len(RISKS)), *key[2:])
 
     return sorted(records, key=order)
 

@@ -10,6 +10,7 @@ reuses the rows of another (:func:`check_run_key`).
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 from collections.abc import Mapping, Sequence
@@ -27,6 +28,7 @@ if TYPE_CHECKING:
 __all__ = ["check_run_key", "file_sha256", "package_version", "run_key", "run_key_path"]
 
 
+@functools.cache  # the metadata is read once per process
 def package_version() -> str:
     """Version of the installed safe-nav package (``"unknown"`` if it is not installed)."""
     from importlib.metadata import PackageNotFoundError, version
@@ -38,12 +40,8 @@ def package_version() -> str:
 
 
 def file_sha256(path: str | Path) -> str:
-    """SHA-256 (hex) of a file's content."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as handle:
-        for block in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
+    """SHA-256 (hex) of a file's content (read at once: policy files are a few hundred kB)."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 def run_key(specs: Sequence[EpisodeSpec], *, vary: Sequence[str] = ()) -> dict[str, Any]:

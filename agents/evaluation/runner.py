@@ -9,7 +9,6 @@ an evaluation makes *before* anything runs.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 import time
 import traceback
@@ -207,9 +206,6 @@ def clear_env_cache() -> None:
         _ENV_CACHE.popitem()[1][0].close()
 
 
-_package_version = functools.cache(package_version)  # reads the metadata once per process
-
-
 # ---------------------------------------------------------------------------- one episode
 def run_episode(
     spec: EpisodeSpec,
@@ -255,7 +251,8 @@ def run_episode(
             stats.start(base, info, intersample=any(  # the filter adds inter-sample rows
                 isinstance(layer, SafetyFilterWrapper) and layer.intersample
                 for layer in _wrappers(env)))
-            recorder = TrajectoryRecorder(env, render, info) if record_trajectory else None
+            recorder = (TrajectoryRecorder(env, render, info, stats.per_step)
+                        if record_trajectory else None)
             done = False
             while not done:
                 action, _ = planner.predict(obs, deterministic=True)
@@ -285,7 +282,7 @@ def run_episode(
         # The policy column: the file that ran (the shipped one resolved), else "".
         policy=("" if spec.planner != "ppo" else f"<{type(policy).__name__} object>"
                 if policy is not None else str(policy_file(spec.policy_path))),
-        version=_package_version(), **stats.summary(),
+        version=package_version(), **stats.summary(),
         wall_time=time.perf_counter() - start, error=error)
     return record, trajectory
 

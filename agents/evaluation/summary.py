@@ -18,23 +18,25 @@ from typing import Any
 
 import numpy as np
 
-from agents.evaluation.records import AUTO, FILTER_STATUSES, RISKS, EpisodeRecord
+from agents.evaluation.records import AUTO, FILTER_STATUSES, RISK_ORDER, EpisodeRecord
 from agents.evaluation.statistics import wilson_interval
-
-RISK_ORDER = {risk: i for i, risk in enumerate(RISKS)}
-"""Table order of the risk settings (:data:`filters.wrapper.RISKS`)."""
+from filters.risk import empirical_cvar
 
 COLLISION_CAUSES = ("fallback", "inter_sample", "noise")
 """Values of :attr:`EpisodeRecord.collision_cause` for a collided episode."""
 
 
 def lower_tail_mean(values: np.ndarray, fraction: float = 0.1) -> float:
-    """Mean of the lowest ``fraction`` of ``values`` (the CVaR of a distance, worst tail)."""
-    values = np.sort(np.asarray(values, dtype=float)[np.isfinite(values)])
-    if values.size == 0:
-        return math.nan
-    count = max(1, int(math.ceil(fraction * values.size)))
-    return float(values[:count].mean())
+    r"""The CVaR of a distance's worst (lowest) tail over the finite ``values``, NaN if none.
+
+    .. math:: -\mathrm{CVaR}_\alpha(-x), \qquad \alpha = \text{fraction},
+
+    the mean of the lowest ``fraction`` of the values, fractional atom included
+    (:func:`filters.risk.empirical_cvar`).
+    """
+    values = np.asarray(values, dtype=float)
+    values = values[np.isfinite(values)]
+    return float(-empirical_cvar(-values, fraction)) if values.size else math.nan
 
 
 @dataclass(frozen=True)
@@ -71,13 +73,13 @@ def method_label(risk: str, epsilon: float | str) -> str:
     return f"{risk} (eps=auto)" if epsilon == AUTO else risk
 
 
-def _groups(records: Iterable[EpisodeRecord]) -> list[tuple[tuple[str, str, str, bool],
+def _groups(records: Iterable[EpisodeRecord]) -> list[tuple[tuple[str, str, str, str],
                                                              list[EpisodeRecord]]]:
-    """The records by (scenario or stress case, planner, risk, online radius?), in table
-    order: scenario, planner, risk (:data:`RISK_ORDER`), auto."""
-    groups: dict[tuple[str, str, str, bool], list[EpisodeRecord]] = defaultdict(list)
+    """The records by (scenario or stress case, planner, risk, :func:`method_label`), in
+    table order: scenario, planner, risk (:data:`RISK_ORDER`), the online radius last."""
+    groups: dict[tuple[str, str, str, str], list[EpisodeRecord]] = defaultdict(list)
     for r in records:
-        groups[(r.case or r.scenario, r.planner, r.risk, r.epsilon == AUTO)].append(r)
+        groups[(r.case or r.scenario, r.planner, r.risk, method_label(r.risk, r.epsilon))].append(r)
     return sorted(groups.items(), key=lambda item: (
         item[0][0], item[0][1], RISK_ORDER.get(item[0][2], len(RISK_ORDER)), item[0][3]))
 
@@ -108,7 +110,7 @@ def summarise(records: Iterable[EpisodeRecord]) -> list[SummaryRow]:
     ``epsilon="auto"`` is a method of its own (``method`` ``"dr_cvar (eps=auto)"``).
     """
     rows = []
-    for (scenario, planner, risk, auto), group in _groups(records):
+    for (scenario, planner, risk, method), group in _groups(records):
         ok = [r for r in group if not r.error]
         n = len(ok)
         distances = np.array([r.min_distance for r in ok], dtype=float)
@@ -132,7 +134,7 @@ def summarise(records: Iterable[EpisodeRecord]) -> list[SummaryRow]:
                 (cause, sum(r.collision_cause == cause for r in ok)) for cause in COLLISION_CAUSES),
             first_error=next((f"seed {r.seed}, {r.first_error}" for r in ok if r.first_error), ""),
             first_failure=next((f"seed {r.seed}: {r.error}" for r in group if r.error), "")[:200],
-            method=method_label(risk, AUTO if auto else 0.0),
+            method=method,
         ))
     return rows
 
@@ -219,7 +221,7 @@ def audit_rows(records: Iterable[EpisodeRecord]) -> list[AuditRow]:
     from filters.errors import InvalidParameterError
 
     rows = []
-    for (scenario, planner, risk, auto), group in _groups(
+    for (scenario, planner, risk, method), group in _groups(
             r for r in records if r.risk != "none" and not r.error):
         settings = {(r.alpha, r.delta) for r in group}
         if len(settings) > 1:
@@ -230,8 +232,7 @@ def audit_rows(records: Iterable[EpisodeRecord]) -> list[AuditRow]:
         active, pooled = (audit_losses([], groups=[decode_losses(getattr(r, column))
                                                    for r in group], alpha=alpha, delta=delta)
                           for column in ("audit_losses", "audit_all_losses"))
-        rows.append(AuditRow(scenario, planner, risk, method_label(risk, AUTO if auto else 0.0),
-                             PROMISES[risk], active, pooled))
+        rows.append(AuditRow(scenario, planner, risk, method, PROMISES[risk], active, pooled))
     return rows
 
 

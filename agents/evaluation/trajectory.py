@@ -71,14 +71,19 @@ class Trajectory:
 
 
 class TrajectoryRecorder:
-    """Collects an episode's states, distances, statuses, collisions, halfspaces and frames."""
+    """Collects an episode's states, distances, inputs, halfspaces and frames.
 
-    def __init__(self, env: Any, render: bool, info: dict[str, Any]) -> None:
-        self._env, self._base, self._render = env, env.unwrapped, render
+    The collisions, statuses and filter times come from ``per_step``, the list of
+    ``(collision, sampled collision, status, intervention, filter time)`` per step that
+    :class:`agents.evaluation.runner.EpisodeStats` fills (its ``per_step``).
+    """
+
+    def __init__(self, env: Any, render: bool, info: dict[str, Any],
+                 per_step: list[tuple[bool, bool, str, float, float]]) -> None:
+        self._env, self._base, self._render, self._per_step = env, env.unwrapped, render, per_step
         # Per sample (states, obstacles, distances, frames) and per step (the others).
         (self._states, self._obstacles, self._distances, self._inputs, self._swept,
-         self._filter_times, self._statuses, self._collisions, self._halfspaces,
-         self._frames) = ([] for _ in range(10))
+         self._halfspaces, self._frames) = ([] for _ in range(7))
         self._snapshot(info)
 
     def _snapshot(self, info: dict[str, Any]) -> None:
@@ -94,9 +99,6 @@ class TrajectoryRecorder:
         report = info["filter"]
         self._inputs.append(np.array(report["applied_action"], dtype=float))
         self._swept.append(np.array(info["swept_distance_to_collision"], dtype=float))
-        self._filter_times.append(float(report["filter_time"]))
-        self._statuses.append(str(report["status"]))
-        self._collisions.append(bool(info.get("collision", False)))
         if report["normals"] is not None:
             self._halfspaces.append((np.array(report["normals"]), np.array(report["offsets"])))
 
@@ -110,12 +112,14 @@ class TrajectoryRecorder:
             return np.asarray(rows, dtype=float).reshape((len(rows), *shape))
 
         states = stack(self._states, (4,))
+        collisions, _, statuses, _, times = (
+            [list(column) for column in zip(*self._per_step, strict=True)] or [[]] * 5)
         return Trajectory(
             ego=states[:, :2].copy(), obstacles=stack(self._obstacles, (n, 2)),
             obstacle_radii=np.array(base.obstacle_radii, dtype=float),
             ego_radius=float(base.ego_radius), goal=np.array(base.goal, dtype=float),
-            halfspaces=self._halfspaces, statuses=self._statuses, frames=self._frames,
-            collisions=self._collisions, ego_states=states,
+            halfspaces=self._halfspaces, statuses=statuses, frames=self._frames,
+            collisions=collisions, ego_states=states,
             inputs=stack(self._inputs, (2,)), distances=stack(self._distances, (-1,)),
             swept=stack(self._swept, (-1,)),
-            filter_times=np.asarray(self._filter_times, dtype=float), dt=float(base.dt))
+            filter_times=np.asarray(times, dtype=float), dt=float(base.dt))

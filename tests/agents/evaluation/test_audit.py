@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import functools
 import math
 
 import numpy as np
@@ -17,8 +16,6 @@ from agents.evaluation.audit import (
     decode_losses,
     encode_losses,
     first_step_losses,
-    weighted_cvar,
-    weighted_mean,
 )
 from agents.evaluation.records import EpisodeRecord, read_records, write_records
 from agents.evaluation.summary import audit_rows, audit_table, wilson_interval
@@ -226,7 +223,7 @@ def test_cluster_bootstrap_covers_the_mean_of_correlated_episodes():
     naive = 0
     for _ in range(100):
         groups = [rng.normal(rng.normal(), 0.2, 20) for _ in range(40)]
-        low, high = cluster_bootstrap(groups, weighted_mean, n_boot=200, seed=1)
+        low, high = cluster_bootstrap(groups, np.mean, n_boot=200, seed=1)
         covered += low <= 0.0 <= high
         pooled = np.concatenate(groups)  # an interval that treats the steps as independent
         half = 1.96 * pooled.std(ddof=1) / math.sqrt(pooled.size)
@@ -236,50 +233,15 @@ def test_cluster_bootstrap_covers_the_mean_of_correlated_episodes():
 
 
 def test_cluster_bootstrap_known_answers():
-    assert cluster_bootstrap([np.array([0.3])] * 5, weighted_mean) == pytest.approx((0.3, 0.3),
+    assert cluster_bootstrap([np.array([0.3])] * 5, np.mean) == pytest.approx((0.3, 0.3),
                                                                                     abs=1e-15)
-    low, high = cluster_bootstrap([np.zeros(0), np.zeros(0)], weighted_mean)
+    low, high = cluster_bootstrap([np.zeros(0), np.zeros(0)], np.mean)
     assert math.isnan(low) and math.isnan(high)
     # the same seed gives the same interval
     groups = [np.arange(3.0), np.arange(5.0), np.array([7.0])]
-    assert cluster_bootstrap(groups, weighted_mean, seed=4) == cluster_bootstrap(
-        groups, weighted_mean, seed=4)
+    assert cluster_bootstrap(groups, np.mean, seed=4) == cluster_bootstrap(
+        groups, np.mean, seed=4)
     result = audit_losses([], groups=groups, alpha=0.5, delta=10.0)
     assert result.n == 9 and result.mean_low <= result.mean_loss <= result.mean_high
     assert result.cvar_low <= result.cvar_loss <= result.cvar_high
     assert result.verdict("cvar") == "held"
-
-
-@pytest.mark.parametrize("alpha", [0.2, 0.05, 0.37, 1.0])
-def test_cluster_bootstrap_equals_a_naive_resampling(alpha):
-    """The weighted statistics equal concatenating the chosen episodes one by one (the
-    reference: np.mean and filters.risk.empirical_cvar of each replicate's pool)."""
-    rng = np.random.default_rng(9)
-    groups = [rng.normal(size=int(k)) for k in rng.integers(0, 6, 25)]
-    groups[3] = np.full(4, groups[5][0] if len(groups[5]) else 0.5)  # ties across groups
-    cvar = cluster_bootstrap(groups, functools.partial(weighted_cvar, alpha=alpha),
-                             n_boot=300, seed=2)
-    mean = cluster_bootstrap(groups, weighted_mean, n_boot=300, seed=2)
-    draw = np.random.default_rng(2)
-    cvars, means = [], []
-    for _ in range(300):
-        chosen = [c for c in draw.integers(0, len(groups), len(groups)) if len(groups[c])]
-        pooled = np.concatenate([groups[c] for c in chosen])
-        cvars.append(float(empirical_cvar(pooled, alpha)))
-        means.append(float(np.mean(pooled)))
-    assert cvar == pytest.approx(tuple(np.quantile(cvars, [0.025, 0.975])), abs=1e-12)
-    assert mean == pytest.approx(tuple(np.quantile(means, [0.025, 0.975])), abs=1e-12)
-
-
-def test_weighted_statistics_of_one_pool_per_replicate():
-    values = np.array([3.0, 2.0, 2.0, -1.0])  # descending
-    owner = np.array([0, 1, 2, 1])
-    counts = np.array([[1.0, 1.0, 0.0], [0.0, 2.0, 1.0], [3.0, 0.0, 1.0]])
-    pools = [np.array([3.0, 2.0, -1.0]), np.array([2.0, -1.0, 2.0, -1.0, 2.0]),
-             np.array([3.0, 3.0, 3.0, 2.0])]
-    for alpha in (0.1, 0.25, 0.5, 0.8, 1.0):
-        np.testing.assert_allclose(weighted_cvar(values, owner, counts, alpha),
-                                   [float(empirical_cvar(p, alpha)) for p in pools],
-                                   rtol=0, atol=1e-14)
-    np.testing.assert_allclose(weighted_mean(values, owner, counts), [p.mean() for p in pools],
-                               rtol=0, atol=1e-14)

@@ -333,8 +333,8 @@ def test_collision_columns_match_the_environment_step_by_step():
 
 
 def test_the_evaluation_loads_the_policy_that_sb3_loads():
-    """load_policy builds the actor without PPO's optimizer; its actions are SB3's (by
-    tolerance, the numpy policy's own rule)."""
+    """load_policy's numpy export acts as SB3 does (by tolerance, the numpy policy's own
+    rule)."""
     import sys
 
     from agents.evaluation.runner import load_policy
