@@ -38,7 +38,7 @@ from typing import Any
 from agents.evaluation.campaign import EvaluationOutputs, Report, run_campaign
 from agents.evaluation.config import EvaluationConfig, split_options
 from agents.evaluation.records import AUTO, PLANNERS, REFERENCES, EpisodeRecord, EpisodeSpec
-from agents.evaluation.summary import audit_section
+from agents.evaluation.summary import audit_section, table
 from agents.experiments.stress_table import (
     TARGET_COLLISION_RATE,
     TARGET_GOAL_RATE,
@@ -189,13 +189,13 @@ def _order(key: tuple[str, str, str]) -> tuple:
 def _timing_table(cells: Sequence[StressCell], records: Sequence[EpisodeRecord],
                   method_of: Any) -> str:
     groups = by_cell(records, method_of)
-    lines = ["| case | planner | setting | episodes | wall time per episode (s) | "
-             "cell total (s) |", "|---|---|---|---|---|---|"]
+    rows = []
     for c in cells:
         t = [r.wall_time for r in groups[(c.case, c.planner, c.method)]]
-        lines.append(f"| {c.case} | {c.planner} | {c.label} | {len(t)} | "
-                     f"{sum(t) / max(1, len(t)):.3f} | {sum(t):.1f} |")
-    return "\n".join(lines) + "\n"
+        rows.append([c.case, c.planner, c.label, str(len(t)), f"{sum(t) / max(1, len(t)):.3f}",
+                     f"{sum(t):.1f}"])
+    return table(("case", "planner", "setting", "episodes", "wall time per episode (s)",
+                  "cell total (s)"), rows)
 
 
 def run_stress(output: str | Path | None = None, cases: Sequence[str] = DEFAULT_CASES,

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from agents.evaluation.records import EpisodeRecord
-from agents.evaluation.summary import summarise
+from agents.evaluation.summary import summarise, table
 
 __all__ = ["TARGET_COLLISION_RATE", "TARGET_GOAL_RATE", "StressCell", "cells_table",
            "explain_collisions", "overview_table", "stress_cells", "write_cells"]
@@ -133,23 +133,19 @@ def stress_cells(
     return cells
 
 
-def _table(columns: Sequence[str], rows: Sequence[str], title: str = "") -> list[str]:
-    """Markdown lines of a table (after a ``### title`` if given, then a blank line)."""
-    head = [f"### {title}\n"] if title else []
-    return [*head, "| " + " | ".join(columns) + " |", "|---" * len(columns) + "|", *rows, ""]
-
-
 def cells_table(cells: Sequence[StressCell], descriptions: dict[str, str]) -> str:
     """Per case, a Markdown table of its cells (collisions, goal, time to goal, target)."""
+    columns = ("planner", "setting", "episodes", "collisions [95 % CI]", "goal rate",
+               "time to goal (s)", "target")
     out = []
     for case in dict.fromkeys(c.case for c in cells):
-        rows = [f"| {c.planner} | {c.label} | {c.episodes}"
-                f"{f' ({c.failed} failed)' if c.failed else ''} | {c.collision_rate:.1%} "
-                f"[{c.collision_low:.1%}, {c.collision_high:.1%}] | {c.goal_rate:.1%} | "
-                f"{'-' if math.isnan(c.time_to_goal) else f'{c.time_to_goal:.2f}'} | "
-                f"{'yes' if c.meets_target else '**MISS**'} |" for c in cells if c.case == case]
-        out += _table(("planner", "setting", "episodes", "collisions [95 % CI]", "goal rate",
-                       "time to goal (s)", "target"), rows, f"{case}: {descriptions.get(case, '')}")
+        rows = [[c.planner, c.label,
+                 f"{c.episodes}" + (f" ({c.failed} failed)" if c.failed else ""),
+                 f"{c.collision_rate:.1%} [{c.collision_low:.1%}, {c.collision_high:.1%}]",
+                 f"{c.goal_rate:.1%}",
+                 "-" if math.isnan(c.time_to_goal) else f"{c.time_to_goal:.2f}",
+                 "yes" if c.meets_target else "**MISS**"] for c in cells if c.case == case]
+        out.append(f"### {case}: {descriptions.get(case, '')}\n\n" + table(columns, rows))
     return "\n".join(out)
 
 
@@ -160,10 +156,9 @@ def overview_table(cells: Sequence[StressCell]) -> str:
     rows = []
     for case in dict.fromkeys(c.case for c in cells):
         entries = (by_key.get((case, *column)) for column in columns)
-        rows.append(f"| {case} | " + " | ".join(
-            "" if c is None else f"{c.collision_rate:.1%} / {c.goal_rate:.0%}"
-            f"{'' if c.meets_target else ' ✗'}" for c in entries) + " |")
-    return "\n".join(_table(("class", *(f"{p}: {label}" for p, label in columns)), rows))
+        rows.append([case, *("" if c is None else f"{c.collision_rate:.1%} / {c.goal_rate:.0%}"
+                             + ("" if c.meets_target else " ✗") for c in entries)])
+    return table(("class", *(f"{p}: {label}" for p, label in columns)), rows)
 
 
 def explain_collisions(
@@ -180,6 +175,8 @@ def explain_collisions(
     ``before -> at`` the collision with their counts.
     """
     collided = by_cell((r for r in records if r.collision and not r.error), method_of)
+    columns = ("planner", "setting", "collisions", "fallback / inter-sample / noise",
+               "infeasible before", "median lead (steps)", "status before → at")
     out = []
     for case in dict.fromkeys(c.case for c in cells):
         rows = []
@@ -187,17 +184,15 @@ def explain_collisions(
             group = collided.get((c.case, c.planner, c.method), [])
             leads = [r.first_collision_step - r.first_infeasible_step for r in group
                      if _infeasible_before(r)]
-            lead = f"{float(np.median(leads)):.0f}" if leads else "-"
             transitions = Counter(f"{r.status_before_collision or '(start)'} → "
                                   f"{r.status_at_collision}" for r in group)
-            text = ", ".join(f"{t}: {n}" for t, n in transitions.most_common())
-            rows.append(f"| {c.planner} | {c.label} | {c.collisions} | "
-                        f"{c.fallback_collisions} / {c.inter_sample_collisions} / "
-                        f"{c.noise_collisions} | {c.infeasible_before} | {lead} | {text} |")
+            rows.append([c.planner, c.label, str(c.collisions),
+                         f"{c.fallback_collisions} / {c.inter_sample_collisions} / "
+                         f"{c.noise_collisions}", str(c.infeasible_before),
+                         f"{float(np.median(leads)):.0f}" if leads else "-",
+                         ", ".join(f"{t}: {n}" for t, n in transitions.most_common())])
         if rows:
-            out += _table(("planner", "setting", "collisions", "fallback / inter-sample / noise",
-                           "infeasible before", "median lead (steps)", "status before → at"),
-                          rows, case)
+            out.append(f"### {case}\n\n" + table(columns, rows))
     return "\n".join(out) if out else "No collisions.\n"
 
 
