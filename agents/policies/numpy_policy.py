@@ -108,14 +108,19 @@ def _activation(module: Any) -> Callable[[np.ndarray], np.ndarray] | None:
     return None if kind is None else _named_activation(*kind)
 
 
+def _read_only(values: Any) -> np.ndarray:
+    """A read-only C-ordered float64 copy of ``values``."""
+    array = np.array(values, dtype=np.float64, order="C")
+    array.setflags(write=False)
+    return array
+
+
 def _linear(module: Any) -> tuple[np.ndarray, np.ndarray]:
     """``(W^T, b)`` of a torch ``Linear`` as read-only float64 arrays (``b = 0`` if absent)."""
-    weight = module.weight.detach().cpu().numpy().astype(np.float64).T.copy()
+    weight = _read_only(module.weight.detach().cpu().numpy().T)
     bias = (np.zeros(weight.shape[1]) if module.bias is None
-            else module.bias.detach().cpu().numpy().astype(np.float64))
-    weight.setflags(write=False)
-    bias.setflags(write=False)
-    return weight, bias
+            else module.bias.detach().cpu().numpy())
+    return weight, _read_only(bias)
 
 
 Layer = tuple[np.ndarray, np.ndarray, Callable[[np.ndarray], np.ndarray] | None]
@@ -352,11 +357,9 @@ class NumpyPolicy:
             for index, (name, parameter) in enumerate(zip(
                     arrays["activations"].tolist(), arrays["activation_parameters"].tolist(),
                     strict=True)):
-                weight = np.asarray(arrays[f"weight_{index}"], dtype=np.float64)
-                bias = np.asarray(arrays[f"bias_{index}"], dtype=np.float64)
-                weight.setflags(write=False)
-                bias.setflags(write=False)
-                layers.append((weight, bias, _named_activation(name, parameter) if name else None))
+                layers.append((_read_only(arrays[f"weight_{index}"]),
+                               _read_only(arrays[f"bias_{index}"]),
+                               _named_activation(name, parameter) if name else None))
         except (KeyError, ValueError, TypeError, zipfile.BadZipFile) as exc:
             raise UnsupportedPolicyError(
                 f"{path} is not a NumpyPolicy file of export format {EXPORT_FORMAT} "

@@ -431,7 +431,6 @@ def train_ppo(
         save_path = _model_file(save_path)
         metrics_path = metrics_path_for(save_path) if metrics_path is None else metrics_path
 
-    import torch
     from stable_baselines3 import PPO
     from stable_baselines3.common.callbacks import CallbackList
     from stable_baselines3.common.logger import CSVOutputFormat, HumanOutputFormat, Logger
@@ -442,7 +441,7 @@ def train_ppo(
 
     formats = [] if tensorboard_log is None else configure_logger(  # into <folder>/<name>_<k>
         0, str(tensorboard_log), "PPOLagrangian" if lagrangian else "PPO").output_formats
-    torch.set_num_threads(torch_threads)
+    set_torch_threads(torch_threads)
     training_policy = None
     if filter_kwargs is not None and filter_reference == "rollout":
         training_policy = TrainingPolicy()
