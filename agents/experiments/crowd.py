@@ -28,12 +28,11 @@ from typing import Any
 
 from agents.evaluation.campaign import EvaluationOutputs
 from agents.evaluation.config import EvaluationConfig
-from agents.evaluation.records import EpisodeRecord, EpisodeSpec
+from agents.evaluation.records import EpisodeRecord
 from agents.evaluation.summary import table, wilson_interval
-from agents.experiments.scenes import run_scene_suite, scene_groups, scene_specs
+from agents.experiments.scenes import run_scene_suite, scene_groups
 
-__all__ = ["CROWD_SETTINGS", "CrowdRow", "crowd_rows", "crowd_specs", "crowd_table",
-           "run_crowd"]
+__all__ = ["CROWD_SETTINGS", "CrowdRow", "crowd_rows", "crowd_table", "run_crowd"]
 
 CROWD_SETTINGS: dict[str, dict[str, Any]] = {
     "orca_invisible": {"human_policy": "orca", "robot_visible": False},
@@ -49,13 +48,6 @@ CROWD_RISKS = ("none", "mean", "cvar", "dr_cvar")
 
 CROWD_POLICY = "ppo_crowd.zip"
 """The shipped PPO planner trained on ``SafeNav/Crowd-v0`` (``agents/pretrained/``)."""
-
-
-def crowd_specs(settings: Sequence[str], risks: Sequence[str], *, episodes: int, seed: int,
-                **common: Any) -> list[EpisodeSpec]:
-    """One spec per (setting, risk, test case) (:func:`agents.experiments.scenes.scene_specs`)."""
-    return scene_specs("Crowd", CROWD_SETTINGS, settings, risks, episodes=episodes, seed=seed,
-                       **common)
 
 
 @dataclass(frozen=True)

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from agents.evaluation.records import EpisodeRecord
-from agents.evaluation.summary import summarise, table
+from agents.evaluation.summary import outcomes, table
 
 __all__ = ["TARGET_COLLISION_RATE", "TARGET_GOAL_RATE", "StressCell", "cells_table",
            "explain_collisions", "overview_table", "stress_cells", "write_cells"]
@@ -116,17 +116,15 @@ def stress_cells(
     groups = by_cell(records, method_of)
     cells = []
     for key in sorted(groups, key=order):
-        (row,) = summarise(groups[key])  # a cell shares case, planner, risk and radius
-        collided = [r for r in groups[key] if r.collision and not r.error]
-        causes = dict(row.collision_causes)
+        group = groups[key]
+        stats = {k: v for k, v in outcomes(group).items() if k != "arrivals"}
+        collided = [r for r in group if r.collision and not r.error]
+        causes = Counter(r.collision_cause for r in collided)
         cells.append(StressCell(
-            *key, label=method_of(groups[key][-1])[1], episodes=row.episodes,
-            failed=row.failed, collisions=len(collided), collision_rate=row.collision_rate,
-            collision_low=row.collision_low, collision_high=row.collision_high,
-            goal_rate=row.goal_rate, time_to_goal=row.time_to_goal,
-            meets_target=bool(row.episodes > row.failed
-                              and row.collision_rate <= TARGET_COLLISION_RATE
-                              and row.goal_rate >= TARGET_GOAL_RATE),
+            *key, label=method_of(group[-1])[1], collisions=len(collided), **stats,
+            meets_target=bool(stats["episodes"] > stats["failed"]
+                              and stats["collision_rate"] <= TARGET_COLLISION_RATE
+                              and stats["goal_rate"] >= TARGET_GOAL_RATE),
             fallback_collisions=causes["fallback"],
             inter_sample_collisions=causes["inter_sample"], noise_collisions=causes["noise"],
             infeasible_before=sum(_infeasible_before(r) for r in collided)))
