@@ -178,15 +178,14 @@ def make_training_env(
     filter_kwargs: dict[str, Any] | None = None,
     normalise_actions: bool = True,
     vec_env: str = "dummy",
-    monitor_dir: str | Path | None = None,
 ):
     """Vector environment of ``n_envs`` monitored copies, as learners see it.
 
     Each copy is, inside out: ``gym.make(env_id, **env_kwargs)``; with
     ``filter_kwargs``, :class:`filters.SafetyFilterWrapper` (physical units);
     :class:`agents.training.wrappers.EpisodeCostInfo`; ``Monitor`` logging
-    :data:`agents.training.wrappers.EPISODE_INFO_KEYS` (to ``monitor_dir/<rank>.monitor.csv``
-    if given); with ``normalise_actions``, :class:`agents.training.wrappers.NormalisedActions`
+    :data:`agents.training.wrappers.EPISODE_INFO_KEYS` into the episode's ``info["episode"]``;
+    with ``normalise_actions``, :class:`agents.training.wrappers.NormalisedActions`
     (actions in [-1, 1]). Copy ``k`` is seeded with ``seed + k``.
 
     ``vec_env="dummy"`` (default) runs the copies in this process, which beats
@@ -201,9 +200,7 @@ def make_training_env(
     return make_vec_env(
         partial(_make_env, env_id, dict(env_kwargs or {}),
                 None if filter_kwargs is None else dict(filter_kwargs)),
-        n_envs=n_envs, seed=seed,
-        monitor_dir=None if monitor_dir is None else str(monitor_dir),
-        monitor_kwargs={"info_keywords": EPISODE_INFO_KEYS},
+        n_envs=n_envs, seed=seed, monitor_kwargs={"info_keywords": EPISODE_INFO_KEYS},
         wrapper_class=NormalisedActions if normalise_actions else None,
         vec_env_cls=DummyVecEnv if vec_env == "dummy" else SubprocVecEnv,
     )
