@@ -106,10 +106,11 @@ def pedestrian_rows(records: Sequence[EpisodeRecord]) -> list[PedestrianRow]:
     return rows
 
 
-def _cell(value: float, digits: int = 2, percent: bool = False) -> str:
+def _cell(value: float, percent: bool = False) -> str:
+    """``value`` as a table cell: a percentage (one decimal) or two decimals; NaN: ``-``."""
     if math.isnan(value):
         return "-"
-    return f"{100 * value:.1f}%" if percent else f"{value:.{digits}f}"
+    return f"{100 * value:.1f}%" if percent else f"{value:.2f}"
 
 
 def pedestrian_table(rows: Sequence[PedestrianRow]) -> str:
