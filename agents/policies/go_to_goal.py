@@ -22,7 +22,6 @@ in m/s, ``a_max`` in m/s² (the environment's bound).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
@@ -33,7 +32,6 @@ from safe_nav_env.constants import MAX_ACCELERATION
 __all__ = ["GoToGoalPolicy"]
 
 
-@dataclass(eq=False, kw_only=True)
 class GoToGoalPolicy:
     """Obstacle-blind PD controller to the goal, with Stable-Baselines3's ``predict``.
 
@@ -55,21 +53,22 @@ class GoToGoalPolicy:
         If a parameter is not a finite number > 0.
     """
 
-    gain: float = 1.5
-    damping: float = 3.0
-    cruise_speed: float = 3.0
-    max_acceleration: float = MAX_ACCELERATION
-
-    def __post_init__(self) -> None:
-        for field in fields(self):
-            setattr(self, field.name, finite_scalar(field.name, getattr(self, field.name),
-                                                    low=0.0, strict=True))
+    def __init__(self, *, gain: float = 1.5, damping: float = 3.0, cruise_speed: float = 3.0,
+                 max_acceleration: float = MAX_ACCELERATION) -> None:
+        self.gain, self.damping, self.cruise_speed, self.max_acceleration = (
+            finite_scalar(name, value, low=0.0, strict=True) for name, value in (
+                ("gain", gain), ("damping", damping), ("cruise_speed", cruise_speed),
+                ("max_acceleration", max_acceleration)))
 
     @classmethod
     def from_env(cls, env: Any, **kwargs: Any) -> GoToGoalPolicy:
         """The controller at the input bound of ``env`` (``env.unwrapped.max_acceleration``)."""
         bound = getattr(env.unwrapped, "max_acceleration", MAX_ACCELERATION)
         return cls(max_acceleration=float(bound), **kwargs)
+
+    def __repr__(self) -> str:
+        return (f"GoToGoalPolicy(gain={self.gain}, damping={self.damping}, "
+                f"cruise_speed={self.cruise_speed}, max_acceleration={self.max_acceleration})")
 
     def action(self, velocity: np.ndarray, to_goal: np.ndarray) -> np.ndarray:
         """The acceleration (m/s², shape ``(2,)``) given ``v`` (m/s) and ``g - p`` (m)."""
