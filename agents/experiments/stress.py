@@ -260,10 +260,10 @@ def by_cell(records: Iterable[EpisodeRecord],
     return groups
 
 
-def stress_cells(records: Sequence[EpisodeRecord], method_of: _MethodOf) -> list[StressCell]:
-    """One :class:`StressCell` per (case, planner, method) in table order (:func:`_order`), with
+def stress_cells(groups: dict[_Cell, list[EpisodeRecord]], method_of: _MethodOf
+                 ) -> list[StressCell]:
+    """One :class:`StressCell` per group of :func:`by_cell`, in table order (:func:`_order`);
     ``method_of``: ``record -> (method name, label)``."""
-    groups = by_cell(records, method_of)
     cells = []
     for key in sorted(groups, key=_order):
         group = groups[key]
@@ -309,11 +309,8 @@ def overview_table(cells: Sequence[StressCell]) -> str:
     return table(("class", *(f"{p}: {label}" for p, label in columns)), rows)
 
 
-def explain_collisions(
-    records: Sequence[EpisodeRecord],
-    cells: Sequence[StressCell],
-    method_of: _MethodOf,
-) -> str:
+def explain_collisions(groups: dict[_Cell, list[EpisodeRecord]],
+                       cells: Sequence[StressCell]) -> str:
     """Per case, the cells with collisions and why they happened (Markdown).
 
     For each such cell: collisions by cause (``fallback``: a non-optimal filter status
@@ -322,14 +319,14 @@ def explain_collisions(
     from the first infeasible step to the collision, and the status transitions
     ``before -> at`` the collision with their counts.
     """
-    collided = by_cell((r for r in records if r.collision and not r.error), method_of)
     columns = ("planner", "setting", "collisions", "fallback / inter-sample / noise",
                "infeasible before", "median lead (steps)", "status before → at")
     out = []
     for case in dict.fromkeys(c.case for c in cells):
         rows = []
         for c in (c for c in cells if c.case == case and c.collisions):
-            group = collided.get((c.case, c.planner, c.method), [])
+            group = [r for r in groups[(c.case, c.planner, c.method)]
+                     if r.collision and not r.error]
             leads = [r.first_collision_step - r.first_infeasible_step for r in group
                      if _infeasible_before(r)]
             transitions = Counter(f"{r.status_before_collision or '(start)'} → "
@@ -355,9 +352,8 @@ def write_cells(cells: Sequence[StressCell], path: str | Path) -> Path:
     return path
 
 
-def _timing_table(cells: Sequence[StressCell], records: Sequence[EpisodeRecord],
-                  method_of: Any) -> str:
-    groups = by_cell(records, method_of)
+def _timing_table(cells: Sequence[StressCell], groups: dict[_Cell, list[EpisodeRecord]]
+                  ) -> str:
     rows = []
     for c in cells:
         t = [r.wall_time for r in groups[(c.case, c.planner, c.method)]]
@@ -417,7 +413,8 @@ def run_stress(output: str | Path | None = None, cases: Sequence[str] = DEFAULT_
     method_of = partial(_method_of, reference=reference, epsilon=epsilon)
 
     def report(records: Sequence[EpisodeRecord]) -> Report:
-        cells = stress_cells(records, method_of)
+        groups = by_cell(records, method_of)
+        cells = stress_cells(groups, method_of)
         markdown = cells_table(cells, {n: case.description for n, case in STRESS_SUITE.items()})
         missed = sum(not c.meets_target for c in cells)
         body = (
@@ -437,9 +434,9 @@ def run_stress(output: str | Path | None = None, cases: Sequence[str] = DEFAULT_
             "(`first_infeasible_step`) at or before the collision and the median lead in "
             "steps from it to the collision, and the filter status at the step before and at "
             "the collision (`status_before_collision` → `status_at_collision`).\n\n"
-            + explain_collisions(records, cells, method_of) + audit_section(records)
+            + explain_collisions(groups, cells) + audit_section(records)
             + "\n## Wall time per cell (sum of episode wall times, one worker each)\n\n"
-            + _timing_table(cells, records, method_of))
+            + _timing_table(cells, groups))
         return Report("Stress benchmark by failure class", body, cells, markdown,
                       files={"table": write_cells(cells, config.output / "stress_table.csv")},
                       figures=lambda folder: _pareto_figure(cells, folder))
