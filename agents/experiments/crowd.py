@@ -28,12 +28,11 @@ from typing import Any
 
 from agents.evaluation.campaign import EvaluationOutputs
 from agents.evaluation.config import EvaluationConfig
-from agents.evaluation.records import EpisodeRecord, EpisodeSpec
-from agents.evaluation.summary import wilson_interval
-from agents.experiments.scenes import run_scene_suite, scene_groups, scene_specs
+from agents.evaluation.records import EpisodeRecord
+from agents.evaluation.summary import table, wilson_interval
+from agents.experiments.scenes import run_scene_suite, scene_groups
 
-__all__ = ["CROWD_SETTINGS", "CrowdRow", "crowd_rows", "crowd_specs", "crowd_table",
-           "run_crowd"]
+__all__ = ["CROWD_SETTINGS", "CrowdRow", "crowd_rows", "crowd_table", "run_crowd"]
 
 CROWD_SETTINGS: dict[str, dict[str, Any]] = {
     "orca_invisible": {"human_policy": "orca", "robot_visible": False},
@@ -49,13 +48,6 @@ CROWD_RISKS = ("none", "mean", "cvar", "dr_cvar")
 
 CROWD_POLICY = "ppo_crowd.zip"
 """The shipped PPO planner trained on ``SafeNav/Crowd-v0`` (``agents/pretrained/``)."""
-
-
-def crowd_specs(settings: Sequence[str], risks: Sequence[str], *, episodes: int, seed: int,
-                **common: Any) -> list[EpisodeSpec]:
-    """One spec per (setting, risk, test case) (:func:`agents.experiments.scenes.scene_specs`)."""
-    return scene_specs("Crowd", CROWD_SETTINGS, settings, risks, episodes=episodes, seed=seed,
-                       **common)
 
 
 @dataclass(frozen=True)
@@ -111,18 +103,15 @@ def crowd_table(rows: Sequence[CrowdRow]) -> str:
         text = f"{100 * value:.1f}%"
         return text if low is None else f"{text} [{100 * low:.1f}, {100 * high:.1f}]"
 
-    lines = ["| setting | method | cases | success [95 % CI] | collision [95 % CI] "
-             "| of which standing | timeout | time to goal (s) | discomfort frequency |",
-             "|---|---|---|---|---|---|---|---|---|"]
-    for row in rows:
-        time_cell = "-" if math.isnan(row.time_to_goal) else f"{row.time_to_goal:.2f}"
-        discomfort = "-" if math.isnan(row.discomfort) else f"{row.discomfort:.3f}"
-        lines.append(f"| {row.setting} | {row.risk} | {row.cases} | "
-                     f"{pct(row.success, row.success_low, row.success_high)} | "
-                     f"{pct(row.collision, row.collision_low, row.collision_high)} | "
-                     f"{pct(row.standing_collision)} | {pct(row.timeout)} | {time_cell} | "
-                     f"{discomfort} |")
-    return "\n".join(lines) + "\n"
+    columns = ("setting", "method", "cases", "success [95 % CI]", "collision [95 % CI]",
+               "of which standing", "timeout", "time to goal (s)", "discomfort frequency")
+    return table(columns, ([
+        row.setting, row.risk, str(row.cases),
+        pct(row.success, row.success_low, row.success_high),
+        pct(row.collision, row.collision_low, row.collision_high),
+        pct(row.standing_collision), pct(row.timeout),
+        "-" if math.isnan(row.time_to_goal) else f"{row.time_to_goal:.2f}",
+        "-" if math.isnan(row.discomfort) else f"{row.discomfort:.3f}"] for row in rows))
 
 
 def run_crowd(output: str | Path | None = None, settings: Sequence[str] = ("orca_invisible",),

@@ -37,7 +37,7 @@ from agents.evaluation.audit import decode_losses
 from agents.evaluation.campaign import EvaluationOutputs
 from agents.evaluation.config import EvaluationConfig
 from agents.evaluation.records import EpisodeRecord
-from agents.evaluation.summary import wilson_interval
+from agents.evaluation.summary import table, wilson_interval
 from agents.experiments.scenes import run_scene_suite, scene_groups
 from safe_nav_env.pedestrians.recording import SCENES
 
@@ -106,28 +106,25 @@ def pedestrian_rows(records: Sequence[EpisodeRecord]) -> list[PedestrianRow]:
     return rows
 
 
-def _cell(value: float, digits: int = 2, percent: bool = False) -> str:
+def _cell(value: float, percent: bool = False) -> str:
+    """``value`` as a table cell: a percentage (one decimal) or two decimals; NaN: ``-``."""
     if math.isnan(value):
         return "-"
-    return f"{100 * value:.1f}%" if percent else f"{value:.{digits}f}"
+    return f"{100 * value:.1f}%" if percent else f"{value:.2f}"
 
 
 def pedestrian_table(rows: Sequence[PedestrianRow]) -> str:
     """The rows as a Markdown table."""
-    lines = ["| scene | method | episodes | collision [95 % CI] | of which standing | success "
-             "| time to goal (s) | infeasible steps | miscoverage "
-             "| min distance, median / worst (m) |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
-    for row in rows:
-        lines.append(
-            f"| {row.scene} | {row.risk} | {row.episodes} | "
-            f"{_cell(row.collision, percent=True)} [{100 * row.collision_low:.1f}, "
-            f"{100 * row.collision_high:.1f}] | {_cell(row.standing_collision, percent=True)} | "
-            f"{_cell(row.success, percent=True)} | "
-            f"{_cell(row.time_to_goal)} | {_cell(row.infeasible, percent=True)} | "
-            f"{_cell(row.miscoverage, percent=True)} | {_cell(row.median_min_distance)} / "
-            f"{_cell(row.worst_min_distance)} |")
-    return "\n".join(lines) + "\n"
+    columns = ("scene", "method", "episodes", "collision [95 % CI]", "of which standing",
+               "success", "time to goal (s)", "infeasible steps", "miscoverage",
+               "min distance, median / worst (m)")
+    return table(columns, ([
+        row.scene, row.risk, str(row.episodes),
+        f"{_cell(row.collision, percent=True)} [{100 * row.collision_low:.1f}, "
+        f"{100 * row.collision_high:.1f}]", _cell(row.standing_collision, percent=True),
+        _cell(row.success, percent=True), _cell(row.time_to_goal),
+        _cell(row.infeasible, percent=True), _cell(row.miscoverage, percent=True),
+        f"{_cell(row.median_min_distance)} / {_cell(row.worst_min_distance)}"] for row in rows))
 
 
 def run_pedestrians(output: str | Path | None = None,

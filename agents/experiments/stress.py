@@ -13,10 +13,19 @@ two calibrated ones (``risk="conformal"``, ``epsilon="auto"``, roll-out). The ep
 run through :func:`agents.evaluation.evaluate.evaluate`, so the CSV, run key, resume
 and ``--overwrite`` behave the same way.
 
+The stress table: :func:`stress_cells` aggregates the records per (case, planner,
+setting): continuous-time collisions with a Wilson 95 % interval, the goal rate and the
+mean time to goal, and whether the cell meets the target of
+:data:`TARGET_COLLISION_RATE` and :data:`TARGET_GOAL_RATE` (point estimates). For every
+collided episode it keeps why (:func:`explain_collisions`): the first step whose hard
+filter problem was infeasible (``first_infeasible_step``), the filter status before and
+at the first collision, and the collision cause of
+:class:`~agents.evaluation.records.EpisodeRecord`.
+
 Output folder::
 
     episodes.csv, episodes.run.json   one row per episode (column ``case``), the run key
-    stress_table.csv                  one row per cell (:mod:`agents.experiments.stress_table`)
+    stress_table.csv                  one row per cell (:func:`write_cells`)
     summary.md                        the overview (class x planner x setting, cells that miss
                                       <= 1 % collisions / >= 95 % goal marked), per class:
                                       collisions (continuous time, Wilson 95 %), goal rate,
@@ -28,28 +37,21 @@ Output folder::
 
 from __future__ import annotations
 
-from collections import defaultdict
-from collections.abc import Sequence
-from dataclasses import dataclass
+import csv
+import math
+from collections import Counter, defaultdict
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import asdict, dataclass, fields
 from functools import partial
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from agents.evaluation.campaign import EvaluationOutputs, Report, run_campaign
 from agents.evaluation.config import EvaluationConfig, split_options
 from agents.evaluation.records import AUTO, PLANNERS, REFERENCES, EpisodeRecord, EpisodeSpec
-from agents.evaluation.summary import audit_section
-from agents.experiments.stress_table import (
-    TARGET_COLLISION_RATE,
-    TARGET_GOAL_RATE,
-    StressCell,
-    by_cell,
-    cells_table,
-    explain_collisions,
-    overview_table,
-    stress_cells,
-    write_cells,
-)
+from agents.evaluation.summary import audit_section, outcomes, table
 from filters._validation import integer_at_least
 from filters.constants import EPSILON
 from filters.errors import InvalidParameterError
@@ -57,7 +59,9 @@ from safe_nav_env.scenarios import CUSTOM
 from safe_nav_env.stress import STRESS_SUITE
 
 __all__ = ["DEFAULT_CASES", "DEFAULT_METHODS", "DEFAULT_PLANNERS", "STRESS_METHODS",
-           "StressMethod", "run_stress", "stress_specs"]
+           "TARGET_COLLISION_RATE", "TARGET_GOAL_RATE", "StressCell", "StressMethod",
+           "cells_table", "explain_collisions", "overview_table", "run_stress", "stress_cells",
+           "stress_specs", "write_cells"]
 
 
 @dataclass(frozen=True)
@@ -186,16 +190,177 @@ def _order(key: tuple[str, str, str]) -> tuple:
               for name, order in zip(key, lists, strict=True)), key[2])
 
 
-def _timing_table(cells: Sequence[StressCell], records: Sequence[EpisodeRecord],
-                  method_of: Any) -> str:
-    groups = by_cell(records, method_of)
-    lines = ["| case | planner | setting | episodes | wall time per episode (s) | "
-             "cell total (s) |", "|---|---|---|---|---|---|"]
+# ---------------------------------------------------------------------------- the table
+TARGET_COLLISION_RATE = 0.01
+"""A cell meets the target with at most this share of collided episodes (continuous time)..."""
+
+TARGET_GOAL_RATE = 0.95
+"""... and at least this share reaching the goal."""
+
+_Cell = tuple[str, str, str]
+"""A stress cell's (case, planner, method name)."""
+
+_MethodOf = Callable[[EpisodeRecord], tuple[str, str]]
+"""``record -> (method name, label)``: :func:`_method_of` for the run's reference and radius."""
+
+
+@dataclass(frozen=True)
+class StressCell:
+    """The episodes of one (case, planner, method) of the stress suite.
+
+    Attributes
+    ----------
+    case, planner, method
+        The failure class, the reference planner and the filter setting (their names).
+    label
+        The setting's name in tables.
+    episodes, failed
+        Episodes recorded and those that failed (an exception; left out of the rates).
+    collisions, collision_rate, collision_low, collision_high
+        Collided episodes (continuous time), their share and its Wilson 95 % interval.
+    goal_rate, time_to_goal
+        Share reaching the goal; mean time to goal in s over those (NaN if none).
+    meets_target
+        ``collision_rate <= 1 %`` and ``goal_rate >= 95 %``.
+    fallback_collisions, inter_sample_collisions, noise_collisions
+        Collided episodes by ``collision_cause``.
+    infeasible_before
+        Collided episodes whose first infeasible step came at or before the collision.
+    """
+
+    case: str
+    planner: str
+    method: str
+    label: str
+    episodes: int
+    failed: int
+    collisions: int
+    collision_rate: float
+    collision_low: float
+    collision_high: float
+    goal_rate: float
+    time_to_goal: float
+    meets_target: bool
+    fallback_collisions: int = 0
+    inter_sample_collisions: int = 0
+    noise_collisions: int = 0
+    infeasible_before: int = 0
+
+
+def _infeasible_before(record: EpisodeRecord) -> bool:
+    return 0 < record.first_infeasible_step <= record.first_collision_step
+
+
+def by_cell(records: Iterable[EpisodeRecord],
+             method_of: _MethodOf) -> dict[_Cell, list[EpisodeRecord]]:
+    """The records by (case, planner, method name)."""
+    groups: dict[_Cell, list[EpisodeRecord]] = {}
+    for record in records:
+        groups.setdefault((record.case, record.planner, method_of(record)[0]), []).append(record)
+    return groups
+
+
+def stress_cells(groups: dict[_Cell, list[EpisodeRecord]], method_of: _MethodOf
+                 ) -> list[StressCell]:
+    """One :class:`StressCell` per group of :func:`by_cell`, in table order (:func:`_order`);
+    ``method_of``: ``record -> (method name, label)``."""
+    cells = []
+    for key in sorted(groups, key=_order):
+        group = groups[key]
+        stats = {k: v for k, v in outcomes(group).items() if k != "arrivals"}
+        collided = [r for r in group if r.collision and not r.error]
+        causes = Counter(r.collision_cause for r in collided)
+        cells.append(StressCell(
+            *key, label=method_of(group[-1])[1], collisions=len(collided), **stats,
+            meets_target=bool(stats["episodes"] > stats["failed"]
+                              and stats["collision_rate"] <= TARGET_COLLISION_RATE
+                              and stats["goal_rate"] >= TARGET_GOAL_RATE),
+            fallback_collisions=causes["fallback"],
+            inter_sample_collisions=causes["inter_sample"], noise_collisions=causes["noise"],
+            infeasible_before=sum(_infeasible_before(r) for r in collided)))
+    return cells
+
+
+def cells_table(cells: Sequence[StressCell], descriptions: dict[str, str]) -> str:
+    """Per case, a Markdown table of its cells (collisions, goal, time to goal, target)."""
+    columns = ("planner", "setting", "episodes", "collisions [95 % CI]", "goal rate",
+               "time to goal (s)", "target")
+    out = []
+    for case in dict.fromkeys(c.case for c in cells):
+        rows = [[c.planner, c.label,
+                 f"{c.episodes}" + (f" ({c.failed} failed)" if c.failed else ""),
+                 f"{c.collision_rate:.1%} [{c.collision_low:.1%}, {c.collision_high:.1%}]",
+                 f"{c.goal_rate:.1%}",
+                 "-" if math.isnan(c.time_to_goal) else f"{c.time_to_goal:.2f}",
+                 "yes" if c.meets_target else "**MISS**"] for c in cells if c.case == case]
+        out.append(f"### {case}: {descriptions.get(case, '')}\n\n" + table(columns, rows))
+    return "\n".join(out)
+
+
+def overview_table(cells: Sequence[StressCell]) -> str:
+    """Classes as rows, (planner, setting) as columns: ``collisions / goal``, MISS marked."""
+    columns = list(dict.fromkeys((c.planner, c.label) for c in cells))
+    by_key = {(c.case, c.planner, c.label): c for c in cells}
+    rows = []
+    for case in dict.fromkeys(c.case for c in cells):
+        entries = (by_key.get((case, *column)) for column in columns)
+        rows.append([case, *("" if c is None else f"{c.collision_rate:.1%} / {c.goal_rate:.0%}"
+                             + ("" if c.meets_target else " ✗") for c in entries)])
+    return table(("class", *(f"{p}: {label}" for p, label in columns)), rows)
+
+
+def explain_collisions(groups: dict[_Cell, list[EpisodeRecord]],
+                       cells: Sequence[StressCell]) -> str:
+    """Per case, the cells with collisions and why they happened (Markdown).
+
+    For each such cell: collisions by cause (``fallback``: a non-optimal filter status
+    within two steps before the collision; ``inter_sample``; ``noise``), how many had an
+    infeasible hard problem at or before the collision and the median lead in steps
+    from the first infeasible step to the collision, and the status transitions
+    ``before -> at`` the collision with their counts.
+    """
+    columns = ("planner", "setting", "collisions", "fallback / inter-sample / noise",
+               "infeasible before", "median lead (steps)", "status before → at")
+    out = []
+    for case in dict.fromkeys(c.case for c in cells):
+        rows = []
+        for c in (c for c in cells if c.case == case and c.collisions):
+            group = [r for r in groups[(c.case, c.planner, c.method)]
+                     if r.collision and not r.error]
+            leads = [r.first_collision_step - r.first_infeasible_step for r in group
+                     if _infeasible_before(r)]
+            transitions = Counter(f"{r.status_before_collision or '(start)'} → "
+                                  f"{r.status_at_collision}" for r in group)
+            rows.append([c.planner, c.label, str(c.collisions),
+                         f"{c.fallback_collisions} / {c.inter_sample_collisions} / "
+                         f"{c.noise_collisions}", str(c.infeasible_before),
+                         f"{float(np.median(leads)):.0f}" if leads else "-",
+                         ", ".join(f"{t}: {n}" for t, n in transitions.most_common())])
+        if rows:
+            out.append(f"### {case}\n\n" + table(columns, rows))
+    return "\n".join(out) if out else "No collisions.\n"
+
+
+def write_cells(cells: Sequence[StressCell], path: str | Path) -> Path:
+    """Write the cells as CSV (one row per cell, the fields of :class:`StressCell` in order);
+    return the path."""
+    path = Path(path)
+    with path.open("w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=[f.name for f in fields(StressCell)])
+        writer.writeheader()
+        writer.writerows(asdict(cell) for cell in cells)
+    return path
+
+
+def _timing_table(cells: Sequence[StressCell], groups: dict[_Cell, list[EpisodeRecord]]
+                  ) -> str:
+    rows = []
     for c in cells:
         t = [r.wall_time for r in groups[(c.case, c.planner, c.method)]]
-        lines.append(f"| {c.case} | {c.planner} | {c.label} | {len(t)} | "
-                     f"{sum(t) / max(1, len(t)):.3f} | {sum(t):.1f} |")
-    return "\n".join(lines) + "\n"
+        rows.append([c.case, c.planner, c.label, str(len(t)), f"{sum(t) / max(1, len(t)):.3f}",
+                     f"{sum(t):.1f}"])
+    return table(("case", "planner", "setting", "episodes", "wall time per episode (s)",
+                  "cell total (s)"), rows)
 
 
 def run_stress(output: str | Path | None = None, cases: Sequence[str] = DEFAULT_CASES,
@@ -234,7 +399,7 @@ def run_stress(output: str | Path | None = None, cases: Sequence[str] = DEFAULT_
     Returns
     -------
     EvaluationOutputs
-        Its ``rows`` are the :class:`~agents.experiments.stress_table.StressCell` of the run.
+        Its ``rows`` are the :class:`StressCell` of the run.
 
     Raises
     ------
@@ -248,7 +413,8 @@ def run_stress(output: str | Path | None = None, cases: Sequence[str] = DEFAULT_
     method_of = partial(_method_of, reference=reference, epsilon=epsilon)
 
     def report(records: Sequence[EpisodeRecord]) -> Report:
-        cells = stress_cells(records, method_of, _order)
+        groups = by_cell(records, method_of)
+        cells = stress_cells(groups, method_of)
         markdown = cells_table(cells, {n: case.description for n, case in STRESS_SUITE.items()})
         missed = sum(not c.meets_target for c in cells)
         body = (
@@ -268,9 +434,9 @@ def run_stress(output: str | Path | None = None, cases: Sequence[str] = DEFAULT_
             "(`first_infeasible_step`) at or before the collision and the median lead in "
             "steps from it to the collision, and the filter status at the step before and at "
             "the collision (`status_before_collision` → `status_at_collision`).\n\n"
-            + explain_collisions(records, cells, method_of) + audit_section(records)
+            + explain_collisions(groups, cells) + audit_section(records)
             + "\n## Wall time per cell (sum of episode wall times, one worker each)\n\n"
-            + _timing_table(cells, records, method_of))
+            + _timing_table(cells, groups))
         return Report("Stress benchmark by failure class", body, cells, markdown,
                       files={"table": write_cells(cells, config.output / "stress_table.csv")},
                       figures=lambda folder: _pareto_figure(cells, folder))

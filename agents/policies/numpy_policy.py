@@ -44,10 +44,8 @@ from __future__ import annotations
 import os
 import warnings
 import zipfile
-from collections.abc import Callable
-from functools import partial
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -86,39 +84,43 @@ EXPORT_FORMAT = 1
 """Version of the file layout of :meth:`NumpyPolicy.save` (files of another are refused)."""
 
 
-def _named_activation(name: str, parameter: float = 0.0) -> Callable[[np.ndarray], np.ndarray]:
-    """The numpy activation ``z -> σ(z)`` called ``name`` (picklable)."""
-    return partial(_ACTIVATIONS[name], parameter=float(parameter))
+class _Activation(NamedTuple):
+    """The numpy activation ``z -> σ(z)`` called ``name`` in :data:`_ACTIVATIONS`, with its
+    ``parameter`` (picklable; :meth:`NumpyPolicy.save` writes the two fields)."""
+
+    name: str
+    parameter: float = 0.0
+
+    def __call__(self, z: np.ndarray) -> np.ndarray:
+        return _ACTIVATIONS[self.name](z, self.parameter)
 
 
-def _activation_name(activation: Callable[[np.ndarray], np.ndarray]) -> tuple[str, float]:
-    """``(name, parameter)`` of an activation made by :func:`_named_activation`."""
-    func = activation.func  # type: ignore[attr-defined]
-    name = next(name for name, known in _ACTIVATIONS.items() if known is func)
-    return name, activation.keywords["parameter"]  # type: ignore[attr-defined]
-
-
-def _activation(module: Any) -> Callable[[np.ndarray], np.ndarray] | None:
-    """Numpy version ``z -> σ(z)`` of a torch activation module (picklable), or ``None``."""
+def _activation(module: Any) -> _Activation | None:
+    """The :class:`_Activation` of a torch activation module, or ``None``."""
     from torch import nn
 
     kind = {nn.Tanh: ("tanh", 0.0), nn.ReLU: ("relu", 0.0),
             nn.LeakyReLU: ("leaky_relu", getattr(module, "negative_slope", 0.0)),
             nn.ELU: ("elu", getattr(module, "alpha", 0.0))}.get(type(module))
-    return None if kind is None else _named_activation(*kind)
+    return None if kind is None else _Activation(kind[0], float(kind[1]))
+
+
+def _read_only(values: Any) -> np.ndarray:
+    """A read-only C-ordered float64 copy of ``values``."""
+    array = np.array(values, dtype=np.float64, order="C")
+    array.setflags(write=False)
+    return array
 
 
 def _linear(module: Any) -> tuple[np.ndarray, np.ndarray]:
     """``(W^T, b)`` of a torch ``Linear`` as read-only float64 arrays (``b = 0`` if absent)."""
-    weight = module.weight.detach().cpu().numpy().astype(np.float64).T.copy()
+    weight = _read_only(module.weight.detach().cpu().numpy().T)
     bias = (np.zeros(weight.shape[1]) if module.bias is None
-            else module.bias.detach().cpu().numpy().astype(np.float64))
-    weight.setflags(write=False)
-    bias.setflags(write=False)
-    return weight, bias
+            else module.bias.detach().cpu().numpy())
+    return weight, _read_only(bias)
 
 
-Layer = tuple[np.ndarray, np.ndarray, Callable[[np.ndarray], np.ndarray] | None]
+Layer = tuple[np.ndarray, np.ndarray, _Activation | None]
 
 def _checked_actor_critic(model: Any) -> Any:
     """The ``ActorCriticPolicy`` of ``model`` if its actor can be exported, else raise.
@@ -311,7 +313,7 @@ class NumpyPolicy:
         :meth:`load` reads the file back without torch or Stable-Baselines3 (the
         evaluation's cache of exports, :func:`agents.evaluation.policy_files.load_policy`).
         """
-        names = [("", 0.0) if a is None else _activation_name(a) for _, _, a in self.layers]
+        names = [a or ("", 0.0) for _, _, a in self.layers]
         arrays: dict[str, np.ndarray] = {
             "format": np.array(EXPORT_FORMAT), "squash_output": np.array(self.squash_output),
             "activations": np.array([name for name, _ in names]),
@@ -352,11 +354,9 @@ class NumpyPolicy:
             for index, (name, parameter) in enumerate(zip(
                     arrays["activations"].tolist(), arrays["activation_parameters"].tolist(),
                     strict=True)):
-                weight = np.asarray(arrays[f"weight_{index}"], dtype=np.float64)
-                bias = np.asarray(arrays[f"bias_{index}"], dtype=np.float64)
-                weight.setflags(write=False)
-                bias.setflags(write=False)
-                layers.append((weight, bias, _named_activation(name, parameter) if name else None))
+                layers.append((_read_only(arrays[f"weight_{index}"]),
+                               _read_only(arrays[f"bias_{index}"]),
+                               _Activation(name, float(parameter)) if name else None))
         except (KeyError, ValueError, TypeError, zipfile.BadZipFile) as exc:
             raise UnsupportedPolicyError(
                 f"{path} is not a NumpyPolicy file of export format {EXPORT_FORMAT} "

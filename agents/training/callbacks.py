@@ -29,7 +29,7 @@ from typing import Any
 
 from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
 
-from agents.training.wrappers import FILTER_STATUSES, EpisodeSafety, SafetyTally
+from agents.training.wrappers import EpisodeSafety, SafetyTally
 
 
 def record_metrics(logger: Any, prefix: str, metrics: dict[str, float]) -> None:
@@ -144,7 +144,4 @@ class RefreshActor(BaseCallback):
         return True
 
 
-__all__ = [
-    "FILTER_STATUSES", "EpisodeSafety", "RefreshActor", "SafetyEvalCallback",
-    "SafetyMetricsCallback", "SafetyTally", "record_metrics",
-]
+__all__ = ["RefreshActor", "SafetyEvalCallback", "SafetyMetricsCallback", "record_metrics"]

@@ -30,15 +30,26 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
+
+import safe_nav_env  # noqa: F401  (registers the ids)
 from agents.policies.loading import (  # noqa: F401  (re-exported)
     PRETRAINED_POLICY,
     load_ppo,
     pretrained_policy_path,
     set_torch_threads,
 )
+from agents.training.wrappers import (
+    EPISODE_INFO_KEYS,
+    EpisodeCostInfo,
+    NormalisedActions,
+    in_physical_units,
+)
+from filters import SafetyFilterWrapper
 from filters._validation import finite_scalar, integer_at_least
 from filters.config import FilterConfig
 from filters.errors import InvalidParameterError, InvalidTypeError
+from safe_nav_env.errors import SafeNavEnvError
 
 DEFAULT_ENV_ID = "SafeNav/RandomCrossing-v0"
 """The randomised training scenario family."""
@@ -126,7 +137,7 @@ class TrainingPolicy:
     def bind(self, model: Any, physical_space: Any) -> None:
         """Answer with ``model`` from now on (its actions mapped to ``physical_space``)."""
         self.model, self._space = model, physical_space
-        self._physical = self._in_physical_units(model)
+        self._physical = in_physical_units(model, physical_space)
         self.refresh()
 
     def refresh(self) -> None:
@@ -134,15 +145,9 @@ class TrainingPolicy:
         from agents.policies.numpy_policy import NumpyPolicy, UnsupportedPolicyError
 
         try:
-            self._fast = self._in_physical_units(NumpyPolicy.from_sb3(self.model))
+            self._fast = in_physical_units(NumpyPolicy.from_sb3(self.model), self._space)
         except UnsupportedPolicyError:
             self._fast = None
-
-    def _in_physical_units(self, policy: Any) -> Any:
-        from agents.training.wrappers import PhysicalUnitsPolicy, is_normalised_policy
-
-        return (PhysicalUnitsPolicy(policy, self._space)
-                if is_normalised_policy(self.model, self._space) else policy)
 
     def predict(self, observation: Any, state: Any = None, episode_start: Any = None,
                 deterministic: bool = False):
@@ -158,15 +163,8 @@ class TrainingPolicy:
 
 def _make_env(env_id: str, env_kwargs: dict[str, Any], filter_kwargs: dict[str, Any] | None):
     """One training environment: gym.make -> [filter] -> EpisodeCostInfo."""
-    import gymnasium as gym
-
-    import safe_nav_env  # noqa: F401  (registers the ids)
-    from agents.training.wrappers import EpisodeCostInfo
-
     env = gym.make(env_id, **env_kwargs)
     if filter_kwargs is not None:
-        from filters import SafetyFilterWrapper
-
         env = SafetyFilterWrapper(env, **filter_kwargs)
     return EpisodeCostInfo(env)
 
@@ -180,15 +178,14 @@ def make_training_env(
     filter_kwargs: dict[str, Any] | None = None,
     normalise_actions: bool = True,
     vec_env: str = "dummy",
-    monitor_dir: str | Path | None = None,
 ):
     """Vector environment of ``n_envs`` monitored copies, as learners see it.
 
     Each copy is, inside out: ``gym.make(env_id, **env_kwargs)``; with
     ``filter_kwargs``, :class:`filters.SafetyFilterWrapper` (physical units);
     :class:`agents.training.wrappers.EpisodeCostInfo`; ``Monitor`` logging
-    :data:`agents.training.wrappers.EPISODE_INFO_KEYS` (to ``monitor_dir/<rank>.monitor.csv``
-    if given); with ``normalise_actions``, :class:`agents.training.wrappers.NormalisedActions`
+    :data:`agents.training.wrappers.EPISODE_INFO_KEYS` into the episode's ``info["episode"]``;
+    with ``normalise_actions``, :class:`agents.training.wrappers.NormalisedActions`
     (actions in [-1, 1]). Copy ``k`` is seeded with ``seed + k``.
 
     ``vec_env="dummy"`` (default) runs the copies in this process, which beats
@@ -198,16 +195,12 @@ def make_training_env(
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
-    from agents.training.wrappers import EPISODE_INFO_KEYS, NormalisedActions
-
     if vec_env not in VEC_ENVS:
         raise InvalidParameterError(f"vec_env must be one of {VEC_ENVS}, got {vec_env!r}")
     return make_vec_env(
         partial(_make_env, env_id, dict(env_kwargs or {}),
                 None if filter_kwargs is None else dict(filter_kwargs)),
-        n_envs=n_envs, seed=seed,
-        monitor_dir=None if monitor_dir is None else str(monitor_dir),
-        monitor_kwargs={"info_keywords": EPISODE_INFO_KEYS},
+        n_envs=n_envs, seed=seed, monitor_kwargs={"info_keywords": EPISODE_INFO_KEYS},
         wrapper_class=NormalisedActions if normalise_actions else None,
         vec_env_cls=DummyVecEnv if vec_env == "dummy" else SubprocVecEnv,
     )
@@ -234,11 +227,6 @@ def check_filter_kwargs(env_id: str, env_kwargs: dict[str, Any] | None,
     InvalidParameterError, InvalidTypeError
         If an option is out of range or unknown to the wrapper.
     """
-    import gymnasium as gym
-
-    import safe_nav_env  # noqa: F401
-    from filters import SafetyFilterWrapper
-
     if isinstance(filter_kwargs, FilterConfig):
         filter_kwargs = {"config": filter_kwargs}
     if not isinstance(filter_kwargs, dict):
@@ -263,11 +251,6 @@ def check_env_kwargs(env_id: str, env_kwargs: dict[str, Any] | None) -> None:
     InvalidTypeError
         If ``env_kwargs`` is not a dict or holds a keyword the environment does not take.
     """
-    import gymnasium as gym
-
-    import safe_nav_env  # noqa: F401
-    from safe_nav_env.errors import SafeNavEnvError
-
     if env_kwargs is None:
         return
     if not isinstance(env_kwargs, dict):
@@ -445,7 +428,6 @@ def train_ppo(
         save_path = _model_file(save_path)
         metrics_path = metrics_path_for(save_path) if metrics_path is None else metrics_path
 
-    import torch
     from stable_baselines3 import PPO
     from stable_baselines3.common.callbacks import CallbackList
     from stable_baselines3.common.logger import CSVOutputFormat, HumanOutputFormat, Logger
@@ -456,7 +438,7 @@ def train_ppo(
 
     formats = [] if tensorboard_log is None else configure_logger(  # into <folder>/<name>_<k>
         0, str(tensorboard_log), "PPOLagrangian" if lagrangian else "PPO").output_formats
-    torch.set_num_threads(torch_threads)
+    set_torch_threads(torch_threads)
     training_policy = None
     if filter_kwargs is not None and filter_reference == "rollout":
         training_policy = TrainingPolicy()

@@ -79,15 +79,6 @@ class EpisodeCostInfo(gym.Wrapper):
         return obs, reward, terminated, truncated, info
 
 
-def report_field(report: Any, name: str) -> Any:
-    """A field of ``info["filter"]``: a :class:`filters.wrapper.FilterReport` (attribute)
-    or a plain mapping (key)."""
-    try:  # one attribute lookup (hasattr + getattr would be two): this runs every step
-        return getattr(report, name)
-    except AttributeError:
-        return report[name]
-
-
 FILTER_STATUSES = (*(status.value for status in FilterStatus), PASSTHROUGH)
 """Filter statuses always logged (share 0 when absent), so the CSV columns are fixed;
 any other status seen is logged too."""
@@ -150,12 +141,12 @@ class SafetyTally:
         self._steps[index] += 1
         report = info.get("filter")
         if report is not None:
-            value = float(report_field(report, "intervention"))
+            value = float(report["intervention"])  # a FilterReport or a plain dict
             self._intervention[index] += value
             self._filtered[index] += 1
             self.intervention_sum += value
             self.filtered_steps += 1
-            self.statuses[str(report_field(report, "status"))] += 1
+            self.statuses[str(report["status"])] += 1
         if not done:
             return None
         filtered = self._filtered[index]
@@ -300,5 +291,4 @@ def in_physical_units(policy: Any, physical_space: spaces.Space) -> Any:
 __all__ = [
     "EPISODE_INFO_KEYS", "FILTER_STATUSES", "EpisodeCostInfo", "EpisodeSafety", "NormalisedActions",
     "PhysicalUnitsPolicy", "SafetyTally", "in_physical_units", "is_normalised_policy",
-    "report_field",
 ]

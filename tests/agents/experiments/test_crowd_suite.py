@@ -7,14 +7,14 @@ import math
 import pytest
 
 from agents.cli import main
-from agents.experiments.crowd import CROWD_SETTINGS, crowd_rows, crowd_specs, run_crowd
-from agents.experiments.scenes import scene_setting
+from agents.experiments.crowd import CROWD_SETTINGS, crowd_rows, run_crowd
+from agents.experiments.scenes import scene_setting, scene_specs
 from filters.errors import InvalidParameterError
 
 
 def test_every_setting_and_risk_runs_the_same_test_cases():
-    specs = crowd_specs(["orca_invisible", "social_force_visible"], ["none", "dr_cvar"],
-                        episodes=3, seed=10, planner="mpc")
+    specs = scene_specs("Crowd", CROWD_SETTINGS, ["orca_invisible", "social_force_visible"],
+                        ["none", "dr_cvar"], episodes=3, seed=10, planner="mpc")
     assert len(specs) == 2 * 2 * 3
     assert {s.scenario for s in specs} == {"Crowd"}
     for setting in ("orca_invisible", "social_force_visible"):
@@ -22,7 +22,7 @@ def test_every_setting_and_risk_runs_the_same_test_cases():
             cell = [s for s in specs if s.risk == risk and setting in _name(s)]
             assert [s.seed for s in cell] == [10, 11, 12]
     with pytest.raises(InvalidParameterError, match="boids"):
-        crowd_specs(["boids"], ["none"], episodes=1, seed=0)
+        scene_specs("Crowd", CROWD_SETTINGS, ["boids"], ["none"], episodes=1, seed=0)
 
 
 def _name(spec):

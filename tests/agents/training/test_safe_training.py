@@ -16,13 +16,15 @@ from stable_baselines3.common.vec_env import DummyVecEnv  # noqa: E402
 
 import safe_nav_env  # noqa: E402,F401
 from agents.cli.main import main  # noqa: E402
-from agents.training.callbacks import FILTER_STATUSES, SafetyMetricsCallback, SafetyTally  # noqa: E402
+from agents.training.callbacks import SafetyMetricsCallback  # noqa: E402
 from agents.training.lagrangian import CostPenaltyVecEnv, PPOLagrangian, dual_ascent_step  # noqa: E402
 from agents.training.ppo import make_training_env, metrics_path_for, train_ppo  # noqa: E402
 from agents.training.wrappers import (  # noqa: E402
+    FILTER_STATUSES,
     EpisodeCostInfo,
     NormalisedActions,
     PhysicalUnitsPolicy,
+    SafetyTally,
     is_normalised_policy,
 )
 from filters import InvalidParameterError, SafetyFilterWrapper  # noqa: E402
