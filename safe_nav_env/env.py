@@ -283,8 +283,11 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
                 self.render()
         delta = self.obstacle_positions - self.ego_state[:2]
         centre = np.hypot(delta[:, 0], delta[:, 1])
-        obs = self._observe(self.ego_state, delta, self.obstacle_velocities, centre)
-        return obs, _read_only(centre - self._radii_sum)
+        clearance = _read_only(centre - self._radii_sum)
+        velocities, present = self.obstacle_velocities, self._model.present
+        if present is not None and not present.all():  # empty slots stay out of the observation
+            delta, velocities, centre = delta[present], velocities[present], centre[present]
+        return self._observe(self.ego_state, delta, velocities, centre), clearance
 
     # ------------------------------------------------------------------ setup
 
@@ -298,7 +301,7 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         length = self._episode_length or scenario.time_limit
         self.max_episode_steps: int = max(1, math.ceil(length / self.dt - 1e-9))
         if self._model_scenario is not scenario:  # always at the first _load
-            self._model: ObstacleModel = ObstacleModel(scenario.obstacles, self.dt)
+            self._model: ObstacleModel = self._obstacle_model(scenario)
             self._model_scenario = scenario
         self.ego_radius: float = scenario.ego_radius
         self.obstacle_radii: np.ndarray = self._model.radii
@@ -317,6 +320,16 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         self._applied = _read_only(np.zeros(2))
         start, goal = scenario.ego_start, scenario.goal
         self._distance_to_goal = math.hypot(start[0] - goal[0], start[1] - goal[1])
+
+    def _obstacle_model(self, scenario: Scenario) -> ObstacleModel:
+        """Where the obstacles of ``scenario`` start, how they move and how they are predicted.
+
+        The hook of the scene environments: the crowd's reactive humans
+        (:class:`~safe_nav_env.crowd.model.CrowdModel`) and the pedestrians' replay
+        (:class:`~safe_nav_env.pedestrians.replay.ReplayModel`) override it; everything
+        else (ego, observation, reward, collisions, ``info``) is this class's.
+        """
+        return ObstacleModel(scenario.obstacles, self.dt)
 
     @property
     def time(self) -> float:
@@ -382,6 +395,10 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
 
     def _info(self, distances: np.ndarray, swept: np.ndarray,
               distance_to_goal: float) -> dict[str, Any]:
+        present = self._model.present
+        if present is not None and not present.all():  # empty slots: infinitely far
+            distances = _read_only(np.where(present, distances, np.inf))
+            swept = _read_only(np.where(present, swept, np.inf))
         minimum = float(distances.min()) if distances.shape[0] else math.inf
         swept_minimum = float(swept.min()) if swept.shape[0] else math.inf
         collision = swept_minimum <= 0.0
@@ -405,8 +422,9 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
             "time": self.step_count * self.dt,
             "acceleration": self._applied,
         }
-        if self.pad_info:
-            info.update(_padded(info, self._model.n, self.max_obstacles))
+        if self.pad_info or present is not None:
+            info.update(_padded(info, present, self.max_obstacles if self.pad_info
+                                else self._model.n))
         return info
 
     # ------------------------------------------------------------------- API

@@ -116,7 +116,6 @@ class CrowdEnv(SafeNavEnv):
         options.setdefault("max_speed", ROBOT_MAX_SPEED)
         options.setdefault("terminate_on_collision", True)
         options.setdefault("max_obstacles", self.n_humans)
-        self._episode: Scenario | None = None
         super().__init__(scenario=self._draw_scenario, predictor=predictor, pad_info=False,
                          **options)
 
@@ -138,24 +137,20 @@ class CrowdEnv(SafeNavEnv):
                                   f"in {_DRAWS} draws; use fewer humans or a larger circle")
             placed.append((tuple(start), tuple(-start), self.human_radius))
         bound = r + 2.0
-        self._episode = Scenario(
+        return Scenario(
             name="Crowd", ego_start=(0.0, -r, 0.0, 0.0), goal=(0.0, r),
             obstacles=tuple(ObstacleSpec(start=p, velocity=(0.0, 0.0), radius=self.human_radius)
                             for p, _, _ in placed[1:]),
             episode_length=TIME_LIMIT, arena=((-bound, -bound), (bound, bound)))
-        return self._episode
 
-    def _load(self, scenario: Scenario | None) -> None:
-        if scenario is not None and scenario is self._episode:
-            starts = np.array([o.start for o in scenario.obstacles], dtype=float)
-            simulator = make_humans(self.human_policy, dt=self.dt, radius=self.human_radius,
-                                    preferred_speed=self.human_speed,
-                                    robot_radius=scenario.ego_radius,
-                                    robot_visible=self.robot_visible)
-            self._model = CrowdModel(simulator, starts, -starts, self.human_radius, self.dt,
-                                     robot_state=lambda: self.ego_state)
-            self._model_scenario = scenario
-        super()._load(scenario)
+    def _obstacle_model(self, scenario: Scenario) -> CrowdModel:
+        """The humans of ``scenario``, walking to the antipodes of their starts."""
+        simulator = make_humans(self.human_policy, dt=self.dt, radius=self.human_radius,
+                                preferred_speed=self.human_speed, robot_radius=scenario.ego_radius,
+                                robot_visible=self.robot_visible)
+        goals = [(-o.start[0], -o.start[1]) for o in scenario.obstacles]
+        return CrowdModel(simulator, scenario.obstacles, goals, self.dt,
+                          robot_state=lambda: self.ego_state)
 
     def _info(self, distances: np.ndarray, swept: np.ndarray,
               distance_to_goal: float) -> dict[str, Any]:

@@ -10,7 +10,7 @@ import numpy as np
 
 from safe_nav_env.env import SafeNavEnv, _read_only
 from safe_nav_env.errors import ConfigError, ScenarioError
-from safe_nav_env.info import _PADDED
+from safe_nav_env.obstacles import ObstacleModel
 from safe_nav_env.options import _option
 from safe_nav_env.pedestrians.forecast import Forecaster
 from safe_nav_env.pedestrians.recording import Recording, load_recording
@@ -162,7 +162,6 @@ class PedestrianEnv(SafeNavEnv):
         self.forecaster = Forecaster(predictor, dt, history_steps)
         self.arena = (self.recording.walkable_box() if arena is None
                       else _arena(arena, error=ConfigError))
-        self._episode: Scenario | None = None
         self._start_step: int | None = None
         super().__init__(  # validates horizon; the first scenario is drawn at reset
             scenario=self._draw_scenario, n_samples=n_samples, horizon=horizon, dt=dt,
@@ -208,22 +207,23 @@ class PedestrianEnv(SafeNavEnv):
                 f"and a goal {separation} m away in {_DRAWS} draws"
             )
         self._replay.start_step = start_step
-        self._episode = Scenario(
+        return Scenario(
             name=f"Pedestrians:{Path(self.scene).stem}",
             ego_start=(float(start[0]), float(start[1]), 0.0, 0.0),
             goal=(float(goal[0]), float(goal[1])),
             episode_length=limit,
             arena=self.arena,
         )
-        return self._episode
 
     def _load(self, scenario: Scenario | None) -> None:
         if scenario is None:  # before the first reset: no obstacle, but the scene's arena
             centre = tuple(0.5 * (np.asarray(self.arena[0]) + np.asarray(self.arena[1])))
             scenario = Scenario(name="unset", ego_start=centre, goal=centre, arena=self.arena)
-        elif scenario is self._episode:
-            self._model, self._model_scenario = self._replay, scenario
         super()._load(scenario)
+
+    def _obstacle_model(self, scenario: Scenario) -> ReplayModel | ObstacleModel:
+        """The replay (the placeholder's empty model before :attr:`_replay` exists)."""
+        return getattr(self, "_replay", None) or super()._obstacle_model(scenario)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
               ) -> tuple[np.ndarray, dict[str, Any]]:
@@ -264,32 +264,10 @@ class PedestrianEnv(SafeNavEnv):
             return None
         return _read_only(self._replay.slots.copy())
 
-    # ---------------------------------------------------- observation and info
-
-    def _observe(self, x: np.ndarray, delta: np.ndarray, velocities: np.ndarray,
-                 centre: np.ndarray) -> np.ndarray:
-        """The base observation without the absent slots (their observation slots stay zero)."""
-        model = self._model
-        if model is self._replay and delta.shape[0] == model.n and not model.present.all():
-            present = model.present
-            delta, velocities, centre = delta[present], velocities[present], centre[present]
-        return super()._observe(x, delta, velocities, centre)
-
     def _info(self, distances: np.ndarray, swept: np.ndarray,
               distance_to_goal: float) -> dict[str, Any]:
-        model = self._replay  # the model of every episode (_info runs after a reset)
-        present = model.present
-        absent = ~present
-        if absent.any():  # absent rows as padded ones: infinitely far, at rest
-            distances = _read_only(np.where(present, distances, np.inf))
-            swept = _read_only(np.where(present, swept, np.inf))
-        info = super()._info(distances, swept, distance_to_goal)
-        for key, fill in _PADDED[:3] if absent.any() else ():
-            array = info[key].copy()
-            array[absent] = fill
-            info[key] = _read_only(array)
-        info["obstacle_present"] = _read_only(present.copy())
-        info["pedestrian_index"] = _read_only(model.slots.copy())
-        info["recording_step"] = model.step_index
+        info = super()._info(distances, swept, distance_to_goal)  # empty slots masked there
+        info["pedestrian_index"] = _read_only(self._replay.slots.copy())
+        info["recording_step"] = self._replay.step_index
         info["scene"] = self.scene
         return info
