@@ -308,7 +308,6 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         self._radii_sum = self.obstacle_radii + self.ego_radius
         self.goal: np.ndarray = _read_only(np.array(scenario.goal, dtype=np.float64))
         self._arena = scenario.arena
-        self._goal = scenario.goal
         self.position_bounds: tuple[np.ndarray, np.ndarray] = tuple(
             _read_only(np.array(corner, dtype=np.float64)) for corner in scenario.arena)
         self.ego_state: np.ndarray = _read_only(np.array(scenario.ego_start, dtype=np.float64))
@@ -473,7 +472,6 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
                 start[2:4] *= self.max_speed / speed
             self.ego_state = _read_only(start)
             self.goal = _read_only(goal)
-            self._goal = (float(goal[0]), float(goal[1]))
             self._distance_to_goal = math.hypot(start[0] - goal[0], start[1] - goal[1])
         speed = math.hypot(self.ego_state[2], self.ego_state[3])
         if speed > self.max_speed:
@@ -529,7 +527,7 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
                             self.obstacle_positions.tolist(), self._radii_sum.tolist()),
             distances,  # the end point, bit-for-bit: a sampled collision is a collision
         )
-        gx, gy = self._goal
+        gx, gy = self.goal.tolist()
         distance_to_goal = math.hypot(px - gx, py - gy)
         info = self._info(distances, _read_only(swept), distance_to_goal)
 

@@ -62,6 +62,12 @@ def _arena(value: Any, path: str = "arena", error: type[ValueError] = ScenarioEr
     return tuple(box[0].tolist()), tuple(box[1].tolist())
 
 
+_SPEC_BOUNDS: dict[str, dict[str, Any]] = {
+    "radius": {"strict": True}, "turn_rate": {"low": -math.inf}, "turn_probability": {"high": 1.0},
+    "turn_start": {}, "turn_angle": {"strict": True, "allow_inf": True}}
+"""The numeric fields of :class:`ObstacleSpec` and their ranges (:func:`_option`'s keywords)."""
+
+
 @dataclass(frozen=True)
 class ObstacleSpec:
     """A disc-shaped obstacle moving as a single integrator along a lane.
@@ -124,13 +130,8 @@ class ObstacleSpec:
         set_ = object.__setattr__
         set_(self, "start", _vector(self.start, "ObstacleSpec.start", (2,)))
         set_(self, "velocity", _vector(self.velocity, "ObstacleSpec.velocity", (2,)))
-        set_(self, "radius", _number("ObstacleSpec.radius", self.radius, strict=True))
-        set_(self, "turn_rate", _number("ObstacleSpec.turn_rate", self.turn_rate, low=-math.inf))
-        set_(self, "turn_probability",
-             _number("ObstacleSpec.turn_probability", self.turn_probability, high=1.0))
-        set_(self, "turn_start", _number("ObstacleSpec.turn_start", self.turn_start))
-        set_(self, "turn_angle", _number("ObstacleSpec.turn_angle", self.turn_angle, strict=True,
-                                         allow_inf=True))
+        for name, bounds in _SPEC_BOUNDS.items():
+            set_(self, name, _number(f"ObstacleSpec.{name}", getattr(self, name), **bounds))
         if self.stop_window is not None:
             window = _vector(self.stop_window, "ObstacleSpec.stop_window", (2,))
             if not 0.0 <= window[0] <= window[1]:

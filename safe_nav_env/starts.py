@@ -157,13 +157,13 @@ def resolve_random_start(value: Any) -> RandomStart | None:
     ConfigError
         If ``value`` is none of these, or a field is out of its range.
     """
-    if value is None or isinstance(value, RandomStart):
-        return None if value is None or value.probability == 0.0 else value
+    if value is None:
+        return None
     if isinstance(value, Mapping):
-        start = _from_fields(RandomStart, value, "random_start", ConfigError)
+        value = _from_fields(RandomStart, value, "random_start", ConfigError)
     elif isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool):
-        start = RandomStart(probability=value)
-    else:
+        value = RandomStart(probability=value)
+    elif not isinstance(value, RandomStart):
         raise ConfigError("random_start must be None, a probability in [0, 1], a mapping of "
                           f"RandomStart fields or a RandomStart, got {value!r}")
-    return None if start.probability == 0.0 else start
+    return None if value.probability == 0.0 else value

@@ -84,13 +84,12 @@ class HumanSimulator:
         self.goals = np.array(goals, dtype=float)
 
     def preferred_velocities(self) -> np.ndarray:
-        """Toward the goal at ``preferred_speed``, proportionally slower inside 1 s of it."""
+        """Toward the goal ``g`` at ``preferred_speed`` ``v``, proportionally slower inside 1 s
+        of it: ``(g - p) v / max(||g - p||, v)``, in m/s."""
         to_goal = self.goals - self.positions
         distance = np.hypot(to_goal[:, 0], to_goal[:, 1])
-        reach = self.preferred_speed  # distance covered in 1 s at the preferred speed
-        scale = np.where(distance > reach, self.preferred_speed / np.maximum(distance, 1e-12),
-                         self.preferred_speed / max(reach, 1e-12))
-        return to_goal * scale[:, None]
+        speed = self.preferred_speed
+        return to_goal * (speed / np.maximum(distance, speed))[:, None]
 
     def step(self, robot_position: np.ndarray, robot_velocity: np.ndarray) -> np.ndarray:
         """Move every human for ``dt``; returns the new positions (n, 2)."""
