@@ -307,7 +307,6 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         self.obstacle_radii: np.ndarray = self._model.radii
         self._radii_sum = self.obstacle_radii + self.ego_radius
         self.goal: np.ndarray = _read_only(np.array(scenario.goal, dtype=np.float64))
-        self._arena = scenario.arena
         self.position_bounds: tuple[np.ndarray, np.ndarray] = tuple(
             _read_only(np.array(corner, dtype=np.float64)) for corner in scenario.arena)
         self.ego_state: np.ndarray = _read_only(np.array(scenario.ego_start, dtype=np.float64))
@@ -402,7 +401,7 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         swept_minimum = float(swept.min()) if swept.shape[0] else math.inf
         collision = swept_minimum <= 0.0
         px, py = float(self.ego_state[0]), float(self.ego_state[1])
-        low, high = self._arena
+        low, high = self.scenario.arena
         info: dict[str, Any] = {
             "predictions": self.predictions,
             "obstacle_positions": self.obstacle_positions,
@@ -462,7 +461,8 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         self.obstacle_positions = _read_only(self._model.positions)
         self.obstacle_velocities = _read_only(self._model.velocities)
         drawn = None if self.random_start is None else self.random_start.draw(
-            self.np_random, goal=self.goal, goal_tolerance=self.goal_tolerance, arena=self._arena,
+            self.np_random, goal=self.goal, goal_tolerance=self.goal_tolerance,
+            arena=self.scenario.arena,
             ego_radius=self.ego_radius, obstacle_positions=self.obstacle_positions,
             obstacle_radii=self.obstacle_radii)  # training only: another ego start
         if drawn is not None:

@@ -182,12 +182,8 @@ class ReplayModel:
         length = np.minimum(j - rec.first[peds] + 1, h)
         lengths[occupied] = length
         positions[occupied] = rec.positions[j, peds]
-        if not first and j >= 1:
-            moved = length >= 2  # present at j - 1 too: the chord starts there
-            chord[occupied] = np.where(moved[:, None], rec.positions[j - 1, peds],
-                                       positions[occupied])
-        else:
-            chord[occupied] = positions[occupied]
+        moved = (length >= 2) & (not first)  # present at j - 1 too: the chord starts there
+        chord[occupied] = np.where(moved[:, None], rec.positions[j - 1, peds], positions[occupied])
         full = length == h
         if full.any():  # one product for all the full windows, (2, m, 2)
             window = rec.positions[j - h + 1 : j + 1][:, peds[full]]  # steps <= j only
