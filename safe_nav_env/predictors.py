@@ -33,7 +33,7 @@ noise sequence differs from the default's for the same seed.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
@@ -193,6 +193,7 @@ class ConstantVelocityKalman:
         return future[:, None] + np.swapaxes(draws, -1, -2)
 
 
+@dataclass(frozen=True)
 class StalePredictor:
     """Late predictions: a base predictor that sees the positions only ``delay`` steps late.
 
@@ -220,17 +221,17 @@ class StalePredictor:
         an integer ``>= 0``.
     """
 
-    def __init__(self, base: Predictor | str | None = "kalman", *, delay: int = 1) -> None:
-        resolved = resolve_predictor(base)
+    base: Predictor | str | None = "kalman"
+    delay: int = field(default=1, kw_only=True)
+
+    def __post_init__(self) -> None:
+        resolved = resolve_predictor(self.base)
         if resolved is None:
             raise ConfigError(
                 "StalePredictor needs a predictor that uses the observed history (e.g. "
-                f"'kalman'), not the environment's own sampler; got base={base!r}")
-        self.base: Predictor = resolved
-        self.delay = _option("delay (steps)", delay, integer=True)
-
-    def __repr__(self) -> str:
-        return f"StalePredictor({self.base!r}, delay={self.delay})"
+                f"'kalman'), not the environment's own sampler; got base={self.base!r}")
+        object.__setattr__(self, "base", resolved)
+        object.__setattr__(self, "delay", _option("delay (steps)", self.delay, integer=True))
 
     def __call__(self, history: np.ndarray, *, dt: float, horizon: int, n_samples: int,
                  rng: np.random.Generator) -> np.ndarray:
