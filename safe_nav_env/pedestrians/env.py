@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from safe_nav_env.constants import DT, EGO_RADIUS, EGO_START_SPEED, HORIZON, N_SAMPLES
 from safe_nav_env.env import SafeNavEnv, _read_only
 from safe_nav_env.errors import ConfigError, ScenarioError
 from safe_nav_env.obstacles import ObstacleModel
@@ -29,8 +30,8 @@ time; the filter's QP grows linearly with ``K``."""
 PEDESTRIAN_RADIUS = 0.3
 """Pedestrian disc radius, m (the paper's obstacle radius, CrowdNav's human radius)."""
 
-EGO_SPEED = 1.5
-"""Nominal ego speed, m/s (the paper's; people walk at about 1.3 m/s)."""
+EGO_SPEED = EGO_START_SPEED
+"""Nominal ego speed, m/s (the paper's, 1.5; people walk at about 1.3 m/s)."""
 
 MAX_SPEED = 2.0
 """Default ego speed limit, m/s: a walking-pace robot, above the nominal :data:`EGO_SPEED`."""
@@ -138,8 +139,9 @@ class PedestrianEnv(SafeNavEnv):
 
     def __init__(self, scene: str | Path | Recording = "eth", *,
                  predictor: str = "constant_velocity", max_obstacles: int = MAX_PEDESTRIANS,
-                 n_samples: int = 100, horizon: int = 10, dt: float = 0.2, history_steps: int = 8,
-                 pedestrian_radius: float = PEDESTRIAN_RADIUS, ego_speed: float = EGO_SPEED,
+                 n_samples: int = N_SAMPLES, horizon: int = HORIZON, dt: float = DT,
+                 history_steps: int = 8, pedestrian_radius: float = PEDESTRIAN_RADIUS,
+                 ego_speed: float = EGO_SPEED,
                  arena: tuple[tuple[float, float], tuple[float, float]] | None = None,
                  **options: Any) -> None:
         unsupported = sorted({"scenario", "noise", "pad_info", "random_start"} & set(options))
@@ -183,7 +185,7 @@ class PedestrianEnv(SafeNavEnv):
         if np.any(inner_low >= inner_high):
             inner_low = inner_high = 0.5 * (low + high)
         separation = min(MIN_SEPARATION, 0.5 * float(np.hypot(*(inner_high - inner_low))))
-        clearance = 0.3 + self.pedestrian_radius + START_CLEARANCE  # ego radius 0.3 m
+        clearance = EGO_RADIUS + self.pedestrian_radius + START_CLEARANCE
         for _ in range(_DRAWS):
             start = rng.uniform(inner_low, inner_high)
             goal = rng.uniform(inner_low, inner_high)
