@@ -118,7 +118,10 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
     ``info["obstacle_present"]`` marks the real ones; absent obstacles are
     infinitely far (``inf`` positions, predictions and distances, zero velocity).
     Gymnasium's vector environments stack info arrays, so they need one shape even
-    when the obstacle count changes between episodes. The arrays in ``info`` are
+    when the obstacle count changes between episodes. An obstacle model whose rows are
+    slots that may be empty (:attr:`~safe_nav_env.obstacles.ObstacleModel.present`, the
+    recorded pedestrians') has its empty rows masked the same way, also without
+    ``pad_info``, and left out of the observation. The arrays in ``info`` are
     read-only.
 
     **Safety-filter interface** (the :class:`filters.protocol.FilterableEnv`
@@ -462,8 +465,8 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         self.obstacle_velocities = _read_only(self._model.velocities)
         drawn = None if self.random_start is None else self.random_start.draw(
             self.np_random, goal=self.goal, goal_tolerance=self.goal_tolerance,
-            arena=self.scenario.arena,
-            ego_radius=self.ego_radius, obstacle_positions=self.obstacle_positions,
+            arena=self.scenario.arena, ego_radius=self.ego_radius,
+            obstacle_positions=self.obstacle_positions,
             obstacle_radii=self.obstacle_radii)  # training only: another ego start
         if drawn is not None:
             start, goal = drawn

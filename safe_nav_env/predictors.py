@@ -38,6 +38,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from safe_nav_env.constants import NOISE_VARIANCE
 from safe_nav_env.errors import ConfigError
 from safe_nav_env.options import _finite_array, _named, _option
 
@@ -106,7 +107,7 @@ class ConstantVelocityKalman:
     """
 
     acceleration_psd: float = 0.02
-    measurement_variance: float = 0.01
+    measurement_variance: float = NOISE_VARIANCE
     initial_speed_std: float = 2.0
 
     def __post_init__(self) -> None:

@@ -155,6 +155,5 @@ class CrowdEnv(SafeNavEnv):
     def _info(self, distances: np.ndarray, swept: np.ndarray,
               distance_to_goal: float) -> dict[str, Any]:
         info = super()._info(distances, swept, distance_to_goal)
-        info["discomfort"] = bool(distances.size
-                                  and float(np.min(distances)) < self.discomfort_distance)
+        info["discomfort"] = info["min_distance_to_collision"] < self.discomfort_distance
         return info

@@ -269,7 +269,7 @@ class PedestrianEnv(SafeNavEnv):
     def _info(self, distances: np.ndarray, swept: np.ndarray,
               distance_to_goal: float) -> dict[str, Any]:
         info = super()._info(distances, swept, distance_to_goal)  # empty slots masked there
-        info["pedestrian_index"] = _read_only(self._replay.slots.copy())
+        info["pedestrian_index"] = self.obstacle_ids
         info["recording_step"] = self._replay.step_index
         info["scene"] = self.scene
         return info

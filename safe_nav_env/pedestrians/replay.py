@@ -1,7 +1,8 @@
 """Recorded-replay obstacle model: the ``K`` pedestrians nearest the ego, in fixed slots.
 
 :class:`ReplayModel` stands in for :class:`~safe_nav_env.obstacles.ObstacleModel`
-inside :class:`~safe_nav_env.env.SafeNavEnv` (same attributes and methods), so the
+inside :class:`~safe_nav_env.env.SafeNavEnv` (same attributes and methods; it is what
+:class:`~safe_nav_env.pedestrians.env.PedestrianEnv`'s ``_obstacle_model`` returns), so the
 environment's dynamics, observation, reward, continuous-time collisions and the
 safety-filter protocol work unchanged.
 
@@ -12,8 +13,9 @@ stays among the ``K`` nearest, a newcomer takes the lowest free slot (nearest
 newcomer first), and a slot without a pedestrian is *absent*. An absent slot is
 parked at a fixed point :data:`PARK_DISTANCE` m beyond the arena's upper corner, at
 rest, with exact predictions, so that every array keeps ``K`` finite rows (the
-safety filter and its calibration need a fixed count); the environment masks it in
-the observation and in ``info`` (:class:`~safe_nav_env.pedestrians.env.PedestrianEnv`).
+safety filter and its calibration need a fixed count); :attr:`ReplayModel.present`
+marks it, and the environment masks it in the observation and in ``info``
+(:class:`~safe_nav_env.env.SafeNavEnv`).
 
 Over one step, a slot's chord for the continuous-time collision check runs from its
 pedestrian's own position at ``j - 1`` (at ``j`` for a pedestrian that appeared at
