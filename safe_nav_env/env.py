@@ -194,6 +194,7 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 5}
+    _scene_id: str | None = None  # the gym id of an environment with a scene of its own
 
     def __init__(self, scenario: Scenario | ScenarioFactory | str | Mapping[str, Any] | None = None,
                  *, render_mode: str | None = None,
@@ -441,16 +442,22 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
             turning decisions, predictions, realised noise).
         options
             ``{"scenario": ...}`` replaces the scenario from now on (same forms as the
-            constructor's ``scenario``).
+            constructor's ``scenario``; not for an environment with a scene of its own).
 
         Raises
         ------
+        ConfigError
+            If ``options`` gives a scenario to an environment with a scene of its own
+            (``SafeNav/Crowd-v0``, ``SafeNav/Pedestrians-v0``).
         ScenarioError
             If a scenario function does not return a :class:`Scenario`, or with
             ``pad_info`` a scenario has more than ``max_obstacles`` obstacles.
         """
         super().reset(seed=seed)
         if options and "scenario" in options:
+            if self._scene_id is not None:
+                raise ConfigError(f"options['scenario'] does not apply to {self._scene_id}; make "
+                                  "a new environment with its scene options")
             self._scenario_source = _resolve_scenario(options["scenario"], "options['scenario']")
         source = self._scenario_source
         scenario = source if isinstance(source, Scenario) else source(self.np_random)

@@ -31,7 +31,7 @@ from safe_nav_env.crowd.model import CrowdModel
 from safe_nav_env.env import SafeNavEnv
 from safe_nav_env.errors import ConfigError
 from safe_nav_env.options import _option
-from safe_nav_env.scenarios import ObstacleSpec, Scenario
+from safe_nav_env.scenarios import ObstacleSpec, Scenario, env_id
 
 __all__ = ["CIRCLE_RADIUS", "DISCOMFORT_DISTANCE", "HUMAN_RADIUS", "HUMAN_SPEED", "N_HUMANS",
            "TIME_LIMIT", "CrowdEnv"]
@@ -94,6 +94,8 @@ class CrowdEnv(SafeNavEnv):
         For an unknown human policy or an invalid option.
     """
 
+    _scene_id = env_id("Crowd")
+
     def __init__(self, *, human_policy: str = "orca", robot_visible: bool = False,
                  n_humans: int = N_HUMANS, circle_radius: float = CIRCLE_RADIUS,
                  human_radius: float = HUMAN_RADIUS, human_speed: float = HUMAN_SPEED,
@@ -103,7 +105,7 @@ class CrowdEnv(SafeNavEnv):
             raise ConfigError(f"human_policy must be one of {HUMAN_POLICIES}, got "
                               f"{human_policy!r}")
         if "scenario" in options:
-            raise ConfigError("scenario does not apply to SafeNav/Crowd-v0: the scene is the "
+            raise ConfigError(f"scenario does not apply to {self._scene_id}: the scene is the "
                               "circle crossing (pass n_humans=, circle_radius=, ...)")
         self.human_policy = human_policy
         self.robot_visible = bool(robot_visible)

@@ -17,7 +17,7 @@ from safe_nav_env.pedestrians.forecast import Forecaster
 from safe_nav_env.pedestrians.recording import Recording, load_recording
 from safe_nav_env.pedestrians.replay import ReplayModel
 from safe_nav_env.pedestrians.residuals import residual_bank
-from safe_nav_env.scenarios import Scenario, _arena
+from safe_nav_env.scenarios import Scenario, _arena, env_id
 
 __all__ = ["EGO_SPEED", "MAX_PEDESTRIANS", "MIN_SEPARATION", "PEDESTRIAN_RADIUS", "START_CLEARANCE",
     "PedestrianEnv", "time_limit"]
@@ -137,6 +137,8 @@ class PedestrianEnv(SafeNavEnv):
         For an empty or malformed file (the message names the line).
     """
 
+    _scene_id = env_id("Pedestrians")
+
     def __init__(self, scene: str | Path | Recording = "eth", *,
                  predictor: str = "constant_velocity", max_obstacles: int = MAX_PEDESTRIANS,
                  n_samples: int = N_SAMPLES, horizon: int = HORIZON, dt: float = DT,
@@ -147,7 +149,7 @@ class PedestrianEnv(SafeNavEnv):
         unsupported = sorted({"scenario", "noise", "pad_info", "random_start"} & set(options))
         if unsupported:
             raise ConfigError(
-                f"{unsupported} do not apply to SafeNav/Pedestrians-v0 (the scene is the "
+                f"{unsupported} do not apply to {self._scene_id} (the scene is the "
                 "recording: pass scene=..., predictor=...)"
             )
         options.setdefault("max_speed", MAX_SPEED)
@@ -246,9 +248,6 @@ class PedestrianEnv(SafeNavEnv):
             If ``options`` asks for another scenario or holds a bad ``start_step``.
         """
         options = dict(options or {})
-        if "scenario" in options:
-            raise ConfigError("options['scenario'] does not apply; make a new environment "
-                              "with scene=...")
         start_step = options.pop("start_step", None)
         self._start_step = None if start_step is None else _option(
             "options['start_step'] (a recording step)", start_step, integer=True,
