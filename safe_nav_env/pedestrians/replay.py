@@ -187,10 +187,10 @@ class ReplayModel:
         moved = (length >= 2) & (not first)  # present at j - 1 too: the chord starts there
         chord[occupied] = np.where(moved[:, None], rec.positions[j - 1, peds], positions[occupied])
         full = length == h
-        if full.any():  # one product for all the full windows, (2, m, 2)
+        if full.any():  # one product for all the full windows, (m, h, 2)
             window = rec.positions[j - h + 1 : j + 1][:, peds[full]]  # steps <= j only
-            estimate = np.tensordot(self.forecaster.weights[h], window, axes=(1, 0))
-            origins[occupied[full]], velocities[occupied[full]] = estimate[0], estimate[1]
+            origins[occupied[full]], velocities[occupied[full]] = (
+                self.forecaster.estimate_windows(np.swapaxes(window, 0, 1)))
         for slot, ped, size in zip(occupied[~full].tolist(), peds[~full].tolist(),
                                    length[~full].tolist(), strict=True):
             window = rec.positions[j - size + 1 : j + 1, ped]  # steps <= j only
