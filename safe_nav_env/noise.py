@@ -355,11 +355,6 @@ def resolve_noise(value: Any, path: str = "noise") -> NoiseModel:
     ScenarioError
         If the preset name is unknown or the data invalid.
     """
-    if isinstance(value, NoiseModel):
-        return value
     if isinstance(value, str):
         return _named(NOISE_PRESETS, value, path, "noise preset")
-    if isinstance(value, Mapping):
-        return _from_fields(NoiseModel, value, path)
-    raise ScenarioError(f"{path} must be a NoiseModel, a preset name in "
-                        f"{sorted(NOISE_PRESETS)} or a mapping, got {value!r}")
+    return _from_fields(NoiseModel, value, path, names=NOISE_PRESETS)
