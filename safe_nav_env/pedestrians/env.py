@@ -157,9 +157,8 @@ class PedestrianEnv(SafeNavEnv):
         max_obstacles = _option("max_obstacles", max_obstacles, low=1, integer=True)
         self.pedestrian_radius = _option("pedestrian_radius", pedestrian_radius, strict=True)
         self.ego_speed = _option("ego_speed", ego_speed, strict=True)
-        if isinstance(scene, Recording):
-            if not math.isclose(scene.dt, dt):
-                raise ConfigError(f"the recording is at dt={scene.dt} s, the environment at {dt}")
+        if isinstance(scene, Recording) and not math.isclose(scene.dt, dt):
+            raise ConfigError(f"the recording is at dt={scene.dt} s, the environment at {dt}")
         self.recording: Recording = (scene if isinstance(scene, Recording)
                                      else load_recording(scene, dt=dt))
         self.scene: str = self.recording.name

@@ -83,8 +83,7 @@ class ReplayModel:
         self.forecaster = forecaster
         self.bank = bank
         self.n = int(max_obstacles)
-        self.radius = float(radius)
-        self.radii = np.full(self.n, self.radius)
+        self.radii = np.full(self.n, float(radius))
         self.radii.flags.writeable = False
         self.parked = np.asarray(arena[1], dtype=np.float64) + PARK_DISTANCE
         self.starts = np.tile(self.parked, (self.n, 1))
