@@ -12,6 +12,9 @@ HORIZON = 10
 """Prediction horizon in steps: ``info["predictions"]`` covers steps t+1..t+HORIZON."""
 N_SAMPLES = 100
 """Prediction samples per obstacle and step, :math:`N_s`."""
+NOISE_VARIANCE = 0.01
+"""Per-axis variance of the paper's obstacle noise, m² (std 0.1 m): the prediction law
+``N(0, 0.01 I)`` and the realised Laplace law with the same covariance."""
 EGO_RADIUS = 0.3
 """Radius of the ego disc :math:`r_A` in m."""
 OBSTACLE_RADIUS = 0.3

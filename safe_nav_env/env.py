@@ -118,7 +118,10 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
     ``info["obstacle_present"]`` marks the real ones; absent obstacles are
     infinitely far (``inf`` positions, predictions and distances, zero velocity).
     Gymnasium's vector environments stack info arrays, so they need one shape even
-    when the obstacle count changes between episodes. The arrays in ``info`` are
+    when the obstacle count changes between episodes. An obstacle model whose rows are
+    slots that may be empty (:attr:`~safe_nav_env.obstacles.ObstacleModel.present`, the
+    recorded pedestrians') has its empty rows masked the same way, also without
+    ``pad_info``, and left out of the observation. The arrays in ``info`` are
     read-only.
 
     **Safety-filter interface** (the :class:`filters.protocol.FilterableEnv`
@@ -191,6 +194,7 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 5}
+    _scene_id: str | None = None  # the gym id of an environment with a scene of its own
 
     def __init__(self, scenario: Scenario | ScenarioFactory | str | Mapping[str, Any] | None = None,
                  *, render_mode: str | None = None,
@@ -283,8 +287,11 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
                 self.render()
         delta = self.obstacle_positions - self.ego_state[:2]
         centre = np.hypot(delta[:, 0], delta[:, 1])
-        obs = self._observe(self.ego_state, delta, self.obstacle_velocities, centre)
-        return obs, _read_only(centre - self._radii_sum)
+        clearance = _read_only(centre - self._radii_sum)
+        velocities, present = self.obstacle_velocities, self._model.present
+        if present is not None and not present.all():  # empty slots stay out of the observation
+            delta, velocities, centre = delta[present], velocities[present], centre[present]
+        return self._observe(self.ego_state, delta, velocities, centre), clearance
 
     # ------------------------------------------------------------------ setup
 
@@ -298,14 +305,12 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         length = self._episode_length or scenario.time_limit
         self.max_episode_steps: int = max(1, math.ceil(length / self.dt - 1e-9))
         if self._model_scenario is not scenario:  # always at the first _load
-            self._model: ObstacleModel = ObstacleModel(scenario.obstacles, self.dt)
+            self._model: ObstacleModel = self._obstacle_model(scenario)
             self._model_scenario = scenario
         self.ego_radius: float = scenario.ego_radius
         self.obstacle_radii: np.ndarray = self._model.radii
         self._radii_sum = self.obstacle_radii + self.ego_radius
         self.goal: np.ndarray = _read_only(np.array(scenario.goal, dtype=np.float64))
-        self._arena = scenario.arena
-        self._goal = scenario.goal
         self.position_bounds: tuple[np.ndarray, np.ndarray] = tuple(
             _read_only(np.array(corner, dtype=np.float64)) for corner in scenario.arena)
         self.ego_state: np.ndarray = _read_only(np.array(scenario.ego_start, dtype=np.float64))
@@ -317,6 +322,16 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         self._applied = _read_only(np.zeros(2))
         start, goal = scenario.ego_start, scenario.goal
         self._distance_to_goal = math.hypot(start[0] - goal[0], start[1] - goal[1])
+
+    def _obstacle_model(self, scenario: Scenario) -> ObstacleModel:
+        """Where the obstacles of ``scenario`` start, how they move and how they are predicted.
+
+        The hook of the scene environments: the crowd's reactive humans
+        (:class:`~safe_nav_env.crowd.model.CrowdModel`) and the pedestrians' replay
+        (:class:`~safe_nav_env.pedestrians.replay.ReplayModel`) override it; everything
+        else (ego, observation, reward, collisions, ``info``) is this class's.
+        """
+        return ObstacleModel(scenario.obstacles, self.dt)
 
     @property
     def time(self) -> float:
@@ -382,11 +397,15 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
 
     def _info(self, distances: np.ndarray, swept: np.ndarray,
               distance_to_goal: float) -> dict[str, Any]:
+        present = self._model.present
+        if present is not None and not present.all():  # empty slots: infinitely far
+            distances = _read_only(np.where(present, distances, np.inf))
+            swept = _read_only(np.where(present, swept, np.inf))
         minimum = float(distances.min()) if distances.shape[0] else math.inf
         swept_minimum = float(swept.min()) if swept.shape[0] else math.inf
         collision = swept_minimum <= 0.0
         px, py = float(self.ego_state[0]), float(self.ego_state[1])
-        low, high = self._arena
+        low, high = self.scenario.arena
         info: dict[str, Any] = {
             "predictions": self.predictions,
             "obstacle_positions": self.obstacle_positions,
@@ -405,8 +424,9 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
             "time": self.step_count * self.dt,
             "acceleration": self._applied,
         }
-        if self.pad_info:
-            info.update(_padded(info, self._model.n, self.max_obstacles))
+        if self.pad_info or present is not None:
+            info.update(_padded(info, present, self.max_obstacles if self.pad_info
+                                else self._model.n))
         return info
 
     # ------------------------------------------------------------------- API
@@ -422,16 +442,22 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
             turning decisions, predictions, realised noise).
         options
             ``{"scenario": ...}`` replaces the scenario from now on (same forms as the
-            constructor's ``scenario``).
+            constructor's ``scenario``; not for an environment with a scene of its own).
 
         Raises
         ------
+        ConfigError
+            If ``options`` gives a scenario to an environment with a scene of its own
+            (``SafeNav/Crowd-v0``, ``SafeNav/Pedestrians-v0``).
         ScenarioError
             If a scenario function does not return a :class:`Scenario`, or with
             ``pad_info`` a scenario has more than ``max_obstacles`` obstacles.
         """
         super().reset(seed=seed)
         if options and "scenario" in options:
+            if self._scene_id is not None:
+                raise ConfigError(f"options['scenario'] does not apply to {self._scene_id}; make "
+                                  "a new environment with its scene options")
             self._scenario_source = _resolve_scenario(options["scenario"], "options['scenario']")
         source = self._scenario_source
         scenario = source if isinstance(source, Scenario) else source(self.np_random)
@@ -445,8 +471,9 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
         self.obstacle_positions = _read_only(self._model.positions)
         self.obstacle_velocities = _read_only(self._model.velocities)
         drawn = None if self.random_start is None else self.random_start.draw(
-            self.np_random, goal=self.goal, goal_tolerance=self.goal_tolerance, arena=self._arena,
-            ego_radius=self.ego_radius, obstacle_positions=self.obstacle_positions,
+            self.np_random, goal=self.goal, goal_tolerance=self.goal_tolerance,
+            arena=self.scenario.arena, ego_radius=self.ego_radius,
+            obstacle_positions=self.obstacle_positions,
             obstacle_radii=self.obstacle_radii)  # training only: another ego start
         if drawn is not None:
             start, goal = drawn
@@ -455,7 +482,6 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
                 start[2:4] *= self.max_speed / speed
             self.ego_state = _read_only(start)
             self.goal = _read_only(goal)
-            self._goal = (float(goal[0]), float(goal[1]))
             self._distance_to_goal = math.hypot(start[0] - goal[0], start[1] - goal[1])
         speed = math.hypot(self.ego_state[2], self.ego_state[3])
         if speed > self.max_speed:
@@ -511,7 +537,7 @@ class SafeNavEnv(gym.Env[np.ndarray, np.ndarray]):
                             self.obstacle_positions.tolist(), self._radii_sum.tolist()),
             distances,  # the end point, bit-for-bit: a sampled collision is a collision
         )
-        gx, gy = self._goal
+        gx, gy = self.goal.tolist()
         distance_to_goal = math.hypot(px - gx, py - gy)
         info = self._info(distances, _read_only(swept), distance_to_goal)
 

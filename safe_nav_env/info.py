@@ -16,16 +16,25 @@ _PADDED = (("predictions", np.inf), ("obstacle_positions", np.inf),
 """The padded keys and the value of their absent rows (infinitely far, at rest)."""
 
 
-def _padded(info: dict[str, Any], n: int, rows: int) -> dict[str, Any]:
-    """The entries of :data:`_PADDED` with ``rows`` rows (the first ``n`` real, read-only)
-    and ``obstacle_present`` ``(rows,)``."""
-    padded: dict[str, Any] = {}
+def _padded(info: dict[str, Any], present: np.ndarray | None, rows: int) -> dict[str, Any]:
+    """The entries of :data:`_PADDED` with ``rows`` rows, read-only, and ``obstacle_present``.
+
+    The first ``n`` rows are the obstacle model's (``present``: its mask of real rows, or
+    ``None``: all real); the rows not present and the padding rows get the fill value.
+    """
+    n = info["obstacle_positions"].shape[0]
+    mask = np.zeros(rows, dtype=bool)
+    mask[:n] = True if present is None else present
+    mask.flags.writeable = False
+    padded: dict[str, Any] = {"obstacle_present": mask}
+    if mask.all():
+        return padded
+    absent = ~mask
     for key, fill in _PADDED:
         value = info[key]
         array = np.empty((rows, *value.shape[1:]))
         array[:n] = value
-        array[n:] = fill  # only the padding rows: no second pass over the data
+        array[absent] = fill
         array.flags.writeable = False
         padded[key] = array
-    padded["obstacle_present"] = np.arange(rows) < n
     return padded

@@ -36,7 +36,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from safe_nav_env.constants import N_SAMPLES
+from safe_nav_env.constants import N_SAMPLES, NOISE_VARIANCE
 from safe_nav_env.errors import ScenarioError
 from safe_nav_env.options import _finite_array, _from_fields, _named, _option
 
@@ -56,7 +56,7 @@ def _as_float_tuple(value: Any, path: str) -> float | tuple[float, ...] | tuple[
 class _Law:
     """Common part of the noise laws (see the module docstring)."""
 
-    covariance: Covariance = 0.01
+    covariance: Covariance = NOISE_VARIANCE
     mean: Mean = 0.0
 
     # Filled in by __post_init__: how to scale the standardised draws.
@@ -303,8 +303,8 @@ class NoiseModel:
         If a law is invalid or ``n_samples < 1``; the message names the field.
     """
 
-    prediction: NoiseLaw = field(default_factory=lambda: Gaussian(0.01))
-    reality: NoiseLaw = field(default_factory=lambda: Laplace(0.01))
+    prediction: NoiseLaw = field(default_factory=lambda: Gaussian(NOISE_VARIANCE))
+    reality: NoiseLaw = field(default_factory=lambda: Laplace(NOISE_VARIANCE))
     n_samples: int = N_SAMPLES
 
     def __post_init__(self) -> None:
@@ -318,10 +318,10 @@ class NoiseModel:
 
 
 NOISE_PRESETS: dict[str, NoiseModel] = {
-    "paper": NoiseModel(Gaussian(0.01), Laplace(0.01), n_samples=N_SAMPLES),
+    "paper": NoiseModel(n_samples=N_SAMPLES),
     "authors_code": NoiseModel(Gaussian(0.1), Laplace.from_scale(0.1), n_samples=20),
-    "gaussian_reality": NoiseModel(Gaussian(0.01), Gaussian(0.01), n_samples=N_SAMPLES),
-    "student_t": NoiseModel(Gaussian(0.01), StudentT(0.01, dof=3.0), n_samples=N_SAMPLES),
+    "gaussian_reality": NoiseModel(reality=Gaussian(NOISE_VARIANCE), n_samples=N_SAMPLES),
+    "student_t": NoiseModel(reality=StudentT(NOISE_VARIANCE, dof=3.0), n_samples=N_SAMPLES),
 }
 """Named noise models.
 
@@ -355,11 +355,6 @@ def resolve_noise(value: Any, path: str = "noise") -> NoiseModel:
     ScenarioError
         If the preset name is unknown or the data invalid.
     """
-    if isinstance(value, NoiseModel):
-        return value
     if isinstance(value, str):
         return _named(NOISE_PRESETS, value, path, "noise preset")
-    if isinstance(value, Mapping):
-        return _from_fields(NoiseModel, value, path)
-    raise ScenarioError(f"{path} must be a NoiseModel, a preset name in "
-                        f"{sorted(NOISE_PRESETS)} or a mapping, got {value!r}")
+    return _from_fields(NoiseModel, value, path, names=NOISE_PRESETS)

@@ -109,7 +109,14 @@ class ObstacleModel:
         starts at or after its stop time, an obstacle's nominal next position is its
         current projected position ``Π(p_t)`` (no advance along the lane); its
         :attr:`velocities` and the predictions keep the lane speed.
+    present
+        ``None``: every row is an obstacle. A scene's model whose rows are slots that may
+        be empty (:class:`~safe_nav_env.pedestrians.replay.ReplayModel`) gives a ``(n,)``
+        bool mask instead; the environment masks the empty rows in the observation and in
+        ``info``.
     """
+
+    present: np.ndarray | None = None
 
     def __init__(self, specs: Sequence[ObstacleSpec], dt: float) -> None:
         self.dt = float(dt)

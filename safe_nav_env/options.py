@@ -62,9 +62,10 @@ def _named(table: Mapping[str, Any], value: str, path: str, what: str,
 
 
 def _from_fields(cls: type, value: Mapping[str, Any], path: str,
-                 error: type[ValueError] = ScenarioError) -> Any:
+                 error: type[ValueError] = ScenarioError, names: Mapping[str, Any] | None = None
+                 ) -> Any:
     """``cls(**value)`` for a mapping of the dataclass ``cls``'s fields (a ``cls`` is returned
-    as it is; anything else raises ``error``).
+    as it is; anything else raises ``error``, listing ``names`` if the caller also takes one).
 
     An unknown or missing field raises ``error`` naming it; an ``error`` of ``cls`` whose
     message starts with ``"<cls name>."`` is raised again starting with ``path``
@@ -73,7 +74,8 @@ def _from_fields(cls: type, value: Mapping[str, Any], path: str,
     if isinstance(value, cls):
         return value
     if not isinstance(value, Mapping):
-        raise error(f"{path} must be a {cls.__name__} or a mapping, got {value!r}")
+        named = "" if names is None else f", a name in {sorted(names)}"
+        raise error(f"{path} must be a {cls.__name__}{named} or a mapping, got {value!r}")
     allowed = sorted(f.name for f in fields(cls) if f.init)
     unknown = sorted(set(value) - set(allowed))
     if unknown:

@@ -33,10 +33,12 @@ noise sequence differs from the default's for the same seed.
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from safe_nav_env.constants import NOISE_VARIANCE
 from safe_nav_env.errors import ConfigError
 from safe_nav_env.options import _finite_array, _named, _option
 
@@ -57,6 +59,7 @@ class Predictor(Protocol):
         ...
 
 
+@dataclass(frozen=True, kw_only=True)
 class ConstantVelocityKalman:
     """Constant-velocity Kalman filter on observed positions, sampled from its predictive law.
 
@@ -103,19 +106,14 @@ class ConstantVelocityKalman:
         For a non-finite or non-positive parameter.
     """
 
-    def __init__(self, *, acceleration_psd: float = 0.02, measurement_variance: float = 0.01,
-                 initial_speed_std: float = 2.0) -> None:
-        self.acceleration_psd = _option("acceleration_psd", acceleration_psd)
-        self.measurement_variance = _option("measurement_variance", measurement_variance,
-                                            strict=True)
-        self.initial_speed_std = _option("initial_speed_std", initial_speed_std, strict=True)
+    acceleration_psd: float = 0.02
+    measurement_variance: float = NOISE_VARIANCE
+    initial_speed_std: float = 2.0
 
-    def __repr__(self) -> str:
-        return (
-            f"ConstantVelocityKalman(acceleration_psd={self.acceleration_psd}, "
-            f"measurement_variance={self.measurement_variance}, "
-            f"initial_speed_std={self.initial_speed_std})"
-        )
+    def __post_init__(self) -> None:
+        for name, strict in (("acceleration_psd", False), ("measurement_variance", True),
+                             ("initial_speed_std", True)):
+            object.__setattr__(self, name, _option(name, getattr(self, name), strict=strict))
 
     def _matrices(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         F = np.array([[1.0, dt], [0.0, 1.0]])
@@ -173,15 +171,14 @@ class ConstantVelocityKalman:
         powers = [np.eye(2)]
         for _ in range(horizon):
             powers.append(F @ powers[-1])
-        # Cov(x_{t+j}, x_{t+k}) = F^j P F^k' + sum_{m=1}^{min(j,k)} F^{j-m} Q F^{k-m}'.
-        cov = np.empty((horizon, horizon))
-        for j in range(1, horizon + 1):
-            for k in range(j, horizon + 1):
-                c = powers[j] @ P @ powers[k].T
-                for m in range(1, j + 1):
-                    c = c + powers[j - m] @ Q @ powers[k - m].T
-                cov[j - 1, k - 1] = cov[k - 1, j - 1] = c[0, 0]
-        cov += self.measurement_variance * np.eye(horizon)
+        # Cov(x_{t+k}) = F Cov(x_{t+k-1}) F' + Q, Cov(x_{t+j}, x_{t+k}) = Cov(x_{t+j}) F^{k-j}'
+        # for j <= k (and the (0, 0) entry is the same for the transpose, j > k).
+        states = [P]
+        for _ in range(horizon):
+            states.append(F @ states[-1] @ F.T + Q)
+        steps = range(1, horizon + 1)
+        cov = np.array([[(states[min(j, k)] @ powers[abs(k - j)].T)[0, 0] for k in steps]
+                        for j in steps]) + self.measurement_variance * np.eye(horizon)
         steps = np.stack([powers[k] for k in range(1, horizon + 1)])  # (T, 2, 2)
         future = np.einsum("kab,odb->okda", steps, mean)[..., 0]  # (n_obs, T, d)
         return future, cov
@@ -197,6 +194,7 @@ class ConstantVelocityKalman:
         return future[:, None] + np.swapaxes(draws, -1, -2)
 
 
+@dataclass(frozen=True)
 class StalePredictor:
     """Late predictions: a base predictor that sees the positions only ``delay`` steps late.
 
@@ -224,17 +222,17 @@ class StalePredictor:
         an integer ``>= 0``.
     """
 
-    def __init__(self, base: Predictor | str | None = "kalman", *, delay: int = 1) -> None:
-        resolved = resolve_predictor(base)
+    base: Predictor | str | None = "kalman"
+    delay: int = field(default=1, kw_only=True)
+
+    def __post_init__(self) -> None:
+        resolved = resolve_predictor(self.base)
         if resolved is None:
             raise ConfigError(
                 "StalePredictor needs a predictor that uses the observed history (e.g. "
-                f"'kalman'), not the environment's own sampler; got base={base!r}")
-        self.base: Predictor = resolved
-        self.delay = _option("delay (steps)", delay, integer=True)
-
-    def __repr__(self) -> str:
-        return f"StalePredictor({self.base!r}, delay={self.delay})"
+                f"'kalman'), not the environment's own sampler; got base={self.base!r}")
+        object.__setattr__(self, "base", resolved)
+        object.__setattr__(self, "delay", _option("delay (steps)", self.delay, integer=True))
 
     def __call__(self, history: np.ndarray, *, dt: float, horizon: int, n_samples: int,
                  rng: np.random.Generator) -> np.ndarray:

@@ -62,6 +62,12 @@ def _arena(value: Any, path: str = "arena", error: type[ValueError] = ScenarioEr
     return tuple(box[0].tolist()), tuple(box[1].tolist())
 
 
+_SPEC_BOUNDS: dict[str, dict[str, Any]] = {
+    "radius": {"strict": True}, "turn_rate": {"low": -math.inf}, "turn_probability": {"high": 1.0},
+    "turn_start": {}, "turn_angle": {"strict": True, "allow_inf": True}}
+"""The numeric fields of :class:`ObstacleSpec` and their ranges (:func:`_option`'s keywords)."""
+
+
 @dataclass(frozen=True)
 class ObstacleSpec:
     """A disc-shaped obstacle moving as a single integrator along a lane.
@@ -124,13 +130,8 @@ class ObstacleSpec:
         set_ = object.__setattr__
         set_(self, "start", _vector(self.start, "ObstacleSpec.start", (2,)))
         set_(self, "velocity", _vector(self.velocity, "ObstacleSpec.velocity", (2,)))
-        set_(self, "radius", _number("ObstacleSpec.radius", self.radius, strict=True))
-        set_(self, "turn_rate", _number("ObstacleSpec.turn_rate", self.turn_rate, low=-math.inf))
-        set_(self, "turn_probability",
-             _number("ObstacleSpec.turn_probability", self.turn_probability, high=1.0))
-        set_(self, "turn_start", _number("ObstacleSpec.turn_start", self.turn_start))
-        set_(self, "turn_angle", _number("ObstacleSpec.turn_angle", self.turn_angle, strict=True,
-                                         allow_inf=True))
+        for name, bounds in _SPEC_BOUNDS.items():
+            set_(self, name, _number(f"ObstacleSpec.{name}", getattr(self, name), **bounds))
         if self.stop_window is not None:
             window = _vector(self.stop_window, "ObstacleSpec.stop_window", (2,))
             if not 0.0 <= window[0] <= window[1]:
@@ -355,10 +356,6 @@ CUSTOM = "Custom"
 """Name of ``SafeNav/Custom-v0``: the scenario is passed as ``scenario=``."""
 
 
-def _snake(name: str) -> str:
-    return re.sub(r"(?<!^)(?=[A-Z])", "_", name).lower()
-
-
 class _ScenarioTable(dict):
     """A dict of scenarios by canonical name that also finds the other spellings.
 
@@ -368,11 +365,11 @@ class _ScenarioTable(dict):
     """
 
     def __contains__(self, name: object) -> bool:
-        return isinstance(name, str) and _canonical(name, self) is not None
+        return dict.__contains__(self, _canonical(name))
 
     def __getitem__(self, name: str) -> Scenario | ScenarioFactory:
-        canonical = _canonical(name, self) if isinstance(name, str) else None
-        if canonical is None:
+        canonical = _canonical(name)
+        if not dict.__contains__(self, canonical):
             raise KeyError(name)
         if canonical != name:
             _warn_spelling(name, canonical, stacklevel=3)
@@ -382,16 +379,9 @@ class _ScenarioTable(dict):
         return self[name] if name in self else default
 
 
-def _canonical(name: str, names: Any) -> str | None:
+def _canonical(name: object) -> str | None:
     """The canonical name ``name`` spells (exact, snake_case or gym id), or ``None``."""
-    canonical_names = tuple(dict.keys(names)) if isinstance(names, dict) else tuple(names)
-    if name in canonical_names:
-        return name
-    match = re.fullmatch(r"SafeNav/(\w+)-v0", name)
-    for canonical in canonical_names:
-        if (match and match.group(1) == canonical) or name == _snake(canonical):
-            return canonical
-    return None
+    return _SPELLINGS.get(name) if isinstance(name, str) else None
 
 
 def _warn_spelling(name: str, canonical: str, *, stacklevel: int = 2) -> None:
@@ -418,6 +408,11 @@ points. ``SafeNav/<name>-v0`` makes one; its options choose the scene."""
 
 SCENARIO_NAMES: tuple[str, ...] = (*SCENARIOS, *SCENES, CUSTOM)
 """Every canonical scenario name, one per registered gym id."""
+
+_SPELLINGS: dict[str, str] = {
+    spelling: name for name in SCENARIO_NAMES
+    for spelling in (name, re.sub(r"(?<!^)(?=[A-Z])", "_", name).lower(), f"SafeNav/{name}-v0")}
+"""Each accepted spelling (canonical, snake_case, gym id) and the canonical name it spells."""
 
 
 def _resolve_scenario(value: Any, path: str = "scenario") -> Scenario | ScenarioFactory:
@@ -458,7 +453,7 @@ def scenario_name(name: str, *, warn: bool = True) -> str:
     ScenarioError
         If ``name`` spells no scenario; the message lists the names.
     """
-    canonical = _canonical(name, SCENARIO_NAMES) if isinstance(name, str) else None
+    canonical = _canonical(name)
     if canonical is None:
         raise ScenarioError(f"unknown scenario {name!r}; choose one of {list(SCENARIO_NAMES)} "
                             "(or their gym ids, e.g. 'SafeNav/HeadOn-v0')")

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from safe_nav_env.errors import ConfigError
-from safe_nav_env.options import _from_fields, _option
+from safe_nav_env.options import _finite_array, _from_fields, _option
 
 _ATTEMPTS = 100
 """Position draws before a random start gives up and keeps the scenario's start."""
@@ -90,10 +90,8 @@ class RandomStart:
             set_(self, name, _option(f"random_start.{name}", getattr(self, name), high=1.0))
         for name in ("max_speed", "clearance", "wall_margin"):
             set_(self, name, _option(f"random_start.{name}", getattr(self, name)))
-        distance = self.goal_distance
-        if isinstance(distance, str) or not hasattr(distance, "__len__") or len(distance) != 2:
-            raise ConfigError(
-                f"random_start.goal_distance must be (low, high) in m, got {distance!r}")
+        distance = _finite_array("random_start.goal_distance", self.goal_distance,
+                                 "(low, high) in m", "(2,)", lambda shape: shape == (2,)).tolist()
         low = _option("random_start.goal_distance[0]", distance[0], strict=True)
         high = _option("random_start.goal_distance[1]", distance[1], low=low)
         set_(self, "goal_distance", (low, high))
@@ -157,13 +155,13 @@ def resolve_random_start(value: Any) -> RandomStart | None:
     ConfigError
         If ``value`` is none of these, or a field is out of its range.
     """
-    if value is None or isinstance(value, RandomStart):
-        return None if value is None or value.probability == 0.0 else value
+    if value is None:
+        return None
     if isinstance(value, Mapping):
-        start = _from_fields(RandomStart, value, "random_start", ConfigError)
+        value = _from_fields(RandomStart, value, "random_start", ConfigError)
     elif isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool):
-        start = RandomStart(probability=value)
-    else:
+        value = RandomStart(probability=value)
+    elif not isinstance(value, RandomStart):
         raise ConfigError("random_start must be None, a probability in [0, 1], a mapping of "
                           f"RandomStart fields or a RandomStart, got {value!r}")
-    return None if start.probability == 0.0 else start
+    return None if value.probability == 0.0 else value

@@ -73,9 +73,9 @@ from typing import Any
 
 import numpy as np
 
-from safe_nav_env.constants import EGO_START_SPEED, N_SAMPLES
+from safe_nav_env.constants import EGO_START_SPEED, NOISE_VARIANCE
 from safe_nav_env.errors import ScenarioError
-from safe_nav_env.noise import NOISE_PRESETS, Gaussian, Laplace, NoiseModel
+from safe_nav_env.noise import NOISE_PRESETS, Laplace, NoiseModel
 from safe_nav_env.options import _option
 from safe_nav_env.predictors import Predictor, StalePredictor, resolve_predictor
 from safe_nav_env.scenarios import (
@@ -101,9 +101,6 @@ ACTUATOR_LAG = 0.2
 DRAG = 0.5
 """Linear drag coefficient of the ``"drag"`` case, in 1/s (1 m/s² at 2 m/s)."""
 
-PREDICTION_VARIANCE = 0.01
-"""Per-axis variance of the paper's prediction noise, m² (standard deviation 0.1 m)."""
-
 
 def understated_noise(factor: float) -> NoiseModel:
     """Predictions ``N(0, 0.01 I)``; realised Laplace noise with ``factor`` times their std.
@@ -120,8 +117,7 @@ def understated_noise(factor: float) -> NoiseModel:
         If ``factor`` is not a finite number ``>= 1``.
     """
     factor = _option("factor", factor, low=1.0, error=ScenarioError)
-    return NoiseModel(Gaussian(PREDICTION_VARIANCE),
-                      Laplace(PREDICTION_VARIANCE * factor**2), n_samples=N_SAMPLES)
+    return NoiseModel(reality=Laplace(NOISE_VARIANCE * factor**2))  # the paper's predictions
 
 
 TURNING = _paper(
@@ -285,8 +281,7 @@ STRESS_SUITE: dict[str, StressCase] = {case.name: case for case in (
     StressCase("heavy_tail", HEAD_ON, NOISE_PRESETS["student_t"],
                description="head-on, realised noise Student-t (nu = 3), predicted Gaussian"),
     StressCase("biased", HEAD_ON,
-               NoiseModel(Gaussian(PREDICTION_VARIANCE), Laplace(PREDICTION_VARIANCE, mean=DRIFT),
-                          n_samples=N_SAMPLES),
+               NoiseModel(reality=Laplace(NOISE_VARIANCE, mean=DRIFT)),
                description="head-on, realised noise drifts (-0.03, 0.03) m per step, not "
                "predicted"),
     StressCase("crossing5", CROSSING5, _PAPER_NOISE,

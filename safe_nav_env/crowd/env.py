@@ -31,7 +31,7 @@ from safe_nav_env.crowd.model import CrowdModel
 from safe_nav_env.env import SafeNavEnv
 from safe_nav_env.errors import ConfigError
 from safe_nav_env.options import _option
-from safe_nav_env.scenarios import ObstacleSpec, Scenario
+from safe_nav_env.scenarios import ObstacleSpec, Scenario, env_id
 
 __all__ = ["CIRCLE_RADIUS", "DISCOMFORT_DISTANCE", "HUMAN_RADIUS", "HUMAN_SPEED", "N_HUMANS",
            "TIME_LIMIT", "CrowdEnv"]
@@ -94,6 +94,8 @@ class CrowdEnv(SafeNavEnv):
         For an unknown human policy or an invalid option.
     """
 
+    _scene_id = env_id("Crowd")
+
     def __init__(self, *, human_policy: str = "orca", robot_visible: bool = False,
                  n_humans: int = N_HUMANS, circle_radius: float = CIRCLE_RADIUS,
                  human_radius: float = HUMAN_RADIUS, human_speed: float = HUMAN_SPEED,
@@ -103,7 +105,7 @@ class CrowdEnv(SafeNavEnv):
             raise ConfigError(f"human_policy must be one of {HUMAN_POLICIES}, got "
                               f"{human_policy!r}")
         if "scenario" in options:
-            raise ConfigError("scenario does not apply to SafeNav/Crowd-v0: the scene is the "
+            raise ConfigError(f"scenario does not apply to {self._scene_id}: the scene is the "
                               "circle crossing (pass n_humans=, circle_radius=, ...)")
         self.human_policy = human_policy
         self.robot_visible = bool(robot_visible)
@@ -116,7 +118,6 @@ class CrowdEnv(SafeNavEnv):
         options.setdefault("max_speed", ROBOT_MAX_SPEED)
         options.setdefault("terminate_on_collision", True)
         options.setdefault("max_obstacles", self.n_humans)
-        self._episode: Scenario | None = None
         super().__init__(scenario=self._draw_scenario, predictor=predictor, pad_info=False,
                          **options)
 
@@ -138,28 +139,23 @@ class CrowdEnv(SafeNavEnv):
                                   f"in {_DRAWS} draws; use fewer humans or a larger circle")
             placed.append((tuple(start), tuple(-start), self.human_radius))
         bound = r + 2.0
-        self._episode = Scenario(
+        return Scenario(
             name="Crowd", ego_start=(0.0, -r, 0.0, 0.0), goal=(0.0, r),
             obstacles=tuple(ObstacleSpec(start=p, velocity=(0.0, 0.0), radius=self.human_radius)
                             for p, _, _ in placed[1:]),
             episode_length=TIME_LIMIT, arena=((-bound, -bound), (bound, bound)))
-        return self._episode
 
-    def _load(self, scenario: Scenario | None) -> None:
-        if scenario is not None and scenario is self._episode:
-            starts = np.array([o.start for o in scenario.obstacles], dtype=float)
-            simulator = make_humans(self.human_policy, dt=self.dt, radius=self.human_radius,
-                                    preferred_speed=self.human_speed,
-                                    robot_radius=scenario.ego_radius,
-                                    robot_visible=self.robot_visible)
-            self._model = CrowdModel(simulator, starts, -starts, self.human_radius, self.dt,
-                                     robot_state=lambda: self.ego_state)
-            self._model_scenario = scenario
-        super()._load(scenario)
+    def _obstacle_model(self, scenario: Scenario) -> CrowdModel:
+        """The humans of ``scenario``, walking to the antipodes of their starts."""
+        simulator = make_humans(self.human_policy, dt=self.dt, radius=self.human_radius,
+                                preferred_speed=self.human_speed, robot_radius=scenario.ego_radius,
+                                robot_visible=self.robot_visible)
+        goals = [(-o.start[0], -o.start[1]) for o in scenario.obstacles]
+        return CrowdModel(simulator, scenario.obstacles, goals, self.dt,
+                          robot_state=lambda: self.ego_state)
 
     def _info(self, distances: np.ndarray, swept: np.ndarray,
               distance_to_goal: float) -> dict[str, Any]:
         info = super()._info(distances, swept, distance_to_goal)
-        info["discomfort"] = bool(distances.size
-                                  and float(np.min(distances)) < self.discomfort_distance)
+        info["discomfort"] = info["min_distance_to_collision"] < self.discomfort_distance
         return info

@@ -26,6 +26,7 @@ import contextlib
 import logging
 import os
 import tempfile
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -49,6 +50,7 @@ ORCA_RADIUS_PADDING = 0.01
 """Added to every radius inside ORCA, m (CrowdNav's ``radius + 0.01``)."""
 
 
+@dataclass(eq=False)
 class HumanSimulator:
     """Moves ``n`` humans toward their goals, one period at a time.
 
@@ -64,18 +66,21 @@ class HumanSimulator:
         Robot disc radius, m (used when the robot is visible).
     robot_visible
         Whether the humans react to the robot.
+
+    Attributes
+    ----------
+    positions, velocities, goals
+        Per human, ``(n, 2)``, in m, m/s and m (empty before :meth:`reset`).
     """
 
-    def __init__(self, dt: float, radius: float, preferred_speed: float, robot_radius: float,
-                 robot_visible: bool) -> None:
-        self.dt = float(dt)
-        self.radius = float(radius)
-        self.preferred_speed = float(preferred_speed)
-        self.robot_radius = float(robot_radius)
-        self.robot_visible = bool(robot_visible)
-        self.positions = np.zeros((0, 2))
-        self.velocities = np.zeros((0, 2))
-        self.goals = np.zeros((0, 2))
+    dt: float
+    radius: float
+    preferred_speed: float
+    robot_radius: float
+    robot_visible: bool
+    positions: np.ndarray = field(init=False, default_factory=lambda: np.zeros((0, 2)))
+    velocities: np.ndarray = field(init=False, default_factory=lambda: np.zeros((0, 2)))
+    goals: np.ndarray = field(init=False, default_factory=lambda: np.zeros((0, 2)))
 
     def reset(self, positions: np.ndarray, goals: np.ndarray) -> None:
         """Place the humans at rest at ``positions`` (n, 2) with ``goals`` (n, 2)."""
@@ -84,13 +89,12 @@ class HumanSimulator:
         self.goals = np.array(goals, dtype=float)
 
     def preferred_velocities(self) -> np.ndarray:
-        """Toward the goal at ``preferred_speed``, proportionally slower inside 1 s of it."""
+        """Toward the goal ``g`` at ``preferred_speed`` ``v``, proportionally slower inside 1 s
+        of it: ``(g - p) v / max(||g - p||, v)``, in m/s."""
         to_goal = self.goals - self.positions
         distance = np.hypot(to_goal[:, 0], to_goal[:, 1])
-        reach = self.preferred_speed  # distance covered in 1 s at the preferred speed
-        scale = np.where(distance > reach, self.preferred_speed / np.maximum(distance, 1e-12),
-                         self.preferred_speed / max(reach, 1e-12))
-        return to_goal * scale[:, None]
+        speed = self.preferred_speed
+        return to_goal * (speed / np.maximum(distance, speed))[:, None]
 
     def step(self, robot_position: np.ndarray, robot_velocity: np.ndarray) -> np.ndarray:
         """Move every human for ``dt``; returns the new positions (n, 2)."""
@@ -127,8 +131,7 @@ class OrcaHumans(HumanSimulator):
             sim.set_agent_velocity(i, tuple(v))
             sim.set_agent_pref_velocity(i, tuple(w))
         if self._robot is not None:
-            position = (float(robot_position[0]), float(robot_position[1]))
-            velocity = (float(robot_velocity[0]), float(robot_velocity[1]))
+            position, velocity = tuple(robot_position.tolist()), tuple(robot_velocity.tolist())
             sim.set_agent_position(self._robot, position)
             sim.set_agent_velocity(self._robot, velocity)
             sim.set_agent_pref_velocity(self._robot, velocity)

@@ -8,15 +8,16 @@ from typing import Any
 
 import numpy as np
 
+from safe_nav_env.constants import DT, EGO_RADIUS, EGO_START_SPEED, HORIZON, N_SAMPLES
 from safe_nav_env.env import SafeNavEnv, _read_only
 from safe_nav_env.errors import ConfigError, ScenarioError
-from safe_nav_env.info import _PADDED
+from safe_nav_env.obstacles import ObstacleModel
 from safe_nav_env.options import _option
 from safe_nav_env.pedestrians.forecast import Forecaster
 from safe_nav_env.pedestrians.recording import Recording, load_recording
 from safe_nav_env.pedestrians.replay import ReplayModel
 from safe_nav_env.pedestrians.residuals import residual_bank
-from safe_nav_env.scenarios import Scenario, _arena
+from safe_nav_env.scenarios import Scenario, _arena, env_id
 
 __all__ = ["EGO_SPEED", "MAX_PEDESTRIANS", "MIN_SEPARATION", "PEDESTRIAN_RADIUS", "START_CLEARANCE",
     "PedestrianEnv", "time_limit"]
@@ -29,8 +30,8 @@ time; the filter's QP grows linearly with ``K``."""
 PEDESTRIAN_RADIUS = 0.3
 """Pedestrian disc radius, m (the paper's obstacle radius, CrowdNav's human radius)."""
 
-EGO_SPEED = 1.5
-"""Nominal ego speed, m/s (the paper's; people walk at about 1.3 m/s)."""
+EGO_SPEED = EGO_START_SPEED
+"""Nominal ego speed, m/s (the paper's, 1.5; people walk at about 1.3 m/s)."""
 
 MAX_SPEED = 2.0
 """Default ego speed limit, m/s: a walking-pace robot, above the nominal :data:`EGO_SPEED`."""
@@ -136,16 +137,19 @@ class PedestrianEnv(SafeNavEnv):
         For an empty or malformed file (the message names the line).
     """
 
+    _scene_id = env_id("Pedestrians")
+
     def __init__(self, scene: str | Path | Recording = "eth", *,
                  predictor: str = "constant_velocity", max_obstacles: int = MAX_PEDESTRIANS,
-                 n_samples: int = 100, horizon: int = 10, dt: float = 0.2, history_steps: int = 8,
-                 pedestrian_radius: float = PEDESTRIAN_RADIUS, ego_speed: float = EGO_SPEED,
+                 n_samples: int = N_SAMPLES, horizon: int = HORIZON, dt: float = DT,
+                 history_steps: int = 8, pedestrian_radius: float = PEDESTRIAN_RADIUS,
+                 ego_speed: float = EGO_SPEED,
                  arena: tuple[tuple[float, float], tuple[float, float]] | None = None,
                  **options: Any) -> None:
         unsupported = sorted({"scenario", "noise", "pad_info", "random_start"} & set(options))
         if unsupported:
             raise ConfigError(
-                f"{unsupported} do not apply to SafeNav/Pedestrians-v0 (the scene is the "
+                f"{unsupported} do not apply to {self._scene_id} (the scene is the "
                 "recording: pass scene=..., predictor=...)"
             )
         options.setdefault("max_speed", MAX_SPEED)
@@ -153,16 +157,14 @@ class PedestrianEnv(SafeNavEnv):
         max_obstacles = _option("max_obstacles", max_obstacles, low=1, integer=True)
         self.pedestrian_radius = _option("pedestrian_radius", pedestrian_radius, strict=True)
         self.ego_speed = _option("ego_speed", ego_speed, strict=True)
-        if isinstance(scene, Recording):
-            if not math.isclose(scene.dt, dt):
-                raise ConfigError(f"the recording is at dt={scene.dt} s, the environment at {dt}")
+        if isinstance(scene, Recording) and not math.isclose(scene.dt, dt):
+            raise ConfigError(f"the recording is at dt={scene.dt} s, the environment at {dt}")
         self.recording: Recording = (scene if isinstance(scene, Recording)
                                      else load_recording(scene, dt=dt))
         self.scene: str = self.recording.name
         self.forecaster = Forecaster(predictor, dt, history_steps)
         self.arena = (self.recording.walkable_box() if arena is None
                       else _arena(arena, error=ConfigError))
-        self._episode: Scenario | None = None
         self._start_step: int | None = None
         super().__init__(  # validates horizon; the first scenario is drawn at reset
             scenario=self._draw_scenario, n_samples=n_samples, horizon=horizon, dt=dt,
@@ -184,7 +186,7 @@ class PedestrianEnv(SafeNavEnv):
         if np.any(inner_low >= inner_high):
             inner_low = inner_high = 0.5 * (low + high)
         separation = min(MIN_SEPARATION, 0.5 * float(np.hypot(*(inner_high - inner_low))))
-        clearance = 0.3 + self.pedestrian_radius + START_CLEARANCE  # ego radius 0.3 m
+        clearance = EGO_RADIUS + self.pedestrian_radius + START_CLEARANCE
         for _ in range(_DRAWS):
             start = rng.uniform(inner_low, inner_high)
             goal = rng.uniform(inner_low, inner_high)
@@ -208,22 +210,23 @@ class PedestrianEnv(SafeNavEnv):
                 f"and a goal {separation} m away in {_DRAWS} draws"
             )
         self._replay.start_step = start_step
-        self._episode = Scenario(
+        return Scenario(
             name=f"Pedestrians:{Path(self.scene).stem}",
             ego_start=(float(start[0]), float(start[1]), 0.0, 0.0),
             goal=(float(goal[0]), float(goal[1])),
             episode_length=limit,
             arena=self.arena,
         )
-        return self._episode
 
     def _load(self, scenario: Scenario | None) -> None:
         if scenario is None:  # before the first reset: no obstacle, but the scene's arena
             centre = tuple(0.5 * (np.asarray(self.arena[0]) + np.asarray(self.arena[1])))
             scenario = Scenario(name="unset", ego_start=centre, goal=centre, arena=self.arena)
-        elif scenario is self._episode:
-            self._model, self._model_scenario = self._replay, scenario
         super()._load(scenario)
+
+    def _obstacle_model(self, scenario: Scenario) -> ReplayModel | ObstacleModel:
+        """The replay (the placeholder's empty model before :attr:`_replay` exists)."""
+        return getattr(self, "_replay", None) or super()._obstacle_model(scenario)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
               ) -> tuple[np.ndarray, dict[str, Any]]:
@@ -244,9 +247,6 @@ class PedestrianEnv(SafeNavEnv):
             If ``options`` asks for another scenario or holds a bad ``start_step``.
         """
         options = dict(options or {})
-        if "scenario" in options:
-            raise ConfigError("options['scenario'] does not apply; make a new environment "
-                              "with scene=...")
         start_step = options.pop("start_step", None)
         self._start_step = None if start_step is None else _option(
             "options['start_step'] (a recording step)", start_step, integer=True,
@@ -264,32 +264,10 @@ class PedestrianEnv(SafeNavEnv):
             return None
         return _read_only(self._replay.slots.copy())
 
-    # ---------------------------------------------------- observation and info
-
-    def _observe(self, x: np.ndarray, delta: np.ndarray, velocities: np.ndarray,
-                 centre: np.ndarray) -> np.ndarray:
-        """The base observation without the absent slots (their observation slots stay zero)."""
-        model = self._model
-        if model is self._replay and delta.shape[0] == model.n and not model.present.all():
-            present = model.present
-            delta, velocities, centre = delta[present], velocities[present], centre[present]
-        return super()._observe(x, delta, velocities, centre)
-
     def _info(self, distances: np.ndarray, swept: np.ndarray,
               distance_to_goal: float) -> dict[str, Any]:
-        model = self._replay  # the model of every episode (_info runs after a reset)
-        present = model.present
-        absent = ~present
-        if absent.any():  # absent rows as padded ones: infinitely far, at rest
-            distances = _read_only(np.where(present, distances, np.inf))
-            swept = _read_only(np.where(present, swept, np.inf))
-        info = super()._info(distances, swept, distance_to_goal)
-        for key, fill in _PADDED[:3] if absent.any() else ():
-            array = info[key].copy()
-            array[absent] = fill
-            info[key] = _read_only(array)
-        info["obstacle_present"] = _read_only(present.copy())
-        info["pedestrian_index"] = _read_only(model.slots.copy())
-        info["recording_step"] = model.step_index
+        info = super()._info(distances, swept, distance_to_goal)  # empty slots masked there
+        info["pedestrian_index"] = self.obstacle_ids
+        info["recording_step"] = self._replay.step_index
         info["scene"] = self.scene
         return info

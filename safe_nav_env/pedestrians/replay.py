@@ -1,7 +1,8 @@
 """Recorded-replay obstacle model: the ``K`` pedestrians nearest the ego, in fixed slots.
 
 :class:`ReplayModel` stands in for :class:`~safe_nav_env.obstacles.ObstacleModel`
-inside :class:`~safe_nav_env.env.SafeNavEnv` (same attributes and methods), so the
+inside :class:`~safe_nav_env.env.SafeNavEnv` (same attributes and methods; it is what
+:class:`~safe_nav_env.pedestrians.env.PedestrianEnv`'s ``_obstacle_model`` returns), so the
 environment's dynamics, observation, reward, continuous-time collisions and the
 safety-filter protocol work unchanged.
 
@@ -12,8 +13,9 @@ stays among the ``K`` nearest, a newcomer takes the lowest free slot (nearest
 newcomer first), and a slot without a pedestrian is *absent*. An absent slot is
 parked at a fixed point :data:`PARK_DISTANCE` m beyond the arena's upper corner, at
 rest, with exact predictions, so that every array keeps ``K`` finite rows (the
-safety filter and its calibration need a fixed count); the environment masks it in
-the observation and in ``info`` (:class:`~safe_nav_env.pedestrians.env.PedestrianEnv`).
+safety filter and its calibration need a fixed count); :attr:`ReplayModel.present`
+marks it, and the environment masks it in the observation and in ``info``
+(:class:`~safe_nav_env.env.SafeNavEnv`).
 
 Over one step, a slot's chord for the continuous-time collision check runs from its
 pedestrian's own position at ``j - 1`` (at ``j`` for a pedestrian that appeared at
@@ -81,8 +83,7 @@ class ReplayModel:
         self.forecaster = forecaster
         self.bank = bank
         self.n = int(max_obstacles)
-        self.radius = float(radius)
-        self.radii = np.full(self.n, self.radius)
+        self.radii = np.full(self.n, float(radius))
         self.radii.flags.writeable = False
         self.parked = np.asarray(arena[1], dtype=np.float64) + PARK_DISTANCE
         self.starts = np.tile(self.parked, (self.n, 1))
@@ -182,17 +183,13 @@ class ReplayModel:
         length = np.minimum(j - rec.first[peds] + 1, h)
         lengths[occupied] = length
         positions[occupied] = rec.positions[j, peds]
-        if not first and j >= 1:
-            moved = length >= 2  # present at j - 1 too: the chord starts there
-            chord[occupied] = np.where(moved[:, None], rec.positions[j - 1, peds],
-                                       positions[occupied])
-        else:
-            chord[occupied] = positions[occupied]
+        moved = (length >= 2) & (not first)  # present at j - 1 too: the chord starts there
+        chord[occupied] = np.where(moved[:, None], rec.positions[j - 1, peds], positions[occupied])
         full = length == h
-        if full.any():  # one product for all the full windows, (2, m, 2)
+        if full.any():  # one product for all the full windows, (m, h, 2)
             window = rec.positions[j - h + 1 : j + 1][:, peds[full]]  # steps <= j only
-            estimate = np.tensordot(self.forecaster.weights[h], window, axes=(1, 0))
-            origins[occupied[full]], velocities[occupied[full]] = estimate[0], estimate[1]
+            origins[occupied[full]], velocities[occupied[full]] = (
+                self.forecaster.estimate_windows(np.swapaxes(window, 0, 1)))
         for slot, ped, size in zip(occupied[~full].tolist(), peds[~full].tolist(),
                                    length[~full].tolist(), strict=True):
             window = rec.positions[j - size + 1 : j + 1, ped]  # steps <= j only

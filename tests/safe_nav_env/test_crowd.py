@@ -136,3 +136,11 @@ def test_discomfort_flags_a_close_pass():
 def test_bad_options_name_the_value(option, value, words):
     with pytest.raises(ConfigError, match=words):
         gym.make("SafeNav/Crowd-v0", **{option: value})
+
+
+@pytest.mark.parametrize("env_id", ["SafeNav/Crowd-v0", "SafeNav/Pedestrians-v0"])
+def test_a_scene_of_its_own_refuses_another_scenario_at_reset(env_id):
+    env = gym.make(env_id)
+    env.reset(seed=0)
+    with pytest.raises(ConfigError, match=rf"options\['scenario'\] does not apply to {env_id}"):
+        env.reset(seed=1, options={"scenario": "HeadOn"})

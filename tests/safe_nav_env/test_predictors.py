@@ -169,3 +169,23 @@ def test_biased_case_drifts_by_the_stated_mean():
             info = env.step(np.zeros(2))[4]
             errors.append(info["obstacle_positions"][0] - predicted)
     np.testing.assert_allclose(np.mean(errors, axis=0), DRIFT, atol=0.02)
+
+
+def test_kalman_predictive_covariance_is_the_sum_over_the_process_noise():
+    """Cov(x_{t+j}, x_{t+k}) = F^j P F^k' + sum_{m=1}^{min(j,k)} F^{j-m} Q F^{k-m}', to 1e-12."""
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        kalman = ConstantVelocityKalman(acceleration_psd=float(rng.uniform(0.0, 2.0)),
+                                        measurement_variance=float(rng.uniform(1e-3, 1.0)),
+                                        initial_speed_std=float(rng.uniform(0.1, 3.0)))
+        history, dt, horizon = rng.normal(size=(int(rng.integers(1, 12)), 2, 2)), 0.2, 8
+        _, cov = kalman.predictive(history, dt=dt, horizon=horizon)
+        _, P = kalman.filter(history, dt)
+        F = np.array([[1.0, dt], [0.0, 1.0]])
+        Q = kalman.acceleration_psd * np.array([[dt**3 / 3, dt**2 / 2], [dt**2 / 2, dt]])
+        power = [np.linalg.matrix_power(F, k) for k in range(horizon + 1)]
+        expected = np.array([[(power[j] @ P @ power[k].T + sum(
+            power[j - m] @ Q @ power[k - m].T for m in range(1, min(j, k) + 1)))[0, 0]
+            for k in range(1, horizon + 1)] for j in range(1, horizon + 1)])
+        expected += kalman.measurement_variance * np.eye(horizon)
+        np.testing.assert_allclose(cov, expected, rtol=1e-12, atol=1e-12 * np.abs(expected).max())
