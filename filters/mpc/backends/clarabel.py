@@ -220,7 +220,6 @@ class ClarabelBackend:
         self._hs_row0, self._n_hs_slack, self._slack_b = hs_row0, n_hs_slack, [0.0] * ns
         self._hs_positions = position[hs_first:hs_last].tolist() if K else []
         self._hs_index = np.concatenate(hs_index) if hs_index else np.zeros(0, dtype=np.int64)
-        self._hs_direct = len(touched) == d and np.array_equal(C[:, touched], np.eye(d))
         self._nu, self._nx, self._nv = nu, nx, nv
         b0 = np.concatenate([W[:, -1], np.ones(K * T), np.zeros(ns)])
         self.solver = clarabel.DefaultSolver(P, q, constraint, b0, cones, self._settings)
@@ -238,10 +237,7 @@ class ClarabelBackend:
         b = fixed[:hs0].tolist()
         if normals.shape[0]:
             b += (step.offsets - vecdot(normals, fixed[hs0:].reshape(T, d))).reshape(-1).tolist()
-            if self._hs_direct:  # C = [I 0]: the entries of a' C are those of a
-                a_values = normals.reshape(-1).tolist()
-            else:
-                a_values = (normals.reshape(-1, d) @ p.C).reshape(-1)[self._hs_index].tolist()
+            a_values = (normals.reshape(-1, d) @ p.C).reshape(-1)[self._hs_index].tolist()
         b += self._slack_b
         try:
             self.solver.update(b=b, **({"A": (self._hs_positions, a_values)}
