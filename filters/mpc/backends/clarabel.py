@@ -182,15 +182,12 @@ class ClarabelBackend:
         touched = np.flatnonzero(np.any(C != 0.0, axis=0))
         placeholder = (np.full(d, 1.0 / np.sqrt(d)) @ np.abs(C))[touched]
         hs_first = sum(len(r) for r in rows)
-        hs_index = []
-        for i in range(K):
-            for t in range(1, T + 1):
-                rows.append(np.full(len(touched), row))
-                cols.append(nu + (t - 1) * n + touched)
-                vals.append(placeholder)
-                hs_index.append((i * T + (t - 1)) * n + touched)
-                row += 1
-        hs_last = sum(len(r) for r in rows)
+        hs_rows = np.arange(K * T)[:, None]  # i T + (t - 1)
+        rows.append(np.repeat(row + hs_rows[:, 0], len(touched)))
+        cols.append((nu + hs_rows % T * n + touched).reshape(-1))
+        vals.append(np.tile(placeholder, K * T))
+        hs_index = (hs_rows * n + touched).reshape(-1)  # entries of (a_it' C)[touched], row by row
+        row += K * T
 
         # Slacks: -s on each soft row, and -s <= 0.
         soft_rows = list(range(hs_row0, hs_row0 + K * T)) if p.soft_halfspaces else []
@@ -218,8 +215,8 @@ class ClarabelBackend:
         positions_map[:, n + nu : n + nu + nx] = np.kron(np.eye(T), C)
         self._W_full = matvec_operator(np.vstack([W, positions_map]))
         self._hs_row0, self._n_hs_slack, self._slack_b = hs_row0, n_hs_slack, [0.0] * ns
-        self._hs_positions = position[hs_first:hs_last].tolist() if K else []
-        self._hs_index = np.concatenate(hs_index) if hs_index else np.zeros(0, dtype=np.int64)
+        self._hs_positions = position[hs_first : hs_first + hs_index.size].tolist()
+        self._hs_index = hs_index
         self._nu, self._nx, self._nv = nu, nx, nv
         b0 = np.concatenate([W[:, -1], np.ones(K * T), np.zeros(ns)])
         self.solver = clarabel.DefaultSolver(P, q, constraint, b0, cones, self._settings)
