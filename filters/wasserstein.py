@@ -251,9 +251,8 @@ class WassersteinRadius:
         k = lookahead_index(lookahead, self.horizon)
         e = finite_array("errors", errors, ndim=2)
         xi = finite_array("predicted_errors", predicted_errors)
-        per_obstacle = xi.shape[-2] if xi.ndim == 3 else xi.shape[0]
-        if xi.ndim == 3:
-            xi = xi.reshape(-1, xi.shape[-1])
+        per_obstacle = xi.shape[-2] if xi.ndim >= 2 else 0
+        xi = xi.reshape(-1, xi.shape[-1]) if xi.ndim == 3 else xi
         if xi.ndim != 2 or xi.shape[1] != e.shape[1] or xi.shape[0] == 0:
             raise InvalidArrayError(
                 f"predicted_errors must have shape (m, {e.shape[1]}) or (n, m, {e.shape[1]}) "
