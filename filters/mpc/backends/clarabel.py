@@ -72,9 +72,7 @@ def clarabel_settings(overrides: Mapping[str, Any] | None, *, soft: bool
                 max_threads=1)
     if soft:
         ours.update(tol_gap_abs=SOFT_GAP_TOLERANCE, tol_gap_rel=SOFT_GAP_TOLERANCE)
-    for key, value in ours.items():
-        setattr(settings, key, value)
-    for key, value in (overrides or {}).items():
+    for key, value in {**ours, **(overrides or {})}.items():  # the user's override ours
         if not hasattr(settings, key):
             raise InvalidParameterError(f"solver_settings: unknown Clarabel setting {key!r}")
         if key in ("presolve_enable", "input_sparse_dropzeros") and value:
