@@ -13,17 +13,15 @@ import numpy as np
 
 from filters.errors import InvalidArrayError, InvalidParameterError
 
-_FLOAT64 = np.dtype(np.float64)
-
 
 def finite_array(
     name: str, value: object, shape: Sequence[int | None] | None = None, *, ndim: int | None = None
 ) -> np.ndarray:
     """Return ``value`` as a finite float64 array, or raise ``InvalidArrayError``.
 
-    A float64 array is returned as it is (no copy); its finiteness is checked with one
-    reduction (the per-step arrays of the control loop pass here), and only an
-    overflowing or non-finite sum takes the entry-wise check.
+    A float64 array is returned as it is (``numpy.asarray`` makes no copy); its
+    finiteness is checked with one reduction (the per-step arrays of the control loop pass
+    here), and only an overflowing or non-finite sum takes the entry-wise check.
 
     Parameters
     ----------
@@ -37,15 +35,13 @@ def finite_array(
         Required number of dimensions, if any.
     """
     try:
-        array = value if type(value) is np.ndarray and value.dtype == _FLOAT64 else np.asarray(
-            value, dtype=np.float64)
+        array = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
         raise InvalidArrayError(f"{name} must be a numeric array, got {value!r}") from exc
     if ndim is not None and array.ndim != ndim:
         raise InvalidArrayError(f"{name} must have {ndim} dimension(s), got shape {array.shape}")
-    if shape is not None and array.shape != tuple(shape) and (array.ndim != len(shape) or any(
-        want is not None and got != want for got, want in zip(array.shape, shape, strict=True)
-    )):
+    if shape is not None and (array.ndim != len(shape) or any(
+            want not in (None, got) for got, want in zip(array.shape, shape, strict=True))):
         expected = tuple("any" if s is None else s for s in shape)
         raise InvalidArrayError(f"{name} must have shape {expected}, got {array.shape}")
     if not math.isfinite(np.add.reduce(array, axis=None)) and not np.isfinite(array).all():
@@ -91,8 +87,6 @@ def lookahead_index(lookahead: object, horizon: int) -> int:
 
 def integer_at_least(name: str, value: object, *, low: int = 1) -> int:
     """Return ``value`` as an int ``>= low``, or raise ``InvalidParameterError``."""
-    if type(value) is int and value >= low:  # the common case, checked every step
-        return value
     if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < low:
         raise InvalidParameterError(f"{name} must be an integer >= {low}, got {value!r}")
     return int(value)

@@ -109,9 +109,8 @@ class OnlineCalibration:
         the other.
         """
         shared = [pending[1] for pending in self.record._pending]
-        shared += [array for buffers in (self.record._scores, self.wasserstein._errors,
-                                         self.wasserstein._predicted)
-                   for buffer in buffers for array in buffer]
+        shared += [array for buffer in self.record._scores for array in buffer]
+        shared += self.wasserstein._errors + self.wasserstein._predicted
         return copy.deepcopy(self, {id(array): array for array in shared})
 
     def update(self, samples: object, realised_positions: object, present: object | None = None,

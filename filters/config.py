@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from filters._validation import finite_array, integer_at_least, scalar_in_range
+from filters._validation import finite_array, finite_scalar, integer_at_least
 from filters.constants import ALPHA, DELTA, EPSILON
 from filters.errors import InvalidParameterError, InvalidTypeError
 from filters.risk import CHANCE_RISKS, check_alpha, check_epsilon
@@ -247,18 +247,16 @@ class FilterConfig:
                 f"alpha must lie in (0, 1) for risk={self.risk!r} (a violation probability), "
                 f"got {self.alpha!r}")
         set_(self, "alpha", alpha)
-        set_(self, "delta", scalar_in_range("delta", self.delta, low=0.0, high=np.inf,
-                                            high_inclusive=False))
+        set_(self, "delta", finite_scalar("delta", self.delta, low=0.0))
         if isinstance(self.epsilon, str) and self.epsilon != "auto":
             raise InvalidParameterError(
                 f'epsilon must be a number or "auto" (in m, >= 0), got {self.epsilon!r}')
         set_(self, "epsilon", "auto" if self.epsilon == "auto" else check_epsilon(self.epsilon))
         if self.horizon is not None:
             set_(self, "horizon", integer_at_least("horizon", self.horizon, low=1))
-        for name, zero in (("later_input_weight", False), ("stop_time", False),
-                           ("intervention_penalty", True)):
-            set_(self, name, scalar_in_range(name, getattr(self, name), low=0.0, high=np.inf,
-                                             low_inclusive=zero, high_inclusive=False))
+        for name, positive in (("later_input_weight", True), ("stop_time", True),
+                               ("intervention_penalty", False)):
+            set_(self, name, finite_scalar(name, getattr(self, name), low=0.0, strict=positive))
         for name in _FLAGS:
             if not isinstance(getattr(self, name), bool | np.bool_):
                 raise InvalidTypeError(f"{name} must be a bool, got {getattr(self, name)!r}")

@@ -28,7 +28,7 @@ import numpy as np
 from filters._validation import finite_array
 from filters.errors import InvalidArrayError, InvalidShapeError, InvalidTypeError
 
-__all__ = ["ConvexPolygon", "Disc", "Shape", "collision_margin"]
+__all__ = ["ConvexPolygon", "Disc", "Shape", "check_shape", "collision_margin"]
 
 #: Relative tolerance under which a polygon turn counts as collinear.
 _COLLINEAR_RTOL = 1e-9
@@ -222,11 +222,23 @@ def collision_margin(ego_shape: Shape, obstacle_shape: Shape, directions: object
     InvalidArrayError
         If ``directions`` is malformed.
     """
-    for name, shape in (("ego_shape", ego_shape), ("obstacle_shape", obstacle_shape)):
-        if not isinstance(shape, (Disc, ConvexPolygon)):
-            raise InvalidTypeError(
-                f"{name} must be a Disc or ConvexPolygon, got {type(shape).__name__}")
-    return obstacle_shape.support(directions) + ego_shape.reflected().support(directions)
+    ego = check_shape("ego_shape", ego_shape).reflected()
+    obstacle = check_shape("obstacle_shape", obstacle_shape)
+    return obstacle.support(directions) + ego.support(directions)
+
+
+def check_shape(name: str, shape: object) -> Shape:
+    """Return ``shape`` if it is a :class:`Disc` or :class:`ConvexPolygon`.
+
+    Raises
+    ------
+    InvalidTypeError
+        Naming ``name`` and the type it got, otherwise.
+    """
+    if not isinstance(shape, (Disc, ConvexPolygon)):
+        raise InvalidTypeError(
+            f"{name} must be a Disc or ConvexPolygon, got {type(shape).__name__}")
+    return shape
 
 
 def _signed_area(vertices: np.ndarray) -> float:

@@ -16,7 +16,7 @@ import numpy as np
 
 from filters._validation import finite_array, finite_scalar
 from filters.errors import InvalidArrayError, InvalidParameterError, InvalidTypeError
-from filters.geometry import ConvexPolygon, Disc, Shape
+from filters.geometry import ConvexPolygon, Shape, check_shape
 from filters.risk import check_alpha, check_epsilon_array, check_margins, check_risk
 from filters.support import check_support
 
@@ -53,7 +53,7 @@ def _checked_inputs(reference_positions: object, samples: object, ego_shape: Sha
     """Every check of :func:`safe_halfspaces` (raises what it documents)."""
     risk = check_risk(risk)
     alpha = check_alpha(alpha, risk)
-    delta = _check_delta(delta)
+    delta = finite_scalar("delta (metres)", delta)
     y_ref, points = _check_positions(reference_positions, samples)
     n_obstacles, _, horizon, dim = points.shape
     epsilon = check_epsilon_array(epsilon, horizon)
@@ -79,12 +79,6 @@ def warn_deprecated_backend(backend: object, caller: str) -> None:
                                     f"(deprecated, ignored), got {backend!r}")
     warnings.warn(f"{caller}: backend={backend!r} is deprecated and ignored: the "
                   "halfspaces have one implementation", DeprecationWarning, stacklevel=3)
-
-
-def _check_delta(delta: object) -> float:
-    if type(delta) is float and -math.inf < delta < math.inf:
-        return delta
-    return finite_scalar("delta (metres)", delta)
 
 
 def _check_positions(reference: object, samples: object) -> tuple[np.ndarray, np.ndarray]:
@@ -122,10 +116,6 @@ def _check_finite_result(samples: object, normals: np.ndarray, offsets: np.ndarr
 def _check_shapes(
     ego_shape: object, obstacle_shapes: object, n_obstacles: int, dim: int
 ) -> list[Shape]:
-    if (type(ego_shape) is Disc and type(obstacle_shapes) in (list, tuple)
-            and len(obstacle_shapes) == n_obstacles
-            and all(type(shape) is Disc for shape in obstacle_shapes)):
-        return list(obstacle_shapes)  # the common case, valid in any dimension
     if isinstance(obstacle_shapes, (str, bytes)) or not isinstance(obstacle_shapes, Sequence):
         raise InvalidTypeError(
             f"obstacle_shapes must be a sequence of shapes, got {type(obstacle_shapes).__name__}")
@@ -136,10 +126,7 @@ def _check_shapes(
             f"got {len(shapes)}")
     for name, shape in [("ego_shape", ego_shape),
                         *((f"obstacle_shapes[{i}]", shape) for i, shape in enumerate(shapes))]:
-        if not isinstance(shape, (Disc, ConvexPolygon)):
-            raise InvalidTypeError(
-                f"{name} must be a Disc or ConvexPolygon, got {type(shape).__name__}")
-        if isinstance(shape, ConvexPolygon) and dim != 2:
+        if isinstance(check_shape(name, shape), ConvexPolygon) and dim != 2:
             raise InvalidArrayError(
                 f"{name} is a ConvexPolygon, which needs d = 2 positions, got d = {dim}")
     return shapes

@@ -35,9 +35,9 @@ safe side is ``h @ y <= b``; ``h`` points from the ego towards the obstacle).
 
 Two formulations give the same optimum: ``"vectorized"`` (default; one
 vector constraint per piece, fast to compile) and ``"paper"``, which writes
-eq. (6) sample by sample with scalar constraints, as the authors' code does; its
-compilation time grows quickly with :math:`N` (this is what the paper's Table I
-"Call" column measures).
+eq. (6) sample by sample (one constraint per sample and piece, with its own
+:math:`\\gamma`), as the authors' code does; its compilation time grows quickly with
+:math:`N` (this is what the paper's Table I "Call" column measures).
 
 All problems are solved with Clarabel. ``cvxpy`` is imported by this module
 only; ``import filters`` does not import it.
@@ -45,9 +45,9 @@ only; ``import filters`` does not import it.
 
 from __future__ import annotations
 
+import itertools
 import time
 from dataclasses import dataclass
-from typing import Any
 
 import cvxpy as cp
 import numpy as np
@@ -165,36 +165,20 @@ def build_halfspace_problem(
     pieces = [(-normal / alpha, -1.0 / alpha, 1.0 - 1.0 / alpha), (np.zeros_like(normal), 0.0, 1.0)]
     lam, eta = cp.Variable(name="lambda"), cp.Variable(n, name="eta")
     constraints = [lam * epsilon + cp.sum(eta) / n <= delta]
-    per_sample = formulation == "paper"
-    for a_k, b_k, c_k in pieces:
-        if per_sample:  # literally, one sample and piece at a time
-            constraints += _per_sample_rows(points, a_k, b_k * g_tilde + c_k * tau, eta, lam, poly)
-            continue
-        lhs = points @ a_k + b_k * g_tilde + c_k * tau
+    # "vectorized": one block of all N samples; "paper": N blocks of one sample each
+    blocks = [slice(i, i + 1) for i in range(n)] if formulation == "paper" else [slice(None)]
+    for (a_k, b_k, c_k), rows in itertools.product(pieces, blocks):
+        block = points[rows]
+        lhs = block @ a_k + b_k * g_tilde + c_k * tau
         if poly is None:
-            constraints += [lhs <= eta, lam >= np.linalg.norm(a_k)]  # ||a_2|| = 0: lam >= 0
+            constraints += [lhs <= eta[rows], lam >= np.linalg.norm(a_k)]  # ||a_2|| = 0: lam >= 0
             continue
         V, v = poly
-        gamma = cp.Variable((n, V.shape[0]), nonneg=True)
-        slack = v[None, :] - points @ V.T  # (N, m): v - V p^i
-        constraints += [lhs + cp.sum(cp.multiply(gamma, slack), axis=1) <= eta,
+        gamma = cp.Variable((len(block), V.shape[0]), nonneg=True)
+        slack = v[None, :] - block @ V.T  # (rows, m): v - V p^i
+        constraints += [lhs + cp.sum(cp.multiply(gamma, slack), axis=1) <= eta[rows],
                         cp.norm(gamma @ V - a_k[None, :], 2, axis=1) <= lam]
     return cp.Problem(cp.Minimize(g), constraints), g
-
-
-def _per_sample_rows(points: np.ndarray, a_k: np.ndarray, shift: Any, eta: cp.Variable,
-                     lam: cp.Variable, poly: tuple[np.ndarray, np.ndarray] | None) -> list[Any]:
-    """Rows of piece ``k`` of eq. (6) written sample by sample (``shift`` = b_k g~ + c_k tau)."""
-    rows = []
-    for i, point in enumerate(points):
-        if poly is None:
-            rows += [a_k @ point + shift <= eta[i], np.linalg.norm(a_k) <= lam]
-            continue
-        V, v = poly
-        gamma = cp.Variable(V.shape[0], nonneg=True)
-        rows += [a_k @ point + shift + gamma @ (v - V @ point) <= eta[i],
-                 cp.norm(V.T @ gamma - a_k, 2) <= lam]
-    return rows
 
 
 def cvxpy_halfspace(

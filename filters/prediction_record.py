@@ -108,7 +108,7 @@ class PredictionRecord:
             "keep_samples", keep_samples)
         self.memory = integer_at_least("memory", memory)
         T = self.horizon
-        self._pending: deque[tuple[int, np.ndarray, np.ndarray | None]] = deque(maxlen=T)
+        self._pending: deque[tuple[int, np.ndarray, np.ndarray]] = deque(maxlen=T)
         self._scores: list[deque[np.ndarray]] = [deque(maxlen=self.memory) for _ in range(T)]
         self.step = 0
 
@@ -156,15 +156,15 @@ class PredictionRecord:
         if positions.shape != (n_obs, dim):
             raise InvalidArrayError(f"realised_positions must have shape ({n_obs}, {dim}) to "
                                     f"match samples {points.shape}, got {positions.shape}")
-        identities = None if ids is None else _identities(ids, n_obs)
+        identities = np.arange(n_obs) if ids is None else _identities(ids, n_obs)
         if self._pending:
             old = self._pending[-1][1].shape
-            if old[3] != dim or (identities is None and old[0] != n_obs):
+            if old[3] != dim or (ids is None and old[0] != n_obs):
                 raise InvalidArrayError(
                     f"samples have shape {points.shape} but the pending ones {old}: the "
                     "obstacle count or dimension changed; call reset() at an episode boundary "
                     "(or pass ids)")
-        if identities is not None and not (occupied := identities >= 0).all():
+        if not (occupied := identities >= 0).all():
             points, positions, identities = (points[occupied], positions[occupied],
                                              identities[occupied])  # the occupied rows only
         realised = []
@@ -173,15 +173,10 @@ class PredictionRecord:
             if k > old.shape[2]:
                 continue
             now, rows = positions, slice(None)
-            if identities is not None or old_ids is not None:
-                now_ids = np.arange(n_obs) if identities is None else identities
-                then_ids = np.arange(old.shape[0]) if old_ids is None else old_ids
-                if not np.array_equal(now_ids, then_ids):  # pair obstacle by obstacle
-                    _, rows, current = np.intersect1d(then_ids, now_ids, assume_unique=True,
-                                                      return_indices=True)
-                    if rows.size == 0:
-                        continue
-                    now = positions[current]
+            if not np.array_equal(identities, old_ids):  # pair obstacle by obstacle
+                _, rows, current = np.intersect1d(old_ids, identities, assume_unique=True,
+                                                  return_indices=True)
+                now = positions[current]
             predicted = old[rows, :, k - 1]  # (n_obs, N_s, d)
             if predicted.shape[0] == 0:  # nobody to score (every row empty)
                 continue
@@ -189,7 +184,7 @@ class PredictionRecord:
             errors = now - mean
             scores = np.sqrt((errors * errors).sum(axis=-1))
             own = predicted[:, : self.keep_samples] - mean[:, None, :]  # (None: all)
-            scored = (np.arange(old.shape[0]) if old_ids is None else old_ids)[rows]
+            scored = old_ids[rows]
             for array in (errors, scores, own, scored):
                 array.flags.writeable = False
             self._scores[k - 1].append(scores)

@@ -11,7 +11,6 @@ its finite-sample fluctuation. Every random draw (the bootstrap) comes from a se
 from __future__ import annotations
 
 import math
-from collections import deque
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -227,11 +226,12 @@ class WassersteinRadius:
             setattr(self, name, integer_at_least(name, value, low=low))
         self.fallback = scalar_in_range("fallback", fallback, low=0.0)
         self._rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
-        self._errors: list[deque[np.ndarray]] = [deque() for _ in range(T)]
-        self._predicted: list[deque[np.ndarray]] = [deque() for _ in range(T)]
-        # counts of the buffers, N_s of the centre, updates since the radius / bootstrap
-        self._n_errors, self._n_predicted, self._n_samples, self._since, self._since_bootstrap = (
-            np.zeros(T, dtype=np.int64) for _ in range(5))
+        # The last `window` realised and `max_predicted` predicted errors per look-ahead, (n, d)
+        # arrays replaced, never written in place (OnlineCalibration.copy shares them).
+        self._errors, self._predicted = ([np.zeros((0, 0))] * T for _ in range(2))  # d: set later
+        # N_s of the centre, updates since the radius / bootstrap
+        self._n_samples, self._since, self._since_bootstrap = (
+            np.zeros(T, dtype=np.int64) for _ in range(3))
         self._cache: list[float | None] = [None] * T
         self._constants: list[tuple[float, float] | None] = [None] * T
         self._dim: int | None = None
@@ -251,9 +251,8 @@ class WassersteinRadius:
         k = lookahead_index(lookahead, self.horizon)
         e = finite_array("errors", errors, ndim=2)
         xi = finite_array("predicted_errors", predicted_errors)
-        per_obstacle = xi.shape[-2] if xi.ndim == 3 else xi.shape[0]
-        if xi.ndim == 3:
-            xi = xi.reshape(-1, xi.shape[-1])
+        per_obstacle = xi.shape[-2] if xi.ndim >= 2 else 0
+        xi = xi.reshape(-1, xi.shape[-1]) if xi.ndim == 3 else xi
         if xi.ndim != 2 or xi.shape[1] != e.shape[1] or xi.shape[0] == 0:
             raise InvalidArrayError(
                 f"predicted_errors must have shape (m, {e.shape[1]}) or (n, m, {e.shape[1]}) "
@@ -261,23 +260,18 @@ class WassersteinRadius:
         if self._dim is None:
             grid_directions(e.shape[1], 1, "WassersteinRadius")  # rejects d > 2
             self._dim = e.shape[1]
+            self._errors, self._predicted = ([np.zeros((0, self._dim))] * self.horizon
+                                             for _ in range(2))
         elif e.shape[1] != self._dim:
             raise InvalidArrayError(f"errors must have d = {self._dim}, got shape {e.shape}")
         size = per_obstacle if n_samples is None else integer_at_least("n_samples", n_samples)
         self._n_samples[k] = size if self._n_samples[k] == 0 else min(self._n_samples[k], size)
-        self._push(self._errors[k], e, self._n_errors, k, self.window)
-        self._push(self._predicted[k], xi, self._n_predicted, k, self.max_predicted)
+        self._errors[k] = np.concatenate([self._errors[k], e])[-self.window :]
+        self._predicted[k] = np.concatenate([self._predicted[k], xi])[-self.max_predicted :]
         self._since[k] += 1
         self._since_bootstrap[k] += 1  # (the cache is dropped after `refresh` updates)
         if self._since[k] >= self.refresh:
             self._cache[k] = None
-
-    @staticmethod
-    def _push(buffer: deque, rows: np.ndarray, counts: np.ndarray, k: int, cap: int) -> None:
-        buffer.append(rows[-cap:])
-        counts[k] += min(rows.shape[0], cap)
-        while counts[k] - buffer[0].shape[0] >= cap:
-            counts[k] -= buffer.popleft().shape[0]
 
     def update(self, realisations: tuple[Realisation, ...] | list[Realisation]) -> None:
         """Feed the output of :meth:`PredictionRecord.update` (look-aheads beyond ``T`` skipped)."""
@@ -288,13 +282,12 @@ class WassersteinRadius:
     def radius(self, lookahead: int) -> float:
         """:math:`\\epsilon_k` in m (``fallback`` with fewer than ``min_errors`` errors)."""
         k = lookahead_index(lookahead, self.horizon)
-        if self._n_errors[k] < self.min_errors:
+        if len(self._errors[k]) < self.min_errors:
             return self.fallback
         if self._cache[k] is not None:
             return self._cache[k]
         self._since[k] = 0
-        errors = np.concatenate(list(self._errors[k]))[-self.window :]
-        predicted = np.concatenate(list(self._predicted[k]))[-self.max_predicted :]
+        errors, predicted = self._errors[k], self._predicted[k]
         directions, slack = grid_directions(errors.shape[1], self.n_directions, "WassersteinRadius")
         mean_norms = float(np.linalg.norm(errors, axis=1).mean()
                            + np.linalg.norm(predicted, axis=1).mean())

@@ -366,8 +366,9 @@ def test_wasserstein_radius_fallback_cache_and_validation():
     assert same.radius(1) == first  # seeded bootstrap: reproducible
     with pytest.raises(InvalidArrayError, match="d = 1 or 2"):
         WassersteinRadius(horizon=1).update_errors(1, np.zeros((3, 3)), np.zeros((4, 3)))
-    with pytest.raises(InvalidArrayError, match="predicted_errors"):
-        radius.update_errors(1, np.zeros((3, 2)), np.zeros((4, 3)))
+    for wrong in (np.zeros((4, 3)), 0.5):  # another d; a scalar (once an IndexError)
+        with pytest.raises(InvalidArrayError, match="predicted_errors"):
+            radius.update_errors(1, np.zeros((3, 2)), wrong)
     with pytest.raises(InvalidParameterError, match="confidence"):
         WassersteinRadius(horizon=1, confidence=1.0)
 

@@ -72,9 +72,7 @@ def clarabel_settings(overrides: Mapping[str, Any] | None, *, soft: bool
                 max_threads=1)
     if soft:
         ours.update(tol_gap_abs=SOFT_GAP_TOLERANCE, tol_gap_rel=SOFT_GAP_TOLERANCE)
-    for key, value in ours.items():
-        setattr(settings, key, value)
-    for key, value in (overrides or {}).items():
+    for key, value in {**ours, **(overrides or {})}.items():  # the user's override ours
         if not hasattr(settings, key):
             raise InvalidParameterError(f"solver_settings: unknown Clarabel setting {key!r}")
         if key in ("presolve_enable", "input_sparse_dropzeros") and value:
@@ -128,69 +126,48 @@ class ClarabelBackend:
         u_low, u_high = p.input_bounds
         y_low, y_high = p.position_bounds
         G, g = p.terminal_rows
-        rows, cols, vals = [], [], []  # the entries of the constraint matrix
-        # W maps v = [x0; u^r; x^r; 1] to the right-hand side of the rows before the
-        # halfspaces: b = b_const + H0 x0 - G_u u^r - G_x x^r (deviation coordinates).
-        W_rows: list[np.ndarray] = []
-        width = n + nu + nx + 1
-        row = 0
+        # The rows before the halfspaces, M_w w + M_e e (= or <=) c + H0 x0 in the deviations
+        # w, e: the dynamics (the equalities), the input box, the arena and terminal rows
+        # ("bounds": soft in recovery), the speed polygon. With u = w + u^r and x = e + x^r,
+        # their right-hand side is W v, v = [x0; u^r; x^r; 1], W = [H0, -M_w, -M_e, c].
+        def stages(block: np.ndarray, k: int = 0) -> sp.csr_matrix:
+            """``block`` on block diagonal ``k`` over the T stages (rows t, columns t + k)."""
+            return sp.kron(sp.eye(T, k=k), block, format="csr")
 
-        def put(u_blocks: dict[int, np.ndarray], x_blocks: dict[int, np.ndarray],
-                const: np.ndarray, x0_coef: np.ndarray | None = None) -> range:
-            """Rows sum G_u u_t + sum G_x x_t (t = 1..T for x) against const + x0_coef x0: the
-            entries, and the right-hand side const + x0_coef x0 - sum G_u u^r_t - sum G_x x^r_t."""
-            nonlocal row
-            rhs = np.zeros((len(const), width))
-            rhs[:, -1] = const
-            if x0_coef is not None:
-                rhs[:, :n] = x0_coef
-            blocks = [(t * m, block) for t, block in u_blocks.items()]
-            blocks += [(nu + (t - 1) * n, block) for t, block in x_blocks.items()]
-            for col, block in blocks:
-                r, c = np.nonzero(block)
-                rows.append(r + row)
-                cols.append(c + col)
-                vals.append(block[r, c])
-                rhs[:, n + col : n + col + block.shape[1]] -= block
-            W_rows.append(rhs)
-            row += len(const)
-            return range(row - len(const), row)
+        def box(matrix: np.ndarray, low: np.ndarray, high: np.ndarray) -> list[tuple]:
+            """``low <= matrix z_t <= high`` at every stage, the finite sides only."""
+            return [(sign * stages(matrix[finite]), np.tile(sign * bound[finite], T))
+                    for bound, sign in ((high, 1.0), (low, -1.0))
+                    for finite in [np.flatnonzero(np.isfinite(bound))]]
 
-        for t in range(T):  # dynamics x_{t+1} - A x_t - B u_t = 0 (A x0 on the right for t = 0)
-            put({t: -B}, {t + 1: np.eye(n), **({t: -A} if t else {})}, np.zeros(n),
-                None if t else A)
-        n_equalities = row
-        for bound, sign in ((u_high, 1.0), (u_low, -1.0)):  # the input box, always hard
-            finite = np.flatnonzero(np.isfinite(bound))
-            for t in range(T):
-                put({t: sign * np.eye(m)[finite]}, {}, sign * bound[finite])
-        bound_rows: list[int] = []  # arena, then terminal rows: "bounds", soft in recovery
-        for bound, sign in ((y_high, 1.0), (y_low, -1.0)):
-            finite = np.flatnonzero(np.isfinite(bound))
-            for t in range(1, T + 1):
-                bound_rows += put({}, {t: sign * C[finite]}, sign * bound[finite])
-        if G.shape[0]:
-            bound_rows += put({}, {T: G}, g)
         S, s = p.speed_rows  # the speed polygon, always hard
-        for t in range(1, T + 1) if S.shape[0] else ():
-            put({}, {t: S}, s)
-        hs_row0 = row
+        terminal = sp.hstack([sp.csr_matrix((G.shape[0], nx - n)), G])  # G x_T <= g
+        bounds = [*box(C, y_low, y_high), (terminal, g)]
+        parts = [([-stages(B), stages(np.eye(n)) - stages(A, -1)], np.zeros(nx))]  # dynamics
+        parts += [([block, None], c) for block, c in box(np.eye(m), u_low, u_high)]
+        start = sum(len(c) for _, c in parts)  # the bounds' rows come next
+        bound_rows = list(range(start, start + sum(len(c) for _, c in bounds)))
+        parts += [([None, block], c) for block, c in [*bounds, (stages(S), np.tile(s, T))]]
+        M = sp.bmat([blocks for blocks, _ in parts], format="coo")
+        M.eliminate_zeros()
+        row, n_equalities = M.shape[0], nx
+        const = np.concatenate([c for _, c in parts])
+        W = np.hstack([np.zeros((row, n)), -M.toarray(), const[:, None]])
+        W[:n, :n] = A  # A x0 on the right-hand side of the first dynamics rows
+        rows, cols, vals = [M.row], [M.col], [M.data]  # the entries of the constraint matrix
+        hs_row0, hs_first = row, M.nnz
 
         # Halfspaces, row hs_row0 + i T + (t - 1): (a_it' C) x_t <= b_it. The pattern covers
         # every column C touches; the placeholder e'|C| (e a unit vector) keeps the rows
         # unit-scale for equilibration; every solve writes the real values.
         touched = np.flatnonzero(np.any(C != 0.0, axis=0))
         placeholder = (np.full(d, 1.0 / np.sqrt(d)) @ np.abs(C))[touched]
-        hs_first = sum(len(r) for r in rows)
-        hs_index = []
-        for i in range(K):
-            for t in range(1, T + 1):
-                rows.append(np.full(len(touched), row))
-                cols.append(nu + (t - 1) * n + touched)
-                vals.append(placeholder)
-                hs_index.append((i * T + (t - 1)) * n + touched)
-                row += 1
-        hs_last = sum(len(r) for r in rows)
+        hs_rows = np.arange(K * T)[:, None]  # i T + (t - 1)
+        rows.append(np.repeat(row + hs_rows[:, 0], len(touched)))
+        cols.append((nu + hs_rows % T * n + touched).reshape(-1))
+        vals.append(np.tile(placeholder, K * T))
+        hs_index = (hs_rows * n + touched).reshape(-1)  # entries of (a_it' C)[touched], row by row
+        row += K * T
 
         # Slacks: -s on each soft row, and -s <= 0.
         soft_rows = list(range(hs_row0, hs_row0 + K * T)) if p.soft_halfspaces else []
@@ -213,14 +190,12 @@ class ClarabelBackend:
         P.sort_indices()
         q = np.zeros(nv)
         q[slack0:] = p.slack_penalty
-        W = np.vstack(W_rows) if W_rows else np.zeros((0, width))
-        positions_map = np.zeros((T * d, width))  # reference positions C x^r_t, from the same v
+        positions_map = np.zeros((T * d, W.shape[1]))  # reference positions C x^r_t, same v
         positions_map[:, n + nu : n + nu + nx] = np.kron(np.eye(T), C)
         self._W_full = matvec_operator(np.vstack([W, positions_map]))
         self._hs_row0, self._n_hs_slack, self._slack_b = hs_row0, n_hs_slack, [0.0] * ns
-        self._hs_positions = position[hs_first:hs_last].tolist() if K else []
-        self._hs_index = np.concatenate(hs_index) if hs_index else np.zeros(0, dtype=np.int64)
-        self._hs_direct = len(touched) == d and np.array_equal(C[:, touched], np.eye(d))
+        self._hs_positions = position[hs_first : hs_first + hs_index.size].tolist()
+        self._hs_index = hs_index
         self._nu, self._nx, self._nv = nu, nx, nv
         b0 = np.concatenate([W[:, -1], np.ones(K * T), np.zeros(ns)])
         self.solver = clarabel.DefaultSolver(P, q, constraint, b0, cones, self._settings)
@@ -238,10 +213,7 @@ class ClarabelBackend:
         b = fixed[:hs0].tolist()
         if normals.shape[0]:
             b += (step.offsets - vecdot(normals, fixed[hs0:].reshape(T, d))).reshape(-1).tolist()
-            if self._hs_direct:  # C = [I 0]: the entries of a' C are those of a
-                a_values = normals.reshape(-1).tolist()
-            else:
-                a_values = (normals.reshape(-1, d) @ p.C).reshape(-1)[self._hs_index].tolist()
+            a_values = (normals.reshape(-1, d) @ p.C).reshape(-1)[self._hs_index].tolist()
         b += self._slack_b
         try:
             self.solver.update(b=b, **({"A": (self._hs_positions, a_values)}
