@@ -121,7 +121,8 @@ def summarise(records: Iterable[EpisodeRecord]) -> list[SummaryRow]:
             for status in FILTER_STATUSES) if steps else ()
         rows.append(SummaryRow(
             scenario=scenario, planner=planner, risk=risk, **outcomes(group),
-            worst_distance=float(np.nanmin(distances)) if n else math.nan,
+            worst_distance=(float(np.nanmin(distances)) if n and not np.isnan(distances).all()
+                            else math.nan),
             cvar_distance=lower_tail_mean(distances),
             mean_intervention=float(np.mean([r.mean_intervention for r in ok])) if n else math.nan,
             fallback_share=sum(r.fallback_steps for r in ok) / steps if steps else math.nan,
