@@ -287,15 +287,11 @@ def _offsets(
     margins: np.ndarray | None,
     polytope: tuple[np.ndarray, np.ndarray] | None,
 ) -> np.ndarray:
-    """Offsets :math:`b = -(R(-h \\cdot p) - \\delta + r)` of checked data: ``(n, T)`` for
-    normals ``(n, T, d)``, or ``(n, T, r)`` for ``r`` normals per step ``(n, T, r, d)``
-    (each along the step's own samples; no ``polytope`` then)."""
-    losses = _losses(points, normals)  # (n, T, N) or (n, T, r, N): samples of -h . p
-    if normals.ndim == 4:  # per-step (T,) and per-obstacle-step (n, T) settings: a rows axis
-        if isinstance(epsilon, np.ndarray):
-            epsilon = epsilon[:, None]
-        if margins is not None and margins.ndim:
-            margins = margins[..., None]
+    """Offsets :math:`b = -(R(-h \\cdot p) - \\delta + r)` of checked data, shape
+    ``normals.shape[:-1]``, for normals ``(..., n, T, d)``: leading axes hold several
+    normals per obstacle and step, each along the step's own samples (no ``polytope``
+    then); the per-step ``(T,)`` and per-obstacle-step ``(n, T)`` settings broadcast."""
+    losses = _losses(points, normals)  # (..., n, T, N): samples of -h . p
     if risk == "dr_cvar" and polytope is not None:
         value = dr_cvar_on_polytope(losses, points, normals, polytope, alpha, epsilon)
     else:
@@ -340,17 +336,17 @@ def _normals(
 
 
 def _margins(ego_shape: Shape, shapes: list[Shape], normals: np.ndarray) -> np.ndarray:
-    """Collision margins, shape ``normals.shape[:-1]``, or ``(n, 1[, 1])`` for discs; one
-    call per distinct obstacle shape."""
+    """Collision margins for normals ``(..., n, T, d)``: shape ``normals.shape[:-1]``, or
+    ``(n, 1)`` for discs; one call per distinct obstacle shape."""
     if isinstance(ego_shape, Disc) and all(isinstance(s, Disc) for s in shapes):
         radii = np.array([s.radius for s in shapes])  # unit normals: S = radius
-        return (radii + ego_shape.radius).reshape((-1,) + (1,) * (normals.ndim - 2))
+        return (radii + ego_shape.radius)[:, None]
     margins = np.empty(normals.shape[:-1])
     groups: dict[Shape, list[int]] = {}
     for index, shape in enumerate(shapes):
         groups.setdefault(shape, []).append(index)
     for shape, indices in groups.items():
-        margins[indices] = collision_margin(ego_shape, shape, normals[indices])
+        margins[..., indices, :] = collision_margin(ego_shape, shape, normals[..., indices, :, :])
     return margins
 
 
@@ -363,14 +359,9 @@ def _sample_means(points: np.ndarray) -> np.ndarray:
 
 
 def _losses(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
-    """Samples of :math:`-h_{i,t} \\cdot p`, shape ``(n, T, N)`` (normals ``(n, T, d)``) or
-    ``(n, T, r, N)`` (normals ``(n, T, r, d)``), the sample axis last.
+    """Samples of :math:`-h_{i,t} \\cdot p`, shape ``(..., n, T, N)`` for normals
+    ``(..., n, T, d)``, the sample axis last (C-contiguous).
 
-    One batched product ``(n, T, N, d) @ (n, T, d, 1)`` or ``(n, T, r, d) @ (n, T, d, N)``:
-    O(n T r N d).
+    One batched product ``(n, T, N, d) @ (..., n, T, d, 1)``: O(n T N d) per leading index.
     """
-    if normals.ndim == 4:
-        return np.matmul(-normals, points.transpose(0, 2, 3, 1))
     return np.matmul(points.transpose(0, 2, 1, 3), -normals[..., None])[..., 0]
-
-

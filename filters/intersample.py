@@ -99,10 +99,9 @@ def arc_margin(
     numpy.ndarray
         Shape ``normals.shape[:-1]``, ``>= 0`` when the box contains 0.
     """
-    low, high = input_bounds
-    worst = np.add.reduce(np.maximum(normals * -np.asarray(low, dtype=np.float64),
-                                     normals * -np.asarray(high, dtype=np.float64)), axis=-1)
-    return (dt * dt / 8.0) * worst
+    low, high = input_bounds  # max(-h u_low, -h u_high) = -min(h u_low, h u_high)
+    best = np.add.reduce(np.minimum(normals * low, normals * high), axis=-1)
+    return (dt * dt / -8.0) * best
 
 
 @dataclass(frozen=True, eq=False)
@@ -180,7 +179,12 @@ def intersample_rows(
             np.zeros((horizon - 1, dim)), np.asarray(samples)[:, :, :horizon - 1],
             ego_shape=ego_shape, obstacle_shapes=obstacle_shapes, support=support,
             normals=normals[:, 1:], **_steps(options, slice(0, horizon - 1))).offsets
-    rows = _rows(_row_normals(normals, start is not None), offsets, start, input_bounds, dt)
+    both = np.zeros((2, k, horizon))  # the end offsets, then the start offsets
+    both[0] = offsets
+    if start is not None:
+        both[1, :, :-1] = start
+    rows = _rows(_row_normals(normals, start is not None), both, start is not None,
+                 input_bounds, dt)
     if k and current_position is not None and current_obstacles is not None:
         now = safe_halfspaces(
             np.zeros((1, dim)), np.asarray(current_obstacles, dtype=np.float64)[:, None, None],
@@ -262,14 +266,12 @@ def batched_halfspaces(data: _Inputs, ego_shape: Shape,
     with np.errstate(all="ignore"):  # non-finite samples are reported below, by name
         unit, degenerate = _step_normals(data)
         rows_n = _row_normals(unit, True)  # step t: h_{i,t} (end), h_{i,t+1} (start)
-        rows_n[1, :, -1] = unit[:, -1]  # a placeholder for the offsets: the row is off
-        offsets = _offsets(data.points, rows_n.transpose(1, 2, 0, 3), ego_shape, data.shapes,
-                           data.risk, data.alpha, data.delta, data.epsilon, data.margins, None)
-        rows_n[1, :, -1] = 0.0
+        offsets = _offsets(data.points, rows_n, ego_shape, data.shapes, data.risk, data.alpha,
+                           data.delta, data.epsilon, data.margins, None)  # (2, k, T)
     _check_finite_result(data.points, unit, offsets)
-    halfspaces = Halfspaces(unit, np.ascontiguousarray(offsets[:, :, 0]), data.risk,
-                            data.alpha, data.delta, data.epsilon, degenerate)
-    return halfspaces, _rows(rows_n, halfspaces.offsets, offsets[:, :-1, 1], input_bounds, dt)
+    halfspaces = Halfspaces(unit, offsets[0], data.risk, data.alpha, data.delta, data.epsilon,
+                            degenerate)
+    return halfspaces, _rows(rows_n, offsets, True, input_bounds, dt)
 
 
 def _row_normals(normals: np.ndarray, start: bool) -> np.ndarray:
@@ -283,20 +285,16 @@ def _row_normals(normals: np.ndarray, start: bool) -> np.ndarray:
     return rows_n
 
 
-def _rows(rows_n: np.ndarray, offsets: np.ndarray, start: np.ndarray | None,
+def _rows(rows_n: np.ndarray, offsets: np.ndarray, start: bool,
           input_bounds: tuple[np.ndarray, np.ndarray], dt: float) -> IntersampleRows:
-    """The rows of :class:`IntersampleRows` from their normals (:func:`_row_normals`), the
-    step offsets ``(k, T)`` and the start offsets ``b_t(h_{i,t+1})``, ``(k, T - 1)``
-    (``None``: no start rows), each tightened by the bow of its own normal."""
+    """The rows of :class:`IntersampleRows` from their normals (:func:`_row_normals`) and
+    offsets ``(2, k, T)``, the step offsets then the start offsets ``b_t(h_{i,t+1})``
+    (ignored at ``t = T``, and everywhere without ``start``), each tightened by the bow of
+    its own normal."""
     _, k, horizon, dim = rows_n.shape
     margins = arc_margin(rows_n, input_bounds, dt)  # (2, k, T)
-    rows_b = np.empty((2, k, horizon))
-    np.subtract(offsets, margins[0], out=rows_b[0])
-    rows_b[1, :, -1] = DISABLED_OFFSET  # 0 @ y <= 1: off
-    if start is None:
-        rows_b[1] = DISABLED_OFFSET
-    else:
-        np.subtract(start, margins[1, :, :-1], out=rows_b[1, :, :-1])
+    rows_b = offsets - margins
+    rows_b[1, :, -1 if start else slice(None)] = DISABLED_OFFSET  # 0 @ y <= 1: off
     return IntersampleRows(rows_n.reshape(2 * k, horizon, dim), rows_b.reshape(2 * k, horizon),
                            margins[0], None)
 
