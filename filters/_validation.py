@@ -40,7 +40,7 @@ def finite_array(
         raise InvalidArrayError(f"{name} must be a numeric array, got {value!r}") from exc
     if ndim is not None and array.ndim != ndim:
         raise InvalidArrayError(f"{name} must have {ndim} dimension(s), got shape {array.shape}")
-    if shape is not None and (array.ndim != len(shape) or any(
+    if shape is not None and array.shape != shape and (array.ndim != len(shape) or any(
             want not in (None, got) for got, want in zip(array.shape, shape, strict=True))):
         expected = tuple("any" if s is None else s for s in shape)
         raise InvalidArrayError(f"{name} must have shape {expected}, got {array.shape}")

@@ -258,9 +258,13 @@ class MPCSafetyFilter:
         if fallback != "paper":
             self._recovery = make_backend(recovery_backend, recovery_problem, solver_settings)
             self._rescue = make_backend(recovery_backend, rescue_problem, solver_settings)
-        phi, gamma = problem.rollout  # precomputed for the per-step checks
-        self._phi, self._gamma = matvec_operator(phi), matvec_operator(gamma)
-        self._gain = matvec_operator(problem.gain)
+        # The unconstrained minimiser in one product: u° = O [x0; x^r; u^r] with
+        # O = [-K Phi, K, I - K Gamma] (the gain's formula, see MPCProblem.gain).
+        phi, gamma = problem.rollout
+        gain = problem.gain
+        self._optimum = matvec_operator(
+            np.hstack([-gain @ phi, gain, np.eye(T * m) - gain @ gamma]))
+        self._v = np.empty(n + T * n + T * m)  # [x0; x^r; u^r]
         self._check = PlanChecker(problem)  # roll-out, row excesses, acceptance, cost
         u_low, u_high = problem.input_bounds
         self._u_low_all, self._u_high_all = np.tile(u_low, T), np.tile(u_high, T)
@@ -427,9 +431,9 @@ class MPCSafetyFilter:
 
         if self._skip and reference_inputs is not None:
             u = ref_inputs.reshape(-1)
-            if self._has_state_cost:
-                residual = ref_states.reshape(-1) - self._phi @ x0 - self._gamma @ u
-                u = u + self._gain @ residual  # a new array
+            if self._has_state_cost:  # a new array
+                u = self._optimum @ np.concatenate(
+                    (x0, ref_states.reshape(-1), u), out=self._v)
             if (u >= self._u_low_all).all() and (u <= self._u_high_all).all():
                 states, halfspace, bounds = at_reference or check.evaluate(
                     x0, u, normals, offsets)
