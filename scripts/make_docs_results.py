@@ -25,7 +25,6 @@ import shlex
 import shutil
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -91,17 +90,14 @@ def make_performance(out_dir: Path, options: list[str], scaling: bool = True) ->
         "Speed of the filter's parts, each against the CVXPY formulation (or the plain "
         "case) measured in the same run: read the ratios, since absolute times depend on "
         "the machine and its load. Medians.\n\n```text\n" + report.strip() + "\n```\n")
-    with tempfile.TemporaryDirectory() as scratch:
-        for title, extra in (("Training with the filter in the loop", ["--training"]),
-                             ("Evaluation on 1 and 2 local workers", ["--evaluation"]),
-                             ("The filter step against the horizon", HORIZON_GRID)):
-            if scaling:
-                output = ["--output", scratch] if "--scaling" in extra else []
-                report, elapsed = run(["bench", *extra, *output])
-                report = "\n".join(line for line in report.strip("\n").splitlines()
-                                    if not line.startswith("wrote "))  # the scratch files
-                text += (f"\n## {title}\n\n`safe-nav bench {shlex.join(extra)}` "
-                         f"({elapsed:.0f} s)\n\n```text\n{report}\n```\n")
+    sections = (("Training with the filter in the loop", ["--training"]),
+                ("Evaluation on 1 and 2 local workers", ["--evaluation"]),
+                ("The filter step against the horizon", HORIZON_GRID))
+    for title, extra in sections if scaling else ():
+        report, elapsed = run(["bench", *extra])
+        report = report.strip("\n")  # not strip(): the first line's indent is the table's
+        text += (f"\n## {title}\n\n`safe-nav bench {shlex.join(extra)}` ({elapsed:.0f} s)"
+                 f"\n\n```text\n{report}\n```\n")
     path = out_dir / "performance.md"
     path.write_text(text)
     return path
