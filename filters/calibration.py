@@ -33,7 +33,7 @@ import dataclasses
 import numpy as np
 
 from filters.conformal import AdaptiveRadius, ConformalMargin, conformal_rank, dr_cvar_scores
-from filters.errors import InvalidParameterError
+from filters.errors import InvalidArrayError, InvalidParameterError
 from filters.prediction_record import PredictionRecord, Realisation
 from filters.wasserstein import WassersteinRadius, sliced_wasserstein_max
 
@@ -118,16 +118,31 @@ class OnlineCalibration:
         """Record this step (see :meth:`PredictionRecord.update`) and update both estimators.
 
         ``present`` is an optional boolean mask ``(n_rows,)`` selecting the real
-        obstacles of padded arrays (``info["obstacle_present"]``). ``ids`` (one integer
-        per row, negative for an empty row) makes each prediction meet the realised
-        position of its own obstacle when rows change hands (the slots of
-        ``SafeNav/Pedestrians-v0``, ``env.unwrapped.obstacle_ids``).
+        obstacles of padded arrays (``info["obstacle_present"]``); without ``ids``, row
+        ``i`` of the padded arrays is then obstacle ``i`` at every step, so a prediction
+        is never scored against another row's obstacle when the rows present change.
+        ``ids`` (one integer per row, negative for an empty row) makes each prediction
+        meet the realised position of its own obstacle when rows change hands (the slots
+        of ``SafeNav/Pedestrians-v0``, ``env.unwrapped.obstacle_ids``).
+
+        Raises
+        ------
+        InvalidArrayError
+            As :meth:`PredictionRecord.update`, and if ``present`` is not one flag per row.
         """
         if present is not None:
-            mask = np.asarray(present, dtype=bool)
-            samples = np.asarray(samples)[mask]
-            realised_positions = np.asarray(realised_positions)[mask]
-            ids = None if ids is None else np.asarray(ids)[mask]
+            mask = np.asarray(present)
+            samples, realised_positions = np.asarray(samples), np.asarray(realised_positions)
+            if mask.dtype != bool or mask.shape != samples.shape[:1]:
+                raise InvalidArrayError(
+                    f"present must be {samples.shape[:1]} booleans (one per row of samples), "
+                    f"got {present!r}")
+            ids = np.arange(mask.size) if ids is None else np.asarray(ids)
+            if ids.shape != mask.shape or realised_positions.shape[:1] != mask.shape:
+                raise InvalidArrayError(
+                    f"ids {ids.shape} and realised_positions {realised_positions.shape} must "
+                    f"have one row per flag of present {mask.shape}")
+            samples, realised_positions, ids = samples[mask], realised_positions[mask], ids[mask]
         realised = self.record.update(samples, realised_positions, ids)
         self.conformal.update(realised)
         kept = realised

@@ -419,3 +419,24 @@ def test_online_calibration_runs_on_environment_episodes_and_feeds_safe_halfspac
     assert np.all(np.isfinite(margins)) and np.all(margins < 1.0)  # data replaced the fallback
     assert np.all(radii > 0) and np.all(np.diff(margins) > -0.05)  # wider further ahead
     assert calibration.conformal.n_scored.min() > 0
+
+
+def test_online_calibration_with_present_pairs_rows_by_index_not_by_order():
+    # Rows A, B, C of padded arrays; B leaves and C arrives in the same step, so two rows
+    # are present both times. C must not be scored against B's prediction.
+    rows = np.array([[0.0, 0.0], [10.0, 0.0], [20.0, 0.0]])
+    samples = np.broadcast_to(rows[:, None, None, :], (3, 5, 4, 2)).copy()  # exact forecasts
+    calibration = OnlineCalibration(horizon=4, alpha=0.2)
+    calibration.update(samples, rows, np.array([True, True, False]))
+    realised = calibration.update(samples, rows, np.array([True, False, True]))
+    (one_step,) = realised
+    assert one_step.ids.tolist() == [0]  # A only: C was not predicted a step ago
+    assert one_step.scores.tolist() == [0.0]
+
+
+def test_online_calibration_refuses_a_present_mask_of_another_length():
+    calibration = OnlineCalibration(horizon=4, alpha=0.2)
+    with pytest.raises(InvalidArrayError, match="present"):
+        calibration.update(np.zeros((3, 5, 4, 2)), np.zeros((3, 2)), np.array([True, False]))
+    with pytest.raises(InvalidArrayError, match="ids"):
+        calibration.update(np.zeros((3, 5, 4, 2)), np.zeros((3, 2)), np.ones(3, bool), ids=[0, 1])
