@@ -434,12 +434,16 @@ class MPCSafetyFilter:
             if self._has_state_cost:  # a new array
                 u = self._optimum @ np.concatenate(
                     (x0, ref_states.reshape(-1), u), out=self._v)
-            if (u >= self._u_low_all).all() and (u <= self._u_high_all).all():
-                states, halfspace, bounds = at_reference or check.evaluate(
-                    x0, u, normals, offsets)
+            # The rows first when their evaluation is at hand (they fail far more often
+            # than the box), else the box first (it spares the evaluation).
+            evaluation = at_reference
+            if evaluation is None and self._in_box(u):
+                evaluation = check.evaluate(x0, u, normals, offsets)
+            if evaluation is not None:
+                states, halfspace, bounds = evaluation
                 if np.maximum.reduce(bounds, initial=-np.inf) <= 0.0 and (
                     not k or np.maximum.reduce(halfspace, axis=None) <= 0.0
-                ):
+                ) and (at_reference is None or self._in_box(u)):
                     inputs = np.array(u).reshape(T, m)  # a copy: it becomes the stored plan
                     self._plan, self._failures = inputs, 0
                     slack = np.zeros((k, T)) if self._soft else None
@@ -470,6 +474,11 @@ class MPCSafetyFilter:
         self._failures += 1
         return self._recover(step, x0, normals, offsets, status_text, iterations, solve_time,
                              start)
+
+    def _in_box(self, u: np.ndarray) -> bool:
+        """Whether the stacked inputs ``u`` ``(T m,)`` lie in the input box (m/s²)."""
+        return bool(np.logical_and.reduce(u >= self._u_low_all)
+                    and np.logical_and.reduce(u <= self._u_high_all))
 
     def _recover(self, step: StepData, x0: np.ndarray, normals: np.ndarray,
                  offsets: np.ndarray, status_text: str, iterations: int, solve_time: float,
