@@ -37,24 +37,26 @@ class PlanChecker:
 
     def __init__(self, problem: MPCProblem) -> None:
         T, n, m = problem.horizon, problem.n, problem.m
-        evaluation, self._offset = problem.check_map
-        self._eval = matvec_operator(evaluation)
+        evaluation, offset = problem.check_map
+        # The affine map as one product: [M, -r] @ [x0; u; 1].
+        self._eval = matvec_operator(np.hstack([evaluation, -offset[:, None]]))
         self._split = ((T + 1) * n, (T + 1) * n + T * problem.d)
         #: Arena and terminal rows (the speed rows follow them in the bound excess).
-        self.n_bound = len(self._offset) - self._split[1] - T * len(problem.speed_rows[1])
+        self.n_bound = len(offset) - self._split[1] - T * len(problem.speed_rows[1])
         self._R_block = matvec_operator(scipy.linalg.block_diag(*problem.input_weights))
         self._Q_block = matvec_operator(scipy.linalg.block_diag(*problem.state_weights))
         self._has_state_cost = problem.has_state_cost
         self._u_low, self._u_high = problem.input_bounds
         self._states_shape, self._positions_shape = (T + 1, n), (T, problem.d)
-        self._z = np.empty(n + T * m)  # [x0; u] of the evaluation map
+        self._z = np.ones(n + T * m + 1)  # [x0; u; 1] of the evaluation map
+        self._xu = self._z[:-1]  # its [x0; u] part, written per evaluation
 
     def evaluate(self, x0: np.ndarray, inputs: np.ndarray, normals: np.ndarray,
                  offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Roll-out ``(T + 1, n)``, halfspace excess ``(k, T)``, bound-row excess (1-D, in
         the order of :attr:`MPCProblem.check_map`: arena, terminal, then speed rows)."""
-        z = np.concatenate((x0, inputs.reshape(-1)), out=self._z)
-        out = self._eval @ z - self._offset
+        np.concatenate((x0, inputs.reshape(-1)), out=self._xu)
+        out = self._eval @ self._z
         split, end = self._split
         states = out[:split].reshape(self._states_shape)
         halfspace = _vecdot(normals, out[split:end].reshape(self._positions_shape)) - offsets

@@ -188,10 +188,10 @@ class CondensedQP:
         v = np.concatenate((x0, ref_states.reshape(-1), ref_inputs.reshape(-1)), out=self._v)
         shift, n_fixed = self._S @ x0, self.n_fixed
         positions0 = shift[n_fixed:].reshape(self.T, self.d)
-        normals_t = normals.transpose(1, 0, 2)  # (T, K, d)
-        return StepRows(self._F @ v, self.fixed_upper - shift[:n_fixed],
-                        self.fixed_lower - shift[:n_fixed], normals_t,
-                        offsets.T - vecdot(normals_t, positions0[:, None, :]), positions0)
+        fixed_shift = shift[:n_fixed]
+        return StepRows(self._F @ v, self.fixed_upper - fixed_shift,
+                        self.fixed_lower - fixed_shift, normals.transpose(1, 0, 2),
+                        (offsets - vecdot(normals, positions0)).T, positions0)
 
     def halfspace_rows(self, rows: StepRows, steps: np.ndarray, obstacles: np.ndarray,
                        out: np.ndarray | None = None) -> np.ndarray:
