@@ -165,7 +165,8 @@ class DAQPBackend:
         T, K, nu, n_fixed = qp.T, qp.K, qp.nu, qp.n_fixed
         self._soft_fixed = qp.fixed_soft
         self._soft_hs = p.soft_halfspaces
-        self._any_soft = bool(self._soft_fixed.any() or (self._soft_hs and K))
+        self._soft_bounds = bool(self._soft_fixed.any())  # ndarray.any costs ~1.5 us a call
+        self._any_soft = self._soft_bounds or bool(self._soft_hs and K)
         self._guess: tuple | None = None  # previous answer and active set (lazy), until reset()
         self._conflict: tuple | None = None  # rows of the previous infeasible QP (lazy)
         self.rounds = 0  # relaxed QPs solved by the last lazy solve
@@ -398,7 +399,7 @@ class DAQPBackend:
         hs_slack = bound_slack = None
         if self._soft_hs:
             hs_slack = np.maximum(halfspace.T, 0.0)
-        if self._soft_fixed.any():
+        if self._soft_bounds:
             bound_slack = qp.bound_slack(values, rows)
         return QPSolution(True, status, inputs, hs_slack, bound_slack, iterations, solve_time)
 
