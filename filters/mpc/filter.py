@@ -274,6 +274,11 @@ class MPCSafetyFilter:
         self._T, self._n, self._m, self._d, self._K = T, n, m, problem.d, problem.n_obstacles
         self._has_state_cost = problem.has_state_cost
         self._primary_soft_rows = problem.soft_rows
+        # An accepted answer meets its hard rows to FEASIBILITY_TOLERANCE: with the arena
+        # and terminal rows hard and that tolerance within SLACK_TOLERANCE, their total
+        # violation (bound_slack) is 0 without summing it.
+        self._bounds_held = ("bounds" not in problem.soft_rows
+                             and FEASIBILITY_TOLERANCE <= SLACK_TOLERANCE)
         self._recovery_zeros = (np.zeros((T, n)), self._zero_inputs)
         self._padded = PaddedSteps(self._K, T, problem.d)
         self._plan: np.ndarray | None = None
@@ -468,7 +473,8 @@ class MPCSafetyFilter:
             status = FilterStatus.SOFT if slack is not None and slack.any() else (
                 FilterStatus.OPTIMAL
             )
-            return self._result(status, inputs, states, slack, check.bound_total(bounds),
+            bound_total = 0.0 if self._bounds_held else check.bound_total(bounds)
+            return self._result(status, inputs, states, slack, bound_total,
                                 status_text, iterations, solve_time,
                                 check.cost(inputs, states, ref_states, reference_inputs), start)
         self._failures += 1
