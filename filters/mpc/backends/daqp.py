@@ -165,7 +165,7 @@ class DAQPBackend:
         T, K, nu, n_fixed = qp.T, qp.K, qp.nu, qp.n_fixed
         self._soft_fixed = qp.fixed_soft
         self._soft_hs = p.soft_halfspaces
-        self._soft_bounds = bool(self._soft_fixed.any())  # ndarray.any costs ~1.5 us a call
+        self._soft_bounds = bool(self._soft_fixed.any())  # once here, not per soft solve
         self._any_soft = self._soft_bounds or bool(self._soft_hs and K)
         self._guess: tuple | None = None  # previous answer and active set (lazy), until reset()
         self._conflict: tuple | None = None  # rows of the previous infeasible QP (lazy)
