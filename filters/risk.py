@@ -183,9 +183,7 @@ def cvar_last_axis(x: np.ndarray, alpha: float, *, overwrite: bool = False) -> n
     """Empirical CVaR along the last axis of a finite, non-empty ``x`` (no validation).
 
     O(N) per row with :func:`numpy.partition`; see :func:`empirical_cvar`. With
-    ``overwrite=True`` the samples of ``x`` are reordered in place (saves a copy). The
-    ``k + 1`` largest samples are weighed in one product,
-    :math:`w = \\tfrac{1}{\\alpha N}(\\alpha N - k, 1, \\dots, 1)` (the fractional atom first).
+    ``overwrite=True`` the samples of ``x`` are reordered in place (saves a copy).
     """
     n = x.shape[-1]
     mass = tail_count(alpha, n)
@@ -197,25 +195,8 @@ def cvar_last_axis(x: np.ndarray, alpha: float, *, overwrite: bool = False) -> n
     if overwrite:
         x.partition(n - k - 1, axis=-1)
     part = x if overwrite else np.partition(x, n - k - 1, axis=-1)
-    return part[..., n - k - 1:] @ _tail_weights(mass, k)
-
-
-_TAIL_WEIGHTS: dict[tuple[float, int], np.ndarray] = {}
-""":func:`_tail_weights` by ``(alpha N, k)`` (one entry per setting in use)."""
-
-
-def _tail_weights(mass: float, k: int) -> np.ndarray:
-    """The read-only weights ``((mass - k) / mass, 1 / mass, ..., 1 / mass)``, ``k + 1``
-    of them, of the ``(k+1)``-th largest sample and the top ``k`` (:func:`cvar_last_axis`)."""
-    weights = _TAIL_WEIGHTS.get((mass, k))
-    if weights is None:
-        weights = np.full(k + 1, 1.0 / mass)
-        weights[0] = (mass - k) / mass
-        weights.flags.writeable = False
-        if len(_TAIL_WEIGHTS) >= 64:
-            _TAIL_WEIGHTS.clear()
-        _TAIL_WEIGHTS[mass, k] = weights
-    return weights
+    top = part[..., n - k :].sum(axis=-1)
+    return (top + (mass - k) * part[..., n - k - 1]) / mass
 
 
 def empirical_cvar(x: object, alpha: float, axis: int = -1) -> np.ndarray:
