@@ -152,7 +152,7 @@ def applied_acceleration(velocity: tuple[float, float], action: tuple[float, flo
         The applied acceleration, in m/s².
     """
     a = max_acceleration
-    ux, uy = action[0], action[1]  # clipped to the box (finite: no NaN to carry)
+    ux, uy = action[0], action[1]  # clipped to the box (a NaN stays NaN, as with min/max)
     if ux > a:
         ux = a
     elif ux < -a:
