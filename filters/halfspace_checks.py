@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 import warnings
 from collections.abc import Sequence
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -27,9 +27,9 @@ __all__ = ["DEGENERATE_DISTANCE"]
 DEGENERATE_DISTANCE = 1e-9
 
 
-@dataclass(frozen=True, eq=False)
-class _Inputs:
-    """The checked inputs of :func:`safe_halfspaces` (see its parameters)."""
+class _Inputs(NamedTuple):
+    """The checked inputs of :func:`safe_halfspaces` (see its parameters); a named tuple,
+    built every control step (the cheapest immutable record to make)."""
 
     risk: str
     alpha: float

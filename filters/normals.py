@@ -56,7 +56,7 @@ def _unit(diff: np.ndarray, means: np.ndarray, ego: np.ndarray) -> np.ndarray:
     ego is on the mean too, to the first axis."""
     size = np.sqrt(np.add.reduce(diff * diff, axis=-1, keepdims=True))
     usable = size > 1e-9
-    if usable.all():  # the usual case
+    if np.count_nonzero(usable) == usable.size:  # the usual case (NaN is not usable)
         return diff / size
     from_ego = means - ego[None, None]  # (k, T, d)
     ego_size = np.sqrt(np.add.reduce(from_ego * from_ego, axis=-1, keepdims=True))

@@ -98,40 +98,48 @@ def hold_action_reference(
     action = u.tolist()
     if apply is None or not all(map(math.isfinite, action)):
         return states, inputs
-    first = _first_over_speed_limit(env, states)
+    rows = states.tolist()  # the held roll-out on floats: x^r_0 .. x^r_T
+    first = _first_over_speed_limit(env, rows)
     if first is None:
         return states, inputs  # the env applies u at every step: the held roll-out is it
     # Steps before ``first`` keep the held roll-out (the env applies u there); from it
     # on, the env's applied input at each state, rolled out on Python floats with the
     # rows [A_i | B_i] of x' = [A B] [x; u].
-    x = states[first].tolist()
-    applied_inputs, rolled = [], []
+    x = rows[first]
+    applied_inputs: list[float] = []  # flat: the entries of u^r_first .. u^r_{T-1}
+    rolled: list[float] = []  # flat: the entries of x^r_{first+1} .. x^r_T
     for _ in range(first, int(horizon)):
         applied = np.asarray(apply(x, action), dtype=np.float64).tolist()
-        applied_inputs.append(applied)
+        applied_inputs += applied
         xu = x + applied
         x = [sum(map(operator.mul, row, xu)) for row in dynamics]
-        rolled.append(x)
-    inputs[first:] = applied_inputs
-    states[first + 1:] = rolled
+        rolled += x
+    inputs.reshape(-1)[first * m:] = applied_inputs  # (a wrong length raises ValueError)
+    states.reshape(-1)[(first + 1) * n:] = rolled
     return states, inputs
 
 
-def _first_over_speed_limit(env: FilterableEnv, states: np.ndarray) -> int | None:
-    """The first step ``k`` whose held-action velocity ``v_{k+1}`` (the states' second
-    half) leaves ``env.max_speed``, or ``None`` if every planned velocity keeps it
-    (``inf``: no limit). Before ``k`` ``applied_input`` returns the clipped action (the
-    protocol's definition), so only the steps from ``k`` on need it. Without a
-    ``max_speed`` to check against, 0 (every step asks ``applied_input``)."""
+def _first_over_speed_limit(env: FilterableEnv, rows: list[list[float]]) -> int | None:
+    """The first step ``k`` whose held-action velocity ``v_{k+1}`` (the second half of the
+    state ``rows[k + 1]``, :math:`\\|v_{k+1}\\|_2^2 > v_{max}^2`) leaves ``env.max_speed``, or
+    ``None`` if every planned velocity keeps it (``inf``: no limit). Before ``k``
+    ``applied_input`` returns the clipped action (the protocol's definition), so only the
+    steps from ``k`` on need it. Without a ``max_speed`` to check against, 0 (every step
+    asks ``applied_input``). ``rows`` are the held roll-out's states ``x^r_0 .. x^r_T`` as
+    lists of floats (the first step over the limit is usually among the first few: a
+    loop on floats stops there)."""
     limit = getattr(env, "max_speed", None)
     if limit is None:
         return 0
     max_speed = float(limit)
-    if np.isinf(max_speed):
+    if math.isinf(max_speed):
         return None
-    velocities = states[1:, states.shape[1] // 2:]
-    over = np.einsum("ij,ij->i", velocities, velocities) > max_speed * max_speed
-    return int(over.argmax()) if over.any() else None
+    bound, half = max_speed * max_speed, len(rows[0]) // 2
+    for k, state in enumerate(rows[1:]):
+        velocity = state[half:]
+        if sum(map(operator.mul, velocity, velocity)) > bound:
+            return k
+    return None
 
 
 _HELD_MAPS: dict[tuple, tuple[np.ndarray, np.ndarray, list[list[float]]]] = {}

@@ -152,21 +152,34 @@ def applied_acceleration(velocity: tuple[float, float], action: tuple[float, flo
         The applied acceleration, in m/s².
     """
     a = max_acceleration
-    ux, uy = min(max(action[0], -a), a), min(max(action[1], -a), a)
+    ux, uy = action[0], action[1]  # clipped to the box (a NaN stays NaN, as with min/max)
+    if ux > a:
+        ux = a
+    elif ux < -a:
+        ux = -a
+    if uy > a:
+        uy = a
+    elif uy < -a:
+        uy = -a
     vx, vy = velocity
     nx, ny = vx + dt * ux, vy + dt * uy
-    if nx * nx + ny * ny <= max_speed * max_speed:  # also every case with max_speed = inf
+    limit = max_speed * max_speed
+    if nx * nx + ny * ny <= limit:  # also every case with max_speed = inf
         return ux, uy
-    bx, by = min(max(-vx / dt, -a), a), min(max(-vy / dt, -a), a)  # the hardest braking
-    if math.hypot(vx + dt * bx, vy + dt * by) >= max_speed:  # K is empty or one point
-        return bx, by
-    # In u-space the disc has centre c = -v / dt and radius r = v_max / dt.
-    cx, cy, r = -vx / dt, -vy / dt, max_speed / dt
+    # Below the limit, u = 0 keeps |v'| < v_max, so K has an interior point; at or above
+    # it, K is empty or one point if even the hardest braking cannot get inside.
+    if vx * vx + vy * vy >= limit:
+        bx, by = _hardest_braking(vx, vy, dt, a)
+        if math.hypot(vx + dt * bx, vy + dt * by) >= max_speed:
+            return bx, by
+    # The projection onto the disc, v' = v_max n / |n| with n = v + T_s u; in u-space
+    # the disc has centre c = -v / dt and radius r = v_max / dt.
     scale = max_speed / math.hypot(nx, ny)
-    px, py = cx + scale * (ux - cx), cy + scale * (uy - cy)
+    px, py = (scale * nx - vx) / dt, (scale * ny - vy) / dt
     if -a <= px <= a and -a <= py <= a:
         return px, py
-    best, best_distance = (bx, by), math.inf
+    cx, cy, r = -vx / dt, -vy / dt, max_speed / dt
+    best, best_distance = _hardest_braking(vx, vy, dt, a), math.inf
     for axis in (0, 1):  # where the circle crosses the faces u_axis = ±a
         centre, other = (cx, cy) if axis == 0 else (cy, cx)
         for face in (-a, a):
@@ -180,3 +193,9 @@ def applied_acceleration(velocity: tuple[float, float], action: tuple[float, flo
                     if distance < best_distance:
                         best, best_distance = point, distance
     return best
+
+
+def _hardest_braking(vx: float, vy: float, dt: float, a: float) -> tuple[float, float]:
+    """:math:`\\mathrm{clip}(-v / T_s)` to the box :math:`|u_i| \\le a`, in m/s²: the input
+    of the box that brings the velocity closest to 0."""
+    return min(max(-vx / dt, -a), a), min(max(-vy / dt, -a), a)
