@@ -353,24 +353,9 @@ def _margins(ego_shape: Shape, shapes: list[Shape], normals: np.ndarray) -> np.n
 def _sample_means(points: np.ndarray) -> np.ndarray:
     """Sample means :math:`\\bar p_{i,t}`, shape ``(n, T, d)``, as one BLAS product."""
     n_obstacles, n_samples, horizon, dim = points.shape
+    weights = np.full((1, n_samples), 1.0 / n_samples)
     flat = points.reshape(n_obstacles, n_samples, horizon * dim)
-    return (_mean_weights(n_samples) @ flat).reshape(n_obstacles, horizon, dim)
-
-
-_MEAN_WEIGHTS: dict[int, np.ndarray] = {}
-""":func:`_mean_weights` by number of samples."""
-
-
-def _mean_weights(n_samples: int) -> np.ndarray:
-    """The read-only row ``(1, N)`` of weights ``1 / N`` of :func:`_sample_means`."""
-    weights = _MEAN_WEIGHTS.get(n_samples)
-    if weights is None:
-        weights = np.full((1, n_samples), 1.0 / n_samples)
-        weights.flags.writeable = False
-        if len(_MEAN_WEIGHTS) >= 64:
-            _MEAN_WEIGHTS.clear()
-        _MEAN_WEIGHTS[n_samples] = weights
-    return weights
+    return (weights @ flat).reshape(n_obstacles, horizon, dim)
 
 
 def _losses(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
