@@ -189,8 +189,8 @@ def make_training_env(
     (actions in [-1, 1]). Copy ``k`` is seeded with ``seed + k``.
 
     ``vec_env="dummy"`` (default) runs the copies in this process, which beats
-    subprocesses for this cheap simulator on 2 cores; ``"subproc"`` gives each one
-    its own process (worth it with the filter in the loop on more cores).
+    subprocesses on 2 cores with and without the filter in the loop (2 and 8
+    copies); ``"subproc"`` gives each one its own process.
     """
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
