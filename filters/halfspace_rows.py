@@ -117,25 +117,8 @@ def _shifted_positions(positions: np.ndarray, y0: np.ndarray) -> np.ndarray:
     """The last plan's positions ``(T+1, d)`` shifted one step: ``(T, d)``, starting at ``y0``.
 
     Row ``t`` is :math:`y^{prev}_{t+1} - y^{prev}_1 + y_0` (the last row repeated at the
-    end): the plan as it continues from the current position. The differences are one
-    product with the ``(T, T+1)`` matrix of entries 0 and ±1 (:func:`_shift_matrix`),
-    exact as the subtractions are.
+    end): the plan as it continues from the current position.
     """
-    return _shift_matrix(positions.shape[0]) @ positions + y0
+    shifted = np.concatenate([positions[2:], positions[-1:]], axis=0)
+    return shifted - positions[1] + y0
 
-
-_SHIFT_MATRICES: dict[int, np.ndarray] = {}
-""":func:`_shift_matrix` by number of plan rows."""
-
-
-def _shift_matrix(rows: int) -> np.ndarray:
-    """The read-only ``(rows - 1, rows)`` matrix ``S`` with :math:`(S y)_t = y_{t+1} - y_1`
-    (rows ``t = 1..rows-1`` of ``y``, the last one repeated)."""
-    matrix = _SHIFT_MATRICES.get(rows)
-    if matrix is None:
-        matrix = np.zeros((rows - 1, rows))
-        matrix[np.arange(rows - 1), np.minimum(np.arange(2, rows + 1), rows - 1)] = 1.0
-        matrix[:, 1] -= 1.0
-        matrix.flags.writeable = False
-        _SHIFT_MATRICES[rows] = matrix
-    return matrix
