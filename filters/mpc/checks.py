@@ -115,10 +115,7 @@ def parse_halfspaces(halfspaces: object, horizon: int, dim: int, n_obstacles: in
         raise InvalidTypeError(
             "halfspaces must be None, a pair (normals, offsets) or an object with "
             f".normals and .offsets, got {type(halfspaces).__name__}")
-    # Any number of rows: an array's own count makes the shape check one comparison.
-    given = getattr(raw_normals, "shape", None)
-    rows = given[0] if type(given) is tuple and len(given) == 3 else None
-    normals = finite_array("halfspaces.normals", raw_normals, (rows, horizon, dim))
+    normals = finite_array("halfspaces.normals", raw_normals, (None, horizon, dim))
     offsets = finite_array("halfspaces.offsets", raw_offsets, (normals.shape[0], horizon))
     if normals.shape[0] > n_obstacles:
         raise InvalidArrayError(
